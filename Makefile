@@ -1,0 +1,68 @@
+# fogfleet — run `make help` for the targets.
+SHELL := /bin/bash
+PY ?= python3
+VENV ?= .venv
+BIN := $(VENV)/bin
+export PYTHONDONTWRITEBYTECODE := 1
+
+.DEFAULT_GOAL := help
+
+help: ## Show this help
+	@awk 'BEGIN {FS = ":.*##"} /^[a-zA-Z0-9_-]+:.*##/ {printf "  \033[36m%-16s\033[0m %s\n", $$1, $$2}' $(MAKEFILE_LIST)
+
+$(BIN)/fogfleet: pyproject.toml
+	$(PY) -m venv $(VENV)
+	$(BIN)/pip install -q -U pip
+	$(BIN)/pip install -q -e '.[dev]'
+	@touch $@
+
+venv: $(BIN)/fogfleet ## Create .venv with fogfleet and the dev tools
+
+lint: venv ## ruff, mypy (strict on the pure core) and import-linter contracts
+	$(BIN)/ruff check operator tests e2e
+	$(BIN)/mypy
+	$(BIN)/lint-imports
+
+unit: venv ## Unit tests (pure core, CLI, render; no cluster)
+	$(BIN)/pytest tests -q
+
+test: venv lint crds-check unit chart-lint e2e ## Everything CI runs: lint, CRD drift, unit tests, chart lint, e2e on the local control plane
+
+crds: venv ## Write the CRD YAML in crds/ from the pydantic models
+	$(BIN)/fogfleet crds --out crds
+
+crds-check: venv ## Fail when crds/ drifts from the models
+	$(BIN)/fogfleet crds --check crds
+
+cluster-tools: venv ## Build (or reuse from ~/.cache/fogfleet) etcd, kube-*, kwok, helm and Prometheus
+	$(BIN)/python e2e/cluster/harness.py build
+
+cluster-up: venv ## Start the local control plane (etcd, kube-apiserver, kcm, scheduler, kwok, Prometheus) on 127.0.0.1
+	$(BIN)/python e2e/cluster/harness.py up
+
+cluster-down: venv ## Stop the local control plane and remove its state
+	$(BIN)/python e2e/cluster/harness.py down
+
+cluster-status: venv ## Show the local control plane's processes and health
+	$(BIN)/python e2e/cluster/harness.py status
+
+e2e: venv ## End-to-end tests on the local control plane (started if not running)
+	$(BIN)/pytest e2e -q --with-e2e
+
+e2e-k3d: venv ## The same e2e suite on a k3d cluster (needs Docker; not run on the dev machines)
+	bash e2e/k3d/run.sh
+
+chart-lint: venv ## helm lint + helm template of charts/fogfleet
+	$(BIN)/python e2e/cluster/harness.py helm lint charts/fogfleet
+
+bench: venv ## Benchmarks: prints a table (scheduling quality and speed)
+	$(BIN)/fogfleet bench scheduling
+
+demo: venv ## Plan and simulate the warehouse example fleet
+	$(BIN)/fogfleet plan manifests/examples/warehouse
+	$(BIN)/fogfleet simulate manifests/examples/warehouse --scheduler all
+
+clean: ## Remove the virtualenv and caches in the repo
+	rm -rf $(VENV) .pytest_cache .mypy_cache .ruff_cache
+
+.PHONY: help venv lint unit test crds crds-check cluster-tools cluster-up cluster-down cluster-status e2e e2e-k3d chart-lint bench demo clean

@@ -1,0 +1,206 @@
+"""The Kubernetes API, as fogfleet uses it: a KubePort over the official client's REST layer.
+
+Raw JSON in and out (camelCase, as on the wire): the controllers work on dicts, and the typed
+client models would only be converted back. Every call blocks; controllers run it in a worker
+thread. Library exceptions are translated into the fogfleet error tree in one place,
+:func:`map_errors` (httpx's ``map_httpcore_exceptions``), always ``raise ... from exc``.
+
+Verbs used (the chart's ClusterRole must grant exactly these):
+
+    fogfleet.io  robotfleets                 get list watch patch   (kopf: patch annotations)
+    fogfleet.io  robotfleets/status          patch
+    fogfleet.io  softwaremodules             get list watch
+    fogfleet.io  computenodes                get list watch
+    ""           nodes                       get list watch
+    ""           pods                        list watch
+    ""           events                      create
+    apps         deployments                 get list watch patch delete
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import logging
+import secrets
+import urllib.parse
+from collections.abc import Iterator, Mapping
+from datetime import UTC, datetime
+from typing import Any
+
+import urllib3
+from kubernetes import client, config
+from kubernetes.client.exceptions import ApiException, OpenApiException
+from kubernetes.config.config_exception import ConfigException
+
+from fogfleet import GROUP, VERSION
+from fogfleet.errors import DependencyUnavailable, InvalidSpec
+from fogfleet.render.deployments import MANAGER
+
+__all__ = ["KubeClient", "load_config", "map_errors"]
+
+log = logging.getLogger(__name__)
+Obj = dict[str, Any]
+APPLY = "application/apply-patch+yaml"
+MERGE = "application/merge-patch+json"
+TIMEOUT = (5, 30)  # connect, read seconds
+
+
+def load_config(kubeconfig: str | None = None) -> client.ApiClient:
+    """An ApiClient from a kubeconfig file, $KUBECONFIG, ~/.kube/config or the in-cluster token."""
+    with map_errors("load the Kubernetes configuration"):
+        cfg = client.Configuration()
+        try:
+            config.load_kube_config(config_file=kubeconfig, client_configuration=cfg)
+        except (ConfigException, FileNotFoundError, TypeError):
+            if kubeconfig:
+                raise
+            config.load_incluster_config(client_configuration=cfg)
+        return client.ApiClient(cfg)
+
+
+@contextlib.contextmanager
+def map_errors(what: str, obj: str = "") -> Iterator[None]:
+    """Translate client-library errors into fogfleet errors (the only place that does so)."""
+    try:
+        yield
+    except ApiException as exc:
+        status = int(exc.status or 0)
+        detail = _reason(exc)
+        if status in (400, 422):
+            raise InvalidSpec(obj or what, "", f"the API server rejected it: {detail}") from exc
+        if status == 403:
+            raise DependencyUnavailable(f"Cannot {what}: forbidden ({detail}); check the RBAC") from exc
+        raise DependencyUnavailable(f"Cannot {what}: HTTP {status} {detail}") from exc
+    except (urllib3.exceptions.HTTPError, OSError, ConfigException, OpenApiException) as exc:
+        raise DependencyUnavailable(f"Cannot {what}: {exc}") from exc
+
+
+def _reason(exc: ApiException) -> str:
+    try:
+        body = json.loads(exc.body or "{}")
+        return str(body.get("message") or exc.reason)
+    except (ValueError, TypeError):
+        return str(exc.reason)
+
+
+def _selector(labels: Mapping[str, str]) -> str:
+    return ",".join(f"{k}={v}" for k, v in sorted(labels.items()))
+
+
+class KubeClient:
+    """KubePort over one ApiClient (thread-safe: urllib3's pool is)."""
+
+    def __init__(self, api: client.ApiClient, *, manager: str = MANAGER,
+                 instance: str = "fogfleet") -> None:
+        self.api = api
+        self.manager = manager
+        self.instance = instance
+
+    # ---------------------------------------------------------------- raw REST
+    def _call(self, method: str, path: str, *, query: Mapping[str, Any] | None = None,
+              body: Any = None, content_type: str | None = None,
+              missing_ok: bool = False) -> Obj | None:
+        headers = {"Accept": "application/json"}
+        if content_type:
+            headers["Content-Type"] = content_type
+        elif body is not None:
+            headers["Content-Type"] = "application/json"
+        url_path = path
+        if query:
+            url_path += "?" + urllib.parse.urlencode({k: v for k, v in query.items() if v is not None})
+        m, url, hdrs, payload, _ = self.api.param_serialize(
+            method=method, resource_path=url_path, header_params=headers, body=body,
+            auth_settings=["BearerToken"],
+        )
+        resp = self.api.call_api(m, url, header_params=hdrs, body=payload, _request_timeout=TIMEOUT)
+        data = resp.read()
+        if resp.status == 404 and missing_ok:
+            return None
+        if not 200 <= resp.status < 300:
+            raise ApiException(http_resp=resp)
+        parsed: Obj = json.loads(data) if data else {}
+        return parsed
+
+    def _list(self, path: str, what: str, selector: Mapping[str, str] | None = None) -> list[Obj]:
+        query = {"labelSelector": _selector(selector)} if selector else None
+        with map_errors(what):
+            body = self._call("GET", path, query=query) or {}
+        items: list[Obj] = body.get("items") or []
+        return items
+
+    # ---------------------------------------------------------------- reads
+    def get_fleet(self, namespace: str, name: str) -> Obj | None:
+        with map_errors(f"read RobotFleet {namespace}/{name}"):
+            return self._call("GET", f"/apis/{GROUP}/{VERSION}/namespaces/{namespace}/robotfleets/{name}",
+                              missing_ok=True)
+
+    def list_fleets(self, namespace: str | None = None) -> list[Obj]:
+        where = f"/namespaces/{namespace}" if namespace else ""
+        return self._list(f"/apis/{GROUP}/{VERSION}{where}/robotfleets", "list RobotFleets")
+
+    def list_compute_nodes(self) -> list[Obj]:
+        return self._list(f"/apis/{GROUP}/{VERSION}/computenodes", "list ComputeNodes")
+
+    def list_modules(self, namespace: str) -> list[Obj]:
+        return self._list(f"/apis/{GROUP}/{VERSION}/namespaces/{namespace}/softwaremodules",
+                          f"list SoftwareModules in {namespace}")
+
+    def list_nodes(self) -> list[Obj]:
+        return self._list("/api/v1/nodes", "list Nodes")
+
+    def list_deployments(self, namespace: str, selector: Mapping[str, str]) -> list[Obj]:
+        return self._list(f"/apis/apps/v1/namespaces/{namespace}/deployments",
+                          f"list Deployments in {namespace}", selector)
+
+    def list_pods(self, namespace: str, selector: Mapping[str, str]) -> list[Obj]:
+        return self._list(f"/api/v1/namespaces/{namespace}/pods", f"list Pods in {namespace}", selector)
+
+    # ---------------------------------------------------------------- writes
+    def apply_deployment(self, body: Obj) -> Obj:
+        ns, name = body["metadata"]["namespace"], body["metadata"]["name"]
+        with map_errors(f"apply Deployment {ns}/{name}", f"Deployment/{name}"):
+            out = self._call("PATCH", f"/apis/apps/v1/namespaces/{ns}/deployments/{name}",
+                             query={"fieldManager": self.manager, "force": "true"},
+                             body=body, content_type=APPLY)
+        return out or {}
+
+    def delete_deployment(self, namespace: str, name: str) -> None:
+        with map_errors(f"delete Deployment {namespace}/{name}"):
+            self._call("DELETE", f"/apis/apps/v1/namespaces/{namespace}/deployments/{name}",
+                       body={"propagationPolicy": "Background"}, missing_ok=True)
+
+    def patch_fleet_status(self, namespace: str, name: str, status: Mapping[str, Any]) -> None:
+        with map_errors(f"patch the status of RobotFleet {namespace}/{name}"):
+            self._call("PATCH",
+                       f"/apis/{GROUP}/{VERSION}/namespaces/{namespace}/robotfleets/{name}/status",
+                       body={"status": dict(status)}, content_type=MERGE, missing_ok=True)
+
+    def emit_event(self, involved: Mapping[str, Any], type_: str, reason: str, message: str) -> None:
+        meta = involved.get("metadata") or {}
+        ns = meta.get("namespace") or "default"
+        now_s = datetime.now(UTC).strftime("%Y-%m-%dT%H:%M:%SZ")
+        event = {
+            "apiVersion": "v1",
+            "kind": "Event",
+            "metadata": {"name": f"{meta.get('name', 'fogfleet')}.{secrets.token_hex(8)}", "namespace": ns},
+            "involvedObject": {
+                "apiVersion": involved.get("apiVersion"), "kind": involved.get("kind"),
+                "name": meta.get("name"), "namespace": ns, "uid": meta.get("uid"),
+                "resourceVersion": meta.get("resourceVersion"),
+            },
+            "type": type_,
+            "reason": reason,
+            "message": message[:1024],
+            "source": {"component": self.manager},
+            "reportingComponent": self.manager,
+            "reportingInstance": self.instance,
+            "firstTimestamp": now_s,
+            "lastTimestamp": now_s,
+            "count": 1,
+        }
+        try:
+            with map_errors(f"post an Event about {meta.get('name')}"):
+                self._call("POST", f"/api/v1/namespaces/{ns}/events", body=event)
+        except DependencyUnavailable as exc:  # an Event is best effort
+            log.warning("Failed to post event %s: %s", reason, exc)

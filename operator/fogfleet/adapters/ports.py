@@ -1,0 +1,88 @@
+"""The ports the controllers talk through (Protocols), so tests can plug in fakes.
+
+Objects cross these ports as plain JSON-shaped dicts, exactly as the API server sends them
+(camelCase keys). Every method is blocking: controllers call them from a worker thread, never
+from the event loop. Implementations raise only the fogfleet error tree
+(``DependencyUnavailable`` for anything the cluster did wrong, ``InvalidSpec`` when the API
+server rejects what we sent).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from typing import Any, Protocol
+
+from fogfleet.api.v1alpha1.robotfleet import SchedulerSettings
+from fogfleet.domain.problem import Problem
+from fogfleet.scheduling.schedule import Schedule
+
+__all__ = ["KubePort", "MetricsPort", "NullMetrics", "Planner"]
+
+Obj = dict[str, Any]
+
+
+class KubePort(Protocol):
+    def get_fleet(self, namespace: str, name: str) -> Obj | None: ...
+
+    def list_fleets(self, namespace: str | None = None) -> list[Obj]: ...
+
+    def list_compute_nodes(self) -> list[Obj]: ...
+
+    def list_modules(self, namespace: str) -> list[Obj]: ...
+
+    def list_nodes(self) -> list[Obj]: ...
+
+    def list_deployments(self, namespace: str, selector: Mapping[str, str]) -> list[Obj]: ...
+
+    def list_pods(self, namespace: str, selector: Mapping[str, str]) -> list[Obj]: ...
+
+    def apply_deployment(self, body: Obj) -> Obj:
+        """Server-side apply under the ``fogfleet`` field manager, forcing conflicts."""
+        ...
+
+    def delete_deployment(self, namespace: str, name: str) -> None:
+        """Delete (foreground of pods is left to the garbage collector); missing is fine."""
+        ...
+
+    def patch_fleet_status(self, namespace: str, name: str, status: Mapping[str, Any]) -> None:
+        """One JSON merge patch of the status subresource (None values remove fields)."""
+        ...
+
+    def emit_event(self, involved: Mapping[str, Any], type_: str, reason: str, message: str) -> None:
+        """A core/v1 Event about ``involved`` (a fleet body); failures are logged, not raised."""
+        ...
+
+
+class Planner(Protocol):
+    """The scheduling core, as the controller sees it."""
+
+    def plan(self, problem: Problem, settings: SchedulerSettings) -> Schedule: ...
+
+
+class MetricsPort(Protocol):
+    def observe_plan(self, fleet: str, scheduler: str, seconds: float,
+                     objectives: Mapping[str, float]) -> None: ...
+
+    def count_migrations(self, fleet: str, n: int) -> None: ...
+
+    def count_error(self, fleet: str, reason: str) -> None: ...
+
+    def count_apply(self, fleet: str, applied: int, pruned: int) -> None: ...
+
+
+class NullMetrics:
+    """Metrics that go nowhere (tests, the CLI)."""
+
+    def observe_plan(self, fleet: str, scheduler: str, seconds: float,
+                     objectives: Mapping[str, float]) -> None:
+        return None
+
+    def count_migrations(self, fleet: str, n: int) -> None:
+        return None
+
+    def count_error(self, fleet: str, reason: str) -> None:
+        return None
+
+    def count_apply(self, fleet: str, applied: int, pruned: int) -> None:
+        return None
+

@@ -1,0 +1,128 @@
+"""Read CR YAML (files or folders) into typed objects, with errors that name object and field."""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import yaml
+from pydantic import ValidationError
+
+from fogfleet.errors import InvalidSpec
+
+from .v1alpha1.computenode import ComputeNode
+from .v1alpha1.robotfleet import RobotFleet
+from .v1alpha1.softwaremodule import SoftwareModule
+
+__all__ = ["Catalog", "describe_validation_error", "load_paths", "parse_object"]
+
+KINDS: dict[str, type[ComputeNode] | type[SoftwareModule] | type[RobotFleet]] = {
+    "ComputeNode": ComputeNode,
+    "SoftwareModule": SoftwareModule,
+    "RobotFleet": RobotFleet,
+}
+
+
+@dataclass
+class Catalog:
+    """Every fogfleet object read, by kind; SoftwareModules and fleets keyed by (namespace, name)."""
+
+    nodes: dict[str, ComputeNode] = field(default_factory=dict)
+    modules: dict[tuple[str, str], SoftwareModule] = field(default_factory=dict)
+    fleets: list[RobotFleet] = field(default_factory=list)
+    ignored: list[str] = field(default_factory=list)
+
+    def add(self, obj: ComputeNode | SoftwareModule | RobotFleet) -> None:
+        if isinstance(obj, ComputeNode):
+            self.nodes[obj.metadata.name] = obj
+        elif isinstance(obj, SoftwareModule):
+            self.modules[(obj.metadata.namespace or "default", obj.metadata.name)] = obj
+        else:
+            self.fleets.append(obj)
+
+    def module(self, namespace: str, name: str) -> SoftwareModule | None:
+        return self.modules.get((namespace, name))
+
+
+def _loc(loc: Iterable[int | str]) -> str:
+    out = ""
+    for part in loc:
+        if isinstance(part, int):
+            out += f"[{part}]"
+        elif part in ("function-after", "function-before", "function-plain", "tagged-union"):
+            continue
+        elif "[" in str(part) and "]" in str(part):
+            continue  # pydantic's union branch labels such as 'str' or 'int'
+        else:
+            out += ("." if out else "") + str(part)
+    return out
+
+
+def describe_validation_error(exc: ValidationError) -> tuple[str, str]:
+    """The first error's dotted field path and a readable reason."""
+    err = exc.errors(include_url=False)[0]
+    path = _loc(err["loc"])
+    msg = str(err["msg"])
+    if msg.startswith("Value error, "):
+        msg = msg[len("Value error, ") :]
+        if ": " in msg and not path.endswith(msg.split(": ", 1)[0]):
+            sub, msg = msg.split(": ", 1)
+            if " " not in sub:
+                path = f"{path}.{sub}" if path else sub
+    if err["type"] == "extra_forbidden":
+        msg = "unknown field"
+    elif err["type"] == "missing":
+        msg = "required field is missing"
+    return path, msg
+
+
+def parse_object(doc: Mapping[str, Any]) -> ComputeNode | SoftwareModule | RobotFleet:
+    """Validate one CR dict; raise InvalidSpec naming Kind/name and the field."""
+    kind = str(doc.get("kind", ""))
+    meta = doc.get("metadata") or {}
+    name = meta.get("name", "?") if isinstance(meta, Mapping) else "?"
+    model = KINDS.get(kind)
+    if model is None:
+        raise InvalidSpec(f"{kind or '<no kind>'}/{name}", "kind", f"unknown kind {kind!r}")
+    if doc.get("apiVersion") != "fogfleet.io/v1alpha1":
+        raise InvalidSpec(
+            f"{kind}/{name}", "apiVersion", f"must be fogfleet.io/v1alpha1, not {doc.get('apiVersion')!r}"
+        )
+    try:
+        return model.model_validate(dict(doc))
+    except ValidationError as exc:
+        path, msg = describe_validation_error(exc)
+        raise InvalidSpec(f"{kind}/{name}", path, msg) from exc
+
+
+def _files(paths: Iterable[str | Path]) -> list[Path]:
+    out: list[Path] = []
+    for raw in paths:
+        p = Path(raw)
+        if p.is_dir():
+            out.extend(sorted(q for q in p.rglob("*") if q.suffix in (".yaml", ".yml")))
+        elif p.exists():
+            out.append(p)
+        else:
+            raise InvalidSpec(str(p), "", "no such file or directory")
+    return out
+
+
+def load_paths(paths: Iterable[str | Path]) -> Catalog:
+    """Read every fogfleet object from YAML files or folders; other kinds are ignored."""
+    catalog = Catalog()
+    for path in _files(paths):
+        try:
+            docs = list(yaml.safe_load_all(path.read_text()))
+        except yaml.YAMLError as exc:
+            raise InvalidSpec(str(path), "", f"not valid YAML: {exc}") from exc
+        for doc in docs:
+            if not isinstance(doc, Mapping):
+                continue
+            if str(doc.get("apiVersion", "")).split("/")[0] != "fogfleet.io":
+                catalog.ignored.append(f"{doc.get('kind')}/{(doc.get('metadata') or {}).get('name')}")
+                continue
+            catalog.add(parse_object(doc))
+    return catalog

@@ -1,0 +1,110 @@
+"""Shared pieces of the v1alpha1 wire models: the base model and Kubernetes quantities.
+
+Conventions (STYLE.md): camelCase on the wire, unknown fields rejected, ints or quantity strings
+(never floats) in specs, ``...Seconds``/``...Millis`` units in names.
+"""
+
+from __future__ import annotations
+
+import re
+from decimal import Decimal, InvalidOperation
+from typing import Annotated, Any
+
+from pydantic import BaseModel, BeforeValidator, ConfigDict, Field
+from pydantic.alias_generators import to_camel
+
+__all__ = [
+    "CpuQuantity",
+    "FogModel",
+    "MemoryQuantity",
+    "NonNegInt",
+    "PosInt",
+    "Quantity",
+    "parse_cpu",
+    "parse_memory",
+    "parse_quantity",
+]
+
+
+class FogModel(BaseModel):
+    """Base of every wire model: camelCase aliases, extra fields forbidden, immutable."""
+
+    model_config = ConfigDict(
+        alias_generator=to_camel,
+        populate_by_name=True,
+        extra="forbid",
+        frozen=True,
+        use_enum_values=False,
+    )
+
+    def wire(self) -> dict[str, Any]:
+        """The object as it appears in YAML: camelCase, without unset optional fields."""
+        return self.model_dump(by_alias=True, exclude_none=True, mode="json")
+
+
+_SUFFIX = {
+    "n": Decimal("1e-9"),
+    "u": Decimal("1e-6"),
+    "m": Decimal("1e-3"),
+    "": Decimal(1),
+    "k": Decimal(10**3),
+    "M": Decimal(10**6),
+    "G": Decimal(10**9),
+    "T": Decimal(10**12),
+    "P": Decimal(10**15),
+    "E": Decimal(10**18),
+    "Ki": Decimal(2**10),
+    "Mi": Decimal(2**20),
+    "Gi": Decimal(2**30),
+    "Ti": Decimal(2**40),
+    "Pi": Decimal(2**50),
+    "Ei": Decimal(2**60),
+}
+_QUANTITY = re.compile(r"^([+]?[0-9]+(?:\.[0-9]*)?|[+]?\.[0-9]+)([eE][+-]?[0-9]+)?([a-zA-Z]{0,2})$")
+
+
+def parse_quantity(value: str | int) -> float:
+    """Parse a Kubernetes quantity ("500m", "2", "1Gi", 3) into a float in base units."""
+    if isinstance(value, bool):
+        raise ValueError("must be an integer or a quantity string, not a boolean")
+    if isinstance(value, int):
+        if value < 0:
+            raise ValueError("must not be negative")
+        return float(value)
+    if not isinstance(value, str):
+        raise ValueError("must be an integer or a quantity string such as '500m' or '2Gi'")
+    match = _QUANTITY.match(value.strip())
+    if not match or match.group(3) not in _SUFFIX:
+        raise ValueError(f"{value!r} is not a Kubernetes quantity (e.g. '500m', '2', '4Gi')")
+    number, exponent, suffix = match.groups()
+    try:
+        amount = Decimal(number + (exponent or "")) * _SUFFIX[suffix]
+    except InvalidOperation as exc:  # pragma: no cover - the regex already guards this
+        raise ValueError(f"{value!r} is not a number") from exc
+    return float(amount)
+
+
+def parse_cpu(value: str | int) -> float:
+    """CPU quantity in cores."""
+    return parse_quantity(value)
+
+
+def parse_memory(value: str | int) -> float:
+    """Memory quantity in bytes."""
+    return parse_quantity(value)
+
+
+def _check_quantity(value: Any) -> Any:
+    parse_quantity(value)
+    return value
+
+
+Quantity = Annotated[
+    str | int,
+    BeforeValidator(_check_quantity),
+    Field(json_schema_extra={"x-kubernetes-int-or-string": True}),
+]
+CpuQuantity = Quantity
+MemoryQuantity = Quantity
+PosInt = Annotated[int, Field(ge=1)]
+NonNegInt = Annotated[int, Field(ge=0)]

@@ -1,0 +1,88 @@
+"""What a reconcile needs, injected (the composition root builds it; tests build fakes).
+
+Also the in-memory state the controller keeps between reconciles: the plan cache (by input
+fingerprint: same inputs, no re-plan) and the reference index (which fleets use which
+ComputeNode, Kubernetes Node and SoftwareModule, so a change re-plans exactly those fleets).
+"""
+
+from __future__ import annotations
+
+import threading
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import NDArray
+
+from fogfleet.adapters.ports import KubePort, MetricsPort, NullMetrics, Planner
+from fogfleet.controllers.planning import CorePlanner
+from fogfleet.scheduling.schedule import Schedule
+
+__all__ = ["CachedPlan", "Deps", "FleetKey", "References"]
+
+FleetKey = tuple[str, str]  # (namespace, name)
+
+
+@dataclass(frozen=True)
+class CachedPlan:
+    fingerprint: str
+    schedule: Schedule
+    placement: NDArray[np.int64]  # what was chosen (after the migration-margin rule)
+    plan_id: str
+    migrations: int
+    choice_reason: str
+    planned_at: str
+
+
+@dataclass
+class References:
+    """Which fleets reference what. Selector fleets match every ComputeNode/Node."""
+
+    compute_nodes: dict[FleetKey, set[str]] = field(default_factory=dict)
+    nodes: dict[FleetKey, set[str]] = field(default_factory=dict)
+    modules: dict[FleetKey, set[str]] = field(default_factory=dict)
+    selectors: set[FleetKey] = field(default_factory=set)
+    lock: threading.Lock = field(default_factory=threading.Lock)
+
+    def record(self, key: FleetKey, compute_nodes: set[str], nodes: set[str], modules: set[str],
+               selector: bool) -> None:
+        with self.lock:
+            self.compute_nodes[key] = compute_nodes
+            self.nodes[key] = nodes | compute_nodes  # Node names default to ComputeNode names
+            self.modules[key] = modules
+            if selector:
+                self.selectors.add(key)
+            else:
+                self.selectors.discard(key)
+
+    def forget(self, key: FleetKey) -> None:
+        with self.lock:
+            for index in (self.compute_nodes, self.nodes, self.modules):
+                index.pop(key, None)
+            self.selectors.discard(key)
+
+    def fleets(self) -> set[FleetKey]:
+        with self.lock:
+            return set(self.modules)
+
+    def using_compute_node(self, name: str) -> set[FleetKey]:
+        with self.lock:
+            return {k for k, v in self.compute_nodes.items() if name in v} | set(self.selectors)
+
+    def using_node(self, name: str) -> set[FleetKey]:
+        with self.lock:
+            return {k for k, v in self.nodes.items() if name in v} | set(self.selectors)
+
+    def using_module(self, namespace: str, name: str) -> set[FleetKey]:
+        with self.lock:
+            return {k for k, v in self.modules.items() if k[0] == namespace and name in v}
+
+
+@dataclass
+class Deps:
+    kube: KubePort
+    planner: Planner = field(default_factory=CorePlanner)
+    metrics: MetricsPort = field(default_factory=NullMetrics)
+    plans: dict[FleetKey, CachedPlan] = field(default_factory=dict)
+    refs: References = field(default_factory=References)
+    requeue_seconds: float = 2.0  # while pods are on their way
+    retry_seconds: float = 10.0  # after DependencyUnavailable

@@ -1,0 +1,177 @@
+"""Planning glue for the controller: the default Planner, input fingerprints, node availability,
+and the "don't move what runs without reason" rule (migration margin).
+
+The scheduling core already starts its search from the current placement (STYLE.md: "the first
+individual is the current placement"); this module adds the controller's promise on top: a
+running instance stays where it is unless the new plan is better by
+``migrationMarginPercent`` on the first objective (in the fleet's priority order) that differs
+by more than the margin.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+import logging
+import time
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from fogfleet.api.v1alpha1.robotfleet import SchedulerSettings
+from fogfleet.domain.problem import Problem, freeze
+from fogfleet.scheduling.schedule import Schedule
+
+__all__ = [
+    "CorePlanner",
+    "Stickiness",
+    "feasible",
+    "fingerprint",
+    "keep_running",
+    "mask_unavailable",
+    "objective_values",
+]
+
+log = logging.getLogger(__name__)
+I64 = NDArray[np.int64]
+# Below this absolute difference two objective values count as equal (miss rates near zero).
+ABS_TOLERANCE = 1e-3
+
+
+class CorePlanner:
+    """Planner over fogfleet.scheduling.solver.plan (a greedy best-fit if it is not installed)."""
+
+    def plan(self, problem: Problem, settings: SchedulerSettings) -> Schedule:
+        try:
+            from fogfleet.scheduling.solver import plan
+        except ImportError:  # pragma: no cover - only while the solver is being written
+            return _greedy(problem, settings)
+        return plan(problem, settings)
+
+
+def _greedy(problem: Problem, settings: SchedulerSettings) -> Schedule:
+    from fogfleet.scheduling.heuristics import greedy
+
+    t0 = time.perf_counter()
+    x = greedy(problem, problem.limits, "best-fit")
+    names = [o.value for o in settings.objectives]
+    values = objective_values(problem, x, True, names)
+    return Schedule(
+        scheduler="greedy", placement=x, with_limits=True, objectives=values,
+        feasible=feasible(problem, x, True), duration_seconds=time.perf_counter() - t0,
+        choice_reason="greedy best-fit (the NSGA-II solver is not available)",
+        objective_names=tuple(names), reasons=dict(problem.reasons),
+    )
+
+
+def objective_values(problem: Problem, x: I64, with_limits: bool,
+                     names: Sequence[str]) -> dict[str, float]:
+    from fogfleet.scheduling.objectives import evaluate
+
+    out = evaluate(problem, np.asarray(x, dtype=np.int64)[None, :], problem.allocation(with_limits),
+                   list(names))
+    return {k: float(v[0]) for k, v in out.items()}
+
+
+def feasible(problem: Problem, x: I64, with_limits: bool = True) -> bool:
+    """Every hard constraint of the plan holds (capacity, uplink, gene spaces)."""
+    from fogfleet.scheduling.objectives import constraints
+
+    g = constraints(problem, np.asarray(x, dtype=np.int64)[None, :], problem.allocation(with_limits))
+    return bool(np.all(g <= 1e-9))
+
+
+def fingerprint(problem: Problem, settings: SchedulerSettings) -> str:
+    """A hash of every planning input (not the current placement): same hash, same plan."""
+    h = hashlib.sha256()
+    h.update(json.dumps([problem.fleet, problem.namespace, [dataclasses.astuple(n) for n in problem.nodes],
+                         [dataclasses.astuple(i) for i in problem.instances], settings.wire()],
+                        default=str, sort_keys=True).encode())
+    for f in dataclasses.fields(problem):
+        value = getattr(problem, f.name)
+        if f.name == "current":
+            continue
+        if isinstance(value, np.ndarray):
+            h.update(f.name.encode())
+            h.update(np.ascontiguousarray(value).tobytes())
+        elif dataclasses.is_dataclass(value):
+            for g in dataclasses.fields(value):
+                arr = getattr(value, g.name)
+                h.update(np.ascontiguousarray(arr).tobytes() if isinstance(arr, np.ndarray)
+                         else repr(arr).encode())
+    return h.hexdigest()[:16]
+
+
+def mask_unavailable(problem: Problem, unavailable: Mapping[int, str]) -> tuple[Problem, set[int]]:
+    """Drop unavailable nodes (NotReady, cordoned, missing) from every gene space.
+
+    Returns the narrowed problem and the *stranded* instances: those that could run before
+    but now have no node left (e.g. the on-board modules of a robot that is down).
+    """
+    if not unavailable:
+        return problem, set()
+    allowed = problem.allowed.copy()
+    cols = sorted(unavailable)
+    allowed[:, cols] = False
+    current = problem.current.copy()
+    current[np.isin(current, cols)] = -1
+    stranded = {int(i) for i in np.flatnonzero(problem.allowed.any(axis=1) & ~allowed.any(axis=1))}
+    reasons = dict(problem.reasons)
+    for i in stranded:
+        why = "; ".join(f"{problem.nodes[j].name} is {unavailable[j]}" for j in cols if problem.allowed[i, j])
+        reasons[i] = f"{problem.label(i)} has no available node: {why}"
+    return dataclasses.replace(problem, allowed=freeze(allowed), current=freeze(current),
+                               reasons=reasons), stranded
+
+
+@dataclasses.dataclass(frozen=True)
+class Stickiness:
+    placement: I64
+    migrations: list[int]  # instances moved off a node they ran on
+    kept_current: bool
+    reason: str
+
+
+def _better(new: Mapping[str, float], old: Mapping[str, float], names: Sequence[str],
+            margin: float) -> tuple[bool, str]:
+    """Lexicographic comparison with a relative margin: the first objective that differs by more
+    than ``margin`` (and ABS_TOLERANCE) decides."""
+    for name in names:
+        a, b = new.get(name), old.get(name)
+        if a is None or b is None or not (np.isfinite(a) and np.isfinite(b)):
+            continue
+        diff = b - a
+        if abs(diff) <= max(ABS_TOLERANCE, margin * abs(b)):
+            continue
+        return diff > 0, f"{name} {b:.4g} -> {a:.4g}"
+    return False, "no objective improves by more than the margin"
+
+
+def keep_running(problem: Problem, new: I64, settings: SchedulerSettings) -> Stickiness:
+    """Prefer the current placement of running instances over ``new`` unless ``new`` is
+    better by the migration margin. Instances without a usable current node take ``new``."""
+    new = np.asarray(new, dtype=np.int64)
+    cur = problem.current
+    rows = np.arange(problem.n_instances)
+    usable = (cur >= 0) & problem.allowed[rows, np.maximum(cur, 0)]
+    sticky = np.where(usable, cur, new).astype(np.int64)
+    moved = [int(i) for i in np.flatnonzero(usable & (new != cur))]
+    if not moved:
+        return Stickiness(new, [], bool(usable.any()), "nothing that runs moves")
+    names = [o.value for o in settings.objectives]
+    if feasible(problem, sticky):
+        a = objective_values(problem, new, True, names)
+        b = objective_values(problem, sticky, True, names)
+        better, why = _better(a, b, names, settings.migration_margin_percent / 100.0)
+        if not better:
+            return Stickiness(sticky, [], True, f"kept running modules in place ({why})")
+        return Stickiness(new, moved, False, f"moved {len(moved)} running module(s): {why}")
+    return Stickiness(new, moved, False,
+                      f"moved {len(moved)} running module(s): the current placement no longer fits")
+
+
+def placement_array(values: Any) -> I64:
+    return np.asarray(values, dtype=np.int64)

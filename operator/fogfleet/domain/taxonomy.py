@@ -1,0 +1,38 @@
+"""The robotics taxonomy (multi-robot-edge-cloud-scheduling III-A, Fig. 2).
+
+Hard real-time or safety-critical modules run on their own robot ("carrot orange"); modules
+without safety relevance that need not run continuously are the first to offload ("green");
+everything in between is placed by the scheduler from requirements and cluster state ("blue").
+"""
+
+from __future__ import annotations
+
+from enum import StrEnum
+
+from fogfleet.api.v1alpha1.softwaremodule import (
+    ExecutionPattern,
+    RealtimeClass,
+    SafetyClass,
+    Taxonomy,
+)
+
+__all__ = ["Offloadability", "classify", "must_stay_onboard"]
+
+
+class Offloadability(StrEnum):
+    NEVER = "never"  # orange: on its own robot only
+    CANDIDATE = "candidate"  # blue: decided by requirements and cluster state
+    PREFERRED = "preferred"  # green: offload first
+
+
+def must_stay_onboard(tax: Taxonomy) -> bool:
+    """III-B: hard real-time and safety-critical modules must run on the robot."""
+    return tax.realtime is RealtimeClass.HARD or tax.safety is SafetyClass.CRITICAL
+
+
+def classify(tax: Taxonomy) -> Offloadability:
+    if must_stay_onboard(tax):
+        return Offloadability.NEVER
+    if tax.safety is SafetyClass.IRRELEVANT and tax.execution_pattern is not ExecutionPattern.CONTINUOUS:
+        return Offloadability.PREFERRED
+    return Offloadability.CANDIDATE

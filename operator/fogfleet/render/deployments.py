@@ -1,0 +1,241 @@
+"""Render a fleet's plan into apps/v1 Deployments (pure: dicts in, dicts out, no kubernetes import).
+
+One Deployment per placed (robot, module) instance, bound to its node by a **required node
+affinity** with requests = limits at the CPU the plan chose for that node's hardware type
+(multi-robot-edge-cloud-scheduling IV-B, "GA-based with limits"). The ``k8s-default`` baseline
+renders the same Deployments with the taxonomy's whole allowed node set as affinity and the
+module's nominal requests (no limits), so the real kube-scheduler makes the choice.
+
+Names are deterministic and collision-free: ``<fleet>-<robot>-<module>-<hash8>`` (the hash is of
+the exact identity), shortened to 63 characters; the full identity is in the annotations.
+``fogfleet.io/spec-hash`` lets the controller skip applying what is already there.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import re
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from fogfleet import API_VERSION
+from fogfleet.api.v1alpha1.softwaremodule import SoftwareModule
+from fogfleet.domain.problem import Instance, Problem
+
+__all__ = [
+    "ANNOTATION_MODULE",
+    "ANNOTATION_PLAN",
+    "ANNOTATION_REPLICA",
+    "ANNOTATION_ROBOT",
+    "ANNOTATION_SPEC_HASH",
+    "LABEL_FLEET",
+    "LABEL_INSTANCE",
+    "LABEL_MANAGED_BY",
+    "LABEL_MODULE",
+    "LABEL_ROBOT",
+    "LABEL_TIER",
+    "MANAGER",
+    "Owner",
+    "deployment_name",
+    "format_cpu",
+    "identity_of",
+    "label_value",
+    "render_fleet",
+    "render_instance",
+    "spec_hash",
+]
+
+MANAGER = "fogfleet"
+LABEL_MANAGED_BY = "app.kubernetes.io/managed-by"
+LABEL_FLEET = "fogfleet.io/fleet"
+LABEL_ROBOT = "fogfleet.io/robot"
+LABEL_MODULE = "fogfleet.io/module"
+LABEL_TIER = "fogfleet.io/tier"
+LABEL_INSTANCE = "fogfleet.io/instance"
+ANNOTATION_ROBOT = "fogfleet.io/robot"
+ANNOTATION_MODULE = "fogfleet.io/module"
+ANNOTATION_REPLICA = "fogfleet.io/replica"
+ANNOTATION_PLAN = "fogfleet.io/plan-id"
+ANNOTATION_SPEC_HASH = "fogfleet.io/spec-hash"
+HOSTNAME_KEY = "kubernetes.io/hostname"
+MAX_NAME = 63
+_NOT_DNS = re.compile(r"[^a-z0-9-]+")
+
+
+@dataclass(frozen=True)
+class Owner:
+    """The RobotFleet that owns the Deployments (an ownerReference needs its uid)."""
+
+    name: str
+    uid: str
+
+
+def _digest(*parts: object, n: int = 8) -> str:
+    return hashlib.sha256(json.dumps(parts, separators=(",", ":")).encode()).hexdigest()[:n]
+
+
+def _dns(text: str) -> str:
+    return _NOT_DNS.sub("-", text.lower()).strip("-")
+
+
+def label_value(text: str) -> str:
+    """A valid label value: ``text`` if it is one, else a shortened form with a hash suffix."""
+    if len(text) <= MAX_NAME and re.fullmatch(r"([A-Za-z0-9]([-A-Za-z0-9_.]*[A-Za-z0-9])?)?", text):
+        return text
+    head = re.sub(r"[^A-Za-z0-9_.-]+", "-", text)[: MAX_NAME - 9].strip("-_.")
+    return f"{head}-{_digest(text)}"
+
+
+def deployment_name(fleet: str, inst: Instance) -> str:
+    """``<fleet>-<robot>-<module>-<hash8>`` (shared replicas: ``<fleet>-<module>-r<k>-<hash8>``)."""
+    who = [fleet, inst.robot, inst.module] if inst.robot else [fleet, inst.module, f"r{inst.replica}"]
+    suffix = _digest(fleet, inst.robot, inst.module, inst.replica)
+    base = _dns("-".join(who))[: MAX_NAME - len(suffix) - 1].rstrip("-")
+    return f"{base}-{suffix}"
+
+
+def format_cpu(cores: float) -> str:
+    """Cores as a Kubernetes quantity in millicores ("1500m"), rounded up to a whole milli."""
+    return f"{int(np.ceil(round(cores * 1000, 6)))}m"
+
+
+def spec_hash(deployment: Mapping[str, Any]) -> str:
+    """Hash of what the Deployment asks for, without the plan id and the hash itself."""
+    body = json.loads(json.dumps(deployment))
+    annotations = body.get("metadata", {}).get("annotations", {})
+    annotations.pop(ANNOTATION_PLAN, None)
+    annotations.pop(ANNOTATION_SPEC_HASH, None)
+    return _digest(body, n=16)
+
+
+def identity_of(deployment: Mapping[str, Any]) -> tuple[str, str, int] | None:
+    """(robot, module, replica) of a fogfleet Deployment, from its annotations."""
+    ann = (deployment.get("metadata") or {}).get("annotations") or {}
+    if ANNOTATION_MODULE not in ann:
+        return None
+    try:
+        replica = int(ann.get(ANNOTATION_REPLICA, "0"))
+    except ValueError:
+        return None
+    return ann.get(ANNOTATION_ROBOT, ""), ann[ANNOTATION_MODULE], replica
+
+
+def _affinity(node_names: Sequence[str]) -> dict[str, Any]:
+    term = {"matchExpressions": [{"key": HOSTNAME_KEY, "operator": "In", "values": list(node_names)}]}
+    return {"nodeAffinity": {"requiredDuringSchedulingIgnoredDuringExecution": {"nodeSelectorTerms": [term]}}}
+
+
+def _container(module: SoftwareModule, resources: dict[str, Any]) -> dict[str, Any]:
+    tpl = module.spec.template
+    container: dict[str, Any] = {"name": _dns(module.metadata.name)[:MAX_NAME] or "module", "image": tpl.image}
+    if tpl.command:
+        container["command"] = list(tpl.command)
+    if tpl.args:
+        container["args"] = list(tpl.args)
+    if tpl.env:
+        container["env"] = [{"name": e.name, "value": e.value} for e in tpl.env]
+    container["resources"] = resources
+    return container
+
+
+def render_instance(
+    problem: Problem,
+    i: int,
+    module: SoftwareModule,
+    nodes: Sequence[int],
+    *,
+    baseline: bool = False,
+    owner: Owner | None = None,
+    plan_id: str = "",
+) -> dict[str, Any]:
+    """The Deployment of instance ``i`` allowed on ``nodes`` (one node unless ``baseline``)."""
+    inst = problem.instances[i]
+    name = deployment_name(problem.fleet, inst)
+    alloc = problem.nominal if baseline else problem.limits
+    j = nodes[0]
+    cpu = format_cpu(float(alloc.cpu_request[i, j]))
+    memory = str(int(np.ceil(problem.memory[i])))
+    requests: dict[str, str] = {"cpu": cpu, "memory": memory}
+    resources: dict[str, Any] = {"requests": requests}
+    if not baseline:
+        limits = dict(requests)
+        if problem.gpu[i] > 0:
+            limits["nvidia.com/gpu"] = str(int(problem.gpu[i]))
+        resources["limits"] = limits
+    tier = "" if baseline else problem.nodes[j].tier.value
+    selector = {LABEL_FLEET: label_value(problem.fleet), LABEL_INSTANCE: name}
+    labels = {
+        **selector,
+        LABEL_MANAGED_BY: MANAGER,
+        LABEL_ROBOT: label_value(inst.robot),
+        LABEL_MODULE: label_value(inst.module),
+    }
+    if tier:
+        labels[LABEL_TIER] = tier
+    annotations = {ANNOTATION_ROBOT: inst.robot, ANNOTATION_MODULE: inst.module,
+                   ANNOTATION_REPLICA: str(inst.replica)}
+    metadata: dict[str, Any] = {"name": name, "namespace": problem.namespace, "labels": labels,
+                                "annotations": annotations}
+    if owner is not None:
+        metadata["ownerReferences"] = [{
+            "apiVersion": API_VERSION, "kind": "RobotFleet", "name": owner.name, "uid": owner.uid,
+            "controller": True, "blockOwnerDeletion": True,
+        }]
+    dep: dict[str, Any] = {
+        "apiVersion": "apps/v1",
+        "kind": "Deployment",
+        "metadata": metadata,
+        "spec": {
+            "replicas": 1,
+            "selector": {"matchLabels": selector},
+            # maxUnavailable 1: a module leaving a lost node is started elsewhere at once
+            "strategy": {"type": "RollingUpdate", "rollingUpdate": {"maxSurge": 1, "maxUnavailable": 1}},
+            "template": {
+                "metadata": {"labels": labels, "annotations": dict(annotations)},
+                "spec": {
+                    "affinity": _affinity([problem.nodes[k].node_name for k in nodes]),
+                    "containers": [_container(module, resources)],
+                    "enableServiceLinks": False,
+                },
+            },
+        },
+    }
+    annotations[ANNOTATION_SPEC_HASH] = spec_hash(dep)
+    if plan_id:
+        annotations[ANNOTATION_PLAN] = plan_id
+    return dep
+
+
+def render_fleet(
+    problem: Problem,
+    modules: Mapping[str, SoftwareModule],
+    placement: Sequence[int] | np.ndarray[Any, Any] | None,
+    *,
+    baseline: bool = False,
+    owner: Owner | None = None,
+    plan_id: str = "",
+) -> list[dict[str, Any]]:
+    """Deployments for a fleet, in instance order.
+
+    ``placement[i]`` is the chosen node index (``-1``: not placed, no Deployment). With
+    ``baseline`` (the ``k8s-default`` scheduler) the placement is ignored: every instance with a
+    non-empty gene space gets affinity to all of it and kube-scheduler decides.
+    ``modules`` maps SoftwareModule names to the objects (their container templates).
+    """
+    out: list[dict[str, Any]] = []
+    for i, inst in enumerate(problem.instances):
+        module = modules[inst.module]
+        if baseline:
+            nodes = [int(j) for j in np.flatnonzero(problem.allowed[i])]
+        else:
+            if placement is None or int(placement[i]) < 0:
+                continue
+            nodes = [int(placement[i])]
+        if nodes:
+            out.append(render_instance(problem, i, module, nodes, baseline=baseline, owner=owner,
+                                       plan_id=plan_id))
+    return out

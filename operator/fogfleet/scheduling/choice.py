@@ -1,0 +1,132 @@
+"""Picking one plan from a Pareto front: the documented MCDM rules of RobotFleet.spec.scheduler.
+
+- ``lexicographic``: objectives in the order of ``settings.objectives``; a plan survives a
+  level if it is within ``tol = 1e-6 + 1e-3 * |best|`` of the best value left at that level
+  (values closer than that are ties); the next objective breaks the ties.
+- ``weighted``: min-max normalise each objective over the front (a constant objective counts
+  0), then minimise sum_k w_k * f_k with ``settings.weights`` (objectives not listed weigh 1).
+- ``knee``: in the min-max normalised space, the plan farthest below the hyperplane through
+  the front's extreme points (Das 1999); where those points do not span a hyperplane, the
+  plan closest (Euclidean) to the ideal point.
+
+Every rule breaks remaining ties by the lowest index, so the choice is deterministic.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+
+import numpy as np
+from numpy.typing import NDArray
+
+__all__ = ["choose", "non_dominated"]
+
+F64 = NDArray[np.float64]
+
+
+def _fmt(v: float) -> str:
+    return f"{v:.4g}"
+
+
+def non_dominated(F: F64) -> NDArray[np.int64]:
+    """Indices of the rows of F (minimisation) that no other row dominates; duplicates of a
+    kept row are dropped (first kept)."""
+    F = np.asarray(F, dtype=np.float64)
+    keep: list[int] = []
+    for k in range(len(F)):
+        le = np.all(F <= F[k], axis=1)
+        lt = np.any(F < F[k], axis=1)
+        if np.any(le & lt):
+            continue
+        if any(np.array_equal(F[k], F[m]) for m in keep):
+            continue
+        keep.append(k)
+    return np.asarray(keep, dtype=np.int64)
+
+
+def _normalise(F: F64) -> F64:
+    lo, hi = F.min(axis=0), F.max(axis=0)
+    span = np.where(hi - lo > 0, hi - lo, 1.0)
+    return np.asarray((F - lo) / span, dtype=np.float64)
+
+
+def _lexicographic(F: F64, names: Sequence[str]) -> tuple[int, str]:
+    cand = np.arange(len(F))
+    first = ""
+    tie_notes: list[str] = []
+    for k, name in enumerate(names):
+        col = F[cand, k]
+        best = float(col.min())
+        tol = 1e-6 + 1e-3 * abs(best)
+        within = cand[col <= best + tol]
+        if k == 0:
+            first = f"lowest {name} {_fmt(best)} among {len(F)} non-dominated plans"
+            if len(within) > 1:
+                first += f" ({len(within)} within {_fmt(tol)} of it)"
+        elif len(cand) > 1:
+            tie_notes.append(f"{name} {_fmt(best)}")
+        cand = within
+        if len(cand) == 1:
+            break
+    idx = int(cand[np.argmin(F[cand, 0])])
+    reason = first
+    if tie_notes:
+        reason += "; ties broken by " + ", then ".join(tie_notes)
+    return idx, reason
+
+
+def _weighted(F: F64, names: Sequence[str], weights: Mapping[str, float]) -> tuple[int, str]:
+    w = np.array([float(weights.get(n, 1.0)) for n in names])
+    score = _normalise(F) @ w
+    idx = int(np.argmin(score))
+    parts = ", ".join(f"{_fmt(wk)}*{n}" for wk, n in zip(w, names, strict=True))
+    return idx, (
+        f"lowest weighted sum {_fmt(float(score[idx]))} of min-max normalised objectives ({parts}) "
+        f"among {len(F)} non-dominated plans"
+    )
+
+
+def _knee(F: F64, names: Sequence[str]) -> tuple[int, str]:
+    Z = _normalise(F)
+    m = Z.shape[1]
+    ext = np.array([int(np.argmin(F[:, k])) for k in range(m)])
+    if m >= 2 and len(set(ext.tolist())) == m:
+        E = Z[ext]
+        try:
+            normal = np.linalg.solve(E, np.ones(m))  # hyperplane normal . z = 1
+        except np.linalg.LinAlgError:
+            normal = None
+        if normal is not None and np.all(np.isfinite(normal)):
+            dist = (1.0 - Z @ normal) / np.linalg.norm(normal)
+            idx = int(np.argmax(dist))
+            return idx, (
+                f"knee point: farthest ({_fmt(float(dist[idx]))}) below the hyperplane through the "
+                f"extreme plans of {', '.join(names)} among {len(F)} non-dominated plans"
+            )
+    d = np.linalg.norm(Z, axis=1)
+    idx = int(np.argmin(d))
+    return idx, (
+        f"closest to the ideal point (normalised distance {_fmt(float(d[idx]))}) among {len(F)} "
+        "non-dominated plans"
+    )
+
+
+def choose(
+    F: F64,
+    names: Sequence[str],
+    rule: str = "lexicographic",
+    weights: Mapping[str, float] | None = None,
+) -> tuple[int, str]:
+    """Index of the chosen row of the front F (K, len(names)) and a sentence saying why."""
+    F = np.asarray(F, dtype=np.float64)
+    if F.ndim != 2 or len(F) == 0 or F.shape[1] != len(names):
+        raise ValueError("choose: F must be (K >= 1, len(names))")
+    if len(F) == 1:
+        return 0, "the only non-dominated plan"
+    if rule == "lexicographic":
+        return _lexicographic(F, names)
+    if rule == "weighted":
+        return _weighted(F, names, weights or {})
+    if rule == "knee":
+        return _knee(F, names)
+    raise ValueError(f"unknown choice rule {rule!r}")

@@ -1,0 +1,86 @@
+"""Constructive plans that seed the search: greedy best-fit by miss probability, on-board
+first, spread. Each places instances one at a time (largest CPU request first) on an allowed
+node with room, so each is feasible whenever a greedy packing exists."""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import NDArray
+
+from fogfleet.domain.problem import Allocation, Problem
+
+from .objectives import UPLINK_SHARE, miss_probability
+
+__all__ = ["Fit", "greedy", "uncontended_miss"]
+
+F64 = NDArray[np.float64]
+I64 = NDArray[np.int64]
+
+
+def uncontended_miss(problem: Problem, allocation: Allocation) -> F64:
+    """P(t_cycle > T) of each (instance, node) pair without contention (I, N); 1 where not
+    allowed. Uses the same normal model as ``objectives.missRate`` at slowdown 1."""
+    exe = np.where(problem.allowed, allocation.exe_mean, 0.0)
+    sd = np.sqrt(np.where(problem.allowed, allocation.exe_std, 0.0) ** 2 + problem.net_std**2)
+    q = miss_probability(problem.net_mean + exe, sd, np.broadcast_to(problem.cycle[:, None], exe.shape))
+    return np.where(problem.allowed, q, 1.0)
+
+
+class Fit:
+    """Per (instance, node) demands and per node capacities used by greedy and repair."""
+
+    def __init__(self, problem: Problem, allocation: Allocation) -> None:
+        self.problem = problem
+        n_i, n_n = problem.n_instances, problem.n_nodes
+        self.demand = np.zeros((n_i, n_n, 3))
+        self.demand[:, :, 0] = allocation.cpu_request
+        self.demand[:, :, 1] = problem.memory[:, None]
+        self.demand[:, :, 2] = problem.gpu[:, None]
+        self.cap = np.asarray(problem.capacity, dtype=np.float64)
+        self.robots = problem.tier == 0
+        self.uplink = UPLINK_SHARE * problem.uplink_bandwidth
+        self.q = uncontended_miss(problem, allocation)
+        t = (problem.net_mean + np.where(problem.allowed, allocation.exe_mean, 0.0)) / problem.cycle[:, None]
+        # preference among allowed nodes: low miss probability, then low cycle ratio (latency)
+        self.pref = np.where(problem.allowed, self.q + 0.01 * np.minimum(t, 10.0), np.inf)
+        req = np.where(problem.allowed, allocation.cpu_request, 0.0)
+        self.order = np.argsort(-req.max(axis=1), kind="stable").astype(np.int64)
+
+
+def greedy(problem: Problem, allocation: Allocation, style: str = "best-fit", fit: Fit | None = None) -> I64:
+    """One plan: ``best-fit`` (lowest miss probability, ties to the fullest node that fits),
+    ``spread`` (ties to the emptiest), ``onboard`` (the home robot whenever it fits, else
+    best-fit). Instances with an empty gene space get -1; if nothing fits, the allowed node
+    with the smallest overload is used (the repair may fix it later)."""
+    f = fit or Fit(problem, allocation)
+    n_n = problem.n_nodes
+    used = np.zeros((n_n, 3))
+    up = np.zeros(n_n)
+    x = np.full(problem.n_instances, -1, dtype=np.int64)
+    for i in f.order:
+        allowed = problem.allowed[i]
+        if not allowed.any():
+            continue
+        d = f.demand[i]
+        after = used + d
+        room = np.all(after <= f.cap + 1e-9, axis=1) & allowed
+        h = int(problem.home[i])
+        if h >= 0 and problem.traffic[i] > 0:
+            over = up[h] + problem.traffic[i] > f.uplink[h] + 1e-9
+            if over:
+                room &= np.arange(n_n) == h
+        util = after[:, 0] / f.cap[:, 0]
+        if style == "onboard" and h >= 0 and room[h]:
+            j = h
+        elif room.any():
+            tie = -util if style in ("best-fit", "onboard") else util
+            score = np.where(room, f.pref[i] + 1e-3 * tie, np.inf)
+            j = int(np.argmin(score))
+        else:
+            overload = np.max(after / np.maximum(f.cap, 1e-9), axis=1)
+            j = int(np.argmin(np.where(allowed, overload, np.inf)))
+        x[i] = j
+        used[j] += d
+        if h >= 0 and j != h:
+            up[h] += problem.traffic[i]
+    return x

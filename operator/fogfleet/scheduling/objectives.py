@@ -1,0 +1,383 @@
+"""Objectives and constraints of a placement, vectorised over a population of plans.
+
+Every function takes ``(problem, X, allocation)`` where ``X`` is a ``(P, I)`` integer array of
+node indices (one row per plan, one column per instance; ``-1`` means "not placed": such an
+instance contributes nothing) and returns ``(P,)`` values to be minimised. Per-node sums use one
+``np.bincount`` over the flattened population (offset ``p * N``), so there is no Python loop over
+plans. ``evaluate`` shares the intermediate arrays between objectives.
+
+Readings of multi-robot-edge-cloud-scheduling III-D (the paper's symbols in brackets):
+
+- *usage* ``U(m_i, n_j, r)``: for CPU the expected use ``activation_i * cpu_use_ij`` (a module
+  only computes while it is active, "GA-based with TA"); for memory the requested bytes.
+- *requested* utilisation (for limits and reserves): CPU requests, memory, GPUs.
+- resources are made commensurable by dividing each node's usage by its own limit ``L_j^r``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from functools import cached_property
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.special import ndtr
+
+from fogfleet.domain.problem import Allocation, Problem
+
+__all__ = [
+    "EVALUATORS",
+    "OBJECTIVES",
+    "UPLINK_SHARE",
+    "Evaluation",
+    "balance",
+    "constraint_names",
+    "constraints",
+    "cost",
+    "energy",
+    "evaluate",
+    "miss_probability",
+    "missRate",
+    "missedCycles",
+    "onboard",
+    "reserve",
+]
+
+F64 = NDArray[np.float64]
+I64 = NDArray[np.int64]
+
+# A robot's off-board traffic may use at most this share of its uplink (hard constraint).
+UPLINK_SHARE = 0.8
+
+# Gauss-Hermite nodes/weights for E[f(Z)], Z ~ N(0, 1) (probabilists' form).
+_GH_NODES, _GH_WEIGHTS = np.polynomial.hermite_e.hermegauss(9)
+_GH_X: list[float] = [float(v) for v in _GH_NODES]
+_GH_W: list[float] = [float(v) for v in _GH_WEIGHTS / np.sqrt(2.0 * np.pi)]
+
+
+def _phi(z: F64) -> F64:
+    """Standard normal CDF."""
+    return np.asarray(ndtr(z), dtype=np.float64)
+
+
+def miss_probability(mean: F64, std: F64, cycle: F64) -> F64:
+    """P(t_cycle > T) for a normal cycle time (mean, std); a step function where std == 0."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        z = (mean - cycle) / std
+    step = (mean > cycle).astype(np.float64)
+    return np.where(std > 0, _phi(np.where(std > 0, z, 0.0)), step)
+
+
+class Evaluation:
+    """Intermediate arrays of one population, computed once and shared by the objectives."""
+
+    def __init__(self, problem: Problem, X: NDArray[np.integer], allocation: Allocation) -> None:
+        x = np.asarray(X, dtype=np.int64)
+        if x.ndim == 1:
+            x = x[None, :]
+        self.problem = problem
+        self.alloc = allocation
+        self.P, self.I = x.shape
+        self.N = problem.n_nodes
+        self.valid = x >= 0
+        self.x = np.where(self.valid, x, 0)
+        self._rows = np.arange(self.I)[None, :]
+        self._flat = (self.x + self.N * np.arange(self.P)[:, None]).ravel()
+        self.robots = np.flatnonzero(problem.tier == 0)
+        self.remote = np.flatnonzero(problem.tier > 0)
+
+    # -- helpers --------------------------------------------------------------------------
+    def gather(self, a: F64) -> F64:
+        """``a[i, x_i]`` per plan, 0 where the instance is not placed."""
+        return np.where(self.valid, a[self._rows, self.x], 0.0)
+
+    def per_node(self, w: F64) -> F64:
+        """Sum of per-instance weights ``w`` (P, I) on each node: (P, N)."""
+        wv = np.where(self.valid, w, 0.0).ravel()
+        return np.bincount(self._flat, weights=wv, minlength=self.P * self.N).reshape(self.P, self.N)
+
+    # -- shared arrays --------------------------------------------------------------------
+    @cached_property
+    def request(self) -> F64:
+        return self.gather(self.alloc.cpu_request)
+
+    @cached_property
+    def use(self) -> F64:
+        return self.gather(self.alloc.cpu_use)
+
+    @cached_property
+    def cpu_requested(self) -> F64:
+        return self.per_node(self.request)
+
+    @cached_property
+    def mem_requested(self) -> F64:
+        return self.per_node(np.broadcast_to(self.problem.memory, (self.P, self.I)))
+
+    @cached_property
+    def gpu_requested(self) -> F64:
+        return self.per_node(np.broadcast_to(self.problem.gpu, (self.P, self.I)))
+
+    @cached_property
+    def cpu_expected(self) -> F64:
+        """Expected CPU use per node: sum of activation * cpu_use (P, N)."""
+        return self.per_node(self.problem.activation[None, :] * self.use)
+
+    @cached_property
+    def cpu_peak(self) -> F64:
+        """CPU use per node if every instance there were active at once (P, N)."""
+        return self.per_node(self.use)
+
+    @cached_property
+    def kappa(self) -> F64:
+        """CPU contention factor per node, kappa_j = max(1, load_j / cap_j) (P, N)."""
+        return np.maximum(1.0, self.cpu_expected / self.problem.capacity[None, :, 0])
+
+    @cached_property
+    def exe(self) -> F64:
+        return self.gather(self.alloc.exe_mean)
+
+    @cached_property
+    def exe_std(self) -> F64:
+        return self.gather(self.alloc.exe_std)
+
+    @cached_property
+    def net(self) -> F64:
+        return self.gather(self.problem.net_mean)
+
+    @cached_property
+    def net_std(self) -> F64:
+        return self.gather(self.problem.net_std)
+
+    @cached_property
+    def offboard_traffic(self) -> F64:
+        """Bit/s each robot node exchanges over its uplink (P, N; 0 for non-robots)."""
+        home = self.problem.home
+        off = self.valid & (home[None, :] >= 0) & (self.x != home[None, :])
+        w = np.where(off, self.problem.traffic[None, :], 0.0).ravel()
+        h = np.where(home >= 0, home, 0)
+        flat = (h[None, :] + self.N * np.arange(self.P)[:, None]).ravel()
+        return np.bincount(flat, weights=w, minlength=self.P * self.N).reshape(self.P, self.N)
+
+    # -- objectives -----------------------------------------------------------------------
+    def onboard(self) -> F64:
+        cap = self.problem.capacity[self.robots]
+        cpu = self.cpu_expected[:, self.robots] / cap[None, :, 0]
+        mem = self.mem_requested[:, self.robots] / np.maximum(cap[None, :, 1], 1.0)
+        return np.asarray((cpu + mem).sum(axis=1), dtype=np.float64)
+
+    def utilisation(self) -> F64:
+        """Requested utilisation u_j^r / L_j^r, (P, N, R) over the resources some node has."""
+        cap = self.problem.capacity
+        parts = [self.cpu_requested / cap[None, :, 0]]
+        parts.append(self.mem_requested / np.maximum(cap[None, :, 1], 1.0))
+        if cap[:, 2].any() or self.problem.gpu.any():
+            # a GPU request on a GPU-less node counts as infinitely over the limit
+            with np.errstate(divide="ignore", invalid="ignore"):
+                g = np.where(cap[None, :, 2] > 0, self.gpu_requested / cap[None, :, 2], 0.0)
+                g = np.where((cap[None, :, 2] == 0) & (self.gpu_requested > 0), np.inf, g)
+            parts.append(g)
+        return np.stack(parts, axis=2)
+
+    def reserve(self) -> F64:
+        return np.asarray(self.utilisation().max(axis=(1, 2)), dtype=np.float64)
+
+    def balance(self) -> F64:
+        if len(self.remote) < 2:
+            return np.zeros(self.P)
+        cap = self.problem.capacity[self.remote]
+        total = np.std(self.cpu_expected[:, self.remote] / cap[None, :, 0], axis=1)
+        total += np.std(self.mem_requested[:, self.remote] / np.maximum(cap[None, :, 1], 1.0), axis=1)
+        if cap[:, 2].any():
+            g = self.gpu_requested[:, self.remote] / np.maximum(cap[None, :, 2], 1.0)
+            total += np.std(g, axis=1)
+        return np.asarray(total, dtype=np.float64)
+
+    def tau(self) -> F64:
+        """tau(m_i, n_j) of eq. 5 with the node's contention factor (P, I); 0 if unplaced."""
+        k = self.kappa[np.arange(self.P)[:, None], self.x]
+        t = (self.net + self.exe * k) / self.problem.cycle[None, :]
+        return np.where(self.valid, t, 0.0)
+
+    def missed_cycles(self) -> F64:
+        t = self.tau()
+        a = self.problem.activation[None, :]
+        return np.asarray((a * np.where(t > 1.0, t, 0.0)).sum(axis=1), dtype=np.float64)
+
+    def overlap_demand(self) -> tuple[F64, F64, F64]:
+        """Overlap-aware CPU demand on each instance's node while it executes (P, I each).
+
+        Instance k occupies ``cpu_use_k`` cores with probability b_k = activation_k * duty_k,
+        duty_k = min(1, t_exe_k * slowdown_k / T_k) (between cycles a module waits for its next
+        period). The demand on i's node while i runs is D = use_i + sum_{k != i} B_k use_k with
+        B_k ~ Bernoulli(b_k), approximated as normal and clipped to [use_i, all-active peak].
+        Returns (mean, std, peak) of D; two fixed-point rounds couple duty and slowdown.
+        """
+        a = self.problem.activation[None, :]
+        cyc = self.problem.cycle[None, :]
+        pidx = np.arange(self.P)[:, None]
+        use = self.use
+        peak = self.cpu_peak[pidx, self.x]
+        cap = self.problem.capacity[:, 0][self.x]
+        slow = np.ones((self.P, self.I))
+        m = use
+        sd = np.zeros_like(use)
+        for _ in range(2):
+            duty = np.minimum(1.0, self.exe * slow / cyc)
+            b = np.where(self.valid, a * duty, 0.0)
+            bu = b * use
+            bv = b * (1.0 - b) * use * use
+            m = use + self.per_node(bu)[pidx, self.x] - bu
+            sd = np.sqrt(np.maximum(self.per_node(bv)[pidx, self.x] - bv, 0.0))
+            slow = self._expect(lambda d: np.maximum(1.0, d / cap), m, sd, use, peak)
+        return m, sd, peak
+
+    @staticmethod
+    def _expect(f: Callable[[F64], F64], m: F64, sd: F64, lo: F64, hi: F64) -> F64:
+        """E[f(D)] for D ~ N(m, sd) clipped to [lo, hi], by Gauss-Hermite quadrature."""
+        out = np.zeros_like(m)
+        for x, w in zip(_GH_X, _GH_W, strict=True):
+            out += w * f(np.clip(m + sd * x, lo, hi))
+        return out
+
+    def instance_miss(self) -> F64:
+        """Predicted miss probability of each instance's active cycles (P, I): the normal
+        cycle-time tail at slowdown max(1, D / cap), averaged over the demand D."""
+        T = np.broadcast_to(self.problem.cycle[None, :], (self.P, self.I))
+        cap = self.problem.capacity[:, 0][self.x]
+
+        def at(d: F64) -> F64:
+            k = np.maximum(1.0, d / cap)
+            mean = self.net + self.exe * k
+            sd = np.sqrt((self.exe_std * k) ** 2 + self.net_std**2)
+            return miss_probability(mean, sd, T)
+
+        m, sd, peak = self.overlap_demand()
+        q = self._expect(at, m, sd, self.use, peak)
+        return np.where(self.valid, q, 0.0)
+
+    def miss_rate(self) -> F64:
+        a = np.where(self.valid, self.problem.activation[None, :], 0.0)
+        total = a.sum(axis=1)
+        s = (a * self.instance_miss()).sum(axis=1)
+        return np.asarray(np.where(total > 0, s / np.where(total > 0, total, 1.0), 0.0), dtype=np.float64)
+
+    def cost(self) -> F64:
+        return np.asarray(self.cpu_requested @ self.problem.cost, dtype=np.float64)
+
+    def energy(self) -> F64:
+        pw = self.problem.power[self.robots]
+        watts = pw[None, :, 1] + pw[None, :, 2] * self.cpu_expected[:, self.robots]
+        watts = watts + pw[None, :, 3] * self.offboard_traffic[:, self.robots] / 1e6
+        return np.asarray(watts.sum(axis=1), dtype=np.float64)
+
+    def constraints(self) -> F64:
+        """G <= 0 feasible; each column normalised by its limit (see ``constraint_names``)."""
+        cap = self.problem.capacity
+        g_cpu = (self.cpu_requested - cap[None, :, 0]) / cap[None, :, 0]
+        g_mem = (self.mem_requested - cap[None, :, 1]) / np.maximum(cap[None, :, 1], 1.0)
+        g_gpu = (self.gpu_requested - cap[None, :, 2]) / np.maximum(cap[None, :, 2], 1.0)
+        limit = UPLINK_SHARE * self.problem.uplink_bandwidth[self.robots]
+        g_up = (self.offboard_traffic[:, self.robots] - limit[None, :]) / limit[None, :]
+        outside = self.valid & ~self.problem.allowed[self._rows, self.x]
+        g_gene = outside.sum(axis=1, keepdims=True).astype(np.float64)
+        return np.concatenate([g_cpu, g_mem, g_gpu, g_up, g_gene], axis=1)
+
+
+def onboard(problem: Problem, X: NDArray[np.integer], allocation: Allocation) -> F64:
+    """F1 (eq. 1): on-board resource use, sum over robot nodes j and r in {cpu, memory} of
+    u_j^r / L_j^r, with u^cpu = sum activation * cpu_use (expected use) and u^mem the requested
+    bytes. Dividing by the node's own limit makes cores and bytes summable; the paper sums raw
+    usage, which would let bytes swamp cores."""
+    return Evaluation(problem, X, allocation).onboard()
+
+
+def reserve(problem: Problem, X: NDArray[np.integer], allocation: Allocation) -> F64:
+    """F2 (eq. 2, garbled in the paper: "u_j^r - sum L_j^r"). Our reading of "maintain a certain
+    resource reserve": the peak requested utilisation max_{j,r} u_j^r / L_j^r over all nodes
+    and resources (cpu requests, memory, gpu); minimising it maximises the smallest reserve."""
+    return Evaluation(problem, X, allocation).reserve()
+
+
+def balance(problem: Problem, X: NDArray[np.integer], allocation: Allocation) -> F64:
+    """F3 (eq. 3): sum over resources of the standard deviation, across edge/cloud nodes, of
+    the utilisation u_j^r / L_j^r (cpu: expected use as in F1; memory: requested; gpu if any
+    remote node has one). 0 with fewer than two edge/cloud nodes."""
+    return Evaluation(problem, X, allocation).balance()
+
+
+def missedCycles(problem: Problem, X: NDArray[np.integer], allocation: Allocation) -> F64:
+    """F4 (eq. 5-6): sum_i activation_i * tau_>1(i, x_i), tau = t_cycle / t_expected with
+    t_cycle = net_mean + exe_mean * kappa_j (eq. 4) and kappa_j = max(1, load_j / cap_j) the
+    CPU contention of the node (load = sum of activation * cpu_use of its instances)."""
+    return Evaluation(problem, X, allocation).missed_cycles()
+
+
+def missRate(problem: Problem, X: NDArray[np.integer], allocation: Allocation) -> F64:
+    """Predicted fraction of active cycles that miss: sum_i a_i P(t_cycle_i > T_i) / sum_i a_i.
+
+    t_cycle is normal with mean net_mean + exe_mean * k and std sqrt((exe_std k)^2 +
+    net_std^2). The slowdown k is overlap-aware (``Evaluation.overlap_slowdown``): with
+    probability p_over the node is oversubscribed while the cycle executes and k = k_over,
+    otherwise k = 1. A feasible plan with the ``limits`` allocation never oversubscribes, so
+    there k = 1 exactly."""
+    return Evaluation(problem, X, allocation).miss_rate()
+
+
+def cost(problem: Problem, X: NDArray[np.integer], allocation: Allocation) -> F64:
+    """Extension (III-D's "economic cost"): sum_j cost_per_core_hour_j * requested cores_j."""
+    return Evaluation(problem, X, allocation).cost()
+
+
+def energy(problem: Problem, X: NDArray[np.integer], allocation: Allocation) -> F64:
+    """Extension: robot power in W, sum over robots of idle + per_core * expected on-board CPU
+    use + radio * offloaded Mbps (problem.power)."""
+    return Evaluation(problem, X, allocation).energy()
+
+
+def constraints(problem: Problem, X: NDArray[np.integer], allocation: Allocation) -> F64:
+    """Hard constraints G (P, 3N + N_R + 1), feasible where every entry <= 0: per node
+    (cpu requests, memory, gpus - capacity) / capacity; per robot (off-board traffic -
+    80% uplink) / (80% uplink); and the number of genes outside their gene space."""
+    return Evaluation(problem, X, allocation).constraints()
+
+
+def constraint_names(problem: Problem) -> list[str]:
+    """Column labels of ``constraints``."""
+    names = [f"{r}:{nd.name}" for r in ("cpu", "memory", "gpu") for nd in problem.nodes]
+    names += [f"uplink:{problem.nodes[j].name}" for j in np.flatnonzero(problem.tier == 0)]
+    return [*names, "geneSpace"]
+
+
+EVALUATORS: dict[str, Callable[[Evaluation], F64]] = {
+    "onboard": Evaluation.onboard,
+    "reserve": Evaluation.reserve,
+    "balance": Evaluation.balance,
+    "missedCycles": Evaluation.missed_cycles,
+    "missRate": Evaluation.miss_rate,
+    "cost": Evaluation.cost,
+    "energy": Evaluation.energy,
+}
+
+OBJECTIVES: dict[str, Callable[[Problem, NDArray[np.integer], Allocation], F64]] = {
+    "onboard": onboard,
+    "reserve": reserve,
+    "balance": balance,
+    "missedCycles": missedCycles,
+    "missRate": missRate,
+    "cost": cost,
+    "energy": energy,
+}
+
+
+def evaluate(
+    problem: Problem,
+    X: NDArray[np.integer],
+    allocation: Allocation,
+    names: Sequence[str] = tuple(OBJECTIVES),
+) -> dict[str, F64]:
+    """The named objectives of every plan in X, sharing intermediate arrays."""
+    ev = Evaluation(problem, X, allocation)
+    unknown = [n for n in names if n not in EVALUATORS]
+    if unknown:
+        raise KeyError(f"unknown objective(s): {', '.join(unknown)}")
+    return {n: EVALUATORS[n](ev) for n in names}

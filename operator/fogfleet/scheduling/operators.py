@@ -1,0 +1,178 @@
+"""pymoo operators over gene spaces: seeded sampling, capacity repair, mutation, crossover.
+
+Each implements only ``_do`` and draws only from the ``random_state`` pymoo injects, so a run
+is a function of its seed. Every operator keeps each gene inside its allowed set.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+from pymoo.core.crossover import Crossover
+from pymoo.core.mutation import Mutation
+from pymoo.core.repair import Repair
+from pymoo.core.sampling import Sampling
+
+from .heuristics import greedy
+from .problem import PlacementProblem
+
+__all__ = ["CapacityRepair", "FleetSampling", "GeneCrossover", "GeneMutation", "repair_plans", "seed_plans"]
+
+I64 = NDArray[np.int64]
+_EPS = 1e-9
+
+
+def seed_plans(pp: PlacementProblem) -> list[I64]:
+    """Constructive plans (full I columns): the current placement (completed greedily), then
+    greedy best-fit by miss probability, on-board first and spread; duplicates dropped."""
+    fleet = pp.fleet
+    best = greedy(fleet, pp.alloc, "best-fit", pp.fit)
+    plans: list[I64] = []
+    if (fleet.current >= 0).any():
+        plans.append(np.where(fleet.current >= 0, fleet.current, best).astype(np.int64))
+    plans += [best, greedy(fleet, pp.alloc, "onboard", pp.fit), greedy(fleet, pp.alloc, "spread", pp.fit)]
+    out: list[I64] = []
+    for p in plans:
+        if not any(np.array_equal(p, q) for q in out):
+            out.append(p)
+    return out
+
+
+class FleetSampling(Sampling):  # type: ignore[misc]
+    """Initial population: seed plans first (``heuristics=True``), the rest uniform random
+    within each gene's allowed set."""
+
+    def __init__(self, heuristics: bool = True) -> None:
+        super().__init__()
+        self.heuristics = heuristics
+
+    def _do(self, problem: PlacementProblem, n_samples: int, *args: Any, random_state: Any = None, **kwargs: Any) -> I64:
+        X = problem.random_genes(n_samples, random_state)
+        if self.heuristics:
+            seeds = seed_plans(problem)[:n_samples]
+            for k, plan in enumerate(seeds):
+                X[k] = plan[problem.genes]
+        return X
+
+
+def repair_plans(pp: PlacementProblem, x: I64) -> I64:
+    """Move instances off overloaded nodes (and off-board instances of robots whose uplink is
+    over 80%) to allowed nodes with room, preferring low miss probability and low latency.
+
+    Vectorised over plans: one pass over the instances (largest CPU request first) and, in
+    each step, every plan in which that instance sits on an overloaded node moves it at once.
+    An instance with no allowed node that has room stays (the plan stays infeasible).
+    ``x`` is (P, I) and is modified in place.
+    """
+    fleet, f = pp.fleet, pp.fit
+    P, N = x.shape[0], fleet.n_nodes
+    valid = x >= 0
+    xc = np.where(valid, x, 0)
+    rows_i = np.arange(fleet.n_instances)[None, :]
+    flat = (xc + N * np.arange(P)[:, None]).ravel()
+    used = np.zeros((P, N, 3))
+    for r in range(3):
+        w = np.where(valid, f.demand[rows_i, xc, r], 0.0).ravel()
+        used[:, :, r] = np.bincount(flat, weights=w, minlength=P * N).reshape(P, N)
+    home = fleet.home
+    off = valid & (home[None, :] >= 0) & (xc != home[None, :])
+    hflat = (np.where(home >= 0, home, 0)[None, :] + N * np.arange(P)[:, None]).ravel()
+    tw = np.where(off, fleet.traffic[None, :], 0.0).ravel()
+    up = np.bincount(hflat, weights=tw, minlength=P * N).reshape(P, N)
+    lim = np.where(f.robots, f.uplink, np.inf)
+    over_node = np.any(used > f.cap[None] + _EPS, axis=2)
+    over_up = up > lim[None, :] + _EPS
+    if not over_node.any() and not over_up.any():
+        return x
+    nodes = np.arange(N)
+    for i in f.order:
+        if not fleet.allowed[i].any():
+            continue
+        h = int(home[i])
+        cur_all = x[:, i]
+        bad = valid[:, i] & over_node[np.arange(P), np.where(cur_all >= 0, cur_all, 0)]
+        if h >= 0:
+            bad |= valid[:, i] & (cur_all != h) & over_up[:, h]
+        rows = np.flatnonzero(bad)
+        if rows.size == 0:
+            continue
+        d = f.demand[i]
+        cur = cur_all[rows]
+        after = used[rows] + d[None, :, :]
+        after[np.arange(rows.size), cur] -= d[cur]
+        room = np.all(after <= f.cap[None] + _EPS, axis=2) & fleet.allowed[i][None, :]
+        if h >= 0 and fleet.traffic[i] > 0:
+            up_base = up[rows, h] - fleet.traffic[i] * (cur != h)
+            off_ok = up_base + fleet.traffic[i] <= lim[h] + _EPS
+            room &= off_ok[:, None] | (nodes == h)[None, :]
+        score = np.where(room, f.pref[i][None, :] + 1e-3 * after[:, :, 0] / f.cap[None, :, 0], np.inf)
+        j = np.argmin(score, axis=1)
+        ok = np.isfinite(score[np.arange(rows.size), j]) & (j != cur)
+        rows, cur, j = rows[ok], cur[ok], j[ok]
+        if rows.size == 0:
+            continue
+        used[rows, cur] -= d[cur]
+        used[rows, j] += d[j]
+        if h >= 0:
+            up[rows, h] += fleet.traffic[i] * ((j != h).astype(float) - (cur != h).astype(float))
+            over_up[rows] = up[rows] > lim[None, :] + _EPS
+        x[rows, i] = j
+        over_node[rows] = np.any(used[rows] > f.cap[None] + _EPS, axis=2)
+    return x
+
+
+class CapacityRepair(Repair):  # type: ignore[misc]
+    """Capacity and uplink repair (``repair_plans``) applied to every new individual."""
+
+    def _do(self, problem: PlacementProblem, X: NDArray[Any], **kwargs: Any) -> I64:
+        full = problem.full(X)
+        return repair_plans(problem, full)[:, problem.genes]
+
+
+class GeneMutation(Mutation):  # type: ignore[misc]
+    """Re-draws genes uniformly within their allowed sets.
+
+    ``prob`` is the chance that an offspring mutates (fogfleet: settings.mutationPercent);
+    a mutating offspring re-draws each gene with probability ``per_gene`` (default 1/G) and
+    at least one gene. The paper's PyGAD setting is prob=1, per_gene=0.3.
+    """
+
+    def __init__(self, prob: float = 0.3, per_gene: float | None = None) -> None:
+        super().__init__(prob=prob)
+        self.per_gene = per_gene
+
+    def _do(self, problem: PlacementProblem, X: NDArray[Any], *args: Any, random_state: Any = None, **kwargs: Any) -> I64:
+        rng: np.random.Generator = random_state
+        x = np.asarray(X).astype(np.int64)
+        n, g = x.shape
+        if g == 0:
+            return x
+        rate = self.per_gene if self.per_gene is not None else 1.0 / g
+        mask = rng.random((n, g)) < rate
+        mask[np.arange(n), rng.integers(0, g, size=n)] = True
+        fresh = problem.random_genes(n, rng)
+        return np.where(mask, fresh, x)
+
+
+class GeneCrossover(Crossover):  # type: ignore[misc]
+    """Two parents, two children: ``uniform`` (each gene from either parent with p = 1/2) or
+    ``single_point`` (the paper's PyGAD setting)."""
+
+    def __init__(self, kind: str = "uniform", prob: float = 0.9) -> None:
+        if kind not in ("uniform", "single_point"):
+            raise ValueError(f"unknown crossover {kind!r}")
+        super().__init__(2, 2, prob=prob)
+        self.kind = kind
+
+    def _do(self, problem: PlacementProblem, X: NDArray[Any], *args: Any, random_state: Any = None, **kwargs: Any) -> I64:
+        rng: np.random.Generator = random_state
+        a, b = np.asarray(X[0]).astype(np.int64), np.asarray(X[1]).astype(np.int64)
+        m, g = a.shape
+        if self.kind == "uniform" or g < 2:
+            mask = rng.random((m, g)) < 0.5
+        else:
+            cut = rng.integers(1, g, size=m)
+            mask = np.arange(g)[None, :] < cut[:, None]
+        return np.stack([np.where(mask, a, b), np.where(mask, b, a)])

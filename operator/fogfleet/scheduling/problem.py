@@ -1,0 +1,95 @@
+"""The placement problem as a vectorised pymoo ``Problem``: one gene per placeable instance."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+from pymoo.core.problem import Problem as PymooProblem
+
+from fogfleet.domain.problem import Problem
+
+from .heuristics import Fit
+from .objectives import EVALUATORS, Evaluation, constraint_names
+
+__all__ = ["PlacementProblem"]
+
+I64 = NDArray[np.int64]
+F64 = NDArray[np.float64]
+
+
+class PlacementProblem(PymooProblem):  # type: ignore[misc]
+    """Genes are the instances with a non-empty gene space (``genes``); the others stay at -1.
+
+    ``_evaluate`` expands a (P, G) population into (P, I) plans and computes every objective
+    and constraint for the whole population at once (``objectives.Evaluation``). With
+    ``penalty`` set, constraints are not reported as G but added to every objective as
+    ``penalty * sum(max(G, 0))`` (the paper's "negative reward"; used by the stand-in
+    baseline only).
+    """
+
+    def __init__(
+        self,
+        problem: Problem,
+        objectives: Sequence[str],
+        *,
+        with_limits: bool = True,
+        penalty: float | None = None,
+    ) -> None:
+        unknown = [n for n in objectives if n not in EVALUATORS]
+        if unknown:
+            raise KeyError(f"unknown objective(s): {', '.join(unknown)}")
+        self.fleet = problem
+        self.alloc = problem.allocation(with_limits)
+        self.with_limits = with_limits
+        self.names = tuple(objectives)
+        self.penalty = penalty
+        self.genes: I64 = np.flatnonzero(problem.allowed.any(axis=1)).astype(np.int64)
+        self.fit = Fit(problem, self.alloc)
+        allowed = problem.allowed[self.genes]
+        self.counts: I64 = allowed.sum(axis=1).astype(np.int64)
+        width = int(self.counts.max()) if len(self.genes) else 1
+        # table[g, k]: the k-th allowed node of gene g (padded with the first)
+        order = np.argsort(~allowed, axis=1, kind="stable")[:, :width]
+        self.table: I64 = order.astype(np.int64)
+        n_constr = len(constraint_names(problem))
+        super().__init__(
+            n_var=len(self.genes),
+            n_obj=len(self.names),
+            n_ieq_constr=0 if penalty is not None else n_constr,
+            xl=0,
+            xu=max(problem.n_nodes - 1, 0),
+            vtype=int,
+        )
+
+    def full(self, X: NDArray[Any]) -> I64:
+        """(P, G) genes -> (P, I) plans with -1 for instances outside the search."""
+        x = np.asarray(X).astype(np.int64, copy=False)
+        if x.ndim == 1:
+            x = x[None, :]
+        out = np.full((x.shape[0], self.fleet.n_instances), -1, dtype=np.int64)
+        out[:, self.genes] = x
+        return out
+
+    def random_genes(self, n: int, rng: np.random.Generator) -> I64:
+        """n plans drawn uniformly within each gene's allowed set (G columns)."""
+        k = (rng.random((n, len(self.genes))) * self.counts[None, :]).astype(np.int64)
+        k = np.minimum(k, self.counts[None, :] - 1)
+        return self.table[np.arange(len(self.genes))[None, :], k]
+
+    def objectives_of(self, X: NDArray[Any]) -> F64:
+        ev = Evaluation(self.fleet, self.full(X), self.alloc)
+        return np.column_stack([EVALUATORS[n](ev) for n in self.names])
+
+    def _evaluate(self, X: NDArray[Any], out: dict[str, Any], *args: Any, **kwargs: Any) -> None:
+        ev = Evaluation(self.fleet, self.full(X), self.alloc)
+        F = np.column_stack([EVALUATORS[n](ev) for n in self.names])
+        G = ev.constraints()
+        if self.penalty is not None:
+            cv = np.maximum(G, 0.0).sum(axis=1)
+            out["F"] = F + self.penalty * cv[:, None]
+        else:
+            out["F"] = F
+            out["G"] = G

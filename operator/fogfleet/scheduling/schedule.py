@@ -1,0 +1,34 @@
+"""The scheduling core's output: one chosen plan, its objective values and why it was chosen."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import NDArray
+
+__all__ = ["Schedule"]
+
+
+@dataclass(frozen=True)
+class Schedule:
+    """A placement of every instance of a Problem.
+
+    ``placement[i]`` is a node index (``-1``: instance ``i`` could not be placed, see
+    ``reasons``). ``with_limits`` tells which Allocation of the Problem the plan uses: True for
+    fogfleet's own plans (requests = limits per hardware type), False for plans that mimic plain
+    Deployments (k8s-default, onboard).
+    """
+
+    scheduler: str
+    placement: NDArray[np.int64]
+    with_limits: bool
+    objectives: dict[str, float]
+    feasible: bool
+    duration_seconds: float
+    choice_reason: str = ""
+    pareto_front: NDArray[np.float64] | None = None  # (K, n_obj) objective values of the front
+    objective_names: tuple[str, ...] = ()
+    reasons: dict[int, str] = field(default_factory=dict)
+    generations: int = 0
+    evaluations: int = 0

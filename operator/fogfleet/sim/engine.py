@@ -1,0 +1,172 @@
+"""Exact event-driven simulation of the cycles of the instances placed on one node.
+
+Nodes do not interact (transfers are pure delays), so each node is simulated on its own.
+
+A cycle of instance i (eq. 4) starts at ``s``: input transfer ``d_in``, then execution of
+``work`` seconds (its uncontended time at cpu_use cores), then output transfer ``d_out``. It
+misses when its duration exceeds cycle[i]. The next cycle starts at max(s + cycle, end), or at
+the start of the next on-episode if the instance is inactive then. Only cycles that start
+before the horizon are run; they are run to completion (at most one per instance runs past it).
+
+CPU sharing: a running job demands ``cpu_use`` cores. While the demands on the node fit its
+capacity every job gets its demand. Otherwise the capacity is water-filled (max-min fair: each
+job gets min(demand, level) with the level chosen so that the shares sum to the capacity) and a
+job with share ``a`` progresses at rate ``a / cpu_use``. Between two events (an execution start
+or end) the shares are constant, so completion times are exact (processor sharing, no time step).
+"""
+
+from __future__ import annotations
+
+import heapq
+import math
+from dataclasses import dataclass, field
+
+from .episodes import Episodes
+
+__all__ = ["Track", "run_independent", "run_shared", "water_fill"]
+
+_EPS = 1e-12
+
+
+@dataclass(slots=True)
+class Track:
+    """One placed instance: its pre-drawn samples, its episodes and its cycle records."""
+
+    cycle: float  # expected cycle time T, seconds
+    demand: float  # cpu_use, cores
+    work: list[float]  # execution time of cycle n at full share, seconds
+    d_in: list[float]  # input transfer of cycle n, seconds
+    d_out: list[float]  # output transfer of cycle n, seconds
+    episodes: Episodes
+    horizon: float
+    durations: list[float] = field(default_factory=list)
+    missed: int = 0
+    n: int = -1  # index of the cycle in flight
+    start: float = 0.0  # its start time
+    _ep: int = 0  # first on-episode that may still contain a future start
+
+    def _next_start(self, t: float) -> float:
+        """Earliest time >= t at which the instance is active (inf: never again)."""
+        starts, ends = self.episodes
+        k = self._ep
+        while k < len(ends) and ends[k] <= t:
+            k += 1
+        self._ep = k
+        if k == len(ends):
+            return math.inf
+        return max(t, starts[k])
+
+    def _begin(self, t: float) -> float:
+        """Start a cycle at the first active time >= t; return when its execution begins."""
+        s = self._next_start(t)
+        if s >= self.horizon or self.n + 1 >= len(self.work):
+            return math.inf
+        self.n += 1
+        self.start = s
+        return s + self.d_in[self.n]
+
+    def first_arrival(self) -> float:
+        return self._begin(0.0)
+
+    def complete(self, t_exec_end: float) -> float:
+        """Record the cycle whose execution ended at ``t_exec_end``; return the next arrival."""
+        end = t_exec_end + self.d_out[self.n]
+        duration = end - self.start
+        self.durations.append(duration)
+        if duration > self.cycle:
+            self.missed += 1
+        return self._begin(max(self.start + self.cycle, end))
+
+
+def _overlap(a: float, b: float, horizon: float) -> float:
+    return max(0.0, min(b, horizon) - min(a, horizon))
+
+
+def run_independent(track: Track) -> float:
+    """Cycles of an instance that never waits for CPU (its node's demands always fit).
+
+    Returns the busy core-seconds within the horizon.
+    """
+    busy = 0.0
+    t = track.first_arrival()
+    while t < math.inf:
+        x = track.work[track.n]
+        busy += track.demand * _overlap(t, t + x, track.horizon)
+        t = track.complete(t + x)
+    return busy
+
+
+def water_fill(demands: list[float], capacity: float) -> list[float]:
+    """Max-min fair shares of ``capacity`` cores; a share never exceeds its demand."""
+    if sum(demands) <= capacity:
+        return list(demands)
+    shares = [0.0] * len(demands)
+    left = len(demands)
+    rest = capacity
+    order = sorted(range(len(demands)), key=demands.__getitem__)
+    for pos, k in enumerate(order):
+        if demands[k] * left <= rest:
+            shares[k] = demands[k]
+            rest -= demands[k]
+            left -= 1
+        else:
+            level = rest / left
+            for k2 in order[pos:]:
+                shares[k2] = level
+            break
+    return shares
+
+
+def run_shared(tracks: list[Track], capacity: float, horizon: float) -> float:
+    """Processor sharing of ``capacity`` cores among the tracks' executions.
+
+    Event loop: a heap of pending execution starts (at most one per track) and the running jobs
+    (few, kept in plain lists); the shares are recomputed only when the job set changes.
+    Returns the busy core-seconds within the horizon.
+    """
+    heap = [(t, k) for k, tr in enumerate(tracks) if (t := tr.first_arrival()) < math.inf]
+    heapq.heapify(heap)
+    jobs: list[int] = []  # running track indices
+    rem: list[float] = []  # remaining work, seconds at full share
+    rate: list[float] = []  # progress per second (share / demand)
+    load = 0.0  # sum of shares, cores
+    now = 0.0
+    busy = 0.0
+    while heap or jobs:
+        best = math.inf
+        first = -1
+        for idx in range(len(jobs)):
+            dt = rem[idx] / rate[idx]
+            if dt < best:
+                best, first = dt, idx
+        t_arr = heap[0][0] if heap else math.inf
+        if now + best <= t_arr:
+            t_next = now + best
+            busy += load * _overlap(now, t_next, horizon)
+            for idx in range(len(jobs)):
+                rem[idx] -= rate[idx] * best
+            rem[first] = 0.0
+            now = t_next
+            keep = [idx for idx in range(len(jobs)) if rem[idx] > _EPS]
+            for idx in range(len(jobs)):
+                if rem[idx] <= _EPS:
+                    k = jobs[idx]
+                    t_a = tracks[k].complete(now)
+                    if t_a < math.inf:
+                        heapq.heappush(heap, (t_a, k))
+            jobs = [jobs[idx] for idx in keep]
+            rem = [rem[idx] for idx in keep]
+        else:
+            busy += load * _overlap(now, t_arr, horizon)
+            dt = t_arr - now
+            for idx in range(len(jobs)):
+                rem[idx] -= rate[idx] * dt
+            now = t_arr
+            _, k = heapq.heappop(heap)
+            jobs.append(k)
+            rem.append(tracks[k].work[tracks[k].n])
+        demands = [tracks[k].demand for k in jobs]
+        shares = water_fill(demands, capacity)
+        rate = [a / d for a, d in zip(shares, demands, strict=True)]
+        load = sum(shares)
+    return busy
