@@ -51,11 +51,11 @@ def load_config(kubeconfig: str | None = None) -> client.ApiClient:
     with map_errors("load the Kubernetes configuration"):
         cfg = client.Configuration()
         try:
-            config.load_kube_config(config_file=kubeconfig, client_configuration=cfg)
+            config.load_kube_config(config_file=kubeconfig, client_configuration=cfg)  # type: ignore[no-untyped-call]
         except (ConfigException, FileNotFoundError, TypeError):
             if kubeconfig:
                 raise
-            config.load_incluster_config(client_configuration=cfg)
+            config.load_incluster_config(client_configuration=cfg)  # type: ignore[no-untyped-call]
         return client.ApiClient(cfg)
 
 
@@ -70,7 +70,9 @@ def map_errors(what: str, obj: str = "") -> Iterator[None]:
         if status in (400, 422):
             raise InvalidSpec(obj or what, "", f"the API server rejected it: {detail}") from exc
         if status == 403:
-            raise DependencyUnavailable(f"Cannot {what}: forbidden ({detail}); check the RBAC") from exc
+            raise DependencyUnavailable(
+                f"Cannot {what}: forbidden ({detail}); check the RBAC"
+            ) from exc
         raise DependencyUnavailable(f"Cannot {what}: HTTP {status} {detail}") from exc
     except (urllib3.exceptions.HTTPError, OSError, ConfigException, OpenApiException) as exc:
         raise DependencyUnavailable(f"Cannot {what}: {exc}") from exc
@@ -91,16 +93,45 @@ def _selector(labels: Mapping[str, str]) -> str:
 class KubeClient:
     """KubePort over one ApiClient (thread-safe: urllib3's pool is)."""
 
-    def __init__(self, api: client.ApiClient, *, manager: str = MANAGER,
-                 instance: str = "fogfleet") -> None:
+    def __init__(
+        self, api: client.ApiClient, *, manager: str = MANAGER, instance: str = "fogfleet"
+    ) -> None:
         self.api = api
         self.manager = manager
         self.instance = instance
 
+    def connection_info(self) -> dict[str, Any]:
+        """Our credentials, as keyword arguments of kopf.ConnectionInfo (kopf logs in with them)."""
+        cfg = self.api.configuration
+        header = cfg.get_api_key_with_prefix("BearerToken") or cfg.get_api_key_with_prefix(
+            "authorization"
+        )
+        parts = header.split(" ", 1) if header else []
+        scheme, token = (
+            (None, None) if not parts else (None, parts[0]) if len(parts) == 1 else parts
+        )
+        return {
+            "server": cfg.host,
+            "ca_path": cfg.ssl_ca_cert,
+            "insecure": not cfg.verify_ssl,
+            "scheme": scheme,
+            "token": token,
+            "certificate_path": cfg.cert_file,
+            "private_key_path": cfg.key_file,
+            "default_namespace": None,
+        }
+
     # ---------------------------------------------------------------- raw REST
-    def _call(self, method: str, path: str, *, query: Mapping[str, Any] | None = None,
-              body: Any = None, content_type: str | None = None,
-              missing_ok: bool = False) -> Obj | None:
+    def _call(
+        self,
+        method: str,
+        path: str,
+        *,
+        query: Mapping[str, Any] | None = None,
+        body: Any = None,
+        content_type: str | None = None,
+        missing_ok: bool = False,
+    ) -> Obj | None:
         headers = {"Accept": "application/json"}
         if content_type:
             headers["Content-Type"] = content_type
@@ -108,13 +139,18 @@ class KubeClient:
             headers["Content-Type"] = "application/json"
         url_path = path
         if query:
-            url_path += "?" + urllib.parse.urlencode({k: v for k, v in query.items() if v is not None})
+            url_path += "?" + urllib.parse.urlencode(
+                {k: v for k, v in query.items() if v is not None}
+            )
         m, url, hdrs, payload, _ = self.api.param_serialize(
-            method=method, resource_path=url_path, header_params=headers, body=body,
+            method=method,
+            resource_path=url_path,
+            header_params=headers,
+            body=body,
             auth_settings=["BearerToken"],
         )
         resp = self.api.call_api(m, url, header_params=hdrs, body=payload, _request_timeout=TIMEOUT)
-        data = resp.read()
+        data = resp.read()  # type: ignore[no-untyped-call]
         if resp.status == 404 and missing_ok:
             return None
         if not 200 <= resp.status < 300:
@@ -132,8 +168,11 @@ class KubeClient:
     # ---------------------------------------------------------------- reads
     def get_fleet(self, namespace: str, name: str) -> Obj | None:
         with map_errors(f"read RobotFleet {namespace}/{name}"):
-            return self._call("GET", f"/apis/{GROUP}/{VERSION}/namespaces/{namespace}/robotfleets/{name}",
-                              missing_ok=True)
+            return self._call(
+                "GET",
+                f"/apis/{GROUP}/{VERSION}/namespaces/{namespace}/robotfleets/{name}",
+                missing_ok=True,
+            )
 
     def list_fleets(self, namespace: str | None = None) -> list[Obj]:
         where = f"/namespaces/{namespace}" if namespace else ""
@@ -143,50 +182,77 @@ class KubeClient:
         return self._list(f"/apis/{GROUP}/{VERSION}/computenodes", "list ComputeNodes")
 
     def list_modules(self, namespace: str) -> list[Obj]:
-        return self._list(f"/apis/{GROUP}/{VERSION}/namespaces/{namespace}/softwaremodules",
-                          f"list SoftwareModules in {namespace}")
+        return self._list(
+            f"/apis/{GROUP}/{VERSION}/namespaces/{namespace}/softwaremodules",
+            f"list SoftwareModules in {namespace}",
+        )
 
     def list_nodes(self) -> list[Obj]:
         return self._list("/api/v1/nodes", "list Nodes")
 
     def list_deployments(self, namespace: str, selector: Mapping[str, str]) -> list[Obj]:
-        return self._list(f"/apis/apps/v1/namespaces/{namespace}/deployments",
-                          f"list Deployments in {namespace}", selector)
+        return self._list(
+            f"/apis/apps/v1/namespaces/{namespace}/deployments",
+            f"list Deployments in {namespace}",
+            selector,
+        )
 
     def list_pods(self, namespace: str, selector: Mapping[str, str]) -> list[Obj]:
-        return self._list(f"/api/v1/namespaces/{namespace}/pods", f"list Pods in {namespace}", selector)
+        return self._list(
+            f"/api/v1/namespaces/{namespace}/pods", f"list Pods in {namespace}", selector
+        )
 
     # ---------------------------------------------------------------- writes
     def apply_deployment(self, body: Obj) -> Obj:
         ns, name = body["metadata"]["namespace"], body["metadata"]["name"]
         with map_errors(f"apply Deployment {ns}/{name}", f"Deployment/{name}"):
-            out = self._call("PATCH", f"/apis/apps/v1/namespaces/{ns}/deployments/{name}",
-                             query={"fieldManager": self.manager, "force": "true"},
-                             body=body, content_type=APPLY)
+            out = self._call(
+                "PATCH",
+                f"/apis/apps/v1/namespaces/{ns}/deployments/{name}",
+                query={"fieldManager": self.manager, "force": "true"},
+                body=body,
+                content_type=APPLY,
+            )
         return out or {}
 
     def delete_deployment(self, namespace: str, name: str) -> None:
         with map_errors(f"delete Deployment {namespace}/{name}"):
-            self._call("DELETE", f"/apis/apps/v1/namespaces/{namespace}/deployments/{name}",
-                       body={"propagationPolicy": "Background"}, missing_ok=True)
+            self._call(
+                "DELETE",
+                f"/apis/apps/v1/namespaces/{namespace}/deployments/{name}",
+                body={"propagationPolicy": "Background"},
+                missing_ok=True,
+            )
 
     def patch_fleet_status(self, namespace: str, name: str, status: Mapping[str, Any]) -> None:
         with map_errors(f"patch the status of RobotFleet {namespace}/{name}"):
-            self._call("PATCH",
-                       f"/apis/{GROUP}/{VERSION}/namespaces/{namespace}/robotfleets/{name}/status",
-                       body={"status": dict(status)}, content_type=MERGE, missing_ok=True)
+            self._call(
+                "PATCH",
+                f"/apis/{GROUP}/{VERSION}/namespaces/{namespace}/robotfleets/{name}/status",
+                body={"status": dict(status)},
+                content_type=MERGE,
+                missing_ok=True,
+            )
 
-    def emit_event(self, involved: Mapping[str, Any], type_: str, reason: str, message: str) -> None:
+    def emit_event(
+        self, involved: Mapping[str, Any], type_: str, reason: str, message: str
+    ) -> None:
         meta = involved.get("metadata") or {}
         ns = meta.get("namespace") or "default"
         now_s = datetime.now(UTC).strftime("%Y-%m-%dT%H:%M:%SZ")
         event = {
             "apiVersion": "v1",
             "kind": "Event",
-            "metadata": {"name": f"{meta.get('name', 'fogfleet')}.{secrets.token_hex(8)}", "namespace": ns},
+            "metadata": {
+                "name": f"{meta.get('name', 'fogfleet')}.{secrets.token_hex(8)}",
+                "namespace": ns,
+            },
             "involvedObject": {
-                "apiVersion": involved.get("apiVersion"), "kind": involved.get("kind"),
-                "name": meta.get("name"), "namespace": ns, "uid": meta.get("uid"),
+                "apiVersion": involved.get("apiVersion"),
+                "kind": involved.get("kind"),
+                "name": meta.get("name"),
+                "namespace": ns,
+                "uid": meta.get("uid"),
                 "resourceVersion": meta.get("resourceVersion"),
             },
             "type": type_,

@@ -1,12 +1,12 @@
 """The operator's own Prometheus metrics (prometheus-client), served on 127.0.0.1 by default.
 
-    fogfleet_plans_total{fleet,scheduler}              plans made (cache hits are not plans)
-    fogfleet_planning_seconds{scheduler}               planning duration histogram
-    fogfleet_objective{fleet,objective}                objective values of the last plan
-    fogfleet_migrations_total{fleet}                   running modules moved to another node
-    fogfleet_reconcile_errors_total{fleet,reason}      reconciles that failed, by error reason
-    fogfleet_deployments_applied_total{fleet}          Deployments applied (server-side)
-    fogfleet_deployments_pruned_total{fleet}           stale Deployments deleted
+fogfleet_plans_total{fleet,scheduler}              plans made (cache hits are not plans)
+fogfleet_planning_seconds{scheduler}               planning duration histogram
+fogfleet_objective{fleet,objective}                objective values of the last plan
+fogfleet_migrations_total{fleet}                   running modules moved to another node
+fogfleet_reconcile_errors_total{fleet,reason}      reconciles that failed, by error reason
+fogfleet_deployments_applied_total{fleet}          Deployments applied (server-side)
+fogfleet_deployments_pruned_total{fleet}           stale Deployments deleted
 """
 
 from __future__ import annotations
@@ -28,25 +28,39 @@ class PrometheusMetrics:
         self.registry = registry or CollectorRegistry()
         r = self.registry
         self.plans = Counter("fogfleet_plans", "Plans made.", ["fleet", "scheduler"], registry=r)
-        self.planning = Histogram("fogfleet_planning_seconds", "Planning duration.", ["scheduler"],
-                                  buckets=BUCKETS, registry=r)
-        self.objective = Gauge("fogfleet_objective", "Objective values of the last plan.",
-                               ["fleet", "objective"], registry=r)
-        self.migrations = Counter("fogfleet_migrations", "Running modules moved to another node.",
-                                  ["fleet"], registry=r)
-        self.errors = Counter("fogfleet_reconcile_errors", "Reconciles that failed.",
-                              ["fleet", "reason"], registry=r)
-        self.applied = Counter("fogfleet_deployments_applied", "Deployments applied.", ["fleet"],
-                               registry=r)
-        self.pruned = Counter("fogfleet_deployments_pruned", "Stale Deployments deleted.", ["fleet"],
-                              registry=r)
+        self.planning = Histogram(
+            "fogfleet_planning_seconds",
+            "Planning duration.",
+            ["scheduler"],
+            buckets=BUCKETS,
+            registry=r,
+        )
+        self.objective = Gauge(
+            "fogfleet_objective",
+            "Objective values of the last plan.",
+            ["fleet", "objective"],
+            registry=r,
+        )
+        self.migrations = Counter(
+            "fogfleet_migrations", "Running modules moved to another node.", ["fleet"], registry=r
+        )
+        self.errors = Counter(
+            "fogfleet_reconcile_errors", "Reconciles that failed.", ["fleet", "reason"], registry=r
+        )
+        self.applied = Counter(
+            "fogfleet_deployments_applied", "Deployments applied.", ["fleet"], registry=r
+        )
+        self.pruned = Counter(
+            "fogfleet_deployments_pruned", "Stale Deployments deleted.", ["fleet"], registry=r
+        )
 
     def serve(self, port: int, addr: str = "127.0.0.1") -> Any:
         """Start the /metrics HTTP server in a daemon thread; returns (server, thread)."""
         return start_http_server(port, addr=addr, registry=self.registry)
 
-    def observe_plan(self, fleet: str, scheduler: str, seconds: float,
-                     objectives: Mapping[str, float]) -> None:
+    def observe_plan(
+        self, fleet: str, scheduler: str, seconds: float, objectives: Mapping[str, float]
+    ) -> None:
         self.plans.labels(fleet, scheduler).inc()
         self.planning.labels(scheduler).observe(seconds)
         for name, value in objectives.items():

@@ -48,7 +48,9 @@ class KubePort(Protocol):
         """One JSON merge patch of the status subresource (None values remove fields)."""
         ...
 
-    def emit_event(self, involved: Mapping[str, Any], type_: str, reason: str, message: str) -> None:
+    def emit_event(
+        self, involved: Mapping[str, Any], type_: str, reason: str, message: str
+    ) -> None:
         """A core/v1 Event about ``involved`` (a fleet body); failures are logged, not raised."""
         ...
 
@@ -60,8 +62,9 @@ class Planner(Protocol):
 
 
 class MetricsPort(Protocol):
-    def observe_plan(self, fleet: str, scheduler: str, seconds: float,
-                     objectives: Mapping[str, float]) -> None: ...
+    def observe_plan(
+        self, fleet: str, scheduler: str, seconds: float, objectives: Mapping[str, float]
+    ) -> None: ...
 
     def count_migrations(self, fleet: str, n: int) -> None: ...
 
@@ -73,8 +76,9 @@ class MetricsPort(Protocol):
 class NullMetrics:
     """Metrics that go nowhere (tests, the CLI)."""
 
-    def observe_plan(self, fleet: str, scheduler: str, seconds: float,
-                     objectives: Mapping[str, float]) -> None:
+    def observe_plan(
+        self, fleet: str, scheduler: str, seconds: float, objectives: Mapping[str, float]
+    ) -> None:
         return None
 
     def count_migrations(self, fleet: str, n: int) -> None:
@@ -85,4 +89,3 @@ class NullMetrics:
 
     def count_apply(self, fleet: str, applied: int, pruned: int) -> None:
         return None
-

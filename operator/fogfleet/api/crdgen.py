@@ -5,8 +5,10 @@ walks their JSON schema generically and rewrites it into the OpenAPI v3 subset t
 accepts as *structural* (every node typed, ``$ref`` inlined, no ``anyOf`` except the
 int-or-string pattern, no titles or defaults: STYLE.md "Custom resources and status"):
 
-- ``Optional[X]`` (``anyOf: [X, null]``) becomes X with ``nullable: true`` (and ``null`` joins a
-  nullable enum, because the API server checks null against the enum too);
+- ``Optional[X]`` (``anyOf: [X, null]``) becomes X with ``nullable: true``, except for enums:
+  the API server checks a null against the enum and no enum entry can match it, so an optional
+  enum stays non-nullable and the API server prunes a null there (the model then sees the field
+  unset, which is what ``None`` means);
 - ``base.Quantity`` (``x-kubernetes-int-or-string``) becomes the int-or-string pattern with a
   non-negative quantity ``pattern`` for strings and ``minimum: 0`` for integers;
 - ``additionalProperties: false`` is dropped (the API server prunes unknown fields, and rejects
@@ -39,7 +41,7 @@ import yaml
 from pydantic import BaseModel
 
 from .v1alpha1.computenode import ComputeNode
-from .v1alpha1.robotfleet import RobotFleet
+from .v1alpha1.robotfleet import ObjectiveName, RobotFleet
 from .v1alpha1.softwaremodule import SoftwareModule
 
 __all__ = [
@@ -67,7 +69,8 @@ QUANTITY_PATTERN = r"^\+?([0-9]+(\.[0-9]*)?|\.[0-9]+)(([KMGTPE]i)|[numkMGTPE]|([
 """A non-negative Kubernetes quantity ("500m", "2", "1.5Gi", "1e3"), as base.parse_quantity."""
 
 _POSITIVE_QUANTITY_RULE = {
-    "rule": "type(self) == int ? self > 0 : isQuantity(self) && quantity(self).sign() > 0",
+    "rule": "type(self) == int ? self > 0 : "
+    "isQuantity(self) && quantity(self).isGreaterThan(quantity('0'))",
     "message": "must be greater than zero",
 }
 
@@ -172,7 +175,8 @@ KINDS: tuple[KindInfo, ...] = (
         rules={
             "spec": (
                 {
-                    "rule": "(has(self.robots) && size(self.robots) > 0) || has(self.robotSelector)",
+                    "rule": "(has(self.robots) && size(self.robots) > 0) || "
+                    "has(self.robotSelector)",
                     "message": "robots: list at least one robot or set robotSelector",
                 },
             ),
@@ -183,9 +187,17 @@ KINDS: tuple[KindInfo, ...] = (
                 },
             ),
         },
-        # CEL's cost estimate needs a bound for the O(n^2) uniqueness rule; the enum has
-        # len(ObjectiveName) values. (Better in the model: Field(max_length=len(ObjectiveName)).)
-        extras={"spec.scheduler.objectives": {"maxItems": 7}},
+        # CEL's cost estimate needs a bound for the O(n^2) uniqueness rule (without it the API
+        # server refuses the CRD). Better in the model: Field(max_length=len(ObjectiveName)).
+        extras={
+            "spec.scheduler.objectives": {"maxItems": len(ObjectiveName)},
+            # Module references are keyed by name: the API server rejects a duplicate, and
+            # server-side apply merges entries by name.
+            "spec.modules": {
+                "x-kubernetes-list-type": "map",
+                "x-kubernetes-list-map-keys": ["name"],
+            },
+        },
     ),
 )
 
@@ -233,7 +245,8 @@ def _convert(node: Json, defs: Json, path: str) -> Json:
     node = _resolve(node, defs)
     where = path or "<root>"
     if "anyOf" in node or "oneOf" in node:
-        branches = [_resolve(b, defs) for b in node.get("anyOf", node.get("oneOf", []))]
+        union: list[Json] = node.get("anyOf") or node.get("oneOf") or []
+        branches = [_resolve(b, defs) for b in union]
         rest = {k: v for k, v in node.items() if k not in ("anyOf", "oneOf")}
         nullable = any(b.get("type") == "null" for b in branches)
         branches = [b for b in branches if b.get("type") != "null"]
@@ -243,10 +256,8 @@ def _convert(node: Json, defs: Json, path: str) -> Json:
             out = _convert({**branches[0], **rest}, defs, path)
         else:
             raise CrdGenerationError(f"{where}: a union of {len(branches)} types is not structural")
-        if nullable:
+        if nullable and "enum" not in out:
             out["nullable"] = True
-            if "enum" in out and None not in out["enum"]:
-                out["enum"] = [*out["enum"], None]
         return out
     if node.get("x-kubernetes-int-or-string"):
         return _int_or_string(node)
@@ -310,9 +321,11 @@ def _minmax_rules(obj: Json) -> Json:
     for name in sorted(props):
         match = re.fullmatch(r"min([A-Z]\w*)", name)
         upper = f"max{match.group(1)}" if match else ""
-        if match and props[name].get("type") == "integer" and props.get(upper, {}).get(
-            "type"
-        ) == "integer":
+        if (
+            match
+            and props[name].get("type") == "integer"
+            and props.get(upper, {}).get("type") == "integer"
+        ):
             rules.append(
                 {
                     "rule": f"!has(self.{name}) || !has(self.{upper}) || "
@@ -414,7 +427,7 @@ def render_crd_text(crd: Json) -> str:
 
 
 def chart_crds_dir(out_dir: str | Path) -> Path | None:
-    """The Helm chart's CRD copy next to ``out_dir`` (``../charts/fogfleet/crds``), if the chart exists."""
+    """The Helm chart's CRD copy next to ``out_dir`` (``../charts/fogfleet/crds``), if any."""
     chart = Path(out_dir).resolve().parent / "charts" / "fogfleet"
     return chart / "crds" if (chart / "Chart.yaml").is_file() else None
 

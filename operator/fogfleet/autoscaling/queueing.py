@@ -43,6 +43,7 @@ import math
 
 import numpy as np
 import scipy.sparse as sp
+from scipy.special import gammaln
 from scipy.sparse.linalg import expm_multiply, spsolve
 
 __all__ = [
@@ -53,6 +54,7 @@ __all__ = [
     "mean_response_seconds",
     "min_replicas_for_admission",
     "min_replicas_for_slo",
+    "reservation_blocking",
     "mmk_mean_response_seconds",
     "mmk_mean_wait_seconds",
     "mmk_response_sf",
@@ -338,7 +340,7 @@ def admission_reject_probability(
     n = np.arange(cap + 1)
     logp = np.where(
         n <= k,
-        n * math.log(a) - np.array([math.lgamma(x + 1) for x in n]),
+        n * math.log(a) - gammaln(n + 1),
         k * math.log(a) - math.lgamma(k + 1) + (n - k) * math.log(a / k),
     )
     logp -= logp.max()
@@ -368,3 +370,31 @@ def min_replicas_for_admission(
             return k
         k += 1
     return None
+
+
+def reservation_blocking(
+    lam_private: float, lam_normal: float, mu: float, k: int, capacity: int, normal_capacity: int
+) -> tuple[float, float]:
+    """(private, normal) refusal probabilities of a pool with trunk reservation.
+
+    A private request is admitted while fewer than ``capacity`` requests are present
+    (:func:`admission_capacity`), a normal one only while fewer than ``normal_capacity``: the
+    places in between are kept for private traffic. Birth-death chain with birth
+    ``lam_p + lam_n`` below ``normal_capacity`` and ``lam_p`` above, death ``min(n, k) mu``.
+    """
+    _check(lam_private + lam_normal, mu, k)
+    if k == 0 or capacity == 0:
+        return 1.0, 1.0
+    capacity = min(capacity, k + 20_000)
+    normal_capacity = min(max(normal_capacity, 0), capacity)
+    logp = np.zeros(capacity + 1)
+    for n in range(1, capacity + 1):
+        birth = lam_private + lam_normal if n - 1 < normal_capacity else lam_private
+        if birth <= 0:
+            logp[n:] = -np.inf
+            break
+        logp[n] = logp[n - 1] + math.log(birth) - math.log(min(n, k) * mu)
+    logp -= logp.max()
+    p = np.exp(logp)
+    p /= p.sum()
+    return float(p[-1]), float(p[normal_capacity:].sum())

@@ -31,6 +31,7 @@ class CachedPlan:
     migrations: int
     choice_reason: str
     planned_at: str
+    moves: tuple[str, ...] = ()  # "robot-1/module edge-1->edge-2" for the Migrated Event
 
 
 @dataclass
@@ -43,8 +44,14 @@ class References:
     selectors: set[FleetKey] = field(default_factory=set)
     lock: threading.Lock = field(default_factory=threading.Lock)
 
-    def record(self, key: FleetKey, compute_nodes: set[str], nodes: set[str], modules: set[str],
-               selector: bool) -> None:
+    def record(
+        self,
+        key: FleetKey,
+        compute_nodes: set[str],
+        nodes: set[str],
+        modules: set[str],
+        selector: bool,
+    ) -> None:
         with self.lock:
             self.compute_nodes[key] = compute_nodes
             self.nodes[key] = nodes | compute_nodes  # Node names default to ComputeNode names
@@ -84,5 +91,6 @@ class Deps:
     metrics: MetricsPort = field(default_factory=NullMetrics)
     plans: dict[FleetKey, CachedPlan] = field(default_factory=dict)
     refs: References = field(default_factory=References)
+    failures: dict[FleetKey, tuple[str, Exception]] = field(default_factory=dict)  # fp -> error
     requeue_seconds: float = 2.0  # while pods are on their way
     retry_seconds: float = 10.0  # after DependencyUnavailable

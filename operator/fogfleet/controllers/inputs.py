@@ -32,7 +32,7 @@ class Inputs:
 
 
 def node_health(node: Mapping[str, Any] | None) -> str:
-    """"" when the Node can run pods, else a short reason."""
+    """ "" when the Node can run pods, else a short reason."""
     if node is None:
         return "missing (no Kubernetes Node of that name)"
     if (node.get("spec") or {}).get("unschedulable"):
@@ -55,8 +55,9 @@ def _with_capacity(cn: ComputeNode, node: Mapping[str, Any] | None) -> ComputeNo
     return cn.model_copy(update={"spec": cn.spec.model_copy(update={"capacity": cap})})
 
 
-def gather(fleet: RobotFleet, compute_nodes: Iterable[Obj], modules: Iterable[Obj],
-           nodes: Iterable[Obj]) -> Inputs:
+def gather(
+    fleet: RobotFleet, compute_nodes: Iterable[Obj], modules: Iterable[Obj], nodes: Iterable[Obj]
+) -> Inputs:
     """Parse the CRs (remembering broken ones) and attach Node capacity and health."""
     by_node = {(n.get("metadata") or {}).get("name"): n for n in nodes}
     catalog = Catalog()
@@ -77,7 +78,9 @@ def gather(fleet: RobotFleet, compute_nodes: Iterable[Obj], modules: Iterable[Ob
         try:
             catalog.add(_with_capacity(cn, node))
         except ValueError as exc:
-            broken[f"ComputeNode/{name}"] = InvalidSpec(f"ComputeNode/{name}", "status.allocatable", str(exc))
+            broken[f"ComputeNode/{name}"] = InvalidSpec(
+                f"ComputeNode/{name}", "status.allocatable", str(exc)
+            )
     for raw in modules:
         name = (raw.get("metadata") or {}).get("name", "?")
         try:
@@ -112,7 +115,8 @@ def bound_nodes(dep: Mapping[str, Any]) -> list[str]:
     """The node names of a Deployment's required node affinity."""
     try:
         terms = dep["spec"]["template"]["spec"]["affinity"]["nodeAffinity"][
-            "requiredDuringSchedulingIgnoredDuringExecution"]["nodeSelectorTerms"]
+            "requiredDuringSchedulingIgnoredDuringExecution"
+        ]["nodeSelectorTerms"]
         values: list[str] = list(terms[0]["matchExpressions"][0]["values"])
     except (KeyError, IndexError, TypeError):
         return []

@@ -4,8 +4,9 @@ and the "don't move what runs without reason" rule (migration margin).
 The scheduling core already starts its search from the current placement (STYLE.md: "the first
 individual is the current placement"); this module adds the controller's promise on top: a
 running instance stays where it is unless the new plan is better by
-``migrationMarginPercent`` on the first objective (in the fleet's priority order) that differs
-by more than the margin.
+``migrationMarginPercent`` on the fleet's first objective (by default the predicted miss
+rate): secondary objectives such as on-board use or balance never justify disturbing a running
+module.
 """
 
 from __future__ import annotations
@@ -53,26 +54,40 @@ class CorePlanner:
 
 
 def _greedy(problem: Problem, settings: SchedulerSettings) -> Schedule:
+    """The first feasible of the core's greedy plans (best-fit, spread, on-board first)."""
     from fogfleet.scheduling.heuristics import greedy
 
     t0 = time.perf_counter()
-    x = greedy(problem, problem.limits, "best-fit")
     names = [o.value for o in settings.objectives]
+    for style in ("best-fit", "spread", "onboard"):
+        x = greedy(problem, problem.limits, style)
+        if feasible(problem, x, True):
+            break
     values = objective_values(problem, x, True, names)
     return Schedule(
-        scheduler="greedy", placement=x, with_limits=True, objectives=values,
-        feasible=feasible(problem, x, True), duration_seconds=time.perf_counter() - t0,
-        choice_reason="greedy best-fit (the NSGA-II solver is not available)",
-        objective_names=tuple(names), reasons=dict(problem.reasons),
+        scheduler="greedy",
+        placement=x,
+        with_limits=True,
+        objectives=values,
+        feasible=feasible(problem, x, True) and not problem.reasons,
+        duration_seconds=time.perf_counter() - t0,
+        choice_reason=f"greedy {style} (the NSGA-II solver is not available)",
+        objective_names=tuple(names),
+        reasons=dict(problem.reasons),
     )
 
 
-def objective_values(problem: Problem, x: I64, with_limits: bool,
-                     names: Sequence[str]) -> dict[str, float]:
+def objective_values(
+    problem: Problem, x: I64, with_limits: bool, names: Sequence[str]
+) -> dict[str, float]:
     from fogfleet.scheduling.objectives import evaluate
 
-    out = evaluate(problem, np.asarray(x, dtype=np.int64)[None, :], problem.allocation(with_limits),
-                   list(names))
+    out = evaluate(
+        problem,
+        np.asarray(x, dtype=np.int64)[None, :],
+        problem.allocation(with_limits),
+        list(names),
+    )
     return {k: float(v[0]) for k, v in out.items()}
 
 
@@ -80,16 +95,28 @@ def feasible(problem: Problem, x: I64, with_limits: bool = True) -> bool:
     """Every hard constraint of the plan holds (capacity, uplink, gene spaces)."""
     from fogfleet.scheduling.objectives import constraints
 
-    g = constraints(problem, np.asarray(x, dtype=np.int64)[None, :], problem.allocation(with_limits))
+    g = constraints(
+        problem, np.asarray(x, dtype=np.int64)[None, :], problem.allocation(with_limits)
+    )
     return bool(np.all(g <= 1e-9))
 
 
 def fingerprint(problem: Problem, settings: SchedulerSettings) -> str:
     """A hash of every planning input (not the current placement): same hash, same plan."""
     h = hashlib.sha256()
-    h.update(json.dumps([problem.fleet, problem.namespace, [dataclasses.astuple(n) for n in problem.nodes],
-                         [dataclasses.astuple(i) for i in problem.instances], settings.wire()],
-                        default=str, sort_keys=True).encode())
+    h.update(
+        json.dumps(
+            [
+                problem.fleet,
+                problem.namespace,
+                [dataclasses.astuple(n) for n in problem.nodes],
+                [dataclasses.astuple(i) for i in problem.instances],
+                settings.wire(),
+            ],
+            default=str,
+            sort_keys=True,
+        ).encode()
+    )
     for f in dataclasses.fields(problem):
         value = getattr(problem, f.name)
         if f.name == "current":
@@ -100,8 +127,11 @@ def fingerprint(problem: Problem, settings: SchedulerSettings) -> str:
         elif dataclasses.is_dataclass(value):
             for g in dataclasses.fields(value):
                 arr = getattr(value, g.name)
-                h.update(np.ascontiguousarray(arr).tobytes() if isinstance(arr, np.ndarray)
-                         else repr(arr).encode())
+                h.update(
+                    np.ascontiguousarray(arr).tobytes()
+                    if isinstance(arr, np.ndarray)
+                    else repr(arr).encode()
+                )
     return h.hexdigest()[:16]
 
 
@@ -121,10 +151,13 @@ def mask_unavailable(problem: Problem, unavailable: Mapping[int, str]) -> tuple[
     stranded = {int(i) for i in np.flatnonzero(problem.allowed.any(axis=1) & ~allowed.any(axis=1))}
     reasons = dict(problem.reasons)
     for i in stranded:
-        why = "; ".join(f"{problem.nodes[j].name} is {unavailable[j]}" for j in cols if problem.allowed[i, j])
+        why = "; ".join(
+            f"{problem.nodes[j].name} is {unavailable[j]}" for j in cols if problem.allowed[i, j]
+        )
         reasons[i] = f"{problem.label(i)} has no available node: {why}"
-    return dataclasses.replace(problem, allowed=freeze(allowed), current=freeze(current),
-                               reasons=reasons), stranded
+    return dataclasses.replace(
+        problem, allowed=freeze(allowed), current=freeze(current), reasons=reasons
+    ), stranded
 
 
 @dataclasses.dataclass(frozen=True)
@@ -135,8 +168,9 @@ class Stickiness:
     reason: str
 
 
-def _better(new: Mapping[str, float], old: Mapping[str, float], names: Sequence[str],
-            margin: float) -> tuple[bool, str]:
+def _better(
+    new: Mapping[str, float], old: Mapping[str, float], names: Sequence[str], margin: float
+) -> tuple[bool, str]:
     """Lexicographic comparison with a relative margin: the first objective that differs by more
     than ``margin`` (and ABS_TOLERANCE) decides."""
     for name in names:
@@ -150,27 +184,92 @@ def _better(new: Mapping[str, float], old: Mapping[str, float], names: Sequence[
     return False, "no objective improves by more than the margin"
 
 
+def _fill(problem: Problem, fixed: I64, prefer: I64) -> I64:
+    """Place the instances that are -1 in ``fixed`` around the fixed ones: the ``prefer`` node
+    if it still has room, else the allowed node with room and the lowest miss probability."""
+    from fogfleet.scheduling.heuristics import Fit
+
+    fit = Fit(problem, problem.limits)
+    x = fixed.copy()
+    used = np.zeros((problem.n_nodes, 3))
+    up = np.zeros(problem.n_nodes)
+    for i in np.flatnonzero(x >= 0):
+        used[x[i]] += fit.demand[i, x[i]]
+        if problem.home[i] >= 0 and x[i] != problem.home[i]:
+            up[problem.home[i]] += problem.traffic[i]
+    for i in fit.order:
+        if x[i] >= 0 or not problem.allowed[i].any():
+            continue
+        room = np.all(used + fit.demand[i] <= fit.cap + 1e-9, axis=1) & problem.allowed[i]
+        h = int(problem.home[i])
+        if h >= 0 and up[h] + problem.traffic[i] > fit.uplink[h] + 1e-9:
+            room &= np.arange(problem.n_nodes) == h
+        if not room.any():
+            return np.full_like(x, -1)
+        j = (
+            int(prefer[i])
+            if prefer[i] >= 0 and room[prefer[i]]
+            else int(np.argmin(np.where(room, fit.pref[i], np.inf)))
+        )
+        x[i] = j
+        used[j] += fit.demand[i, j]
+        if h >= 0 and j != h:
+            up[h] += problem.traffic[i]
+    return x
+
+
+def _release_overloads(problem: Problem, x: I64, new: I64) -> I64:
+    """Unpin instances from nodes that no longer fit them all (a module grew): first those the
+    new plan moves anyway, largest CPU first, until the node fits."""
+    x = x.copy()
+    demand = np.stack(
+        [
+            problem.limits.cpu_request,
+            np.broadcast_to(problem.memory[:, None], problem.allowed.shape),
+            np.broadcast_to(problem.gpu[:, None], problem.allowed.shape),
+        ],
+        axis=2,
+    )
+    for j in range(problem.n_nodes):
+        on = [int(i) for i in np.flatnonzero(x == j)]
+        load = demand[on, j].sum(axis=0) if on else np.zeros(3)
+        order = sorted(on, key=lambda i: (new[i] == j, -demand[i, j, 0]))
+        for i in order:
+            if np.all(load <= problem.capacity[j] + 1e-9):
+                break
+            load = load - demand[i, j]
+            x[i] = -1
+    return x
+
+
 def keep_running(problem: Problem, new: I64, settings: SchedulerSettings) -> Stickiness:
     """Prefer the current placement of running instances over ``new`` unless ``new`` is
-    better by the migration margin. Instances without a usable current node take ``new``."""
+    better by the migration margin. Instances without a usable current node are placed
+    around the running ones (``new``'s node when it has room)."""
     new = np.asarray(new, dtype=np.int64)
     cur = problem.current
     rows = np.arange(problem.n_instances)
     usable = (cur >= 0) & problem.allowed[rows, np.maximum(cur, 0)]
-    sticky = np.where(usable, cur, new).astype(np.int64)
     moved = [int(i) for i in np.flatnonzero(usable & (new != cur))]
     if not moved:
         return Stickiness(new, [], bool(usable.any()), "nothing that runs moves")
-    names = [o.value for o in settings.objectives]
-    if feasible(problem, sticky):
+    sticky = _fill(
+        problem, _release_overloads(problem, np.where(usable, cur, -1).astype(np.int64), new), new
+    )
+    names = [settings.objectives[0].value]  # only the first objective justifies a move
+    if (sticky >= 0).sum() == (new >= 0).sum() and feasible(problem, sticky):
         a = objective_values(problem, new, True, names)
         b = objective_values(problem, sticky, True, names)
         better, why = _better(a, b, names, settings.migration_margin_percent / 100.0)
         if not better:
             return Stickiness(sticky, [], True, f"kept running modules in place ({why})")
         return Stickiness(new, moved, False, f"moved {len(moved)} running module(s): {why}")
-    return Stickiness(new, moved, False,
-                      f"moved {len(moved)} running module(s): the current placement no longer fits")
+    return Stickiness(
+        new,
+        moved,
+        False,
+        f"moved {len(moved)} running module(s): the current placement no longer fits",
+    )
 
 
 def placement_array(values: Any) -> I64:

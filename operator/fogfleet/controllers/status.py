@@ -22,10 +22,17 @@ def now() -> str:
     return datetime.now(UTC).strftime("%Y-%m-%dT%H:%M:%SZ")
 
 
-def condition(type_: str, ok: bool | None, reason: str, message: str, generation: int | None) -> Obj:
+def condition(
+    type_: str, ok: bool | None, reason: str, message: str, generation: int | None
+) -> Obj:
     status = "Unknown" if ok is None else ("True" if ok else "False")
-    return {"type": type_, "status": status, "reason": reason, "message": message[:2000],
-            "observedGeneration": generation}
+    return {
+        "type": type_,
+        "status": status,
+        "reason": reason,
+        "message": message[:2000],
+        "observedGeneration": generation,
+    }
 
 
 def merge_conditions(old: Iterable[Mapping[str, Any]], new: Sequence[Obj]) -> list[Obj]:
@@ -34,18 +41,24 @@ def merge_conditions(old: Iterable[Mapping[str, Any]], new: Sequence[Obj]) -> li
     out = []
     for c in new:
         prev = before.get(c["type"])
-        stamp = prev.get("lastTransitionTime") if prev and prev.get("status") == c["status"] else None
+        stamp = (
+            prev.get("lastTransitionTime") if prev and prev.get("status") == c["status"] else None
+        )
         out.append({**c, "lastTransitionTime": stamp or now()})
     return out
 
 
 def same_status(old: Mapping[str, Any], new: Mapping[str, Any]) -> bool:
     """Equal apart from timestamps (so an idle reconcile patches nothing)."""
+
     def strip(s: Mapping[str, Any]) -> Any:
         out = {k: v for k, v in s.items() if k != "lastPlanTime" and v is not None}
-        out["conditions"] = [{k: v for k, v in c.items() if k != "lastTransitionTime"}
-                             for c in s.get("conditions") or []]
+        out["conditions"] = [
+            {k: v for k, v in c.items() if k != "lastTransitionTime"}
+            for c in s.get("conditions") or []
+        ]
         return out
+
     return bool(strip(old) == strip(new))
 
 
@@ -64,14 +77,14 @@ def _pod_running(pod: Mapping[str, Any]) -> bool:
     if (pod.get("metadata") or {}).get("deletionTimestamp") or st.get("phase") != "Running":
         return False
     conds = {c.get("type"): c.get("status") for c in st.get("conditions") or []}
-    return conds.get("Ready", "True") == "True"
+    return bool(conds.get("Ready", "True") == "True")
 
 
 def affinity_nodes(dep: Mapping[str, Any]) -> list[str]:
     try:
         values: list[str] = dep["spec"]["template"]["spec"]["affinity"]["nodeAffinity"][
-            "requiredDuringSchedulingIgnoredDuringExecution"]["nodeSelectorTerms"][0][
-            "matchExpressions"][0]["values"]
+            "requiredDuringSchedulingIgnoredDuringExecution"
+        ]["nodeSelectorTerms"][0]["matchExpressions"][0]["values"]
         return values
     except (KeyError, IndexError, TypeError):
         return []
@@ -83,10 +96,12 @@ def _deployment_done(dep: Mapping[str, Any], want_hash: str | None) -> bool:
         return False
     st = dep.get("status") or {}
     replicas = (dep.get("spec") or {}).get("replicas", 1)
-    return bool(st.get("observedGeneration", 0) >= meta.get("generation", 0)
-                and st.get("updatedReplicas", 0) >= replicas
-                and st.get("availableReplicas", 0) >= replicas
-                and st.get("replicas", 0) <= replicas)
+    return bool(
+        st.get("observedGeneration", 0) >= meta.get("generation", 0)
+        and st.get("updatedReplicas", 0) >= replicas
+        and st.get("availableReplicas", 0) >= replicas
+        and st.get("replicas", 0) <= replicas
+    )
 
 
 def rollout(desired: Sequence[Obj], deployments: Sequence[Obj], pods: Sequence[Obj]) -> Rollout:
@@ -108,7 +123,12 @@ def rollout(desired: Sequence[Obj], deployments: Sequence[Obj], pods: Sequence[O
         if good:
             out.bound[name] = good[0]
         want_hash = (want["metadata"].get("annotations") or {}).get(ANNOTATION_SPEC_HASH)
-        if have is not None and _deployment_done(have, want_hash) and nodes and set(nodes) <= allowed:
+        if (
+            have is not None
+            and _deployment_done(have, want_hash)
+            and nodes
+            and set(nodes) <= allowed
+        ):
             out.settled.append(name)
         elif nodes and not set(nodes) <= allowed:
             out.moving.append(name)

@@ -1,0 +1,38 @@
+"""Thin kopf handlers. ``register`` wires them into a registry with the runtime's settings
+(intervals come from Settings, so the decorators are applied here, not at import)."""
+
+from __future__ import annotations
+
+import kopf
+
+from fogfleet import GROUP, VERSION
+from fogfleet.render.deployments import LABEL_MANAGED_BY, MANAGER
+from fogfleet.settings import Settings
+
+from . import lifecycle, related, robotfleet
+
+__all__ = ["register"]
+
+FLEETS = (GROUP, VERSION, "robotfleets")
+
+
+def register(registry: kopf.OperatorRegistry, settings: Settings) -> kopf.OperatorRegistry:
+    kopf.on.startup(registry=registry)(lifecycle.startup)
+    kopf.on.login(registry=registry)(lifecycle.login)
+    kopf.on.cleanup(registry=registry)(lifecycle.cleanup)
+    for on in (kopf.on.create, kopf.on.update, kopf.on.resume):
+        on(*FLEETS, registry=registry)(robotfleet.fleet_changed)
+    kopf.on.delete(*FLEETS, registry=registry)(robotfleet.fleet_deleted)
+    kopf.timer(
+        *FLEETS,
+        interval=settings.drift_interval_seconds,
+        initial_delay=settings.drift_interval_seconds,
+        registry=registry,
+    )(robotfleet.fleet_drift)
+    kopf.on.event(GROUP, VERSION, "softwaremodules", registry=registry)(related.module_event)
+    kopf.on.event(GROUP, VERSION, "computenodes", registry=registry)(related.compute_node_event)
+    kopf.on.event("", "v1", "nodes", registry=registry)(related.node_event)
+    kopf.on.event(
+        "apps", "v1", "deployments", labels={LABEL_MANAGED_BY: MANAGER}, registry=registry
+    )(related.deployment_event)
+    return registry

@@ -92,7 +92,9 @@ def label_value(text: str) -> str:
 
 def deployment_name(fleet: str, inst: Instance) -> str:
     """``<fleet>-<robot>-<module>-<hash8>`` (shared replicas: ``<fleet>-<module>-r<k>-<hash8>``)."""
-    who = [fleet, inst.robot, inst.module] if inst.robot else [fleet, inst.module, f"r{inst.replica}"]
+    who = (
+        [fleet, inst.robot, inst.module] if inst.robot else [fleet, inst.module, f"r{inst.replica}"]
+    )
     suffix = _digest(fleet, inst.robot, inst.module, inst.replica)
     base = _dns("-".join(who))[: MAX_NAME - len(suffix) - 1].rstrip("-")
     return f"{base}-{suffix}"
@@ -125,13 +127,22 @@ def identity_of(deployment: Mapping[str, Any]) -> tuple[str, str, int] | None:
 
 
 def _affinity(node_names: Sequence[str]) -> dict[str, Any]:
-    term = {"matchExpressions": [{"key": HOSTNAME_KEY, "operator": "In", "values": list(node_names)}]}
-    return {"nodeAffinity": {"requiredDuringSchedulingIgnoredDuringExecution": {"nodeSelectorTerms": [term]}}}
+    term = {
+        "matchExpressions": [{"key": HOSTNAME_KEY, "operator": "In", "values": list(node_names)}]
+    }
+    return {
+        "nodeAffinity": {
+            "requiredDuringSchedulingIgnoredDuringExecution": {"nodeSelectorTerms": [term]}
+        }
+    }
 
 
 def _container(module: SoftwareModule, resources: dict[str, Any]) -> dict[str, Any]:
     tpl = module.spec.template
-    container: dict[str, Any] = {"name": _dns(module.metadata.name)[:MAX_NAME] or "module", "image": tpl.image}
+    container: dict[str, Any] = {
+        "name": _dns(module.metadata.name)[:MAX_NAME] or "module",
+        "image": tpl.image,
+    }
     if tpl.command:
         container["command"] = list(tpl.command)
     if tpl.args:
@@ -176,15 +187,28 @@ def render_instance(
     }
     if tier:
         labels[LABEL_TIER] = tier
-    annotations = {ANNOTATION_ROBOT: inst.robot, ANNOTATION_MODULE: inst.module,
-                   ANNOTATION_REPLICA: str(inst.replica)}
-    metadata: dict[str, Any] = {"name": name, "namespace": problem.namespace, "labels": labels,
-                                "annotations": annotations}
+    annotations = {
+        ANNOTATION_ROBOT: inst.robot,
+        ANNOTATION_MODULE: inst.module,
+        ANNOTATION_REPLICA: str(inst.replica),
+    }
+    metadata: dict[str, Any] = {
+        "name": name,
+        "namespace": problem.namespace,
+        "labels": labels,
+        "annotations": annotations,
+    }
     if owner is not None:
-        metadata["ownerReferences"] = [{
-            "apiVersion": API_VERSION, "kind": "RobotFleet", "name": owner.name, "uid": owner.uid,
-            "controller": True, "blockOwnerDeletion": True,
-        }]
+        metadata["ownerReferences"] = [
+            {
+                "apiVersion": API_VERSION,
+                "kind": "RobotFleet",
+                "name": owner.name,
+                "uid": owner.uid,
+                "controller": True,
+                "blockOwnerDeletion": True,
+            }
+        ]
     dep: dict[str, Any] = {
         "apiVersion": "apps/v1",
         "kind": "Deployment",
@@ -193,7 +217,10 @@ def render_instance(
             "replicas": 1,
             "selector": {"matchLabels": selector},
             # maxUnavailable 1: a module leaving a lost node is started elsewhere at once
-            "strategy": {"type": "RollingUpdate", "rollingUpdate": {"maxSurge": 1, "maxUnavailable": 1}},
+            "strategy": {
+                "type": "RollingUpdate",
+                "rollingUpdate": {"maxSurge": 1, "maxUnavailable": 1},
+            },
             "template": {
                 "metadata": {"labels": labels, "annotations": dict(annotations)},
                 "spec": {
@@ -236,6 +263,9 @@ def render_fleet(
                 continue
             nodes = [int(placement[i])]
         if nodes:
-            out.append(render_instance(problem, i, module, nodes, baseline=baseline, owner=owner,
-                                       plan_id=plan_id))
+            out.append(
+                render_instance(
+                    problem, i, module, nodes, baseline=baseline, owner=owner, plan_id=plan_id
+                )
+            )
     return out

@@ -132,7 +132,7 @@ def solve_exact(
     bounds = Bounds(np.zeros(nv), np.append(np.ones(n_pairs), np.inf))
     res = milp(c, constraints=LinearConstraint(A, np.concatenate(lo), np.concatenate(hi)),
                integrality=integrality, bounds=bounds,
-               options={"time_limit": time_limit, "mip_rel_gap": 1e-9, "disp": False})
+               options={"time_limit": time_limit, "mip_rel_gap": 1e-6, "disp": False})
     if res.x is None:
         raise Infeasible(f"RobotFleet/{problem.fleet}", "spec",
                          f"the exact solver found no feasible plan ({res.message})")

@@ -49,7 +49,8 @@ class Fit:
 
 def greedy(problem: Problem, allocation: Allocation, style: str = "best-fit", fit: Fit | None = None) -> I64:
     """One plan: ``best-fit`` (lowest miss probability, ties to the fullest node that fits),
-    ``spread`` (ties to the emptiest), ``onboard`` (the home robot whenever it fits, else
+    ``spread`` (ties to the emptiest), ``level`` (the emptiest node among those with a miss
+    probability within 1e-3 of the lowest: keeps the peak utilisation low), ``onboard`` (the home robot whenever it fits, else
     best-fit). Instances with an empty gene space get -1; if nothing fits, the allowed node
     with the smallest overload is used (the repair may fix it later)."""
     f = fit or Fit(problem, allocation)
@@ -69,18 +70,22 @@ def greedy(problem: Problem, allocation: Allocation, style: str = "best-fit", fi
             over = up[h] + problem.traffic[i] > f.uplink[h] + 1e-9
             if over:
                 room &= np.arange(n_n) == h
-        util = after[:, 0] / f.cap[:, 0]
+        util = np.max(after / np.maximum(f.cap, 1e-9), axis=1)
         if style == "onboard" and h >= 0 and room[h]:
             j = h
+        elif style == "level" and room.any():
+            # min-max: the emptiest node among those within 1e-3 of the lowest miss probability
+            qmin = float(np.min(np.where(room, f.q[i], np.inf)))
+            j = int(np.argmin(np.where(room & (f.q[i] <= qmin + 1e-3), util, np.inf)))
         elif room.any():
-            tie = -util if style in ("best-fit", "onboard") else util
-            score = np.where(room, f.pref[i] + 1e-3 * tie, np.inf)
+            tie = -1e-3 * util if style in ("best-fit", "onboard") else 0.05 * util
+            score = np.where(room, f.pref[i] + tie, np.inf)
             j = int(np.argmin(score))
         else:
             overload = np.max(after / np.maximum(f.cap, 1e-9), axis=1)
             j = int(np.argmin(np.where(allowed, overload, np.inf)))
         x[i] = j
-        used[j] += d
+        used[j] += d[j]
         if h >= 0 and j != h:
             up[h] += problem.traffic[i]
     return x

@@ -203,24 +203,29 @@ class Evaluation:
         a = self.problem.activation[None, :]
         return np.asarray((a * np.where(t > 1.0, t, 0.0)).sum(axis=1), dtype=np.float64)
 
-    def overlap_demand(self) -> tuple[F64, F64, F64]:
-        """Overlap-aware CPU demand on each instance's node while it executes (P, I each).
+    def overlap_demand(self) -> tuple[F64, F64, F64, NDArray[np.bool_]]:
+        """Overlap-aware CPU demand on each instance's node while it executes.
 
         Instance k occupies ``cpu_use_k`` cores with probability b_k = activation_k * duty_k,
         duty_k = min(1, t_exe_k * slowdown_k / T_k) (between cycles a module waits for its next
         period). The demand on i's node while i runs is D = use_i + sum_{k != i} B_k use_k with
         B_k ~ Bernoulli(b_k), approximated as normal and clipped to [use_i, all-active peak].
-        Returns (mean, std, peak) of D; two fixed-point rounds couple duty and slowdown.
+        Returns (mean, std, peak) of D (P, I each) and the mask of instances whose node can be
+        oversubscribed at all (peak > cap); elsewhere the slowdown is exactly 1. Two
+        fixed-point rounds couple duty and slowdown.
         """
-        a = self.problem.activation[None, :]
-        cyc = self.problem.cycle[None, :]
         pidx = np.arange(self.P)[:, None]
-        use = self.use
         peak = self.cpu_peak[pidx, self.x]
         cap = self.problem.capacity[:, 0][self.x]
+        hot = self.valid & (peak > cap * (1 + 1e-9))
+        m = self.use.copy()
+        sd = np.zeros_like(m)
+        if not hot.any():
+            return m, sd, peak, hot
+        a = self.problem.activation[None, :]
+        cyc = self.problem.cycle[None, :]
+        use = self.use
         slow = np.ones((self.P, self.I))
-        m = use
-        sd = np.zeros_like(use)
         for _ in range(2):
             duty = np.minimum(1.0, self.exe * slow / cyc)
             b = np.where(self.valid, a * duty, 0.0)
@@ -228,8 +233,9 @@ class Evaluation:
             bv = b * (1.0 - b) * use * use
             m = use + self.per_node(bu)[pidx, self.x] - bu
             sd = np.sqrt(np.maximum(self.per_node(bv)[pidx, self.x] - bv, 0.0))
-            slow = self._expect(lambda d: np.maximum(1.0, d / cap), m, sd, use, peak)
-        return m, sd, peak
+            mh, sh, uh, ph, ch = m[hot], sd[hot], use[hot], peak[hot], cap[hot]
+            slow[hot] = self._expect(lambda d: np.maximum(1.0, d / ch), mh, sh, uh, ph)  # noqa: B023
+        return m, sd, peak, hot
 
     @staticmethod
     def _expect(f: Callable[[F64], F64], m: F64, sd: F64, lo: F64, hi: F64) -> F64:
@@ -243,16 +249,17 @@ class Evaluation:
         """Predicted miss probability of each instance's active cycles (P, I): the normal
         cycle-time tail at slowdown max(1, D / cap), averaged over the demand D."""
         T = np.broadcast_to(self.problem.cycle[None, :], (self.P, self.I))
-        cap = self.problem.capacity[:, 0][self.x]
+        q = miss_probability(self.net + self.exe, np.sqrt(self.exe_std**2 + self.net_std**2), T)
+        m, sd, peak, hot = self.overlap_demand()
+        if hot.any():
+            cap = self.problem.capacity[:, 0][self.x][hot]
+            net, net_sd, exe, exe_sd, th = self.net[hot], self.net_std[hot], self.exe[hot], self.exe_std[hot], T[hot]
 
-        def at(d: F64) -> F64:
-            k = np.maximum(1.0, d / cap)
-            mean = self.net + self.exe * k
-            sd = np.sqrt((self.exe_std * k) ** 2 + self.net_std**2)
-            return miss_probability(mean, sd, T)
+            def at(d: F64) -> F64:
+                k = np.maximum(1.0, d / cap)
+                return miss_probability(net + exe * k, np.sqrt((exe_sd * k) ** 2 + net_sd**2), th)
 
-        m, sd, peak = self.overlap_demand()
-        q = self._expect(at, m, sd, self.use, peak)
+            q[hot] = self._expect(at, m[hot], sd[hot], self.use[hot], peak[hot])
         return np.where(self.valid, q, 0.0)
 
     def miss_rate(self) -> F64:

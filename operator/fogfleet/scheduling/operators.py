@@ -22,17 +22,21 @@ __all__ = ["CapacityRepair", "FleetSampling", "GeneCrossover", "GeneMutation", "
 
 I64 = NDArray[np.int64]
 _EPS = 1e-9
+# weight of the target node's peak utilisation after a move, next to its miss probability and
+# 0.01 * cycle ratio (``Fit.pref``): spreads repaired instances over the emptier nodes
+REPAIR_SPREAD = 0.02
 
 
 def seed_plans(pp: PlacementProblem) -> list[I64]:
     """Constructive plans (full I columns): the current placement (completed greedily), then
-    greedy best-fit by miss probability, on-board first and spread; duplicates dropped."""
+    greedy best-fit by miss probability, on-board first, spread and level; duplicates dropped."""
     fleet = pp.fleet
     best = greedy(fleet, pp.alloc, "best-fit", pp.fit)
     plans: list[I64] = []
     if (fleet.current >= 0).any():
         plans.append(np.where(fleet.current >= 0, fleet.current, best).astype(np.int64))
-    plans += [best, greedy(fleet, pp.alloc, "onboard", pp.fit), greedy(fleet, pp.alloc, "spread", pp.fit)]
+    plans += [best, greedy(fleet, pp.alloc, "onboard", pp.fit), greedy(fleet, pp.alloc, "spread", pp.fit),
+              greedy(fleet, pp.alloc, "level", pp.fit)]
     out: list[I64] = []
     for p in plans:
         if not any(np.array_equal(p, q) for q in out):
@@ -87,8 +91,13 @@ def repair_plans(pp: PlacementProblem, x: I64) -> I64:
     if not over_node.any() and not over_up.any():
         return x
     nodes = np.arange(N)
+    # moves only go to nodes with room and only lower uplink use, so an instance that is not
+    # on an overloaded node (or a robot with its uplink over) now never will be
+    suspect = valid & over_node[np.arange(P)[:, None], xc]
+    suspect |= off & over_up[np.arange(P)[:, None], np.where(home >= 0, home, 0)[None, :]]
+    todo = suspect.any(axis=0)
     for i in f.order:
-        if not fleet.allowed[i].any():
+        if not todo[i]:
             continue
         h = int(home[i])
         cur_all = x[:, i]
@@ -107,7 +116,8 @@ def repair_plans(pp: PlacementProblem, x: I64) -> I64:
             up_base = up[rows, h] - fleet.traffic[i] * (cur != h)
             off_ok = up_base + fleet.traffic[i] <= lim[h] + _EPS
             room &= off_ok[:, None] | (nodes == h)[None, :]
-        score = np.where(room, f.pref[i][None, :] + 1e-3 * after[:, :, 0] / f.cap[None, :, 0], np.inf)
+        util = np.max(after / np.maximum(f.cap[None], _EPS), axis=2)
+        score = np.where(room, f.pref[i][None, :] + REPAIR_SPREAD * util, np.inf)
         j = np.argmin(score, axis=1)
         ok = np.isfinite(score[np.arange(rows.size), j]) & (j != cur)
         rows, cur, j = rows[ok], cur[ok], j[ok]
@@ -136,7 +146,8 @@ class GeneMutation(Mutation):  # type: ignore[misc]
 
     ``prob`` is the chance that an offspring mutates (fogfleet: settings.mutationPercent);
     a mutating offspring re-draws each gene with probability ``per_gene`` (default 1/G) and
-    at least one gene. The paper's PyGAD setting is prob=1, per_gene=0.3.
+    at least one gene. The paper's PyGAD
+    setting is prob=1, per_gene=0.3.
     """
 
     def __init__(self, prob: float = 0.3, per_gene: float | None = None) -> None:

@@ -14,7 +14,19 @@ from fogfleet.domain.problem import Problem
 from .heuristics import Fit
 from .objectives import EVALUATORS, Evaluation, constraint_names
 
-__all__ = ["PlacementProblem"]
+__all__ = ["RESOLUTION", "PlacementProblem"]
+
+# Differences below these are noise to the search: a plan 1e-11 lower in missRate must not
+# stay on the front for that alone (it would crowd out plans that differ in what matters).
+RESOLUTION: dict[str, float] = {
+    "missRate": 1e-5,
+    "missedCycles": 1e-4,
+    "onboard": 1e-4,
+    "reserve": 1e-4,
+    "balance": 1e-4,
+    "cost": 1e-4,
+    "energy": 1e-3,
+}
 
 I64 = NDArray[np.int64]
 F64 = NDArray[np.float64]
@@ -46,6 +58,7 @@ class PlacementProblem(PymooProblem):  # type: ignore[misc]
         self.with_limits = with_limits
         self.names = tuple(objectives)
         self.penalty = penalty
+        self.resolution = np.array([RESOLUTION.get(n, 0.0) for n in self.names])
         self.genes: I64 = np.flatnonzero(problem.allowed.any(axis=1)).astype(np.int64)
         self.fit = Fit(problem, self.alloc)
         allowed = problem.allowed[self.genes]
@@ -79,13 +92,18 @@ class PlacementProblem(PymooProblem):  # type: ignore[misc]
         k = np.minimum(k, self.counts[None, :] - 1)
         return self.table[np.arange(len(self.genes))[None, :], k]
 
+    def quantise(self, F: F64) -> F64:
+        """Round each objective to its ``RESOLUTION``."""
+        r = self.resolution[None, :]
+        return np.where(r > 0, np.round(F / np.where(r > 0, r, 1.0)) * r, F)
+
     def objectives_of(self, X: NDArray[Any]) -> F64:
         ev = Evaluation(self.fleet, self.full(X), self.alloc)
         return np.column_stack([EVALUATORS[n](ev) for n in self.names])
 
     def _evaluate(self, X: NDArray[Any], out: dict[str, Any], *args: Any, **kwargs: Any) -> None:
         ev = Evaluation(self.fleet, self.full(X), self.alloc)
-        F = np.column_stack([EVALUATORS[n](ev) for n in self.names])
+        F = self.quantise(np.column_stack([EVALUATORS[n](ev) for n in self.names]))
         G = ev.constraints()
         if self.penalty is not None:
             cv = np.maximum(G, 0.0).sum(axis=1)

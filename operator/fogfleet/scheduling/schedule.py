@@ -28,6 +28,7 @@ class Schedule:
     duration_seconds: float
     choice_reason: str = ""
     pareto_front: NDArray[np.float64] | None = None  # (K, n_obj) objective values of the front
+    pareto_placements: NDArray[np.int64] | None = None  # (K, I) the front's plans, same rows
     objective_names: tuple[str, ...] = ()
     reasons: dict[int, str] = field(default_factory=dict)
     generations: int = 0

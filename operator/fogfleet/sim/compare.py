@@ -44,10 +44,11 @@ def compare(
     seeds: Iterable[int] = range(10),
     *,
     all_active: bool = False,
+    aligned_start: bool = False,
 ) -> dict[str, PlanSummary]:
     """Simulate each plan (placement, allocation) with every seed; summarise per plan.
 
-    ``all_active``: see ``simulate`` (the paper's runs without task allocation).
+    ``all_active``, ``aligned_start``: see ``simulate``.
     """
     seed_list = [int(s) for s in seeds]
     if not seed_list:
@@ -55,7 +56,15 @@ def compare(
     out: dict[str, PlanSummary] = {}
     for name, (placement, allocation) in plans.items():
         runs = [
-            simulate(problem, placement, allocation, duration_s, s, all_active=all_active)
+            simulate(
+                problem,
+                placement,
+                allocation,
+                duration_s,
+                s,
+                all_active=all_active,
+                aligned_start=aligned_start,
+            )
             for s in seed_list
         ]
         first = runs[0]

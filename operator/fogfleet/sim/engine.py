@@ -127,6 +127,7 @@ def run_shared(tracks: list[Track], capacity: float, horizon: float) -> float:
     heap = [(t, k) for k, tr in enumerate(tracks) if (t := tr.first_arrival()) < math.inf]
     heapq.heapify(heap)
     jobs: list[int] = []  # running track indices
+    dem: list[float] = []  # their demands, cores
     rem: list[float] = []  # remaining work, seconds at full share
     rate: list[float] = []  # progress per second (share / demand)
     load = 0.0  # sum of shares, cores
@@ -135,38 +136,40 @@ def run_shared(tracks: list[Track], capacity: float, horizon: float) -> float:
     while heap or jobs:
         best = math.inf
         first = -1
-        for idx in range(len(jobs)):
-            dt = rem[idx] / rate[idx]
+        for idx, r in enumerate(rem):
+            dt = r / rate[idx]
             if dt < best:
                 best, first = dt, idx
         t_arr = heap[0][0] if heap else math.inf
-        if now + best <= t_arr:
-            t_next = now + best
-            busy += load * _overlap(now, t_next, horizon)
-            for idx in range(len(jobs)):
-                rem[idx] -= rate[idx] * best
+        completing = now + best <= t_arr  # on a tie, the completion goes first
+        t_next = now + best if completing else t_arr
+        dt = t_next - now
+        if now < horizon:
+            busy += load * (min(t_next, horizon) - now)
+        rem = [r - q * dt for r, q in zip(rem, rate, strict=True)]
+        now = t_next
+        if completing:
             rem[first] = 0.0
-            now = t_next
-            keep = [idx for idx in range(len(jobs)) if rem[idx] > _EPS]
-            for idx in range(len(jobs)):
-                if rem[idx] <= _EPS:
-                    k = jobs[idx]
-                    t_a = tracks[k].complete(now)
-                    if t_a < math.inf:
-                        heapq.heappush(heap, (t_a, k))
+            done = [idx for idx, r in enumerate(rem) if r <= _EPS]
+            for idx in done:
+                k = jobs[idx]
+                t_a = tracks[k].complete(now)
+                if t_a < math.inf:
+                    heapq.heappush(heap, (t_a, k))
+            keep = [idx for idx, r in enumerate(rem) if r > _EPS]
             jobs = [jobs[idx] for idx in keep]
+            dem = [dem[idx] for idx in keep]
             rem = [rem[idx] for idx in keep]
         else:
-            busy += load * _overlap(now, t_arr, horizon)
-            dt = t_arr - now
-            for idx in range(len(jobs)):
-                rem[idx] -= rate[idx] * dt
-            now = t_arr
             _, k = heapq.heappop(heap)
             jobs.append(k)
+            dem.append(tracks[k].demand)
             rem.append(tracks[k].work[tracks[k].n])
-        demands = [tracks[k].demand for k in jobs]
-        shares = water_fill(demands, capacity)
-        rate = [a / d for a, d in zip(shares, demands, strict=True)]
-        load = sum(shares)
+        if sum(dem) <= capacity:
+            rate = [1.0] * len(dem)
+            load = sum(dem)
+        else:
+            shares = water_fill(dem, capacity)
+            rate = [a / d for a, d in zip(shares, dem, strict=True)]
+            load = capacity
     return busy

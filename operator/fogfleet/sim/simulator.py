@@ -27,7 +27,7 @@ from numpy.typing import NDArray
 from fogfleet.domain.problem import Allocation, Problem
 
 from .engine import Track, run_independent, run_shared
-from .episodes import active_time, sample_episodes
+from .episodes import Episodes, active_time, sample_episodes
 from .result import SimResult
 
 __all__ = ["simulate"]
@@ -43,10 +43,22 @@ def _lognormal(mean: float, std: float, z: NDArray[np.float64]) -> list[float]:
     return out
 
 
+def _shift_first(episodes: Episodes, phase: float) -> Episodes:
+    """Start the first cycle of an episode already under way at t = 0 at ``phase``."""
+    starts, ends = episodes
+    if not starts or starts[0] > 0.0:
+        return episodes
+    if phase >= ends[0]:
+        return starts[1:], ends[1:]
+    return [phase, *starts[1:]], ends
+
+
 def _check(problem: Problem, placement: NDArray[np.int64], allocation: Allocation) -> None:
     n_i, n_n = problem.n_instances, problem.n_nodes
     if placement.shape != (n_i,):
         raise ValueError(f"placement has shape {placement.shape}, expected ({n_i},)")
+    if np.any(problem.cycle[placement >= 0] <= 0.0):
+        raise ValueError("cycle times must be positive")
     if np.any((placement < -1) | (placement >= n_n)):
         raise ValueError(f"placement values must lie in [-1, {n_n})")
     for i, j in enumerate(placement.tolist()):
@@ -68,14 +80,19 @@ def simulate(
     seed: int = 0,
     *,
     all_active: bool = False,
+    aligned_start: bool = False,
 ) -> SimResult:
     """Simulate ``placement`` (node index per instance, -1 = not run) under ``allocation``.
 
     ``all_active`` ignores the activation rates and keeps every instance active all the time:
     the paper's runs without task allocation (IV-B: "K8s default", "GA-based", "GA-based with
     limits" activate all modules in parallel; only "GA-based with TA" uses the rates).
-    Deterministic per ``seed``. Raises ValueError for a malformed plan or one that puts an
-    instance where it has no execution profile.
+
+    An instance already active at t = 0 has been running before the horizon, so the phase of
+    its cycles is uniform: its first cycle starts at U(0, cycle) (otherwise all instances with
+    the same period would run in lockstep). ``aligned_start`` starts them all at 0 instead, for
+    hand-checkable runs. Deterministic per ``seed``. Raises ValueError for a malformed plan or
+    one that puts an instance where it has no execution profile.
     """
     if not duration_s > 0.0:
         raise ValueError("duration_s must be positive")
@@ -96,6 +113,9 @@ def simulate(
         episodes = sample_episodes(rate, duration_s, ep_rng)
         active[i] = active_time(episodes, duration_s) / duration_s
         noise = np.random.default_rng(noise_seq)
+        phase = float(noise.random()) * cycle
+        if not aligned_start:
+            episodes = _shift_first(episodes, phase)
         n_max = int(duration_s // cycle) + 2  # cycle starts are >= cycle apart
         z = noise.standard_normal(n_max)
         z_net = noise.standard_normal(n_max)

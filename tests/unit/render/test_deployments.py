@@ -50,10 +50,14 @@ def test_every_placed_instance_gets_one_deployment_bound_to_its_node(catalog, pr
     assert len(deps) == problem.n_instances
     for i, dep in enumerate(deps):
         terms = dep["spec"]["template"]["spec"]["affinity"]["nodeAffinity"][
-            "requiredDuringSchedulingIgnoredDuringExecution"]["nodeSelectorTerms"]
+            "requiredDuringSchedulingIgnoredDuringExecution"
+        ]["nodeSelectorTerms"]
         expr = terms[0]["matchExpressions"][0]
-        assert expr == {"key": "kubernetes.io/hostname", "operator": "In",
-                        "values": [problem.nodes[placement[i]].node_name]}
+        assert expr == {
+            "key": "kubernetes.io/hostname",
+            "operator": "In",
+            "values": [problem.nodes[placement[i]].node_name],
+        }
 
 
 def test_limits_equal_requests_at_the_planned_cpu(catalog, problem):
@@ -76,7 +80,8 @@ def test_baseline_allows_the_whole_gene_space_with_nominal_requests_and_no_limit
     for i, dep in enumerate(deps):
         pod = dep["spec"]["template"]["spec"]
         values = pod["affinity"]["nodeAffinity"]["requiredDuringSchedulingIgnoredDuringExecution"][
-            "nodeSelectorTerms"][0]["matchExpressions"][0]["values"]
+            "nodeSelectorTerms"
+        ][0]["matchExpressions"][0]["values"]
         assert values == [problem.nodes[j].node_name for j in np.flatnonzero(problem.allowed[i])]
         res = pod["containers"][0]["resources"]
         assert "limits" not in res
@@ -85,8 +90,13 @@ def test_baseline_allows_the_whole_gene_space_with_nominal_requests_and_no_limit
 
 
 def test_labels_owner_and_plan_annotation(catalog, problem):
-    dep = render_fleet(problem, modules(catalog), first_allowed(problem),
-                       owner=Owner("warehouse", "u-1"), plan_id="p-42")[0]
+    dep = render_fleet(
+        problem,
+        modules(catalog),
+        first_allowed(problem),
+        owner=Owner("warehouse", "u-1"),
+        plan_id="p-42",
+    )[0]
     labels = dep["metadata"]["labels"]
     assert labels["fogfleet.io/fleet"] == "warehouse"
     assert labels["fogfleet.io/robot"] == "robot-1"
@@ -96,7 +106,11 @@ def test_labels_owner_and_plan_annotation(catalog, problem):
     assert dep["metadata"]["annotations"][ANNOTATION_PLAN] == "p-42"
     owner = dep["metadata"]["ownerReferences"][0]
     assert (owner["kind"], owner["name"], owner["uid"], owner["controller"]) == (
-        "RobotFleet", "warehouse", "u-1", True)
+        "RobotFleet",
+        "warehouse",
+        "u-1",
+        True,
+    )
     selector = dep["spec"]["selector"]["matchLabels"]
     assert all(dep["spec"]["template"]["metadata"]["labels"][k] == v for k, v in selector.items())
     assert identity_of(dep) == ("robot-1", "nav-motion-planning", 0)
@@ -107,7 +121,8 @@ def test_rendering_is_deterministic_and_the_spec_hash_ignores_the_plan_id(catalo
     a = render_fleet(problem, modules(catalog), p, plan_id="one")
     b = render_fleet(problem, modules(catalog), p, plan_id="two")
     assert [d["metadata"]["annotations"][ANNOTATION_SPEC_HASH] for d in a] == [
-        d["metadata"]["annotations"][ANNOTATION_SPEC_HASH] for d in b]
+        d["metadata"]["annotations"][ANNOTATION_SPEC_HASH] for d in b
+    ]
     assert spec_hash(a[0]) == a[0]["metadata"]["annotations"][ANNOTATION_SPEC_HASH]
 
 

@@ -78,6 +78,7 @@ class SchedulerSettings(FogModel):
             ObjectiveName.BALANCE,
         ],
         min_length=1,
+        max_length=len(ObjectiveName),
         description="Objectives, in priority order for the lexicographic choice.",
     )
     weights: list[ObjectiveWeight] = Field(default_factory=list)

@@ -1,0 +1,276 @@
+"""The operator end to end on the local control plane: real kube-apiserver (CRD schemas, RBAC),
+real kube-scheduler binding pods by the required node affinity we render, real controller
+manager (Deployments, ReplicaSets, garbage collection), kwok nodes that can go NotReady.
+
+Each test runs its own `fogfleet run` process scoped to the test's namespace.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from e2e.cluster.harness import Cluster
+from e2e.cluster.kube import Kube
+from e2e.operator_fixtures import (
+    CRDS,
+    ROOT,
+    Operator,
+    bound_node,
+    condition_is,
+    conditions,
+    deployments,
+    dump,
+    events,
+    example_docs,
+    fleet,
+    of_kind,
+    pods_by_instance,
+)
+
+pytestmark = [pytest.mark.e2e, pytest.mark.timeout(420)]
+N_INSTANCES = 40  # 5 robots x 8 per-robot modules
+
+
+@pytest.fixture(scope="module")
+def crds(kube: Kube) -> None:
+    kube.kubectl("apply", "--server-side", "--force-conflicts", "-f", str(CRDS))
+    for name in ("robotfleets", "softwaremodules", "computenodes"):
+        kube.kubectl("wait", "--for=condition=Established", f"crd/{name}.fogfleet.io", "--timeout=60s")
+
+
+@pytest.fixture
+def operator(kube: Kube, crds: None, namespace: str, tmp_path: Path,
+             diagnostics: list[Any]) -> Iterator[Operator]:
+    op = Operator(kube.kubeconfig, [namespace], tmp_path / "operator.log")
+    diagnostics.append(lambda: ("operator log", op.logs(150)))
+    op.start().wait_live()
+    yield op
+    op.stop()
+
+
+def apply_warehouse(kube: Kube, namespace: str, **fleet_spec: Any) -> dict[str, Any]:
+    docs = example_docs("warehouse", namespace)
+    kube.apply(of_kind(docs, "ComputeNode") + of_kind(docs, "SoftwareModule"))
+    body = of_kind(docs, "RobotFleet")[0]
+    body["spec"].update(fleet_spec)
+    kube.apply(body)
+    return body
+
+
+def wait_ready(kube: Kube, namespace: str, name: str = "warehouse", timeout: float = 180) -> None:
+    kube.wait_for(f"RobotFleet {name} Ready", lambda: condition_is(kube, namespace, "Ready", "True", name),
+                  timeout=timeout, interval=1)
+
+
+def assert_pods_where_planned(kube: Kube, namespace: str, name: str = "warehouse") -> dict[str, Any]:
+    status = fleet(kube, namespace, name)["status"]
+    planned = {(p["robot"], p["module"]): p["node"] for p in status["placement"]}
+    assert len(planned) == N_INSTANCES
+    pods = pods_by_instance(kube, namespace)
+    deps = {d["metadata"]["name"]: d for d in deployments(kube, namespace)}
+    assert len(deps) == N_INSTANCES, sorted(deps)
+    for dname, dep in deps.items():
+        ann = dep["metadata"]["annotations"]
+        want = planned[(ann["fogfleet.io/robot"], ann["fogfleet.io/module"])]
+        assert bound_node(dep) == [want]
+        assert pods[dname]["spec"]["nodeName"] == want, dname
+    return pods
+
+
+def test_warehouse_runs_where_planned_replans_once_and_cleans_up(kube: Kube, namespace: str,
+                                                                  operator: Operator) -> None:
+    t0 = time.monotonic()
+    apply_warehouse(kube, namespace)
+    wait_ready(kube, namespace)
+    ready_s = time.monotonic() - t0
+    pods = assert_pods_where_planned(kube, namespace)
+    f = fleet(kube, namespace)
+    assert f["status"]["observedGeneration"] == f["metadata"]["generation"]
+    assert f["status"]["predictedMissRate"] is not None and f["status"]["planningMillis"] > 0
+    assert len(events(kube, namespace, "Planned")) == 1
+    table = kube.kubectl("get", "robotfleets", "-n", namespace).stdout
+    assert "READY" in table and "True" in table and "40" in table, table
+    print(f"\napply-to-Ready (40 pods, plan included): {ready_s:.1f}s; "
+          f"planning {f['status']['planningMillis']} ms")
+
+    # one module's cycle time changes: one re-plan, the other modules keep their pods
+    before_uids = {name: pod["metadata"]["uid"] for name, pod in pods.items()}
+    kube.kubectl("patch", "softwaremodule", "arm-motion-generation", "-n", namespace, "--type=merge",
+                 "-p", '{"spec": {"cycleTimeMillis": 450}}')
+    kube.wait_for("a second Planned event", lambda: len(events(kube, namespace, "Planned")) >= 2, 60)
+    time.sleep(2)  # let the rollout start before checking readiness again
+    wait_ready(kube, namespace)
+    time.sleep(3)  # a burst would have made a third plan by now
+    assert len(events(kube, namespace, "Planned")) == 2
+    pods = assert_pods_where_planned(kube, namespace)
+    status = fleet(kube, namespace)["status"]
+    moved = {name for name, uid in before_uids.items() if pods.get(name, {}).get("metadata", {}).get("uid") != uid}
+    untouched_modules = {n for n in moved if "arm-motion-generation" not in n}
+    assert len(untouched_modules) <= status["migrations"], (moved, status["choiceReason"])
+    print(f"re-plan: {len(moved)} pods replaced, migrations {status['migrations']}: {status['choiceReason']}")
+    metrics = operator.metrics()
+    assert 'fogfleet_plans_total{fleet="warehouse"' in metrics
+
+    # deleting the fleet removes every Deployment it owned
+    kube.kubectl("delete", "robotfleet", "warehouse", "-n", namespace, "--wait=true", timeout=90)
+    kube.wait_for("no Deployments left", lambda: not deployments(kube, namespace), 60)
+
+
+def test_a_not_ready_edge_node_is_left_and_the_fleet_recovers(kube: Kube, cluster: Cluster, namespace: str,
+                                                              operator: Operator) -> None:
+    apply_warehouse(kube, namespace)
+    wait_ready(kube, namespace)
+    placement = fleet(kube, namespace)["status"]["placement"]
+    edge = sorted({p["node"] for p in placement if p["tier"] == "edge"})
+    assert edge, dump(placement)
+    node = edge[0]
+    affected = {(p["robot"], p["module"]) for p in placement if p["node"] == node}
+    kept = {(p["robot"], p["module"]): p["node"] for p in placement if p["node"] != node}
+    try:
+        cluster.set_node_not_ready(node)
+        kube.wait_for("Degraded or re-planned",
+                      lambda: condition_is(kube, namespace, "Degraded", "True")
+                      or len(events(kube, namespace, "Migrated")) >= 1, 60, interval=0.5)
+        kube.wait_for(f"placement off {node}", lambda: all(
+            p["node"] != node for p in fleet(kube, namespace)["status"]["placement"]), 60)
+        wait_ready(kube, namespace)
+        assert_pods_where_planned(kube, namespace)
+        after = {(p["robot"], p["module"]): p["node"] for p in fleet(kube, namespace)["status"]["placement"]}
+        assert all(after[k] != node for k in affected)
+        assert {k: after[k] for k in kept} == kept, "modules on healthy nodes stay where they are"
+        assert events(kube, namespace, "Migrated")
+        assert condition_is(kube, namespace, "Degraded", "False")
+    finally:
+        cluster.set_node_not_ready(node, False)
+
+
+def test_invalid_objects_are_rejected_or_reported_without_touching_what_runs(
+        kube: Kube, namespace: str, operator: Operator) -> None:
+    docs = example_docs("warehouse", namespace)
+    bad_tier = {**of_kind(docs, "ComputeNode")[0], "metadata": {"name": "e2e-bad-tier"}}
+    bad_tier["spec"] = {**bad_tier["spec"], "tier": "moon"}
+    proc = kube.kubectl("apply", "-f", "-", input=dump(bad_tier), check=False)
+    assert proc.returncode != 0 and "tier" in proc.stderr, proc.stderr
+    module = dict(of_kind(docs, "SoftwareModule")[0])
+    module["spec"] = {**module["spec"], "cycleTimeMillis": -5}
+    proc = kube.kubectl("apply", "-f", "-", input=dump(module), check=False)
+    assert proc.returncode != 0 and "cycleTimeMillis" in proc.stderr, proc.stderr
+
+    apply_warehouse(kube, namespace)
+    wait_ready(kube, namespace)
+    before = {d["metadata"]["name"]: d["metadata"]["resourceVersion"] for d in deployments(kube, namespace)}
+
+    # a dangling reference: Ready=False naming the field, an Event, nothing touched
+    kube.kubectl("patch", "robotfleet", "warehouse", "-n", namespace, "--type=json", "-p",
+                 '[{"op": "add", "path": "/spec/modules/-", "value": {"name": "no-such-module"}}]')
+    kube.wait_for("DanglingReference", lambda: condition_is(kube, namespace, "Ready", "False",
+                                                            reason="DanglingReference"), 60)
+    msg = conditions(fleet(kube, namespace))["Ready"]["message"]
+    assert "spec.modules[8].name" in msg and "no-such-module" in msg, msg
+    assert events(kube, namespace, "DanglingReference")
+    after = {d["metadata"]["name"]: d["metadata"]["resourceVersion"] for d in deployments(kube, namespace)}
+    assert after == before
+
+    # the module appears: the fleet re-plans by itself
+    extra = dict(of_kind(docs, "SoftwareModule")[3])
+    extra["metadata"] = {"name": "no-such-module", "namespace": namespace}
+    kube.apply(extra)
+    kube.wait_for("Ready again with 45 modules", lambda: condition_is(kube, namespace, "Ready", "True")
+                  and fleet(kube, namespace)["status"]["modulesTotal"] == 45, 120, interval=1)
+
+    # a fleet that cannot fit: every robot module asks for 64 GiB
+    greedy = of_kind(docs, "SoftwareModule")[2]  # nav-controller: stays on board
+    greedy = {**greedy, "metadata": {"name": "memory-hog", "namespace": namespace}}
+    greedy["spec"] = {**greedy["spec"], "resources": {"cpu": "500m", "memory": "64Gi"}}
+    kube.apply(greedy)
+    before = {d["metadata"]["name"]: d["metadata"]["resourceVersion"] for d in deployments(kube, namespace)}
+    kube.kubectl("patch", "robotfleet", "warehouse", "-n", namespace, "--type=json", "-p",
+                 '[{"op": "add", "path": "/spec/modules/-", "value": {"name": "memory-hog"}}]')
+    kube.wait_for("Infeasible", lambda: condition_is(kube, namespace, "Ready", "False", reason="Infeasible"), 120)
+    assert events(kube, namespace, "PlanFailed")
+    msg = conditions(fleet(kube, namespace))["Ready"]["message"]
+    assert "memory" in msg, msg
+    after = {d["metadata"]["name"]: d["metadata"]["resourceVersion"] for d in deployments(kube, namespace)}
+    assert after == before
+
+
+def test_an_operator_killed_mid_reconcile_converges_after_restart(kube: Kube, namespace: str,
+                                                                  operator: Operator) -> None:
+    apply_warehouse(kube, namespace)
+    kube.wait_for("the first Deployments", lambda: len(deployments(kube, namespace)) >= 1, 120, interval=0.2)
+    operator.kill()
+    partial = len(deployments(kube, namespace))
+    operator.start().wait_live()
+    wait_ready(kube, namespace)
+    assert_pods_where_planned(kube, namespace)
+    deps = deployments(kube, namespace)
+    uid = fleet(kube, namespace)["metadata"]["uid"]
+    assert len({d["metadata"]["name"] for d in deps}) == N_INSTANCES
+    assert all(d["metadata"]["ownerReferences"][0]["uid"] == uid for d in deps)
+    replicasets = kube.kubectl_json("get", "replicasets", "-n", namespace)["items"]
+    live = [r for r in replicasets if r["spec"]["replicas"] > 0]
+    assert len(live) == N_INSTANCES
+    print(f"\nkilled after {partial} of {N_INSTANCES} Deployments; converged after restart")
+
+
+def test_the_k8s_default_fleet_records_kube_schedulers_real_placement(kube: Kube, namespace: str,
+                                                                      operator: Operator) -> None:
+    apply_warehouse(kube, namespace, scheduler={"algorithm": "k8s-default"})
+    wait_ready(kube, namespace)
+    status = fleet(kube, namespace)["status"]
+    assert status["scheduler"] == "k8s-default" and len(status["placement"]) == N_INSTANCES
+    pods = pods_by_instance(kube, namespace)
+    deps = {d["metadata"]["name"]: d for d in deployments(kube, namespace)}
+    recorded = {(p["robot"], p["module"]): p["node"] for p in status["placement"]}
+    for name, dep in deps.items():
+        ann = dep["metadata"]["annotations"]
+        assert pods[name]["spec"]["nodeName"] == recorded[(ann["fogfleet.io/robot"], ann["fogfleet.io/module"])]
+        assert "limits" not in dep["spec"]["template"]["spec"]["containers"][0]["resources"]
+        assert len(bound_node(dep)) >= 1
+    assert conditions(fleet(kube, namespace))["Scheduled"]["reason"] == "KubeScheduler"
+
+    # side by side in the same simulator: nsga2's plan misses fewer cycles than kube-scheduler's
+    import numpy as np
+
+    from fogfleet.api.loader import load_paths
+    from fogfleet.domain.problem import build_problem
+    from fogfleet.scheduling.solver import plan
+    from fogfleet.sim.simulator import simulate
+
+    catalog = load_paths([ROOT / "manifests" / "examples" / "warehouse"])
+    problem = build_problem(catalog.fleets[0], catalog)
+    real = np.array([problem.node_index(recorded[(i.robot, i.module)]) for i in problem.instances])
+    ours = plan(problem, catalog.fleets[0].spec.scheduler)
+    k8s = simulate(problem, real, problem.nominal, 60.0, 1)
+    nsga = simulate(problem, np.asarray(ours.placement), problem.limits, 60.0, 1)
+    print(f"\nmiss rate: kube-scheduler {k8s.miss_rate:.4f}, nsga2 {nsga.miss_rate:.4f}")
+    assert nsga.miss_rate < k8s.miss_rate
+
+
+def test_the_operator_works_under_the_charts_least_privilege_rbac(kube: Kube, namespace: str, crds: None,
+                                                                  tmp_path: Path, diagnostics: list[Any]) -> None:
+    install = ROOT / "manifests" / "install"
+    for name in ("00-namespace.yaml", "10-serviceaccount.yaml", "20-clusterrole.yaml",
+                 "21-clusterrolebinding.yaml"):
+        kube.kubectl("apply", "-f", str(install / name))
+    token = kube.kubectl("create", "token", "fogfleet-operator", "-n", "fogfleet-system",
+                         "--duration=1h").stdout.strip()
+    config = kube.token_kubeconfig(token, tmp_path / "token.kubeconfig")
+    denied = kube.kubectl("auth", "can-i", "delete", "nodes", kubeconfig=config, check=False)
+    assert denied.stdout.strip() == "no"
+    op = Operator(config, [namespace], tmp_path / "operator.log")
+    diagnostics.append(lambda: ("operator log (token)", op.logs(150)))
+    op.start().wait_live()
+    try:
+        apply_warehouse(kube, namespace)
+        wait_ready(kube, namespace)
+        assert_pods_where_planned(kube, namespace)
+        logs = op.logs(100000)
+        assert "forbidden" not in logs.lower() and " 403" not in logs, op.logs(60)
+    finally:
+        op.stop()

@@ -1,0 +1,10 @@
+"""``python -m fogfleet ...`` is the ``fogfleet`` command (``python -m fogfleet run`` starts the operator)."""
+
+from __future__ import annotations
+
+import sys
+
+from fogfleet.cli import main
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,106 @@
+"""Per-fleet serialisation and debouncing of reconciles (asyncio; the work itself runs in a thread).
+
+- ``run_now(key)``: reconcile at once (kopf's create/update/resume/timer handlers await it, so
+  kopf's retry and backoff apply); a pending debounced run for the key is dropped.
+- ``schedule(key, delay)``: reconcile after ``delay`` seconds of quiet; a new call for the same
+  key restarts the wait, so a burst of edits (modules, nodes, Deployments rolling) makes one
+  reconcile. Errors of these background runs are logged, counted and retried later.
+
+One lock per fleet: two reconciles of the same fleet never overlap.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+from collections.abc import Awaitable, Callable
+
+from fogfleet.errors import DependencyUnavailable, InvalidSpec
+
+from .deps import FleetKey
+from .robotfleet import Outcome
+
+__all__ = ["ReconcileQueue"]
+
+log = logging.getLogger(__name__)
+Runner = Callable[[FleetKey], Awaitable[Outcome | None]]
+
+
+class ReconcileQueue:
+    def __init__(
+        self,
+        runner: Runner,
+        *,
+        debounce: float = 1.0,
+        retry: float = 10.0,
+        on_error: Callable[[FleetKey, str], None] | None = None,
+    ) -> None:
+        self.runner = runner
+        self.debounce = debounce
+        self.retry = retry
+        self.on_error = on_error
+        self._locks: dict[FleetKey, asyncio.Lock] = {}
+        self._timers: dict[FleetKey, asyncio.Task[None]] = {}
+
+    def _lock(self, key: FleetKey) -> asyncio.Lock:
+        return self._locks.setdefault(key, asyncio.Lock())
+
+    async def run_now(self, key: FleetKey) -> Outcome | None:
+        self.cancel(key)
+        async with self._lock(key):
+            outcome = await self.runner(key)
+        self._follow_up(key, outcome)
+        return outcome
+
+    def schedule(self, key: FleetKey, delay: float | None = None) -> None:
+        self.cancel(key)
+        wait = self.debounce if delay is None else delay
+        self._timers[key] = asyncio.get_running_loop().create_task(self._later(key, wait))
+
+    def cancel(self, key: FleetKey) -> None:
+        task = self._timers.pop(key, None)
+        if task is not None and task is not asyncio.current_task():
+            task.cancel()
+
+    def pending(self) -> set[FleetKey]:
+        return set(self._timers)
+
+    async def _later(self, key: FleetKey, wait: float) -> None:
+        await asyncio.sleep(wait)
+        if self._timers.get(key) is asyncio.current_task():
+            del self._timers[key]
+        outcome: Outcome | None = None
+        try:
+            async with self._lock(key):
+                outcome = await self.runner(key)
+        except InvalidSpec as exc:
+            log.info("Left RobotFleet %s/%s as is: %s", *key, exc)
+            return
+        except DependencyUnavailable as exc:
+            log.warning("Retrying RobotFleet %s/%s in %.0fs: %s", *key, self.retry, exc)
+            self._error(key, exc.reason)
+            self.schedule(key, self.retry)
+            return
+        except Exception:
+            log.exception(
+                "Failed to reconcile RobotFleet %s/%s; retrying in %.0fs", *key, 3 * self.retry
+            )
+            self._error(key, "Unexpected")
+            self.schedule(key, 3 * self.retry)
+            return
+        self._follow_up(key, outcome)
+
+    def _follow_up(self, key: FleetKey, outcome: Outcome | None) -> None:
+        if outcome is not None and outcome.requeue_after is not None and key not in self._timers:
+            self.schedule(key, outcome.requeue_after)
+
+    def _error(self, key: FleetKey, reason: str) -> None:
+        if self.on_error is not None:
+            self.on_error(key, reason)
+
+    async def close(self) -> None:
+        tasks = list(self._timers.values())
+        self._timers.clear()
+        for t in tasks:
+            t.cancel()
+        await asyncio.gather(*tasks, return_exceptions=True)

@@ -1,0 +1,128 @@
+"""The controller runtime the kopf handlers call: one object per operator process.
+
+It owns the worker threads (reconciles and the GA run there, never on the event loop), the
+per-fleet queue (serialisation + debouncing) and the change filters that decide which watch
+events matter: a SoftwareModule or ComputeNode whose ``generation`` changed, a Node whose
+health or allocatable changed, a fleet Deployment whose rollout moved.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import functools
+import logging
+from collections.abc import Callable, Mapping
+from concurrent.futures import ThreadPoolExecutor
+from typing import Any, TypeVar
+
+from fogfleet.render.deployments import LABEL_FLEET
+
+from .deps import Deps, FleetKey
+from .inputs import node_health
+from .queue import ReconcileQueue
+from .robotfleet import Outcome, forget, reconcile
+
+__all__ = ["Runtime"]
+
+log = logging.getLogger(__name__)
+T = TypeVar("T")
+Obj = dict[str, Any]
+
+
+class Runtime:
+    def __init__(self, deps: Deps, *, workers: int = 4, debounce: float = 2.0) -> None:
+        self.deps = deps
+        self.executor = ThreadPoolExecutor(max_workers=workers, thread_name_prefix="fogfleet")
+        self.queue = ReconcileQueue(
+            self._run,
+            debounce=debounce,
+            retry=deps.retry_seconds,
+            on_error=lambda key, reason: deps.metrics.count_error(key[1], reason),
+        )
+        self._generations: dict[tuple[str, str, str], Any] = {}
+        self._nodes: dict[str, tuple[Any, ...]] = {}
+
+    async def call(self, fn: Callable[..., T], *args: Any) -> T:
+        loop = asyncio.get_running_loop()
+        return await loop.run_in_executor(self.executor, functools.partial(fn, *args))
+
+    async def _run(self, key: FleetKey) -> Outcome | None:
+        body = await self.call(self.deps.kube.get_fleet, *key)
+        if body is None or (body.get("metadata") or {}).get("deletionTimestamp"):
+            forget(self.deps, key)
+            self.queue.cancel(key)
+            return None
+        return await self.call(reconcile, body, self.deps)
+
+    # ------------------------------------------------------------------ fleets
+    async def reconcile_fleet(self, namespace: str, name: str) -> Outcome | None:
+        return await self.queue.run_now((namespace, name))
+
+    async def delete_fleet(self, namespace: str, name: str) -> None:
+        """Delete the fleet's Deployments now (the garbage collector would, via ownerReferences)."""
+        key = (namespace, name)
+        self.queue.cancel(key)
+        forget(self.deps, key)
+        deps = await self.call(self.deps.kube.list_deployments, namespace, {LABEL_FLEET: name})
+        for dep in deps:
+            await self.call(self.deps.kube.delete_deployment, namespace, dep["metadata"]["name"])
+
+    # ------------------------------------------------------------------ related objects
+    def _changed(self, kind: str, body: Mapping[str, Any], event_type: str | None) -> bool:
+        meta = body.get("metadata") or {}
+        key = (kind, meta.get("namespace") or "", meta.get("name", ""))
+        if event_type == "DELETED":
+            self._generations.pop(key, None)
+            return True
+        gen = meta.get("generation")
+        before = self._generations.get(key, "unseen")
+        self._generations[key] = gen
+        return event_type is not None and before != gen
+
+    def module_event(self, body: Mapping[str, Any], event_type: str | None) -> None:
+        if self._changed("SoftwareModule", body, event_type):
+            meta = body.get("metadata") or {}
+            for key in self.deps.refs.using_module(
+                meta.get("namespace") or "default", meta.get("name", "")
+            ):
+                self.queue.schedule(key)
+
+    def compute_node_event(self, body: Mapping[str, Any], event_type: str | None) -> None:
+        if self._changed("ComputeNode", body, event_type):
+            for key in self.deps.refs.using_compute_node(
+                (body.get("metadata") or {}).get("name", "")
+            ):
+                self.queue.schedule(key)
+
+    def node_event(self, body: Mapping[str, Any], event_type: str | None) -> None:
+        name = (body.get("metadata") or {}).get("name", "")
+        if event_type == "DELETED":
+            sig: tuple[Any, ...] | None = None
+            self._nodes.pop(name, None)
+        else:
+            alloc = (body.get("status") or {}).get("allocatable") or {}
+            sig = (
+                node_health(body),
+                alloc.get("cpu"),
+                alloc.get("memory"),
+                alloc.get("nvidia.com/gpu"),
+            )
+            before = self._nodes.get(name)
+            self._nodes[name] = sig
+            if before == sig or (event_type is None and before is None):
+                return
+        for key in self.deps.refs.using_node(name):
+            self.queue.schedule(key)
+
+    def deployment_event(self, body: Mapping[str, Any]) -> None:
+        """A fleet's Deployment changed (rolled out, deleted by hand): re-check that fleet."""
+        meta = body.get("metadata") or {}
+        fleet = (meta.get("labels") or {}).get(LABEL_FLEET)
+        if fleet:
+            key = (meta.get("namespace") or "default", fleet)
+            if key in self.deps.refs.fleets():
+                self.queue.schedule(key, min(self.queue.debounce, 1.0))
+
+    async def close(self) -> None:
+        await self.queue.close()
+        self.executor.shutdown(wait=False, cancel_futures=True)

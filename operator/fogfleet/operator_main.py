@@ -1,0 +1,93 @@
+"""Composition root of the operator: Settings -> adapters -> controller runtime -> kopf.
+
+``fogfleet run`` calls :func:`run`. Tests call :func:`run` in a thread with a ``stop_flag``.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import threading
+from typing import Any
+
+import kopf
+
+from fogfleet import GROUP
+from fogfleet.adapters.kube import KubeClient, load_config
+from fogfleet.adapters.metrics import PrometheusMetrics
+from fogfleet.controllers.deps import Deps
+from fogfleet.controllers.runtime import Runtime
+from fogfleet.handlers import register
+from fogfleet.settings import Settings
+
+__all__ = ["build_runtime", "configure_kopf", "run"]
+
+log = logging.getLogger("fogfleet")
+FORMATS = {"plain": kopf.LogFormat.PLAIN, "full": kopf.LogFormat.FULL, "json": kopf.LogFormat.JSON}
+
+
+def build_runtime(settings: Settings, *, serve_metrics: bool = True) -> Runtime:
+    """Adapters and the controller runtime, from settings (no kopf here)."""
+    kube = KubeClient(load_config(settings.kubeconfig))
+    metrics = PrometheusMetrics()
+    if serve_metrics and settings.metrics_port:
+        metrics.serve(settings.metrics_port, settings.metrics_host)
+    deps = Deps(kube=kube, metrics=metrics)
+    return Runtime(deps, workers=settings.workers, debounce=settings.debounce_seconds)
+
+
+def configure_kopf(kopf_settings: kopf.OperatorSettings, settings: Settings) -> None:
+    """State in annotations under fogfleet.io, our finalizer, quiet event posting."""
+    p = kopf_settings.persistence
+    p.progress_storage = kopf.AnnotationsProgressStorage(prefix=GROUP)
+    p.diffbase_storage = kopf.AnnotationsDiffBaseStorage(
+        prefix=GROUP, key="last-handled-configuration"
+    )
+    p.finalizer = f"{GROUP}/finalizer"
+    kopf_settings.posting.level = logging.WARNING  # our own Events say what happened
+    kopf_settings.posting.reporting_component = "fogfleet"
+    kopf_settings.watching.server_timeout = 300
+    kopf_settings.watching.client_timeout = 330
+    kopf_settings.watching.connect_timeout = 10
+    kopf_settings.networking.request_timeout = 60
+    kopf_settings.peering.standalone = settings.standalone
+    kopf_settings.peering.name = settings.peering_name
+
+
+def run(
+    settings: Settings,
+    *,
+    stop_flag: threading.Event | None = None,
+    ready_flag: threading.Event | None = None,
+) -> None:
+    """Run the operator until stopped (SIGINT/SIGTERM, or ``stop_flag`` when given)."""
+    kopf.configure(
+        debug=settings.log_level == "DEBUG",
+        verbose=settings.log_level == "DEBUG",
+        quiet=settings.log_level in ("WARNING", "ERROR"),
+        log_format=FORMATS[settings.log_format],
+    )
+    logging.getLogger("fogfleet").setLevel(settings.log_level)
+    runtime = build_runtime(settings)
+    registry = register(kopf.OperatorRegistry(), settings)
+    liveness = (
+        f"http://{settings.liveness_host}:{settings.liveness_port}/healthz"
+        if settings.liveness_port
+        else None
+    )
+    kwargs: dict[str, Any] = (
+        {"namespaces": settings.namespaces} if settings.namespaces else {"clusterwide": True}
+    )
+    log.info("Starting fogfleet (namespaces: %s)", ", ".join(settings.namespaces) or "all")
+    if threading.current_thread() is not threading.main_thread():
+        asyncio.set_event_loop(asyncio.new_event_loop())
+    kopf.run(
+        registry=registry,
+        memo=kopf.Memo(runtime=runtime, settings=settings),
+        standalone=settings.standalone,
+        peering_name=None if settings.standalone else settings.peering_name,
+        liveness_endpoint=liveness,
+        stop_flag=stop_flag,
+        ready_flag=ready_flag,
+        **kwargs,
+    )

@@ -1,0 +1,123 @@
+"""``plan``: one entry point for every scheduler of RobotFleet.spec.scheduler.algorithm."""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import replace
+
+import numpy as np
+from numpy.typing import NDArray
+from pymoo.algorithms.moo.nsga2 import NSGA2
+
+from fogfleet.api.v1alpha1.robotfleet import SchedulerName, SchedulerSettings
+from fogfleet.domain.problem import Problem
+
+from .baselines import finish, k8s_default, onboard_plan, random_plan
+from .choice import choose, non_dominated
+from .exact import scalarised, solve_exact
+from .operators import CapacityRepair, FleetSampling, GeneCrossover, GeneMutation
+from .problem import PlacementProblem
+from .schedule import Schedule
+
+__all__ = ["Progress", "nsga2", "plan"]
+
+Progress = Callable[[int, int], None]
+I64 = NDArray[np.int64]
+
+
+def plan(problem: Problem, settings: SchedulerSettings, progress: Progress | None = None) -> Schedule:
+    """Plan the fleet with ``settings.algorithm``. Instances with an empty gene space
+    (``problem.reasons``) get -1 and make the schedule infeasible, with their reasons."""
+    algo = SchedulerName(settings.algorithm)
+    if algo is SchedulerName.NSGA2:
+        return nsga2(problem, settings, progress)
+    if algo is SchedulerName.K8S_DEFAULT:
+        return k8s_default(problem, settings.seed)
+    if algo is SchedulerName.ONBOARD:
+        return onboard_plan(problem)
+    if algo is SchedulerName.RANDOM:
+        return random_plan(problem, settings.seed)
+    t0 = time.perf_counter()
+    res = solve_exact(problem)
+    return finish(problem, "exact", res.placement, True, t0,
+                  f"MILP optimum {scalarised(problem, res.placement):.6g} of the weighted sum (exact.DEFAULT_WEIGHTS)")
+
+
+def nsga2(
+    problem: Problem,
+    settings: SchedulerSettings,
+    progress: Progress | None = None,
+    *,
+    paper: bool = False,
+) -> Schedule:
+    """NSGA-II over the gene spaces with the limits allocation.
+
+    fogfleet's configuration: seeded sampling (current placement and greedy plans), the
+    capacity repair on every new individual, uniform crossover, mutation of
+    ``mutation_percent`` % of the offspring (1/G of their genes), duplicate elimination.
+    ``paper=True`` is the stand-in for the paper's PyGAD setup: random sampling, no repair,
+    single-point crossover, every gene mutated with p = mutation_percent %, constraints
+    only as a penalty on the objectives. Stops after ``generations`` or once
+    ``time_budget_millis`` has passed (``Schedule.generations`` tells how many ran).
+    """
+    t0 = time.perf_counter()
+    names = tuple(str(n) for n in settings.objectives)
+    pp = PlacementProblem(problem, names, with_limits=True, penalty=1e3 if paper else None)
+    if pp.n_var == 0:
+        x = np.full(problem.n_instances, -1, dtype=np.int64)
+        return finish(problem, "nsga2", x, True, t0, "no instance has a node it may run on")
+    mut = settings.mutation_percent / 100.0
+    algorithm = NSGA2(
+        pop_size=settings.population,
+        sampling=FleetSampling(heuristics=not paper),
+        crossover=GeneCrossover("single_point" if paper else "uniform"),
+        mutation=GeneMutation(prob=1.0, per_gene=mut) if paper else GeneMutation(prob=mut),
+        repair=None if paper else CapacityRepair(),
+        eliminate_duplicates=True,
+    )
+    algorithm.setup(pp, termination=("n_gen", settings.generations), seed=settings.seed, verbose=False)
+    budget = settings.time_budget_millis / 1000.0
+    generations = 0
+    while algorithm.has_next():
+        algorithm.next()
+        generations = int(algorithm.n_gen) - 1 if algorithm.n_gen is not None else generations + 1
+        if progress is not None:
+            progress(generations, settings.generations)
+        if time.perf_counter() - t0 > budget:
+            break
+    X = np.asarray(algorithm.pop.get("X")).astype(np.int64)
+    full = pp.full(X)
+    # objectives and constraints without any penalty, for an honest report
+    clean = PlacementProblem(problem, names, with_limits=True)
+    out: dict[str, NDArray[np.float64]] = {}
+    clean._evaluate(X, out)
+    F, G = out["F"], out["G"]
+    cv = np.maximum(G, 0.0).sum(axis=1)
+    feasible = cv <= 1e-9
+    if feasible.any():
+        idx = np.flatnonzero(feasible)
+        front = idx[non_dominated(F[idx])]
+        k, reason = choose(F[front], names, str(settings.choice.value),
+                           {str(w.objective): float(w.weight) for w in settings.weights})
+        chosen = int(front[k])
+    else:
+        front = np.array([int(np.argmin(cv))], dtype=np.int64)
+        chosen = int(front[0])
+        reason = f"no feasible plan found; least constraint violation {cv[chosen]:.4g}"
+    sched = finish(problem, "nsga2", full[chosen], True, t0, reason)
+    if not feasible.any():
+        extra = dict(sched.reasons)
+        extra[-1] = "no plan satisfies the capacity and uplink constraints"
+        sched = replace(sched, reasons=extra)
+    if generations < settings.generations:
+        sched = replace(sched, choice_reason=sched.choice_reason + f" (time budget reached after {generations} generations)")
+    return replace(
+        sched,
+        pareto_front=F[front],
+        pareto_placements=full[front],
+        objective_names=names,
+        generations=generations,
+        evaluations=int(algorithm.evaluator.n_eval),
+        duration_seconds=time.perf_counter() - t0,
+    )

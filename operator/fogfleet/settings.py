@@ -1,0 +1,55 @@
+"""Operator settings from the environment (prefix ``FOGFLEET_``): the only reader of os.environ.
+
+FOGFLEET_NAMESPACES               comma-separated namespaces to serve; empty: all (cluster-wide)
+FOGFLEET_KUBECONFIG               kubeconfig file (default: $KUBECONFIG, ~/.kube/config, in-cluster)
+FOGFLEET_LOG_LEVEL                DEBUG | INFO | WARNING | ERROR (default INFO)
+FOGFLEET_LOG_FORMAT               plain | full | json (default full)
+FOGFLEET_LIVENESS_HOST            default 127.0.0.1 (in a pod: 0.0.0.0 so the kubelet can probe)
+FOGFLEET_LIVENESS_PORT            /healthz port; 0 turns it off (default 8080)
+FOGFLEET_METRICS_HOST             default 127.0.0.1
+FOGFLEET_METRICS_PORT             Prometheus /metrics port; 0 turns it off (default 9090)
+FOGFLEET_DRIFT_INTERVAL_SECONDS   how often each fleet is re-checked (default 60)
+FOGFLEET_DEBOUNCE_SECONDS         quiet time before a re-plan after related edits (default 2)
+FOGFLEET_WORKERS                  worker threads for reconciles and planning (default 4)
+FOGFLEET_STANDALONE               true (default): no kopf peering objects
+FOGFLEET_PEERING_NAME             kopf peering name when not standalone
+"""
+
+from __future__ import annotations
+
+from typing import Annotated, Literal
+
+from pydantic import Field, field_validator
+from pydantic_settings import BaseSettings, NoDecode, SettingsConfigDict
+
+__all__ = ["Settings"]
+
+
+class Settings(BaseSettings):
+    model_config = SettingsConfigDict(env_prefix="FOGFLEET_", extra="ignore", frozen=True)
+
+    namespaces: Annotated[list[str], NoDecode] = Field(default_factory=list)
+    kubeconfig: str | None = None
+    log_level: Literal["DEBUG", "INFO", "WARNING", "ERROR"] = "INFO"
+    log_format: Literal["plain", "full", "json"] = "full"
+    liveness_host: str = "127.0.0.1"
+    liveness_port: Annotated[int, Field(ge=0, le=65535)] = 8080
+    metrics_host: str = "127.0.0.1"
+    metrics_port: Annotated[int, Field(ge=0, le=65535)] = 9090
+    drift_interval_seconds: Annotated[float, Field(gt=0)] = 60.0
+    debounce_seconds: Annotated[float, Field(ge=0)] = 2.0
+    workers: Annotated[int, Field(ge=1, le=64)] = 4
+    standalone: bool = True
+    peering_name: str = "fogfleet"
+
+    @field_validator("namespaces", mode="before")
+    @classmethod
+    def _split(cls, value: object) -> object:
+        if isinstance(value, str):
+            return [v.strip() for v in value.split(",") if v.strip()]
+        return value
+
+    @field_validator("log_level", mode="before")
+    @classmethod
+    def _upper(cls, value: object) -> object:
+        return value.upper() if isinstance(value, str) else value

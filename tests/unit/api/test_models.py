@@ -1,0 +1,251 @@
+"""The v1alpha1 models and the loader: examples load; errors name object, field and reason."""
+
+from __future__ import annotations
+
+import copy
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import pytest
+import yaml
+
+from fogfleet.api.loader import load_paths, parse_object
+from fogfleet.api.v1alpha1.computenode import ComputeNode
+from fogfleet.api.v1alpha1.robotfleet import RobotFleet
+from fogfleet.api.v1alpha1.softwaremodule import SoftwareModule
+from fogfleet.domain.problem import build_problem
+from fogfleet.errors import DanglingReference, InvalidSpec
+
+REPO = Path(__file__).resolve().parents[3]
+WAREHOUSE = REPO / "manifests" / "examples" / "warehouse"
+SINGLE = REPO / "manifests" / "examples" / "single-robot"
+
+
+def _docs(path: Path) -> list[dict[str, Any]]:
+    return [d for d in yaml.safe_load_all(path.read_text()) if isinstance(d, dict)]
+
+
+def _module() -> dict[str, Any]:
+    return copy.deepcopy(_docs(WAREHOUSE / "modules.yaml")[0])
+
+
+def _fleet() -> dict[str, Any]:
+    return copy.deepcopy(_docs(WAREHOUSE / "fleet.yaml")[0])
+
+
+def _node() -> dict[str, Any]:
+    return copy.deepcopy(_docs(WAREHOUSE / "nodes.yaml")[0])
+
+
+def _invalid(doc: dict[str, Any]) -> InvalidSpec:
+    with pytest.raises(InvalidSpec) as info:
+        parse_object(doc)
+    return info.value
+
+
+# --- the examples -------------------------------------------------------------------------
+
+
+def test_warehouse_example_loads_and_builds_a_problem() -> None:
+    catalog = load_paths([WAREHOUSE])
+    assert len(catalog.nodes) == 11
+    assert len(catalog.modules) == 8
+    (fleet,) = catalog.fleets
+    assert sum(n.spec.tier.value == "robot" for n in catalog.nodes.values()) == 5
+    problem = build_problem(fleet, catalog)
+    assert problem.n_instances >= 5 * 7
+    assert problem.n_nodes == 11
+
+
+def test_single_robot_example_loads_with_the_warehouse_modules() -> None:
+    catalog = load_paths([SINGLE, WAREHOUSE / "modules.yaml"])
+    (fleet,) = catalog.fleets
+    assert fleet.metadata.name == "single-robot"
+    problem = build_problem(fleet, catalog)
+    assert problem.n_nodes == 2
+
+
+def test_every_example_object_round_trips_through_its_wire_form() -> None:
+    kinds: dict[str, Any] = {
+        "ComputeNode": ComputeNode,
+        "SoftwareModule": SoftwareModule,
+        "RobotFleet": RobotFleet,
+    }
+    count = 0
+    for path in sorted((REPO / "manifests" / "examples").rglob("*.yaml")):
+        for doc in _docs(path):
+            if doc.get("kind") not in kinds:
+                continue
+            obj = parse_object(doc)
+            again = kinds[doc["kind"]].model_validate(obj.wire())
+            assert again == obj
+            count += 1
+    assert count >= 23
+
+
+def test_other_kinds_are_ignored_not_rejected() -> None:
+    catalog = load_paths([WAREHOUSE / "namespace.yaml"])
+    assert catalog.ignored == ["Namespace/warehouse"]
+
+
+# --- errors name the object, the field and the reason ---------------------------------------
+
+Mutation = Callable[[dict[str, Any]], object]
+
+
+@pytest.mark.parametrize(
+    ("mutate", "field", "reason"),
+    [
+        (lambda d: d["spec"].update(colour="blue"), "spec.colour", "unknown field"),
+        (
+            lambda d: d["spec"]["profile"][1].update(cores=2),
+            "spec.profile[1].cores",
+            "unknown field",
+        ),
+        (
+            lambda d: d["spec"].update(activationPercent="often"),
+            "spec.activationPercent",
+            "valid integer",
+        ),
+        (lambda d: d["spec"].update(template="nginx"), "spec.template", "valid dictionary"),
+        (
+            lambda d: d["spec"]["taxonomy"].update(realtime="firm"),
+            "spec.taxonomy.realtime",
+            "'hard', 'soft' or 'none'",
+        ),
+        (lambda d: d["spec"].update(scope="everywhere"), "spec.scope", "'perRobot' or 'shared'"),
+        (
+            lambda d: d["spec"].update(cycleTimeMillis=-5),
+            "spec.cycleTimeMillis",
+            "must not be negative",
+        ),
+        (
+            lambda d: d["spec"].update(cycleTimeMillis="-5"),
+            "spec.cycleTimeMillis",
+            "not a Kubernetes quantity",
+        ),
+        (
+            lambda d: d["spec"].update(cycleTimeMillis=0),
+            "spec.cycleTimeMillis",
+            "greater than zero",
+        ),
+        (
+            lambda d: d["spec"]["profile"][0].update(meanMillis=0),
+            "spec.profile[0].meanMillis",
+            "greater than zero",
+        ),
+        (
+            lambda d: d["spec"]["resources"].update(gpu=-1),
+            "spec.resources.gpu",
+            "greater than or equal to 0",
+        ),
+        (lambda d: d["spec"].pop("taxonomy"), "spec.taxonomy", "required field is missing"),
+    ],
+)
+def test_bad_software_module_names_object_and_field(
+    mutate: Mutation, field: str, reason: str
+) -> None:
+    doc = _module()
+    mutate(doc)
+    err = _invalid(doc)
+    assert err.obj == "SoftwareModule/nav-motion-planning"
+    assert err.field == field
+    assert reason in err.message
+    assert str(err).startswith(f"SoftwareModule/nav-motion-planning: {field}: ")
+
+
+def test_shared_hard_realtime_module_is_rejected_with_the_scope_field() -> None:
+    doc = _module()
+    doc["spec"]["scope"] = "shared"
+    doc["spec"]["taxonomy"]["realtime"] = "hard"
+    err = _invalid(doc)
+    assert (err.field, err.message) == (
+        "spec.scope",
+        "a hard real-time module must be perRobot (it runs on board)",
+    )
+
+
+def test_fleet_without_robots_names_the_robots_field() -> None:
+    doc = _fleet()
+    doc["spec"].pop("robots", None)
+    doc["spec"].pop("robotSelector", None)
+    err = _invalid(doc)
+    assert err.obj == f"RobotFleet/{doc['metadata']['name']}"
+    assert err.field == "spec.robots"
+    assert "robotSelector" in err.message
+
+
+def test_fleet_with_a_bad_scheduler_enum_names_the_field() -> None:
+    doc = _fleet()
+    doc["spec"]["scheduler"] = {"algorithm": "genetic"}
+    err = _invalid(doc)
+    assert err.field == "spec.scheduler.algorithm"
+    assert "'nsga2'" in err.message
+
+
+def test_node_with_a_bad_tier_names_the_field() -> None:
+    doc = _node()
+    doc["spec"]["tier"] = "fog"
+    err = _invalid(doc)
+    assert err.obj == f"ComputeNode/{doc['metadata']['name']}"
+    assert err.field == "spec.tier"
+    assert "'robot', 'edge' or 'cloud'" in err.message
+
+
+def test_wrong_api_version_and_unknown_kind_are_named() -> None:
+    doc = _module()
+    doc["apiVersion"] = "fogfleet.io/v1"
+    assert _invalid(doc).field == "apiVersion"
+    doc = _module()
+    doc["kind"] = "SoftwarePackage"
+    err = _invalid(doc)
+    assert (err.obj, err.field) == ("SoftwarePackage/nav-motion-planning", "kind")
+
+
+def test_loader_names_the_file_for_broken_yaml(tmp_path: Path) -> None:
+    path = tmp_path / "broken.yaml"
+    path.write_text("kind: [unclosed\n")
+    with pytest.raises(InvalidSpec, match="not valid YAML") as info:
+        load_paths([path])
+    assert info.value.obj == str(path)
+
+
+def test_missing_path_is_reported() -> None:
+    with pytest.raises(InvalidSpec, match="no such file or directory"):
+        load_paths([REPO / "no-such-folder"])
+
+
+# --- references are checked when the problem is built ---------------------------------------
+
+
+def _write(tmp_path: Path, docs: list[dict[str, Any]]) -> Path:
+    path = tmp_path / "objects.yaml"
+    path.write_text(yaml.safe_dump_all(docs))
+    return path
+
+
+def test_dangling_module_reference_names_the_list_entry(tmp_path: Path) -> None:
+    fleet = _fleet()
+    fleet["spec"]["modules"].append({"name": "no-such-module"})
+    k = len(fleet["spec"]["modules"]) - 1
+    others = [d for d in _docs(WAREHOUSE / "nodes.yaml") + _docs(WAREHOUSE / "modules.yaml")]
+    catalog = load_paths([_write(tmp_path, [*others, fleet])])
+    with pytest.raises(DanglingReference) as info:
+        build_problem(catalog.fleets[0], catalog)
+    err = info.value
+    assert err.obj == f"RobotFleet/{fleet['metadata']['name']}"
+    assert err.field == f"spec.modules[{k}].name"
+    assert "no-such-module" in err.message and "does not exist" in err.message
+
+
+def test_dangling_robot_reference_names_the_list_entry(tmp_path: Path) -> None:
+    fleet = _fleet()
+    fleet["spec"]["robots"] = ["ghost-robot"]
+    fleet["spec"].pop("robotSelector", None)
+    others = _docs(WAREHOUSE / "nodes.yaml") + _docs(WAREHOUSE / "modules.yaml")
+    catalog = load_paths([_write(tmp_path, [*others, fleet])])
+    with pytest.raises(DanglingReference) as info:
+        build_problem(catalog.fleets[0], catalog)
+    assert info.value.field == "spec.robots[0]"
+    assert "ghost-robot" in info.value.message

@@ -1,0 +1,161 @@
+"""An in-memory KubePort and a counting planner for controller unit tests."""
+
+from __future__ import annotations
+
+import copy
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+import pytest
+import yaml
+
+from fogfleet.api.v1alpha1.robotfleet import SchedulerSettings
+from fogfleet.controllers.planning import _greedy
+from fogfleet.domain.problem import Problem
+from fogfleet.scheduling.schedule import Schedule
+
+ROOT = Path(__file__).resolve().parents[3]
+Obj = dict[str, Any]
+
+
+def docs(*paths: Path) -> list[Obj]:
+    out: list[Obj] = []
+    for p in paths:
+        out += [d for d in yaml.safe_load_all(p.read_text()) if isinstance(d, dict)]
+    return out
+
+
+def _match(labels: Mapping[str, str], selector: Mapping[str, str]) -> bool:
+    return all(labels.get(k) == v for k, v in selector.items())
+
+
+class FakeKube:
+    def __init__(self) -> None:
+        self.fleets: dict[tuple[str, str], Obj] = {}
+        self.compute_nodes: dict[str, Obj] = {}
+        self.modules: dict[tuple[str, str], Obj] = {}
+        self.nodes: dict[str, Obj] = {}
+        self.deployments: dict[tuple[str, str], Obj] = {}
+        self.pods: dict[tuple[str, str], Obj] = {}
+        self.applied: list[str] = []
+        self.deleted: list[str] = []
+        self.status_patches: list[Obj] = []
+        self.events: list[tuple[str, str, str]] = []
+
+    # seeding
+    def load_warehouse(self) -> None:
+        ex = ROOT / "manifests" / "examples" / "warehouse"
+        for d in docs(ex / "nodes.yaml", ex / "modules.yaml", ex / "fleet.yaml"):
+            self.add(d)
+        for d in docs(ROOT / "e2e" / "cluster" / "nodes.yaml"):
+            d.setdefault("status", {})["conditions"] = [{"type": "Ready", "status": "True"}]
+            self.nodes[d["metadata"]["name"]] = d
+
+    def add(self, d: Obj) -> None:
+        d = copy.deepcopy(d)
+        meta = d["metadata"]
+        meta.setdefault("generation", 1)
+        meta.setdefault("uid", f"uid-{meta['name']}")
+        kind = d["kind"]
+        if kind == "ComputeNode":
+            self.compute_nodes[meta["name"]] = d
+        elif kind == "SoftwareModule":
+            self.modules[(meta["namespace"], meta["name"])] = d
+        elif kind == "RobotFleet":
+            self.fleets[(meta["namespace"], meta["name"])] = d
+
+    def set_ready(self, node: str, ready: bool) -> None:
+        self.nodes[node]["status"]["conditions"] = [{"type": "Ready", "status": "True" if ready else "False",
+                                                     "reason": "KubeletReady" if ready else "KubeletNotReady"}]
+
+    def run_pods(self) -> None:
+        """What kube-scheduler + kubelet would do: one Running pod on (the first) affinity node."""
+        self.pods.clear()
+        for (ns, name), dep in self.deployments.items():
+            pod_spec = dep["spec"]["template"]["spec"]
+            node = pod_spec["affinity"]["nodeAffinity"]["requiredDuringSchedulingIgnoredDuringExecution"][
+                "nodeSelectorTerms"][0]["matchExpressions"][0]["values"][0]
+            labels = dep["spec"]["template"]["metadata"]["labels"]
+            self.pods[(ns, name + "-pod")] = {"metadata": {"name": name + "-pod", "namespace": ns, "labels": labels},
+                                             "spec": {"nodeName": node},
+                                             "status": {"phase": "Running",
+                                                        "conditions": [{"type": "Ready", "status": "True"}]}}
+            dep["status"] = {"observedGeneration": dep["metadata"]["generation"], "replicas": 1,
+                             "updatedReplicas": 1, "availableReplicas": 1}
+
+    # KubePort
+    def get_fleet(self, namespace: str, name: str) -> Obj | None:
+        f = self.fleets.get((namespace, name))
+        return copy.deepcopy(f) if f else None
+
+    def list_fleets(self, namespace: str | None = None) -> list[Obj]:
+        return [copy.deepcopy(f) for (ns, _), f in self.fleets.items() if namespace in (None, ns)]
+
+    def list_compute_nodes(self) -> list[Obj]:
+        return copy.deepcopy(list(self.compute_nodes.values()))
+
+    def list_modules(self, namespace: str) -> list[Obj]:
+        return copy.deepcopy([m for (ns, _), m in self.modules.items() if ns == namespace])
+
+    def list_nodes(self) -> list[Obj]:
+        return copy.deepcopy(list(self.nodes.values()))
+
+    def list_deployments(self, namespace: str, selector: Mapping[str, str]) -> list[Obj]:
+        return copy.deepcopy([d for (ns, _), d in self.deployments.items()
+                              if ns == namespace and _match(d["metadata"]["labels"], selector)])
+
+    def list_pods(self, namespace: str, selector: Mapping[str, str]) -> list[Obj]:
+        return copy.deepcopy([p for (ns, _), p in self.pods.items()
+                              if ns == namespace and _match(p["metadata"]["labels"], selector)])
+
+    def apply_deployment(self, body: Obj) -> Obj:
+        key = (body["metadata"]["namespace"], body["metadata"]["name"])
+        old = self.deployments.get(key)
+        new = copy.deepcopy(body)
+        new["metadata"]["generation"] = (old["metadata"]["generation"] + 1) if old else 1
+        new["status"] = (old or {}).get("status", {})
+        self.deployments[key] = new
+        self.applied.append(key[1])
+        return copy.deepcopy(new)
+
+    def delete_deployment(self, namespace: str, name: str) -> None:
+        self.deployments.pop((namespace, name), None)
+        self.deleted.append(name)
+
+    def patch_fleet_status(self, namespace: str, name: str, status: Mapping[str, Any]) -> None:
+        self.fleets[(namespace, name)]["status"] = copy.deepcopy(dict(status))
+        self.status_patches.append(copy.deepcopy(dict(status)))
+
+    def emit_event(self, involved: Mapping[str, Any], type_: str, reason: str, message: str) -> None:
+        self.events.append((type_, reason, message))
+
+
+class CountingPlanner:
+    """The greedy best-fit plan (fast, deterministic), counting calls."""
+
+    def __init__(self) -> None:
+        self.calls = 0
+
+    def plan(self, problem: Problem, settings: SchedulerSettings) -> Schedule:
+        self.calls += 1
+        return _greedy(problem, settings)
+
+
+@pytest.fixture
+def kube() -> FakeKube:
+    k = FakeKube()
+    k.load_warehouse()
+    return k
+
+
+@pytest.fixture
+def make_deps(kube: FakeKube) -> Any:
+    from fogfleet.controllers.deps import Deps
+
+    return lambda: Deps(kube=kube, planner=CountingPlanner())
+
+
+@pytest.fixture
+def deps(make_deps: Any) -> Any:
+    return make_deps()

@@ -1,0 +1,168 @@
+"""reconcile() against an in-memory cluster: planning, idempotence, stickiness, failures."""
+
+from __future__ import annotations
+
+import pytest
+
+from fogfleet.controllers.robotfleet import reconcile
+from fogfleet.errors import DanglingReference, Infeasible
+from fogfleet.render.deployments import identity_of
+
+
+KEY = ("warehouse", "warehouse")
+
+
+def run(kube, deps):
+    return reconcile(kube.get_fleet(*KEY), deps)
+
+
+def conditions(kube) -> dict[str, dict]:
+    return {c["type"]: c for c in kube.fleets[KEY]["status"]["conditions"]}
+
+
+def placement(kube) -> dict[tuple, str]:
+    out = {}
+    for dep in kube.deployments.values():
+        node = dep["spec"]["template"]["spec"]["affinity"]["nodeAffinity"][
+            "requiredDuringSchedulingIgnoredDuringExecution"]["nodeSelectorTerms"][0]["matchExpressions"][0]["values"]
+        out[identity_of(dep)] = node[0]
+    return out
+
+
+def test_first_reconcile_plans_applies_every_instance_and_waits_for_pods(kube, deps):
+    out = run(kube, deps)
+    assert out.planned and out.applied == 40 and not out.ready and out.requeue_after
+    assert len(kube.deployments) == 40
+    cond = conditions(kube)
+    assert cond["Ready"]["status"] == "False" and cond["Ready"]["reason"] == "RollingOut"
+    assert cond["Scheduled"]["status"] == "True"
+    status = kube.fleets[KEY]["status"]
+    assert status["modulesPlaced"] == status["modulesTotal"] == 40
+    assert len(status["placement"]) == 40 and status["observedGeneration"] == 1
+    assert [e[1] for e in kube.events] == ["Planned"]
+
+
+def test_ready_once_pods_run_where_planned(kube, deps):
+    run(kube, deps)
+    kube.run_pods()
+    out = run(kube, deps)
+    assert out.ready and not out.planned and out.applied == 0
+    assert conditions(kube)["Ready"]["status"] == "True"
+    assert conditions(kube)["Degraded"]["status"] == "False"
+
+
+def test_a_second_reconcile_with_nothing_changed_plans_and_applies_nothing(kube, deps):
+    run(kube, deps)
+    kube.run_pods()
+    run(kube, deps)
+    patches, applied, calls = len(kube.status_patches), len(kube.applied), deps.planner.calls
+    out = run(kube, deps)
+    assert (out.planned, out.applied, out.pruned) == (False, 0, 0)
+    assert (len(kube.status_patches), len(kube.applied), deps.planner.calls) == (patches, applied, calls)
+
+
+def test_a_restarted_operator_keeps_running_modules_where_they_are(kube, deps, make_deps):
+    run(kube, deps)
+    kube.run_pods()
+    before = placement(kube)
+    fresh = make_deps()  # empty cache: it plans again
+    out = reconcile(kube.get_fleet(*KEY), fresh)
+    assert out.planned and out.applied == 0 and out.migrations == 0
+    assert placement(kube) == before
+
+
+def test_a_not_ready_edge_node_moves_only_its_modules(kube, deps):
+    run(kube, deps)
+    kube.run_pods()
+    before = placement(kube)
+    used = sorted({n for n in before.values() if n.startswith("edge")})
+    assert used, "the plan should use an edge node"
+    kube.set_ready(used[0], False)
+    out = run(kube, deps)
+    after = placement(kube)
+    moved = {k for k in before if before[k] != after[k]}
+    assert moved == {k for k, n in before.items() if n == used[0]}
+    assert used[0] not in after.values()
+    assert out.planned and out.migrations == len(moved)
+    cond = conditions(kube)
+    assert cond["Degraded"]["status"] == "True" and cond["Degraded"]["reason"] == "Migrating"
+    assert "Migrated" in [e[1] for e in kube.events]
+    kube.run_pods()
+    assert run(kube, deps).ready
+
+
+def test_a_changed_cycle_time_replans_once_and_leaves_the_others_alone(kube, deps):
+    run(kube, deps)
+    kube.run_pods()
+    before = {k: d["metadata"]["annotations"]["fogfleet.io/spec-hash"] for k, d in kube.deployments.items()}
+    mod = kube.modules[("warehouse", "arm-motion-generation")]
+    mod["spec"]["cycleTimeMillis"] = 400
+    mod["metadata"]["generation"] += 1
+    calls = deps.planner.calls
+    kube.applied.clear()
+    run(kube, deps)
+    assert deps.planner.calls == calls + 1
+    changed = {k[1] for k, d in kube.deployments.items()
+               if d["metadata"]["annotations"]["fogfleet.io/spec-hash"] != before[k]}
+    assert set(kube.applied) == changed
+    assert all("arm-motion-generation" in name for name in changed)
+
+
+def test_a_dangling_module_reference_fails_without_touching_what_runs(kube, deps):
+    run(kube, deps)
+    snapshot = {k: dict(v) for k, v in kube.deployments.items()}
+    kube.fleets[KEY]["spec"]["modules"].append({"name": "no-such-module"})
+    kube.fleets[KEY]["metadata"]["generation"] = 2
+    with pytest.raises(DanglingReference):
+        run(kube, deps)
+    cond = conditions(kube)
+    assert cond["Ready"]["status"] == "False" and cond["Ready"]["reason"] == "DanglingReference"
+    assert "spec.modules[8].name" in cond["Ready"]["message"]
+    assert ("Warning", "DanglingReference") in [e[:2] for e in kube.events]
+    assert kube.deployments.keys() == snapshot.keys()
+
+
+def test_a_fleet_that_cannot_fit_is_reported_and_nothing_is_applied(kube, deps):
+    for name, cn in kube.compute_nodes.items():
+        cn["spec"]["capacity"] = {"cpu": 3, "memory": "16Gi"}
+        cn["spec"]["reserved"] = {"cpu": "0", "memory": "0"}
+    with pytest.raises(Infeasible):
+        run(kube, deps)
+    assert not kube.deployments
+    cond = conditions(kube)
+    assert cond["Ready"]["reason"] == "Infeasible"
+    assert ("Warning", "PlanFailed") in [e[:2] for e in kube.events]
+    calls = deps.planner.calls
+    with pytest.raises(Infeasible):
+        run(kube, deps)
+    assert deps.planner.calls == calls, "same inputs, same failure: no second GA run"
+
+
+def test_stale_deployments_are_pruned(kube, deps):
+    run(kube, deps)
+    kube.fleets[KEY]["spec"]["modules"] = kube.fleets[KEY]["spec"]["modules"][:7]
+    kube.fleets[KEY]["metadata"]["generation"] = 2
+    out = run(kube, deps)
+    assert out.pruned == 5 and len(kube.deployments) == 35
+
+
+def test_the_k8s_default_fleet_records_kube_schedulers_placement(kube, deps):
+    kube.fleets[KEY]["spec"]["scheduler"] = {"algorithm": "k8s-default"}
+    out = run(kube, deps)
+    assert not out.planned and deps.planner.calls == 0 and out.applied == 40
+    dep = next(iter(kube.deployments.values()))
+    assert "limits" not in dep["spec"]["template"]["spec"]["containers"][0]["resources"]
+    assert kube.fleets[KEY]["status"]["placement"] == []
+    kube.run_pods()
+    out = run(kube, deps)
+    status = kube.fleets[KEY]["status"]
+    assert out.ready and len(status["placement"]) == 40
+    assert status["predictedMissRate"] is not None
+    assert conditions(kube)["Scheduled"]["reason"] == "KubeScheduler"
+
+
+def test_a_paused_fleet_is_left_alone(kube, deps):
+    kube.fleets[KEY]["spec"]["paused"] = True
+    run(kube, deps)
+    assert not kube.deployments
+    assert conditions(kube)["Scheduled"]["reason"] == "Paused"
