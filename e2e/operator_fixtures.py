@@ -38,8 +38,13 @@ def free_port() -> int:
 class Operator:
     """`fogfleet run` against the test cluster, scoped to some namespaces."""
 
-    def __init__(self, kubeconfig: Path, namespaces: list[str], log_path: Path,
-                 env: Mapping[str, str] | None = None) -> None:
+    def __init__(
+        self,
+        kubeconfig: Path,
+        namespaces: list[str],
+        log_path: Path,
+        env: Mapping[str, str] | None = None,
+    ) -> None:
         self.kubeconfig = kubeconfig
         self.namespaces = namespaces
         self.log_path = log_path
@@ -52,23 +57,29 @@ class Operator:
     def start(self) -> Operator:
         self.liveness_port, self.metrics_port = free_port(), free_port()
         env = {k: v for k, v in os.environ.items() if not k.startswith("FOGFLEET_")}
-        env.update({
-            "FOGFLEET_KUBECONFIG": str(self.kubeconfig),
-            "KUBECONFIG": str(self.kubeconfig),
-            "FOGFLEET_NAMESPACES": ",".join(self.namespaces),
-            "FOGFLEET_LIVENESS_PORT": str(self.liveness_port),
-            "FOGFLEET_METRICS_PORT": str(self.metrics_port),
-            "FOGFLEET_DEBOUNCE_SECONDS": "1",
-            "FOGFLEET_DRIFT_INTERVAL_SECONDS": "30",
-            "FOGFLEET_LOG_LEVEL": "INFO",
-            **self.extra_env,
-        })
+        env.update(
+            {
+                "FOGFLEET_KUBECONFIG": str(self.kubeconfig),
+                "KUBECONFIG": str(self.kubeconfig),
+                "FOGFLEET_NAMESPACES": ",".join(self.namespaces),
+                "FOGFLEET_LIVENESS_PORT": str(self.liveness_port),
+                "FOGFLEET_METRICS_PORT": str(self.metrics_port),
+                "FOGFLEET_DEBOUNCE_SECONDS": "1",
+                "FOGFLEET_DRIFT_INTERVAL_SECONDS": "30",
+                "FOGFLEET_LOG_LEVEL": "INFO",
+                **self.extra_env,
+            }
+        )
         log = self.log_path.open("ab")
         log.write(f"\n----- start #{self.starts + 1} -----\n".encode())
         log.flush()
         self.proc = subprocess.Popen(
-            [sys.executable, "-m", "fogfleet", "run"], stdout=log, stderr=subprocess.STDOUT,
-            env=env, cwd=ROOT, start_new_session=True,
+            [sys.executable, "-m", "fogfleet", "run"],
+            stdout=log,
+            stderr=subprocess.STDOUT,
+            env=env,
+            cwd=ROOT,
+            start_new_session=True,
         )
         self.starts += 1
         return self
@@ -79,9 +90,13 @@ class Operator:
         deadline = time.monotonic() + timeout
         while time.monotonic() < deadline:
             if self.proc is not None and self.proc.poll() is not None:
-                raise AssertionError(f"the operator exited with {self.proc.returncode}:\n{self.logs()}")
+                raise AssertionError(
+                    f"the operator exited with {self.proc.returncode}:\n{self.logs()}"
+                )
             try:
-                with urllib.request.urlopen(f"http://127.0.0.1:{self.liveness_port}/healthz", timeout=2):
+                with urllib.request.urlopen(
+                    f"http://127.0.0.1:{self.liveness_port}/healthz", timeout=2
+                ):
                     return
             except OSError:
                 time.sleep(0.3)
@@ -90,7 +105,9 @@ class Operator:
     def metrics(self) -> str:
         import urllib.request
 
-        with urllib.request.urlopen(f"http://127.0.0.1:{self.metrics_port}/metrics", timeout=5) as r:
+        with urllib.request.urlopen(
+            f"http://127.0.0.1:{self.metrics_port}/metrics", timeout=5
+        ) as r:
             return str(r.read().decode())
 
     def kill(self) -> None:
@@ -143,8 +160,14 @@ def conditions(obj: Obj) -> dict[str, Obj]:
     return {c["type"]: c for c in (obj.get("status") or {}).get("conditions") or []}
 
 
-def condition_is(kube: Kube, namespace: str, type_: str, status: str, name: str = "warehouse",
-                 reason: str | None = None) -> bool:
+def condition_is(
+    kube: Kube,
+    namespace: str,
+    type_: str,
+    status: str,
+    name: str = "warehouse",
+    reason: str | None = None,
+) -> bool:
     try:
         c = conditions(fleet(kube, namespace, name)).get(type_)
     except AssertionError:
@@ -154,7 +177,9 @@ def condition_is(kube: Kube, namespace: str, type_: str, status: str, name: str 
 
 def pods_by_instance(kube: Kube, namespace: str) -> dict[str, Obj]:
     """Running, not terminating pods of the fleet, by Deployment (fogfleet.io/instance)."""
-    items = kube.kubectl_json("get", "pods", "-n", namespace, "-l", "app.kubernetes.io/managed-by=fogfleet")["items"]
+    items = kube.kubectl_json(
+        "get", "pods", "-n", namespace, "-l", "app.kubernetes.io/managed-by=fogfleet"
+    )["items"]
     out: dict[str, Obj] = {}
     for pod in items:
         if pod["metadata"].get("deletionTimestamp") or pod["status"].get("phase") != "Running":
@@ -175,13 +200,18 @@ def deployments(kube: Kube, namespace: str) -> list[Obj]:
 
 def bound_node(dep: Obj) -> list[str]:
     values: list[str] = dep["spec"]["template"]["spec"]["affinity"]["nodeAffinity"][
-        "requiredDuringSchedulingIgnoredDuringExecution"]["nodeSelectorTerms"][0]["matchExpressions"][0]["values"]
+        "requiredDuringSchedulingIgnoredDuringExecution"
+    ]["nodeSelectorTerms"][0]["matchExpressions"][0]["values"]
     return values
 
 
-def events(kube: Kube, namespace: str, reason: str | None = None, name: str = "warehouse") -> list[Obj]:
+def events(
+    kube: Kube, namespace: str, reason: str | None = None, name: str = "warehouse"
+) -> list[Obj]:
     sel = f"involvedObject.name={name}" + (f",reason={reason}" if reason else "")
-    items: list[Obj] = kube.kubectl_json("get", "events", "-n", namespace, "--field-selector", sel)["items"]
+    items: list[Obj] = kube.kubectl_json("get", "events", "-n", namespace, "--field-selector", sel)[
+        "items"
+    ]
     return items
 
 

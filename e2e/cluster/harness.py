@@ -1024,6 +1024,15 @@ def _argv(ports: Mapping[str, int]) -> dict[str, tuple[list[str], dict[str, str]
                 "--kubelet-preferred-address-types=Hostname",
                 f"--default-not-ready-toleration-seconds={POD_EVICTION_TOLERATION_SECONDS}",
                 f"--default-unreachable-toleration-seconds={POD_EVICTION_TOLERATION_SECONDS}",
+                # front-proxy/requestheader settings, so kcm and the scheduler find a complete
+                # extension-apiserver-authentication ConfigMap (no aggregated APIs are served)
+                f"--requestheader-client-ca-file={pki / 'ca.crt'}",
+                "--requestheader-allowed-names=fogfleet-e2e-admin",
+                "--requestheader-username-headers=X-Remote-User",
+                "--requestheader-group-headers=X-Remote-Group",
+                "--requestheader-extra-headers-prefix=X-Remote-Extra-",
+                f"--proxy-client-cert-file={pki / 'admin.crt'}",
+                f"--proxy-client-key-file={pki / 'admin.key'}",
                 f"--cert-dir={s / 'certs'}",
             ],
             None,
@@ -1121,15 +1130,10 @@ def _write_configs(ports: Mapping[str, int]) -> None:
         )
         + "\n"
     )
-    kwok_cfg = json.dumps(
-        {
-            "apiVersion": "config.kwok.x-k8s.io/v1alpha1",
-            "kind": "KwokConfiguration",
-            "options": {"cidr": "10.0.0.0/16", "nodeLeaseDurationSeconds": NODE_LEASE_SECONDS},
-        }
-    )
     stages = (BIN_DIR / "kwok-stages.yaml").read_text()
-    (STATE_DIR / "kwok.yaml").write_text(kwok_cfg + "\n---\n" + stages)
+    # Only Stage documents: a KwokConfiguration document here would replace kwok's defaults
+    # (v0.8.0 then fails with "node leases parallelism must be greater than 0"); flags suffice.
+    (STATE_DIR / "kwok.yaml").write_text(stages)
     (STATE_DIR / "prometheus.yml").write_text(json.dumps(_prometheus_config(ports), indent=1))
     run([BIN_DIR / "promtool", "check", "config", STATE_DIR / "prometheus.yml"])
 

@@ -1,4 +1,4 @@
-"""``python -m fogfleet ...`` is the ``fogfleet`` command (``python -m fogfleet run`` starts the operator)."""
+"""`python -m fogfleet ...` is the `fogfleet` command (`python -m fogfleet run`: the operator)."""
 
 from __future__ import annotations
 

@@ -160,7 +160,9 @@ def stabilize(
     return min(max(current, up), down)
 
 
-def _change_in_period(events: Iterable[ScaleEvent], period_seconds: int, now: float) -> tuple[int, int]:
+def _change_in_period(
+    events: Iterable[ScaleEvent], period_seconds: int, now: float
+) -> tuple[int, int]:
     cutoff = now - period_seconds
     added = deleted = 0
     for event in events:

@@ -70,9 +70,7 @@ class Pool:
 
     @property
     def tier(self) -> Tier:
-        return Tier(
-            self.name, self.service_rate, self.network_delay_seconds, self.accepts_private
-        )
+        return Tier(self.name, self.service_rate, self.network_delay_seconds, self.accepts_private)
 
 
 @dataclass(frozen=True)
@@ -120,7 +118,8 @@ class ScalerState:
 
 
 class Policy(Protocol):
-    name: str
+    @property
+    def name(self) -> str: ...
 
     def recommend(
         self, snapshot: MetricsSnapshot, pools: Sequence[Pool], previous: MetricsSnapshot | None
@@ -263,9 +262,7 @@ def _rest(lam_p: float, lam_n: float, pools: Sequence[Pool], reserve: int) -> li
     return sizes
 
 
-def size_pools(
-    lam_p: float, lam_n: float, pools: Sequence[Pool], reserve: int
-) -> list[int]:
+def size_pools(lam_p: float, lam_n: float, pools: Sequence[Pool], reserve: int) -> list[int]:
     """Fewest replicas per pool that keep each class's rejection within ``1 - percentile``."""
     if not pools:
         return []
@@ -318,8 +315,7 @@ def decide(
     if recommendation is None:
         held = state.last.replicas if state.last else {p.name: current(p) for p in pools}
         replicas = {
-            p.name: min(max(held.get(p.name, current(p)), floor(p)), p.max_replicas)
-            for p in pools
+            p.name: min(max(held.get(p.name, current(p)), floor(p)), p.max_replicas) for p in pools
         }
         decision = ScaleDecision(
             snapshot.timestamp,

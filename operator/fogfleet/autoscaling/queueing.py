@@ -43,8 +43,8 @@ import math
 
 import numpy as np
 import scipy.sparse as sp
-from scipy.special import gammaln
 from scipy.sparse.linalg import expm_multiply, spsolve
+from scipy.special import gammaln
 
 __all__ = [
     "admission_capacity",
@@ -54,12 +54,12 @@ __all__ = [
     "mean_response_seconds",
     "min_replicas_for_admission",
     "min_replicas_for_slo",
-    "reservation_blocking",
     "mmk_mean_response_seconds",
     "mmk_mean_wait_seconds",
     "mmk_response_sf",
     "mmk_setup_mean_response_seconds",
     "mmk_setup_response_sf",
+    "reservation_blocking",
     "response_quantile_seconds",
     "response_sf",
 ]
@@ -166,9 +166,7 @@ def _setup_chain(
     return pi, on, jobs
 
 
-def mmk_setup_mean_response_seconds(
-    lam: float, mu: float, k: int, setup_seconds: float
-) -> float:
+def mmk_setup_mean_response_seconds(lam: float, mu: float, k: int, setup_seconds: float) -> float:
     """Exact mean response time of M/M/k/setup (Little's law on the stationary chain)."""
     _check(lam, mu, k)
     if setup_seconds <= 0:
@@ -292,7 +290,7 @@ def min_replicas_for_slo(
 def max_arrival_rate_for_slo(
     mu: float, k: int, slo_seconds: float, percentile: float, *, delay: float = 0.0
 ) -> float:
-    """Largest ``lam`` a warm pool of ``k`` meets ``P(T > slo) <= 1 - percentile`` at (0 if none)."""
+    """Largest ``lam`` at which ``k`` warm replicas keep ``P(T > slo) <= 1 - percentile``."""
     if k <= 0 or slo_seconds <= delay:
         return 0.0
     allowed = 1.0 - percentile

@@ -428,7 +428,9 @@ def _plan_events(deps: Deps, body: Obj, problem: Problem, cached: CachedPlan) ->
     )
     if cached.moves:
         deps.kube.emit_event(
-            body, "Normal", "Migrated",
+            body,
+            "Normal",
+            "Migrated",
             f"Moved {len(cached.moves)} running modules: {', '.join(cached.moves[:10])}",
         )
 

@@ -41,8 +41,15 @@ __all__ = ["finish", "k8s_default", "k8s_scores", "onboard_plan", "random_plan"]
 I64 = NDArray[np.int64]
 
 
-def finish(problem: Problem, name: str, x: I64, with_limits: bool, t0: float, reason: str,
-           extra_reasons: dict[int, str] | None = None) -> Schedule:
+def finish(
+    problem: Problem,
+    name: str,
+    x: I64,
+    with_limits: bool,
+    t0: float,
+    reason: str,
+    extra_reasons: dict[int, str] | None = None,
+) -> Schedule:
     """Wrap a plan into a Schedule with every objective and feasibility evaluated."""
     alloc = problem.allocation(with_limits)
     vals = evaluate(problem, x[None, :], alloc)
@@ -76,9 +83,14 @@ def onboard_plan(problem: Problem) -> Schedule:
     return finish(problem, "onboard", x, False, t0, "every instance on its own robot")
 
 
-def k8s_scores(alloc_cpu_m: NDArray[np.int64], alloc_mem: NDArray[np.int64],
-               req_cpu_m: NDArray[np.int64], req_mem: NDArray[np.int64]) -> NDArray[np.int64]:
+def k8s_scores(
+    alloc_cpu_m: NDArray[np.int64],
+    alloc_mem: NDArray[np.int64],
+    req_cpu_m: NDArray[np.int64],
+    req_mem: NDArray[np.int64],
+) -> NDArray[np.int64]:
     """LeastAllocated + BalancedAllocation score per node; ``req_*`` already include the pod."""
+
     def least(req: NDArray[np.int64], cap: NDArray[np.int64]) -> NDArray[np.int64]:
         s = np.where(cap > 0, ((cap - req) * 100) // np.maximum(cap, 1), 0)
         return np.where(req > cap, 0, s).astype(np.int64)
@@ -107,12 +119,20 @@ def k8s_default(problem: Problem, seed: int = 1) -> Schedule:
             continue
         cpu = np.round(problem.nominal.cpu_request[i] * 1000).astype(np.int64)  # per node
         cpu = np.where(problem.allowed[i], cpu, int(cpu.max()))
-        mem = int(round(problem.memory[i]))
-        gpu = int(round(problem.gpu[i]))
+        mem = round(problem.memory[i])
+        gpu = round(problem.gpu[i])
         req_cpu, req_mem = used_cpu + cpu, used_mem + mem
-        fits = problem.allowed[i] & (req_cpu <= alloc_cpu) & (req_mem <= alloc_mem) & (used_gpu + gpu <= alloc_gpu)
+        fits = (
+            problem.allowed[i]
+            & (req_cpu <= alloc_cpu)
+            & (req_mem <= alloc_mem)
+            & (used_gpu + gpu <= alloc_gpu)
+        )
         if not fits.any():
-            pending[i] = f"{problem.label(i)}: 0/{int(problem.allowed[i].sum())} nodes are available: Insufficient resources"
+            pending[i] = (
+                f"{problem.label(i)}: 0/{int(problem.allowed[i].sum())} nodes are available: "
+                "Insufficient resources"
+            )
             continue
         score = np.where(fits, k8s_scores(alloc_cpu, alloc_mem, req_cpu, req_mem), -1)
         best = np.flatnonzero(score == score.max())
@@ -121,9 +141,16 @@ def k8s_default(problem: Problem, seed: int = 1) -> Schedule:
         used_cpu[j] += cpu[j]
         used_mem[j] += mem
         used_gpu[j] += gpu
-    return finish(problem, "k8s-default", x, False, t0,
-                  "kube-scheduler default scoring (LeastAllocated + BalancedAllocation), pods in creation order",
-                  pending)
+    return finish(
+        problem,
+        "k8s-default",
+        x,
+        False,
+        t0,
+        "kube-scheduler default scoring (LeastAllocated + BalancedAllocation), "
+        "pods in creation order",
+        pending,
+    )
 
 
 def random_plan(problem: Problem, seed: int = 1) -> Schedule:
@@ -133,4 +160,6 @@ def random_plan(problem: Problem, seed: int = 1) -> Schedule:
     rng = np.random.default_rng(seed)
     x = pp.full(pp.random_genes(1, rng))
     x = repair_plans(pp, x)[0]
-    return finish(problem, "random", x, True, t0, "uniform random within gene spaces, repaired for capacity")
+    return finish(
+        problem, "random", x, True, t0, "uniform random within gene spaces, repaired for capacity"
+    )

@@ -20,6 +20,7 @@ from typing import Any
 import numpy as np
 
 from fogfleet.api.loader import Catalog, load_paths
+from fogfleet.api.v1alpha1.computenode import ComputeNode
 from fogfleet.api.v1alpha1.robotfleet import RobotFleet, SchedulerSettings
 from fogfleet.domain.problem import Problem, build_problem
 
@@ -46,7 +47,9 @@ def warehouse_problem(examples: Path = WAREHOUSE) -> Problem:
     return build_problem(cat.fleets[0], cat)
 
 
-def synthetic_fleet(robots: int, edges: int, seed: int, examples: Path = WAREHOUSE) -> tuple[Catalog, RobotFleet]:
+def synthetic_fleet(
+    robots: int, edges: int, seed: int, examples: Path = WAREHOUSE
+) -> tuple[Catalog, RobotFleet]:
     """A larger warehouse: ``robots`` copies of the warehouse robot, ``edges`` edge nodes of
     the warehouse's two VM series (D*s v3: 4 GiB/core, speed 1; F*s v2: 2 GiB/core, speed
     1.25), the same 8 modules. 40 warehouse-sized edges (8 or 16 cores) cannot host the
@@ -57,7 +60,7 @@ def synthetic_fleet(robots: int, edges: int, seed: int, examples: Path = WAREHOU
     base = load_paths([str(examples)])
     fleet0 = base.fleets[0]
     robot_t = base.nodes[fleet0.spec.robots[0]]
-    series = {}
+    series: dict[str, ComputeNode] = {}
     for name in fleet0.spec.nodes:
         nd = base.nodes[name]
         series.setdefault(nd.spec.hardware_type.split("-")[0], nd)
@@ -65,7 +68,11 @@ def synthetic_fleet(robots: int, edges: int, seed: int, examples: Path = WAREHOU
     cat = Catalog(modules=dict(base.modules))
     robot_names = [f"robot-{k + 1:03d}" for k in range(robots)]
     for name in robot_names:
-        cat.add(robot_t.model_copy(update={"metadata": robot_t.metadata.model_copy(update={"name": name})}))
+        cat.add(
+            robot_t.model_copy(
+                update={"metadata": robot_t.metadata.model_copy(update={"name": name})}
+            )
+        )
     target = 12.0 * robots / max(edges, 1)
     sizes = [8, 16, 32, 64]
     lo = max([s for s in sizes if s <= target], default=8)
@@ -79,14 +86,22 @@ def synthetic_fleet(robots: int, edges: int, seed: int, examples: Path = WAREHOU
         cores = hi if rng.random() < p_hi else lo
         assert tmpl.spec.capacity is not None
         gib_per_core = 4 if kind.startswith("dsv3") else 2
-        cap = tmpl.spec.capacity.model_copy(update={"cpu": cores, "memory": f"{cores * gib_per_core}Gi"})
+        cap = tmpl.spec.capacity.model_copy(
+            update={"cpu": cores, "memory": f"{cores * gib_per_core}Gi"}
+        )
         spec = tmpl.spec.model_copy(update={"capacity": cap, "hardware_type": f"{kind}-{cores}"})
-        cat.add(tmpl.model_copy(update={"metadata": tmpl.metadata.model_copy(update={"name": name}), "spec": spec}))
-    spec = fleet0.spec.model_copy(update={"robots": robot_names, "nodes": edge_names})
-    fleet = fleet0.model_copy(update={
-        "metadata": fleet0.metadata.model_copy(update={"name": f"synthetic-{robots}x{edges}"}),
-        "spec": spec,
-    })
+        cat.add(
+            tmpl.model_copy(
+                update={"metadata": tmpl.metadata.model_copy(update={"name": name}), "spec": spec}
+            )
+        )
+    fspec = fleet0.spec.model_copy(update={"robots": robot_names, "nodes": edge_names})
+    fleet = fleet0.model_copy(
+        update={
+            "metadata": fleet0.metadata.model_copy(update={"name": f"synthetic-{robots}x{edges}"}),
+            "spec": fspec,
+        }
+    )
     cat.add(fleet)
     return cat, fleet
 
@@ -96,7 +111,9 @@ def _best_on_front(problem: Problem, s: Schedule) -> float:
     return min(scalarised(problem, x) for x in plans)
 
 
-def optimality_gap(seeds: Sequence[int] = (1, 2, 3, 4, 5), problem: Problem | None = None) -> list[Row]:
+def optimality_gap(
+    seeds: Sequence[int] = (1, 2, 3, 4, 5), problem: Problem | None = None
+) -> list[Row]:
     """(a) nsga2 (default settings) vs the MILP optimum of S, one row per seed."""
     p = problem or warehouse_problem()
     t0 = time.perf_counter()
@@ -107,12 +124,20 @@ def optimality_gap(seeds: Sequence[int] = (1, 2, 3, 4, 5), problem: Problem | No
     for seed in seeds:
         s = plan(p, SchedulerSettings(seed=seed))
         best = _best_on_front(p, s)
-        rows.append({
-            "bench": "gap", "fleet": p.fleet, "seed": seed, "feasible": s.feasible,
-            "nsga2_S": round(best, 5), "chosen_S": round(scalarised(p, s.placement), 5),
-            "exact_S": round(opt, 5), "gap_pct": round(100 * (best - opt) / opt, 2),
-            "nsga2_s": round(s.duration_seconds, 2), "exact_s": round(t_exact, 2),
-        })
+        rows.append(
+            {
+                "bench": "gap",
+                "fleet": p.fleet,
+                "seed": seed,
+                "feasible": s.feasible,
+                "nsga2_S": round(best, 5),
+                "chosen_S": round(scalarised(p, s.placement), 5),
+                "exact_S": round(opt, 5),
+                "gap_pct": round(100 * (best - opt) / opt, 2),
+                "nsga2_s": round(s.duration_seconds, 2),
+                "exact_s": round(t_exact, 2),
+            }
+        )
     return rows
 
 
@@ -124,19 +149,35 @@ def decision_time(repeats: int = 5, robots: int = 100, edges: int = 40, seed: in
         s = plan(p, SchedulerSettings(seed=seed))
         times.append(s.duration_seconds)
         feas.append(s.feasible)
-    rows: list[Row] = [{
-        "bench": "time", "fleet": p.fleet, "genes": p.n_instances, "nodes": p.n_nodes,
-        "median_s": round(statistics.median(times), 2), "runs": repeats, "feasible": all(feas),
-        "generations": s.generations, "missRate": s.objectives["missRate"],
-    }]
+    rows: list[Row] = [
+        {
+            "bench": "time",
+            "fleet": p.fleet,
+            "genes": p.n_instances,
+            "nodes": p.n_nodes,
+            "median_s": round(statistics.median(times), 2),
+            "runs": repeats,
+            "feasible": all(feas),
+            "generations": s.generations,
+            "missRate": s.objectives["missRate"],
+        }
+    ]
     cat, fleet = synthetic_fleet(robots, edges, seed)
     q = build_problem(fleet, cat)
     s = plan(q, SchedulerSettings(seed=seed, time_budget_millis=30000))
-    rows.append({
-        "bench": "time", "fleet": q.fleet, "genes": q.n_instances, "nodes": q.n_nodes,
-        "median_s": round(s.duration_seconds, 2), "runs": 1, "feasible": s.feasible,
-        "generations": s.generations, "missRate": s.objectives["missRate"],
-    })
+    rows.append(
+        {
+            "bench": "time",
+            "fleet": q.fleet,
+            "genes": q.n_instances,
+            "nodes": q.n_nodes,
+            "median_s": round(s.duration_seconds, 2),
+            "runs": 1,
+            "feasible": s.feasible,
+            "generations": s.generations,
+            "missRate": s.objectives["missRate"],
+        }
+    )
     return rows
 
 
@@ -146,12 +187,20 @@ def _compare(p: Problem, seed: int, opt: float, bound_kind: str, budget_ms: int)
     for name, paper in (("paper-nsga2", True), ("fogfleet-nsga2", False)):
         s = nsga2(p, settings, paper=paper)
         best = _best_on_front(p, s) if s.feasible else float("nan")
-        rows.append({
-            "bench": "standin", "fleet": p.fleet, "genes": p.n_instances, "variant": name,
-            "feasible": s.feasible, "S": round(best, 5), bound_kind: round(opt, 5),
-            "gap_pct": round(100 * (best - opt) / opt, 2) if s.feasible else float("nan"),
-            "seconds": round(s.duration_seconds, 2), "generations": s.generations,
-        })
+        rows.append(
+            {
+                "bench": "standin",
+                "fleet": p.fleet,
+                "genes": p.n_instances,
+                "variant": name,
+                "feasible": s.feasible,
+                "S": round(best, 5),
+                bound_kind: round(opt, 5),
+                "gap_pct": round(100 * (best - opt) / opt, 2) if s.feasible else float("nan"),
+                "seconds": round(s.duration_seconds, 2),
+                "generations": s.generations,
+            }
+        )
     return rows
 
 
@@ -174,7 +223,10 @@ def format_table(rows: Sequence[Row]) -> str:
     for r in rows:
         cols += [k for k in r if k not in cols]
     cells = [[str(r.get(c, "")) for c in cols] for r in rows]
-    widths = [max(len(c), *(len(row[k]) for row in cells)) if cells else len(c) for k, c in enumerate(cols)]
+    widths = [
+        max(len(c), *(len(row[k]) for row in cells)) if cells else len(c)
+        for k, c in enumerate(cols)
+    ]
     line = "  ".join(c.ljust(w) for c, w in zip(cols, widths, strict=True))
     out = [line, "  ".join("-" * w for w in widths)]
     out += ["  ".join(v.ljust(w) for v, w in zip(row, widths, strict=True)) for row in cells]

@@ -34,8 +34,8 @@ def non_dominated(F: F64) -> NDArray[np.int64]:
     F = np.asarray(F, dtype=np.float64)
     keep: list[int] = []
     for k in range(len(F)):
-        le = np.all(F <= F[k], axis=1)
-        lt = np.any(F < F[k], axis=1)
+        le = np.all(F[k] >= F, axis=1)
+        lt = np.any(F[k] > F, axis=1)
         if np.any(le & lt):
             continue
         if any(np.array_equal(F[k], F[m]) for m in keep):

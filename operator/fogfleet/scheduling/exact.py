@@ -33,7 +33,12 @@ from .objectives import UPLINK_SHARE, evaluate
 
 __all__ = ["DEFAULT_WEIGHTS", "MAX_PAIRS", "ExactResult", "scalarised", "solve_exact"]
 
-DEFAULT_WEIGHTS: dict[str, float] = {"missRate": 100.0, "missedCycles": 1.0, "onboard": 1.0, "reserve": 1.0}
+DEFAULT_WEIGHTS: dict[str, float] = {
+    "missRate": 100.0,
+    "missedCycles": 1.0,
+    "onboard": 1.0,
+    "reserve": 1.0,
+}
 MAX_PAIRS = 5000  # binary variables the exact solver accepts (the warehouse fleet has ~250)
 
 
@@ -46,7 +51,9 @@ class ExactResult:
     relaxed: bool
 
 
-def scalarised(problem: Problem, placement: NDArray[np.integer], weights: Mapping[str, float] | None = None) -> float:
+def scalarised(
+    problem: Problem, placement: NDArray[np.integer], weights: Mapping[str, float] | None = None
+) -> float:
     """S of the module docstring for one plan (limits allocation)."""
     w = dict(DEFAULT_WEIGHTS if weights is None else weights)
     vals = evaluate(problem, np.asarray(placement)[None, :], problem.limits, tuple(w))
@@ -72,14 +79,21 @@ def solve_exact(
     w = dict(DEFAULT_WEIGHTS if weights is None else weights)
     unknown = set(w) - set(DEFAULT_WEIGHTS)
     if unknown:
-        raise InvalidSpec(f"RobotFleet/{problem.fleet}", "spec.scheduler.weights",
-                          f"the exact solver cannot linearise {', '.join(sorted(unknown))}")
+        raise InvalidSpec(
+            f"RobotFleet/{problem.fleet}",
+            "spec.scheduler.weights",
+            f"the exact solver cannot linearise {', '.join(sorted(unknown))}",
+        )
     alloc = problem.limits
     pi, pj = np.nonzero(problem.allowed)
     n_pairs = len(pi)
     if n_pairs > max_pairs and not relax:
-        raise InvalidSpec(f"RobotFleet/{problem.fleet}", "spec.scheduler.algorithm",
-                          f"exact planning is limited to {max_pairs} (instance, node) pairs; this fleet has {n_pairs}")
+        raise InvalidSpec(
+            f"RobotFleet/{problem.fleet}",
+            "spec.scheduler.algorithm",
+            f"exact planning is limited to {max_pairs} (instance, node) pairs; "
+            f"this fleet has {n_pairs}",
+        )
     n_i, n_n = problem.n_instances, problem.n_nodes
     n_r = max(int((problem.tier == 0).sum()), 1)
     genes = np.flatnonzero(problem.allowed.any(axis=1))
@@ -89,11 +103,18 @@ def solve_exact(
     exe = np.where(problem.allowed, alloc.exe_mean, 0.0)
     tau = ((problem.net_mean + exe) / problem.cycle[:, None])[pi, pj]
     cap = problem.capacity
-    on_home = (pj == problem.home[pi])
-    f1 = np.where(on_home, a[pi] * alloc.cpu_use[pi, pj] / cap[pj, 0] + problem.memory[pi] / np.maximum(cap[pj, 1], 1.0), 0.0)
-    c = (w.get("missRate", 0.0) * a[pi] * q / a_total
-         + w.get("missedCycles", 0.0) * a[pi] * np.where(tau > 1.0, tau, 0.0)
-         + w.get("onboard", 0.0) * f1 / n_r)
+    on_home = pj == problem.home[pi]
+    f1 = np.where(
+        on_home,
+        a[pi] * alloc.cpu_use[pi, pj] / cap[pj, 0]
+        + problem.memory[pi] / np.maximum(cap[pj, 1], 1.0),
+        0.0,
+    )
+    c = (
+        w.get("missRate", 0.0) * a[pi] * q / a_total
+        + w.get("missedCycles", 0.0) * a[pi] * np.where(tau > 1.0, tau, 0.0)
+        + w.get("onboard", 0.0) * f1 / n_r
+    )
     c = np.append(c, w.get("reserve", 0.0))  # z
     nv = n_pairs + 1
     cols = np.arange(n_pairs)
@@ -115,7 +136,9 @@ def solve_exact(
         if r < 2 or has.any():
             # reserve: u_j^r / L_j^r - z <= 0
             scale = sp.diags(1.0 / np.where(has, cap[:, r], 1.0))
-            z = sp.csr_matrix((-np.ones(n_n), (np.arange(n_n), np.full(n_n, n_pairs))), shape=(n_n, nv))
+            z = sp.csr_matrix(
+                (-np.ones(n_n), (np.arange(n_n), np.full(n_n, n_pairs))), shape=(n_n, nv)
+            )
             mr = (scale @ m + z)[np.flatnonzero(has)]
             rows.append(sp.csr_matrix(mr))
             lo.append(np.full(mr.shape[0], -np.inf))
@@ -130,12 +153,19 @@ def solve_exact(
     A = sp.vstack(rows, format="csr")
     integrality = np.append(np.zeros(n_pairs) if relax else np.ones(n_pairs), 0)
     bounds = Bounds(np.zeros(nv), np.append(np.ones(n_pairs), np.inf))
-    res = milp(c, constraints=LinearConstraint(A, np.concatenate(lo), np.concatenate(hi)),
-               integrality=integrality, bounds=bounds,
-               options={"time_limit": time_limit, "mip_rel_gap": 1e-6, "disp": False})
+    res = milp(
+        c,
+        constraints=LinearConstraint(A, np.concatenate(lo), np.concatenate(hi)),
+        integrality=integrality,
+        bounds=bounds,
+        options={"time_limit": time_limit, "mip_rel_gap": 1e-6, "disp": False},
+    )
     if res.x is None:
-        raise Infeasible(f"RobotFleet/{problem.fleet}", "spec",
-                         f"the exact solver found no feasible plan ({res.message})")
+        raise Infeasible(
+            f"RobotFleet/{problem.fleet}",
+            "spec",
+            f"the exact solver found no feasible plan ({res.message})",
+        )
     xv = np.asarray(res.x[:n_pairs])
     placement = np.full(n_i, -1, dtype=np.int64)
     if not relax:

@@ -22,7 +22,9 @@ def uncontended_miss(problem: Problem, allocation: Allocation) -> F64:
     allowed. Uses the same normal model as ``objectives.missRate`` at slowdown 1."""
     exe = np.where(problem.allowed, allocation.exe_mean, 0.0)
     sd = np.sqrt(np.where(problem.allowed, allocation.exe_std, 0.0) ** 2 + problem.net_std**2)
-    q = miss_probability(problem.net_mean + exe, sd, np.broadcast_to(problem.cycle[:, None], exe.shape))
+    q = miss_probability(
+        problem.net_mean + exe, sd, np.broadcast_to(problem.cycle[:, None], exe.shape)
+    )
     return np.where(problem.allowed, q, 1.0)
 
 
@@ -40,17 +42,22 @@ class Fit:
         self.robots = problem.tier == 0
         self.uplink = UPLINK_SHARE * problem.uplink_bandwidth
         self.q = uncontended_miss(problem, allocation)
-        t = (problem.net_mean + np.where(problem.allowed, allocation.exe_mean, 0.0)) / problem.cycle[:, None]
+        t = (
+            problem.net_mean + np.where(problem.allowed, allocation.exe_mean, 0.0)
+        ) / problem.cycle[:, None]
         # preference among allowed nodes: low miss probability, then low cycle ratio (latency)
         self.pref = np.where(problem.allowed, self.q + 0.01 * np.minimum(t, 10.0), np.inf)
         req = np.where(problem.allowed, allocation.cpu_request, 0.0)
         self.order = np.argsort(-req.max(axis=1), kind="stable").astype(np.int64)
 
 
-def greedy(problem: Problem, allocation: Allocation, style: str = "best-fit", fit: Fit | None = None) -> I64:
+def greedy(
+    problem: Problem, allocation: Allocation, style: str = "best-fit", fit: Fit | None = None
+) -> I64:
     """One plan: ``best-fit`` (lowest miss probability, ties to the fullest node that fits),
     ``spread`` (ties to the emptiest), ``level`` (the emptiest node among those with a miss
-    probability within 1e-3 of the lowest: keeps the peak utilisation low), ``onboard`` (the home robot whenever it fits, else
+    probability within 1e-3 of the lowest: keeps the peak utilisation low), ``onboard``
+    (the home robot whenever it fits, else
     best-fit). Instances with an empty gene space get -1; if nothing fits, the allowed node
     with the smallest overload is used (the repair may fix it later)."""
     f = fit or Fit(problem, allocation)

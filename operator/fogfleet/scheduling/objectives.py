@@ -36,8 +36,8 @@ __all__ = [
     "cost",
     "energy",
     "evaluate",
-    "miss_probability",
     "missRate",
+    "miss_probability",
     "missedCycles",
     "onboard",
     "reserve",
@@ -94,7 +94,8 @@ class Evaluation:
     def per_node(self, w: F64) -> F64:
         """Sum of per-instance weights ``w`` (P, I) on each node: (P, N)."""
         wv = np.where(self.valid, w, 0.0).ravel()
-        return np.bincount(self._flat, weights=wv, minlength=self.P * self.N).reshape(self.P, self.N)
+        out = np.bincount(self._flat, weights=wv, minlength=self.P * self.N)
+        return np.asarray(out, dtype=np.float64).reshape(self.P, self.N)
 
     # -- shared arrays --------------------------------------------------------------------
     @cached_property
@@ -156,7 +157,8 @@ class Evaluation:
         w = np.where(off, self.problem.traffic[None, :], 0.0).ravel()
         h = np.where(home >= 0, home, 0)
         flat = (h[None, :] + self.N * np.arange(self.P)[:, None]).ravel()
-        return np.bincount(flat, weights=w, minlength=self.P * self.N).reshape(self.P, self.N)
+        out = np.bincount(flat, weights=w, minlength=self.P * self.N)
+        return np.asarray(out, dtype=np.float64).reshape(self.P, self.N)
 
     # -- objectives -----------------------------------------------------------------------
     def onboard(self) -> F64:
@@ -186,7 +188,9 @@ class Evaluation:
             return np.zeros(self.P)
         cap = self.problem.capacity[self.remote]
         total = np.std(self.cpu_expected[:, self.remote] / cap[None, :, 0], axis=1)
-        total += np.std(self.mem_requested[:, self.remote] / np.maximum(cap[None, :, 1], 1.0), axis=1)
+        total += np.std(
+            self.mem_requested[:, self.remote] / np.maximum(cap[None, :, 1], 1.0), axis=1
+        )
         if cap[:, 2].any():
             g = self.gpu_requested[:, self.remote] / np.maximum(cap[None, :, 2], 1.0)
             total += np.std(g, axis=1)
@@ -253,7 +257,13 @@ class Evaluation:
         m, sd, peak, hot = self.overlap_demand()
         if hot.any():
             cap = self.problem.capacity[:, 0][self.x][hot]
-            net, net_sd, exe, exe_sd, th = self.net[hot], self.net_std[hot], self.exe[hot], self.exe_std[hot], T[hot]
+            net, net_sd, exe, exe_sd, th = (
+                self.net[hot],
+                self.net_std[hot],
+                self.exe[hot],
+                self.exe_std[hot],
+                T[hot],
+            )
 
             def at(d: F64) -> F64:
                 k = np.maximum(1.0, d / cap)
@@ -266,7 +276,9 @@ class Evaluation:
         a = np.where(self.valid, self.problem.activation[None, :], 0.0)
         total = a.sum(axis=1)
         s = (a * self.instance_miss()).sum(axis=1)
-        return np.asarray(np.where(total > 0, s / np.where(total > 0, total, 1.0), 0.0), dtype=np.float64)
+        return np.asarray(
+            np.where(total > 0, s / np.where(total > 0, total, 1.0), 0.0), dtype=np.float64
+        )
 
     def cost(self) -> F64:
         return np.asarray(self.cpu_requested @ self.problem.cost, dtype=np.float64)
@@ -323,10 +335,11 @@ def missRate(problem: Problem, X: NDArray[np.integer], allocation: Allocation) -
     """Predicted fraction of active cycles that miss: sum_i a_i P(t_cycle_i > T_i) / sum_i a_i.
 
     t_cycle is normal with mean net_mean + exe_mean * k and std sqrt((exe_std k)^2 +
-    net_std^2). The slowdown k is overlap-aware (``Evaluation.overlap_slowdown``): with
-    probability p_over the node is oversubscribed while the cycle executes and k = k_over,
-    otherwise k = 1. A feasible plan with the ``limits`` allocation never oversubscribes, so
-    there k = 1 exactly."""
+    net_std^2). The slowdown k = max(1, D / cap) is overlap-aware: D, the CPU demand on the
+    node while the cycle executes, counts every other instance there with the probability
+    that it is executing too (activation x duty cycle), and the miss probability is averaged
+    over D by Gauss-Hermite quadrature (``Evaluation.overlap_demand``). A node whose
+    all-active peak fits its capacity (always so for a feasible ``limits`` plan) has k = 1."""
     return Evaluation(problem, X, allocation).miss_rate()
 
 

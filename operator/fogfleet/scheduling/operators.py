@@ -18,7 +18,14 @@ from pymoo.core.sampling import Sampling
 from .heuristics import greedy
 from .problem import PlacementProblem
 
-__all__ = ["CapacityRepair", "FleetSampling", "GeneCrossover", "GeneMutation", "repair_plans", "seed_plans"]
+__all__ = [
+    "CapacityRepair",
+    "FleetSampling",
+    "GeneCrossover",
+    "GeneMutation",
+    "repair_plans",
+    "seed_plans",
+]
 
 I64 = NDArray[np.int64]
 _EPS = 1e-9
@@ -35,8 +42,12 @@ def seed_plans(pp: PlacementProblem) -> list[I64]:
     plans: list[I64] = []
     if (fleet.current >= 0).any():
         plans.append(np.where(fleet.current >= 0, fleet.current, best).astype(np.int64))
-    plans += [best, greedy(fleet, pp.alloc, "onboard", pp.fit), greedy(fleet, pp.alloc, "spread", pp.fit),
-              greedy(fleet, pp.alloc, "level", pp.fit)]
+    plans += [
+        best,
+        greedy(fleet, pp.alloc, "onboard", pp.fit),
+        greedy(fleet, pp.alloc, "spread", pp.fit),
+        greedy(fleet, pp.alloc, "level", pp.fit),
+    ]
     out: list[I64] = []
     for p in plans:
         if not any(np.array_equal(p, q) for q in out):
@@ -52,7 +63,14 @@ class FleetSampling(Sampling):  # type: ignore[misc]
         super().__init__()
         self.heuristics = heuristics
 
-    def _do(self, problem: PlacementProblem, n_samples: int, *args: Any, random_state: Any = None, **kwargs: Any) -> I64:
+    def _do(
+        self,
+        problem: PlacementProblem,
+        n_samples: int,
+        *args: Any,
+        random_state: Any = None,
+        **kwargs: Any,
+    ) -> I64:
         X = problem.random_genes(n_samples, random_state)
         if self.heuristics:
             seeds = seed_plans(problem)[:n_samples]
@@ -65,8 +83,9 @@ def repair_plans(pp: PlacementProblem, x: I64) -> I64:
     """Move instances off overloaded nodes (and off-board instances of robots whose uplink is
     over 80%) to allowed nodes with room, preferring low miss probability and low latency.
 
-    Vectorised over plans: one pass over the instances (largest CPU request first) and, in
-    each step, every plan in which that instance sits on an overloaded node moves it at once.
+    Vectorised over plans: a pass over the instances (largest CPU request first, then a
+    second pass smallest first if needed) and, in each step, every plan in which that
+    instance sits on an overloaded node moves it at once.
     An instance with no allowed node that has room stays (the plan stays infeasible).
     ``x`` is (P, I) and is modified in place.
     """
@@ -91,45 +110,53 @@ def repair_plans(pp: PlacementProblem, x: I64) -> I64:
     if not over_node.any() and not over_up.any():
         return x
     nodes = np.arange(N)
-    # moves only go to nodes with room and only lower uplink use, so an instance that is not
-    # on an overloaded node (or a robot with its uplink over) now never will be
-    suspect = valid & over_node[np.arange(P)[:, None], xc]
-    suspect |= off & over_up[np.arange(P)[:, None], np.where(home >= 0, home, 0)[None, :]]
-    todo = suspect.any(axis=0)
-    for i in f.order:
-        if not todo[i]:
-            continue
-        h = int(home[i])
-        cur_all = x[:, i]
-        bad = valid[:, i] & over_node[np.arange(P), np.where(cur_all >= 0, cur_all, 0)]
-        if h >= 0:
-            bad |= valid[:, i] & (cur_all != h) & over_up[:, h]
-        rows = np.flatnonzero(bad)
-        if rows.size == 0:
-            continue
-        d = f.demand[i]
-        cur = cur_all[rows]
-        after = used[rows] + d[None, :, :]
-        after[np.arange(rows.size), cur] -= d[cur]
-        room = np.all(after <= f.cap[None] + _EPS, axis=2) & fleet.allowed[i][None, :]
-        if h >= 0 and fleet.traffic[i] > 0:
-            up_base = up[rows, h] - fleet.traffic[i] * (cur != h)
-            off_ok = up_base + fleet.traffic[i] <= lim[h] + _EPS
-            room &= off_ok[:, None] | (nodes == h)[None, :]
-        util = np.max(after / np.maximum(f.cap[None], _EPS), axis=2)
-        score = np.where(room, f.pref[i][None, :] + REPAIR_SPREAD * util, np.inf)
-        j = np.argmin(score, axis=1)
-        ok = np.isfinite(score[np.arange(rows.size), j]) & (j != cur)
-        rows, cur, j = rows[ok], cur[ok], j[ok]
-        if rows.size == 0:
-            continue
-        used[rows, cur] -= d[cur]
-        used[rows, j] += d[j]
-        if h >= 0:
-            up[rows, h] += fleet.traffic[i] * ((j != h).astype(float) - (cur != h).astype(float))
-            over_up[rows] = up[rows] > lim[None, :] + _EPS
-        x[rows, i] = j
-        over_node[rows] = np.any(used[rows] > f.cap[None] + _EPS, axis=2)
+    # Moves only go to nodes with room and only lower uplink use, so an instance that is not
+    # on an overloaded node (or a robot with its uplink over) now never will be. A second
+    # pass, smallest requests first, fills what the first pass left.
+    for order in (f.order, f.order[::-1]):
+        if not over_node.any() and not over_up.any():
+            break
+        xc = np.where(valid, x, 0)
+        off = valid & (home[None, :] >= 0) & (xc != home[None, :])
+        suspect = valid & over_node[np.arange(P)[:, None], xc]
+        suspect |= off & over_up[np.arange(P)[:, None], np.where(home >= 0, home, 0)[None, :]]
+        todo = suspect.any(axis=0)
+        for i in order:
+            if not todo[i]:
+                continue
+            h = int(home[i])
+            cur_all = x[:, i]
+            bad = valid[:, i] & over_node[np.arange(P), np.where(cur_all >= 0, cur_all, 0)]
+            if h >= 0:
+                bad |= valid[:, i] & (cur_all != h) & over_up[:, h]
+            rows = np.flatnonzero(bad)
+            if rows.size == 0:
+                continue
+            d = f.demand[i]
+            cur = cur_all[rows]
+            after = used[rows] + d[None, :, :]
+            after[np.arange(rows.size), cur] -= d[cur]
+            room = np.all(after <= f.cap[None] + _EPS, axis=2) & fleet.allowed[i][None, :]
+            if h >= 0 and fleet.traffic[i] > 0:
+                up_base = up[rows, h] - fleet.traffic[i] * (cur != h)
+                off_ok = up_base + fleet.traffic[i] <= lim[h] + _EPS
+                room &= off_ok[:, None] | (nodes == h)[None, :]
+            util = np.max(after / np.maximum(f.cap[None], _EPS), axis=2)
+            score = np.where(room, f.pref[i][None, :] + REPAIR_SPREAD * util, np.inf)
+            j = np.argmin(score, axis=1)
+            ok = np.isfinite(score[np.arange(rows.size), j]) & (j != cur)
+            rows, cur, j = rows[ok], cur[ok], j[ok]
+            if rows.size == 0:
+                continue
+            used[rows, cur] -= d[cur]
+            used[rows, j] += d[j]
+            if h >= 0:
+                up[rows, h] += fleet.traffic[i] * (
+                    (j != h).astype(float) - (cur != h).astype(float)
+                )
+                over_up[rows] = up[rows] > lim[None, :] + _EPS
+            x[rows, i] = j
+            over_node[rows] = np.any(used[rows] > f.cap[None] + _EPS, axis=2)
     return x
 
 
@@ -154,9 +181,16 @@ class GeneMutation(Mutation):  # type: ignore[misc]
         super().__init__(prob=prob)
         self.per_gene = per_gene
 
-    def _do(self, problem: PlacementProblem, X: NDArray[Any], *args: Any, random_state: Any = None, **kwargs: Any) -> I64:
+    def _do(
+        self,
+        problem: PlacementProblem,
+        X: NDArray[Any],
+        *args: Any,
+        random_state: Any = None,
+        **kwargs: Any,
+    ) -> I64:
         rng: np.random.Generator = random_state
-        x = np.asarray(X).astype(np.int64)
+        x: I64 = np.asarray(X).astype(np.int64)
         n, g = x.shape
         if g == 0:
             return x
@@ -177,13 +211,20 @@ class GeneCrossover(Crossover):  # type: ignore[misc]
         super().__init__(2, 2, prob=prob)
         self.kind = kind
 
-    def _do(self, problem: PlacementProblem, X: NDArray[Any], *args: Any, random_state: Any = None, **kwargs: Any) -> I64:
+    def _do(
+        self,
+        problem: PlacementProblem,
+        X: NDArray[Any],
+        *args: Any,
+        random_state: Any = None,
+        **kwargs: Any,
+    ) -> I64:
         rng: np.random.Generator = random_state
         a, b = np.asarray(X[0]).astype(np.int64), np.asarray(X[1]).astype(np.int64)
         m, g = a.shape
         if self.kind == "uniform" or g < 2:
             mask = rng.random((m, g)) < 0.5
         else:
-            cut = rng.integers(1, g, size=m)
+            cut = np.asarray(rng.integers(1, g, size=m), dtype=np.int64)
             mask = np.arange(g)[None, :] < cut[:, None]
         return np.stack([np.where(mask, a, b), np.where(mask, b, a)])

@@ -26,7 +26,9 @@ Progress = Callable[[int, int], None]
 I64 = NDArray[np.int64]
 
 
-def plan(problem: Problem, settings: SchedulerSettings, progress: Progress | None = None) -> Schedule:
+def plan(
+    problem: Problem, settings: SchedulerSettings, progress: Progress | None = None
+) -> Schedule:
     """Plan the fleet with ``settings.algorithm``. Instances with an empty gene space
     (``problem.reasons``) get -1 and make the schedule infeasible, with their reasons."""
     algo = SchedulerName(settings.algorithm)
@@ -40,8 +42,15 @@ def plan(problem: Problem, settings: SchedulerSettings, progress: Progress | Non
         return random_plan(problem, settings.seed)
     t0 = time.perf_counter()
     res = solve_exact(problem)
-    return finish(problem, "exact", res.placement, True, t0,
-                  f"MILP optimum {scalarised(problem, res.placement):.6g} of the weighted sum (exact.DEFAULT_WEIGHTS)")
+    return finish(
+        problem,
+        "exact",
+        res.placement,
+        True,
+        t0,
+        f"MILP optimum {scalarised(problem, res.placement):.6g} of the weighted sum "
+        "(exact.DEFAULT_WEIGHTS)",
+    )
 
 
 def nsga2(
@@ -76,7 +85,9 @@ def nsga2(
         repair=None if paper else CapacityRepair(),
         eliminate_duplicates=True,
     )
-    algorithm.setup(pp, termination=("n_gen", settings.generations), seed=settings.seed, verbose=False)
+    algorithm.setup(
+        pp, termination=("n_gen", settings.generations), seed=settings.seed, verbose=False
+    )
     budget = settings.time_budget_millis / 1000.0
     generations = 0
     while algorithm.has_next():
@@ -98,8 +109,12 @@ def nsga2(
     if feasible.any():
         idx = np.flatnonzero(feasible)
         front = idx[non_dominated(F[idx])]
-        k, reason = choose(F[front], names, str(settings.choice.value),
-                           {str(w.objective): float(w.weight) for w in settings.weights})
+        k, reason = choose(
+            F[front],
+            names,
+            str(settings.choice.value),
+            {str(w.objective): float(w.weight) for w in settings.weights},
+        )
         chosen = int(front[k])
     else:
         front = np.array([int(np.argmin(cv))], dtype=np.int64)
@@ -111,7 +126,11 @@ def nsga2(
         extra[-1] = "no plan satisfies the capacity and uplink constraints"
         sched = replace(sched, reasons=extra)
     if generations < settings.generations:
-        sched = replace(sched, choice_reason=sched.choice_reason + f" (time budget reached after {generations} generations)")
+        sched = replace(
+            sched,
+            choice_reason=sched.choice_reason
+            + f" (time budget reached after {generations} generations)",
+        )
     return replace(
         sched,
         pareto_front=F[front],

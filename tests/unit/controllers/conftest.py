@@ -66,23 +66,34 @@ class FakeKube:
             self.fleets[(meta["namespace"], meta["name"])] = d
 
     def set_ready(self, node: str, ready: bool) -> None:
-        self.nodes[node]["status"]["conditions"] = [{"type": "Ready", "status": "True" if ready else "False",
-                                                     "reason": "KubeletReady" if ready else "KubeletNotReady"}]
+        self.nodes[node]["status"]["conditions"] = [
+            {
+                "type": "Ready",
+                "status": "True" if ready else "False",
+                "reason": "KubeletReady" if ready else "KubeletNotReady",
+            }
+        ]
 
     def run_pods(self) -> None:
         """What kube-scheduler + kubelet would do: one Running pod on (the first) affinity node."""
         self.pods.clear()
         for (ns, name), dep in self.deployments.items():
             pod_spec = dep["spec"]["template"]["spec"]
-            node = pod_spec["affinity"]["nodeAffinity"]["requiredDuringSchedulingIgnoredDuringExecution"][
-                "nodeSelectorTerms"][0]["matchExpressions"][0]["values"][0]
+            node = pod_spec["affinity"]["nodeAffinity"][
+                "requiredDuringSchedulingIgnoredDuringExecution"
+            ]["nodeSelectorTerms"][0]["matchExpressions"][0]["values"][0]
             labels = dep["spec"]["template"]["metadata"]["labels"]
-            self.pods[(ns, name + "-pod")] = {"metadata": {"name": name + "-pod", "namespace": ns, "labels": labels},
-                                             "spec": {"nodeName": node},
-                                             "status": {"phase": "Running",
-                                                        "conditions": [{"type": "Ready", "status": "True"}]}}
-            dep["status"] = {"observedGeneration": dep["metadata"]["generation"], "replicas": 1,
-                             "updatedReplicas": 1, "availableReplicas": 1}
+            self.pods[(ns, name + "-pod")] = {
+                "metadata": {"name": name + "-pod", "namespace": ns, "labels": labels},
+                "spec": {"nodeName": node},
+                "status": {"phase": "Running", "conditions": [{"type": "Ready", "status": "True"}]},
+            }
+            dep["status"] = {
+                "observedGeneration": dep["metadata"]["generation"],
+                "replicas": 1,
+                "updatedReplicas": 1,
+                "availableReplicas": 1,
+            }
 
     # KubePort
     def get_fleet(self, namespace: str, name: str) -> Obj | None:
@@ -102,12 +113,22 @@ class FakeKube:
         return copy.deepcopy(list(self.nodes.values()))
 
     def list_deployments(self, namespace: str, selector: Mapping[str, str]) -> list[Obj]:
-        return copy.deepcopy([d for (ns, _), d in self.deployments.items()
-                              if ns == namespace and _match(d["metadata"]["labels"], selector)])
+        return copy.deepcopy(
+            [
+                d
+                for (ns, _), d in self.deployments.items()
+                if ns == namespace and _match(d["metadata"]["labels"], selector)
+            ]
+        )
 
     def list_pods(self, namespace: str, selector: Mapping[str, str]) -> list[Obj]:
-        return copy.deepcopy([p for (ns, _), p in self.pods.items()
-                              if ns == namespace and _match(p["metadata"]["labels"], selector)])
+        return copy.deepcopy(
+            [
+                p
+                for (ns, _), p in self.pods.items()
+                if ns == namespace and _match(p["metadata"]["labels"], selector)
+            ]
+        )
 
     def apply_deployment(self, body: Obj) -> Obj:
         key = (body["metadata"]["namespace"], body["metadata"]["name"])
@@ -127,7 +148,9 @@ class FakeKube:
         self.fleets[(namespace, name)]["status"] = copy.deepcopy(dict(status))
         self.status_patches.append(copy.deepcopy(dict(status)))
 
-    def emit_event(self, involved: Mapping[str, Any], type_: str, reason: str, message: str) -> None:
+    def emit_event(
+        self, involved: Mapping[str, Any], type_: str, reason: str, message: str
+    ) -> None:
         self.events.append((type_, reason, message))
 
 

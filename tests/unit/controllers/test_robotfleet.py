@@ -8,7 +8,6 @@ from fogfleet.controllers.robotfleet import reconcile
 from fogfleet.errors import DanglingReference, Infeasible
 from fogfleet.render.deployments import identity_of
 
-
 KEY = ("warehouse", "warehouse")
 
 
@@ -24,7 +23,8 @@ def placement(kube) -> dict[tuple, str]:
     out = {}
     for dep in kube.deployments.values():
         node = dep["spec"]["template"]["spec"]["affinity"]["nodeAffinity"][
-            "requiredDuringSchedulingIgnoredDuringExecution"]["nodeSelectorTerms"][0]["matchExpressions"][0]["values"]
+            "requiredDuringSchedulingIgnoredDuringExecution"
+        ]["nodeSelectorTerms"][0]["matchExpressions"][0]["values"]
         out[identity_of(dep)] = node[0]
     return out
 
@@ -58,7 +58,11 @@ def test_a_second_reconcile_with_nothing_changed_plans_and_applies_nothing(kube,
     patches, applied, calls = len(kube.status_patches), len(kube.applied), deps.planner.calls
     out = run(kube, deps)
     assert (out.planned, out.applied, out.pruned) == (False, 0, 0)
-    assert (len(kube.status_patches), len(kube.applied), deps.planner.calls) == (patches, applied, calls)
+    assert (len(kube.status_patches), len(kube.applied), deps.planner.calls) == (
+        patches,
+        applied,
+        calls,
+    )
 
 
 def test_a_restarted_operator_keeps_running_modules_where_they_are(kube, deps, make_deps):
@@ -94,7 +98,10 @@ def test_a_not_ready_edge_node_moves_only_its_modules(kube, deps):
 def test_a_changed_cycle_time_replans_once_and_leaves_the_others_alone(kube, deps):
     run(kube, deps)
     kube.run_pods()
-    before = {k: d["metadata"]["annotations"]["fogfleet.io/spec-hash"] for k, d in kube.deployments.items()}
+    before = {
+        k: d["metadata"]["annotations"]["fogfleet.io/spec-hash"]
+        for k, d in kube.deployments.items()
+    }
     mod = kube.modules[("warehouse", "arm-motion-generation")]
     mod["spec"]["cycleTimeMillis"] = 400
     mod["metadata"]["generation"] += 1
@@ -102,8 +109,11 @@ def test_a_changed_cycle_time_replans_once_and_leaves_the_others_alone(kube, dep
     kube.applied.clear()
     run(kube, deps)
     assert deps.planner.calls == calls + 1
-    changed = {k[1] for k, d in kube.deployments.items()
-               if d["metadata"]["annotations"]["fogfleet.io/spec-hash"] != before[k]}
+    changed = {
+        k[1]
+        for k, d in kube.deployments.items()
+        if d["metadata"]["annotations"]["fogfleet.io/spec-hash"] != before[k]
+    }
     assert set(kube.applied) == changed
     assert all("arm-motion-generation" in name for name in changed)
 
@@ -123,7 +133,7 @@ def test_a_dangling_module_reference_fails_without_touching_what_runs(kube, deps
 
 
 def test_a_fleet_that_cannot_fit_is_reported_and_nothing_is_applied(kube, deps):
-    for name, cn in kube.compute_nodes.items():
+    for cn in kube.compute_nodes.values():
         cn["spec"]["capacity"] = {"cpu": 3, "memory": "16Gi"}
         cn["spec"]["reserved"] = {"cpu": "0", "memory": "0"}
     with pytest.raises(Infeasible):

@@ -1,0 +1,52 @@
+"""The per-fleet queue: a burst of triggers makes one reconcile; runs never overlap."""
+
+from __future__ import annotations
+
+import asyncio
+
+from fogfleet.controllers.queue import ReconcileQueue
+from fogfleet.controllers.robotfleet import Outcome
+
+
+def test_a_burst_of_triggers_makes_one_reconcile() -> None:
+    calls: list[tuple[str, str]] = []
+
+    async def runner(key: tuple[str, str]) -> Outcome:
+        calls.append(key)
+        return Outcome(ready=True)
+
+    async def main() -> None:
+        q = ReconcileQueue(runner, debounce=0.05)
+        for _ in range(10):
+            q.schedule(("ns", "fleet"))
+            await asyncio.sleep(0.005)
+        q.schedule(("ns", "other"))
+        await asyncio.sleep(0.2)
+        await q.close()
+
+    asyncio.run(main())
+    assert sorted(calls) == [("ns", "fleet"), ("ns", "other")]
+
+
+def test_reconciles_of_one_fleet_never_overlap_and_requeue_until_ready() -> None:
+    active = 0
+    peak = 0
+    runs = 0
+
+    async def runner(key: tuple[str, str]) -> Outcome:
+        nonlocal active, peak, runs
+        active += 1
+        peak = max(peak, active)
+        await asyncio.sleep(0.02)
+        active -= 1
+        runs += 1
+        return Outcome(ready=runs >= 3, requeue_after=None if runs >= 3 else 0.01)
+
+    async def main() -> None:
+        q = ReconcileQueue(runner, debounce=0.01)
+        await asyncio.gather(q.run_now(("ns", "f")), q.run_now(("ns", "f")))
+        await asyncio.sleep(0.2)
+        await q.close()
+
+    asyncio.run(main())
+    assert peak == 1 and runs >= 3

@@ -1,0 +1,37 @@
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from fogfleet.scheduling.choice import choose, non_dominated
+
+
+def test_non_dominated_drops_dominated_and_duplicate_rows() -> None:
+    F = np.array([[1.0, 2.0], [2.0, 1.0], [2.0, 2.0], [1.0, 2.0]])
+    assert non_dominated(F).tolist() == [0, 1]
+
+
+def test_lexicographic_follows_objective_order_and_breaks_ties() -> None:
+    F = np.array([[0.1, 5.0, 1.0], [0.1, 3.0, 9.0], [0.2, 0.0, 0.0]])
+    idx, reason = choose(F, ["missRate", "onboard", "reserve"])
+    assert idx == 1
+    assert reason.startswith("lowest missRate 0.1 among 3 non-dominated plans")
+    assert "ties broken by onboard 3" in reason
+
+
+def test_weighted_uses_min_max_normalised_objectives() -> None:
+    F = np.array([[0.0, 100.0], [1.0, 0.0], [0.4, 40.0]])
+    assert choose(F, ["a", "b"], "weighted", {"a": 1.0, "b": 1.0})[0] == 2
+    assert choose(F, ["a", "b"], "weighted", {"a": 10.0, "b": 1.0})[0] == 0
+
+
+def test_knee_picks_the_bulge_of_a_convex_front() -> None:
+    F = np.array([[0.0, 1.0], [0.1, 0.1], [0.5, 0.05], [1.0, 0.0]])
+    idx, reason = choose(F, ["a", "b"], "knee")
+    assert idx == 1
+    assert "knee" in reason
+
+
+def test_unknown_rule_is_rejected() -> None:
+    with pytest.raises(ValueError):
+        choose(np.zeros((2, 1)), ["a"], "best")

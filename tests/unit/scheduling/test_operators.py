@@ -1,0 +1,108 @@
+"""Repair, mutation, crossover and sampling keep plans inside their gene spaces."""
+
+from __future__ import annotations
+
+import numpy as np
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from fogfleet.domain.problem import Problem
+from fogfleet.scheduling.objectives import constraints
+from fogfleet.scheduling.operators import (
+    FleetSampling,
+    GeneCrossover,
+    GeneMutation,
+    repair_plans,
+    seed_plans,
+)
+from fogfleet.scheduling.problem import PlacementProblem
+
+from .conftest import _warehouse
+
+
+def _pp() -> PlacementProblem:
+    return PlacementProblem(_warehouse(), ("missRate", "reserve"))
+
+
+def _inside(pp: PlacementProblem, X: np.ndarray) -> bool:
+    full = pp.full(X)
+    return bool(pp.fleet.allowed[np.arange(pp.fleet.n_instances)[None, :], full].all())
+
+
+@settings(max_examples=25, deadline=None)
+@given(st.integers(min_value=0, max_value=2**32 - 1))
+def test_repair_keeps_capacity_where_it_held_and_never_adds_violation(seed: int) -> None:
+    pp = _pp()
+    rng = np.random.default_rng(seed)
+    full = pp.full(pp.random_genes(20, rng))
+    before = constraints(pp.fleet, full, pp.alloc)
+    fixed = repair_plans(pp, full.copy())
+    after = constraints(pp.fleet, fixed, pp.alloc)
+    assert np.all(after[before <= 1e-9] <= 1e-9)  # nothing that fitted is overloaded now
+    assert np.all(np.maximum(after, 0).sum(axis=1) <= np.maximum(before, 0).sum(axis=1) + 1e-9)
+    assert _inside(pp, fixed[:, pp.genes])
+
+
+def test_repair_makes_almost_every_random_plan_feasible() -> None:
+    pp = _pp()
+    full = pp.full(pp.random_genes(500, np.random.default_rng(0)))
+    assert (constraints(pp.fleet, full, pp.alloc).max(axis=1) > 0).mean() > 0.9
+    fixed = repair_plans(pp, full)
+    feasible = constraints(pp.fleet, fixed, pp.alloc).max(axis=1) <= 1e-9
+    assert feasible.mean() >= 0.98
+
+
+def test_overloaded_node_is_repaired_by_moving_off_it(tiny: Problem) -> None:
+    pp = PlacementProblem(tiny, ("missRate",))
+    x = np.array([[0, 0, 0]])  # 3 cores requested on a 2-core robot
+    fixed = repair_plans(pp, x.copy())
+    assert fixed[0, 0] == 0  # pinned instance stays
+    assert np.all(constraints(tiny, fixed, tiny.limits) <= 1e-9)
+    assert (fixed[0] != 0).sum() == 1  # one move is enough
+
+
+def test_feasible_plans_are_left_alone(tiny: Problem) -> None:
+    pp = PlacementProblem(tiny, ("missRate",))
+    x = np.array([[0, 0, 2]])
+    assert np.array_equal(repair_plans(pp, x.copy()), x)
+
+
+def test_mutation_stays_within_allowed_sets() -> None:
+    pp = _pp()
+    rng = np.random.default_rng(3)
+    X = pp.random_genes(50, rng)
+    Y = GeneMutation(prob=1.0, per_gene=0.5)._do(pp, X, random_state=rng)
+    assert _inside(pp, Y)
+    assert (Y != X).any()
+
+
+def test_mutation_changes_at_least_one_gene_draw_per_plan() -> None:
+    pp = _pp()
+    rng = np.random.default_rng(4)
+    X = pp.random_genes(200, rng)
+    Y = GeneMutation(prob=1.0)._do(pp, X, random_state=np.random.default_rng(5))
+    changed = (Y != X).sum(axis=1)
+    assert changed.max() <= 6 and changed.mean() > 0.5
+
+
+def test_crossover_children_take_each_gene_from_a_parent() -> None:
+    pp = _pp()
+    rng = np.random.default_rng(6)
+    a, b = pp.random_genes(10, rng), pp.random_genes(10, rng)
+    for kind in ("uniform", "single_point"):
+        kids = GeneCrossover(kind)._do(pp, np.stack([a, b]), random_state=np.random.default_rng(7))
+        assert kids.shape == (2, 10, pp.n_var)
+        assert np.all((kids[0] == a) | (kids[0] == b))
+        assert np.all((kids[0] == a) == (kids[1] == b))
+
+
+def test_sampling_starts_with_current_placement(warehouse: Problem) -> None:
+    from dataclasses import replace
+
+    current = np.where(warehouse.home >= 0, warehouse.home, 0).astype(np.int64)
+    p = replace(warehouse, current=current)
+    pp = PlacementProblem(p, ("missRate",))
+    X = FleetSampling()._do(pp, 10, random_state=np.random.default_rng(1))
+    assert np.array_equal(X[0], current[pp.genes])
+    assert _inside(pp, X)
+    assert len(seed_plans(pp)) >= 3

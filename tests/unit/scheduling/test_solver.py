@@ -1,0 +1,80 @@
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from fogfleet.api.loader import load_paths
+from fogfleet.api.v1alpha1.robotfleet import SchedulerSettings
+from fogfleet.domain.problem import Problem, build_problem
+from fogfleet.scheduling.bench import WAREHOUSE
+from fogfleet.scheduling.solver import plan
+
+FAST = {"population": 20, "generations": 10}
+
+
+def test_same_seed_same_plan(warehouse: Problem) -> None:
+    a = plan(warehouse, SchedulerSettings(seed=7, **FAST))
+    b = plan(warehouse, SchedulerSettings(seed=7, **FAST))
+    assert np.array_equal(a.placement, b.placement)
+    assert a.pareto_front is not None and b.pareto_front is not None
+    assert np.array_equal(a.pareto_front, b.pareto_front)
+
+
+def test_front_is_mutually_non_dominated(warehouse: Problem) -> None:
+    s = plan(warehouse, SchedulerSettings(seed=2, **FAST))
+    F = s.pareto_front
+    assert F is not None and len(F) >= 1
+    for k in range(len(F)):
+        dominated = np.all(F[k] >= F, axis=1) & np.any(F[k] > F, axis=1)
+        assert not dominated.any()
+    assert s.feasible
+    assert s.generations == 10
+    assert set(s.objectives) >= {"missRate", "onboard", "cost", "energy"}
+
+
+def test_progress_is_reported_every_generation(warehouse: Problem) -> None:
+    seen: list[tuple[int, int]] = []
+    plan(
+        warehouse,
+        SchedulerSettings(seed=1, population=10, generations=3),
+        lambda g, n: seen.append((g, n)),
+    )
+    assert seen == [(1, 3), (2, 3), (3, 3)]
+
+
+def test_instances_without_gene_space_are_left_out(warehouse: Problem) -> None:
+    allowed = warehouse.allowed.copy()
+    allowed[3] = False
+    p = replace(warehouse, allowed=allowed, reasons={3: "m fits nowhere: no GPU"})
+    s = plan(p, SchedulerSettings(seed=1, **FAST))
+    assert s.placement[3] == -1
+    assert not s.feasible
+    assert s.reasons[3] == "m fits nowhere: no GPU"
+    assert (s.placement[np.arange(p.n_instances) != 3] >= 0).all()
+
+
+@pytest.mark.slow
+def test_nsga2_beats_baselines_on_warehouse(warehouse: Problem) -> None:
+    s = plan(warehouse, SchedulerSettings(seed=1))
+    k8s = plan(warehouse, SchedulerSettings(algorithm="k8s-default", seed=1))
+    onboard = plan(warehouse, SchedulerSettings(algorithm="onboard"))
+    assert s.feasible
+    assert s.objectives["missRate"] < onboard.objectives["missRate"]
+    assert s.objectives["missRate"] <= k8s.objectives["missRate"] + 1e-5  # the search's resolution
+    assert s.objectives["onboard"] < onboard.objectives["onboard"]
+
+
+@pytest.mark.slow
+def test_nsga2_misses_less_than_k8s_default_on_a_tight_warehouse() -> None:
+    cat = load_paths([str(WAREHOUSE)])
+    fleet = cat.fleets[0]
+    tight = fleet.model_copy(
+        update={"spec": fleet.spec.model_copy(update={"nodes": ["edge-1", "edge-2", "edge-3"]})}
+    )
+    p = build_problem(tight, cat)
+    s = plan(p, SchedulerSettings(seed=1))
+    k8s = plan(p, SchedulerSettings(algorithm="k8s-default", seed=1))
+    assert s.feasible
+    assert s.objectives["missRate"] < k8s.objectives["missRate"]
