@@ -52,9 +52,10 @@ def freeze(a: _A) -> _A:
     return a
 
 TIER_CODE = {Tier.ROBOT: 0, Tier.EDGE: 1, Tier.CLOUD: 2}
-# The limit chosen per hardware type keeps mean + 2 std of the execution time under this share
-# of the cycle time, leaving the rest for transfer and jitter.
-EXEC_SHARE_OF_CYCLE = 0.8
+# The limit chosen per hardware type is the smallest profiled CPU whose mean + 2 std execution
+# time, plus the transfer time, stays within this share of the cycle time (the rest is slack
+# for jitter). A larger limit would waste reserved cores; a smaller one would miss cycles.
+EXEC_SHARE_OF_CYCLE = 0.9
 
 
 @dataclass(frozen=True)

@@ -16,6 +16,7 @@ from pydantic import Field, model_validator
 from .base import FogModel, NonNegInt, PosInt, Quantity, parse_quantity
 from .common import Condition, Name, ObjectMeta, Tier
 from .computenode import DeviceType
+from .scaling import ScalingSpec
 
 __all__ = [
     "ContainerTemplate",
@@ -132,6 +133,9 @@ class SoftwareModuleSpec(FogModel):
     requirements: Requirements = Field(default_factory=Requirements)
     scope: Scope = Scope.PER_ROBOT
     replicas: PosInt = Field(default=1, description="Replicas of a shared module.")
+    scaling: ScalingSpec | None = Field(
+        default=None, description="SLO-driven autoscaling of a shared module (tinyKube)."
+    )
 
     @model_validator(mode="after")
     def _check(self) -> SoftwareModuleSpec:
@@ -144,6 +148,8 @@ class SoftwareModuleSpec(FogModel):
                 raise ValueError(f"profile[{k}].meanMillis: must be greater than zero")
         if self.scope is Scope.SHARED and self.taxonomy.realtime is RealtimeClass.HARD:
             raise ValueError("scope: a hard real-time module must be perRobot (it runs on board)")
+        if self.scaling is not None and self.scope is not Scope.SHARED:
+            raise ValueError("scaling: only shared modules scale; per-robot modules run once per robot")
         if self.scope is Scope.SHARED and self.taxonomy.safety is SafetyClass.CRITICAL:
             raise ValueError("scope: a safety-critical module must be perRobot (it runs on board)")
         return self
