@@ -80,9 +80,7 @@ def _kubectl_bin() -> str:
     return found
 
 
-@pytest.fixture(scope="session")
-def _e2e_target(request: pytest.FixtureRequest) -> Iterator[tuple[Kube, harness.Cluster | None]]:
-    global _SESSION_KUBE
+def _connect(request: pytest.FixtureRequest) -> Kube:
     explicit = os.environ.get(ENV_KUBECONFIG)
     cluster: harness.Cluster | None = None
     if _external():
@@ -101,18 +99,33 @@ def _e2e_target(request: pytest.FixtureRequest) -> Iterator[tuple[Kube, harness.
             cluster = harness.ensure_up()
         path = cluster.kubeconfig
         server = guard_kubeconfig(path, expected_server=cluster.api_server)
-    kube = Kube(
+    return Kube(
         kubeconfig=path,
         server=server,
         kubectl_bin=_kubectl_bin(),
         external=_external(),
         cluster=cluster,
     )
+
+
+@pytest.fixture(scope="session")
+def _e2e_target(request: pytest.FixtureRequest) -> Iterator[tuple[Kube, harness.Cluster | None]]:
+    global _SESSION_KUBE
+    try:
+        kube = _connect(request)
+    except UnsafeKubeconfig as exc:  # stop the whole session, not one error per test
+        pytest.exit(f"fogfleet e2e guard: {exc}", returncode=pytest.ExitCode.USAGE_ERROR)
+    except harness.HarnessError as exc:
+        pytest.exit(
+            f"fogfleet e2e: the local control plane is not available:\n{exc}",
+            returncode=pytest.ExitCode.TESTS_FAILED,
+        )
+    path = kube.kubeconfig
     saved = os.environ.get("KUBECONFIG")
     os.environ["KUBECONFIG"] = str(path)  # libraries that default to $KUBECONFIG see ours only
     _SESSION_KUBE = kube
     try:
-        yield kube, cluster
+        yield kube, kube.cluster
     finally:
         _SESSION_KUBE = None
         if saved is None:

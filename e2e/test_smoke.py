@@ -176,7 +176,7 @@ def test_crd_schema_rejects_an_invalid_object_with_422(
     kube: Kube, namespace: str, widget_crd: dict[str, str]
 ) -> None:
     from kubernetes import client
-    from kubernetes.client.rest import ApiException
+    from kubernetes.client.exceptions import ApiException
 
     api = client.CustomObjectsApi(kube.api_client())
     g, v, p, kind = (
@@ -194,7 +194,7 @@ def test_crd_schema_rejects_an_invalid_object_with_422(
     deadline = time.monotonic() + 30
     while True:
         try:
-            created = api.create_namespaced_custom_object(
+            created: Any = api.create_namespaced_custom_object(
                 g, v, namespace, p, body("good", {"tier": "edge", "replicas": 2})
             )
             break
@@ -209,7 +209,7 @@ def test_crd_schema_rejects_an_invalid_object_with_422(
             g, v, namespace, p, body("bad", {"tier": "moon", "replicas": 11})
         )
     assert info.value.status == 422
-    status = json.loads(info.value.body)
+    status = json.loads(str(info.value.body))
     assert status["reason"] == "Invalid"
     fields = {cause.get("field") for cause in status["details"]["causes"]}
     assert {"spec.tier", "spec.replicas"} <= fields, status["message"]
@@ -217,7 +217,7 @@ def test_crd_schema_rejects_an_invalid_object_with_422(
     with pytest.raises(ApiException) as missing:
         api.create_namespaced_custom_object(g, v, namespace, p, body("empty", {"replicas": 1}))
     assert missing.value.status == 422
-    assert "spec.tier" in json.loads(missing.value.body)["message"]
+    assert "spec.tier" in json.loads(str(missing.value.body))["message"]
 
 
 def test_serviceaccount_token_is_limited_to_its_role(
@@ -335,7 +335,10 @@ class _Exporter(http.server.BaseHTTPRequestHandler):
 
 
 def test_prometheus_scrapes_a_target_added_through_file_sd(cluster: Cluster) -> None:
-    handler = type("Exporter", (_Exporter,), {"value": secrets.randbelow(10**6) + 1})
+    class handler(_Exporter):  # a fresh class: its own value and scrape counter
+        value = secrets.randbelow(10**6) + 1
+        scrapes = 0
+
     server = http.server.ThreadingHTTPServer(("127.0.0.1", 0), handler)
     thread = threading.Thread(target=server.serve_forever, daemon=True)
     thread.start()
@@ -381,8 +384,8 @@ def test_a_node_can_be_made_not_ready_and_recover(kube: Kube, cluster: Cluster) 
         cluster.set_node_not_ready(reported, False)
         cluster.resume_node_heartbeat(lost)
     for node in (reported, lost):
-        kube.wait_for(
-            f"{node} Ready and untainted again",
-            lambda n=node: _ready_status(kube, n) == ("True", set()),
-            timeout=60,
-        )
+
+        def recovered(n: str = node) -> bool:
+            return _ready_status(kube, n) == ("True", set())
+
+        kube.wait_for(f"{node} Ready and untainted again", recovered, timeout=60)

@@ -225,6 +225,8 @@ def insecure_tls() -> ssl.SSLContext:
 
 def port_is_free(port: int) -> bool:
     with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+        # as the Go servers do: a port in TIME_WAIT from a previous run counts as free
+        s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
         try:
             s.bind((HOST, port))
         except OSError:
@@ -519,8 +521,11 @@ BUILDERS: dict[str, Callable[..., None]] = {
 }
 
 
-def ensure_built(only: Sequence[str] = TOOLS, *, force: bool = False) -> Path:
-    """Build (or reuse) the pinned tools and link them into BIN_DIR; return BIN_DIR."""
+def ensure_built(only: Sequence[str] = TOOLS, *, force: bool = False, quiet: bool = False) -> Path:
+    """Build (or reuse) the pinned tools and link them into BIN_DIR; return BIN_DIR.
+
+    Not locked by itself: callers from other processes go through `locked()`.
+    """
     v = load_versions()
     specs = tool_specs(v)
     unknown = set(only) - set(TOOLS)
@@ -547,7 +552,8 @@ def ensure_built(only: Sequence[str] = TOOLS, *, force: bool = False) -> Path:
             if bad or not tool.ok():
                 raise HarnessError(f"{name}: built, but the --version check failed for {bad}")
             timings.append((name, time.monotonic() - t0, "built"))
-        log(f"{name}: {timings[-1][2]} in {timings[-1][1]:.1f}s")
+        if not (quiet and timings[-1][2] == "cached"):
+            log(f"{name}: {timings[-1][2]} in {timings[-1][1]:.1f}s")
         BIN_DIR.mkdir(parents=True, exist_ok=True)
         for bin_name, path in tool.binaries.items():
             link = BIN_DIR / bin_name
@@ -1084,6 +1090,7 @@ def _argv(ports: Mapping[str, int]) -> dict[str, tuple[list[str], dict[str, str]
                 f"--tls-private-key-file={pki / 'admin.key'}",
                 f"--node-lease-duration-seconds={NODE_LEASE_SECONDS}",
                 "--cidr=10.0.0.0/16",
+                "--v=WARN",  # INFO logs every Lease renewal (about 10 MB an hour)
             ],
             kwok_env,
         ),
@@ -1195,9 +1202,12 @@ def ensure_up(*, nodes: bool = True) -> Cluster:
     """
     with locked():
         cluster = running()
-        if cluster is not None:
+        state = _read_state() or {}
+        if cluster is not None and state.get("versions") == load_versions():
             log(f"already running and healthy: {cluster.api_server}")
             return cluster
+        if cluster is not None:
+            log(f"running with other versions than {VERSIONS_FILE.name}; restarting it")
         if _read_state() is not None or any(_alive(c) for c in COMPONENTS):
             sick = [c for c in COMPONENTS if _alive(c) is None]
             log(f"found a stale or unhealthy cluster (down: {sick or 'none'}); restarting it")
@@ -1374,12 +1384,14 @@ def main(argv: list[str] | None = None) -> int:
     args = list(sys.argv[1:] if argv is None else argv)
     # passthroughs first: their arguments are not ours to parse
     if args and args[0] == "kubectl":
-        ensure_built(["k8s"])
+        with locked():
+            ensure_built(["k8s"], quiet=True)
         if not KUBECONFIG.exists():
             raise HarnessError("no cluster: run `harness.py up` first")
         _exec([str(BIN_DIR / "kubectl"), f"--kubeconfig={KUBECONFIG}", *args[1:]])
     if args and args[0] == "helm":
-        ensure_built(["helm"])
+        with locked():
+            ensure_built(["helm"], quiet=True)
         home = CACHE_ROOT / "helm-home"
         env = dict(
             os.environ,

@@ -17,7 +17,6 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import pytest
 import yaml
 
 from e2e.cluster import harness
@@ -25,7 +24,7 @@ from e2e.cluster import harness
 __all__ = ["Kube", "UnsafeKubeconfig", "guard_kubeconfig"]
 
 
-class UnsafeKubeconfig(pytest.UsageError):
+class UnsafeKubeconfig(Exception):
     """The kubeconfig could point at a cluster that is not ours to create and delete things in."""
 
 
@@ -140,7 +139,9 @@ class Kube:
         """A kubernetes.client.ApiClient for this cluster (the official Python client)."""
         from kubernetes import config as kube_config
 
-        return kube_config.new_client_from_config(config_file=str(kubeconfig or self.kubeconfig))
+        return kube_config.new_client_from_config(  # type: ignore[no-untyped-call]
+            config_file=str(kubeconfig or self.kubeconfig)
+        )
 
     def wait_for(
         self, what: str, check: Callable[[], bool], timeout: float = 60, interval: float = 0.5

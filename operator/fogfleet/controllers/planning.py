@@ -242,6 +242,35 @@ def _release_overloads(problem: Problem, x: I64, new: I64) -> I64:
     return x
 
 
+def _revert(problem: Problem, new: I64, cur: I64, usable: NDArray[np.bool_]) -> I64:
+    """Start from ``new`` and move every instance it would migrate back to its current node
+    wherever that keeps the plan feasible (capacity and uplink): fewest migrations near ``new``."""
+    from fogfleet.scheduling.heuristics import Fit
+
+    fit = Fit(problem, problem.limits)
+    x = new.copy()
+    used = np.zeros((problem.n_nodes, 3))
+    up = np.zeros(problem.n_nodes)
+    for i in np.flatnonzero(x >= 0):
+        used[x[i]] += fit.demand[i, x[i]]
+        if problem.home[i] >= 0 and x[i] != problem.home[i]:
+            up[problem.home[i]] += problem.traffic[i]
+    for _ in range(2):
+        for i in np.flatnonzero(usable & (x != cur)):
+            a, b, h = int(x[i]), int(cur[i]), int(problem.home[i])
+            if np.any(used[b] + fit.demand[i, b] > fit.cap[b] + 1e-9):
+                continue
+            d_up = (b != h) - (a != h) if h >= 0 else 0
+            if h >= 0 and d_up > 0 and up[h] + problem.traffic[i] > fit.uplink[h] + 1e-9:
+                continue
+            used[a] -= fit.demand[i, a]
+            used[b] += fit.demand[i, b]
+            if h >= 0:
+                up[h] += d_up * problem.traffic[i]
+            x[i] = b
+    return x
+
+
 def keep_running(problem: Problem, new: I64, settings: SchedulerSettings) -> Stickiness:
     """Prefer the current placement of running instances over ``new`` unless ``new`` is
     better by the migration margin. Instances without a usable current node are placed
@@ -253,16 +282,19 @@ def keep_running(problem: Problem, new: I64, settings: SchedulerSettings) -> Sti
     moved = [int(i) for i in np.flatnonzero(usable & (new != cur))]
     if not moved:
         return Stickiness(new, [], bool(usable.any()), "nothing that runs moves")
-    sticky = _fill(
-        problem, _release_overloads(problem, np.where(usable, cur, -1).astype(np.int64), new), new
-    )
+    pinned = _release_overloads(problem, np.where(usable, cur, -1).astype(np.int64), new)
+    sticky = _fill(problem, pinned, new)
+    if (sticky < 0).any() or not feasible(problem, sticky):
+        sticky = _revert(problem, new, cur, usable)
+    kept = [int(i) for i in np.flatnonzero(usable & (sticky != cur))]
     names = [settings.objectives[0].value]  # only the first objective justifies a move
     if (sticky >= 0).sum() == (new >= 0).sum() and feasible(problem, sticky):
         a = objective_values(problem, new, True, names)
         b = objective_values(problem, sticky, True, names)
         better, why = _better(a, b, names, settings.migration_margin_percent / 100.0)
         if not better:
-            return Stickiness(sticky, [], True, f"kept running modules in place ({why})")
+            note = f"; {len(kept)} had to move to make room" if kept else ""
+            return Stickiness(sticky, kept, True, f"kept running modules in place ({why}){note}")
         return Stickiness(new, moved, False, f"moved {len(moved)} running module(s): {why}")
     return Stickiness(
         new,

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from collections.abc import Mapping
 from typing import Any, TypeVar
 
 import numpy as np
@@ -218,13 +219,28 @@ def _transfer(module: SoftwareModule, link: Link) -> tuple[float, float, float]:
     return t, std, traffic
 
 
+def _pool_tiers(pool: Mapping[str, int] | None, replicas: int) -> list[Tier | None]:
+    """One entry per replica: the tier whose pool it belongs to (None: any allowed tier)."""
+    if not pool:
+        return [None] * replicas
+    out: list[Tier | None] = []
+    for tier in (Tier.EDGE, Tier.CLOUD):
+        out += [tier] * max(int(pool.get(tier.value, 0)), 0)
+    return out
+
+
 def build_problem(
     fleet: RobotFleet,
     catalog: Catalog,
     current: dict[tuple[str, str, int], str] | None = None,
+    pools: Mapping[str, Mapping[str, int]] | None = None,
 ) -> Problem:
-    """Resolve a fleet against the catalog into a Problem. ``current`` maps
-    (robot, module, replica) to the node it runs on now."""
+    """Resolve a fleet against the catalog into a Problem.
+
+    ``current`` maps (robot, module, replica) to the node it runs on now. ``pools`` gives the
+    autoscaler's decision for shared modules: module name -> {tier: replicas}; replica ``r`` of
+    such a module may then only run on nodes of the tier it was counted for (edge replicas
+    first, then cloud), which is how privacy-constrained pools stay on the edge."""
     obj = f"RobotFleet/{fleet.metadata.name}"
     namespace = fleet.metadata.namespace or "default"
     robots, others = _resolve_nodes(fleet, catalog)
@@ -250,17 +266,21 @@ def build_problem(
     instances: list[Instance] = []
     inst_mod: list[tuple[SoftwareModule, float, float]] = []
     home: list[int] = []
+    pool_tier: list[Tier | None] = []
     for mod, cycle, act, replicas in modules:
         if mod.spec.scope is Scope.PER_ROBOT:
             for robot in robots:
                 instances.append(Instance(robot.metadata.name, mod.metadata.name, 0))
                 inst_mod.append((mod, cycle, act))
                 home.append(robot_index[robot.metadata.name])
+                pool_tier.append(None)
         else:
-            for r in range(replicas):
+            tiers = _pool_tiers(pools.get(mod.metadata.name) if pools else None, replicas)
+            for r, tier in enumerate(tiers):
                 instances.append(Instance("", mod.metadata.name, r))
                 inst_mod.append((mod, cycle, act))
                 home.append(-1)
+                pool_tier.append(tier)
     i_count = len(instances)
 
     allowed = np.zeros((i_count, n), dtype=bool)
@@ -300,6 +320,8 @@ def build_problem(
             if req.tiers and ns.tier not in req.tiers:
                 why.append(f"{name}: tier {ns.tier.value} not in requirements.tiers")
                 continue
+            if pool_tier[i] is not None and ns.tier is not pool_tier[i]:
+                continue  # a replica counted for another tier's pool
             have = {d.type for d in ns.devices}
             missing = [d.value for d in req.devices if d not in have]
             if missing:

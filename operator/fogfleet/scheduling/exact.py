@@ -127,29 +127,34 @@ def solve_exact(
     lo.append(np.ones(len(genes)))
     hi.append(np.ones(len(genes)))
     demand = [alloc.cpu_request[pi, pj], problem.memory[pi], problem.gpu[pi]]
+    z = sp.csr_matrix((-np.ones(n_n), (np.arange(n_n), np.full(n_n, n_pairs))), shape=(n_n, nv))
     for r in range(3):
-        m = sp.csr_matrix((demand[r], (pj, cols)), shape=(n_n, nv))
+        # rows in units of the node's capacity (memory in bytes would span 1e9 and make
+        # HiGHS numerically fragile: it has reported this feasible model as infeasible)
+        has = cap[:, r] > 0
+        scale = np.where(has, 1.0 / np.where(has, cap[:, r], 1.0), 1.0)
+        m = sp.csr_matrix((demand[r] * scale[pj], (pj, cols)), shape=(n_n, nv))
+        m.eliminate_zeros()
         rows.append(m)
         lo.append(np.full(n_n, -np.inf))
-        hi.append(cap[:, r].astype(np.float64))
-        has = cap[:, r] > 0
+        hi.append(np.where(has, 1.0, 0.0))
         if r < 2 or has.any():
             # reserve: u_j^r / L_j^r - z <= 0
-            scale = sp.diags(1.0 / np.where(has, cap[:, r], 1.0))
-            z = sp.csr_matrix(
-                (-np.ones(n_n), (np.arange(n_n), np.full(n_n, n_pairs))), shape=(n_n, nv)
-            )
-            mr = (scale @ m + z)[np.flatnonzero(has)]
+            mr = (m + z)[np.flatnonzero(has)]
             rows.append(sp.csr_matrix(mr))
             lo.append(np.full(mr.shape[0], -np.inf))
             hi.append(np.zeros(mr.shape[0]))
     robots = np.flatnonzero(problem.tier == 0)
     off = (problem.home[pi] >= 0) & (pj != problem.home[pi])
     ridx = np.searchsorted(robots, problem.home[pi])
-    mu = sp.csr_matrix((problem.traffic[pi][off], (ridx[off], cols[off])), shape=(len(robots), nv))
+    limit = UPLINK_SHARE * problem.uplink_bandwidth[robots]
+    mu = sp.csr_matrix(
+        (problem.traffic[pi][off] / limit[ridx[off]], (ridx[off], cols[off])),
+        shape=(len(robots), nv),
+    )
     rows.append(mu)
     lo.append(np.full(len(robots), -np.inf))
-    hi.append(UPLINK_SHARE * problem.uplink_bandwidth[robots])
+    hi.append(np.ones(len(robots)))
     A = sp.vstack(rows, format="csr")
     integrality = np.append(np.zeros(n_pairs) if relax else np.ones(n_pairs), 0)
     bounds = Bounds(np.zeros(nv), np.append(np.ones(n_pairs), np.inf))

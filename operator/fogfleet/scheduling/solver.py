@@ -16,6 +16,7 @@ from fogfleet.domain.problem import Problem
 from .baselines import finish, k8s_default, onboard_plan, random_plan
 from .choice import choose, non_dominated
 from .exact import scalarised, solve_exact
+from .local import pareto_local_search
 from .operators import CapacityRepair, FleetSampling, GeneCrossover, GeneMutation
 from .problem import PlacementProblem
 from .schedule import Schedule
@@ -59,6 +60,7 @@ def nsga2(
     progress: Progress | None = None,
     *,
     paper: bool = False,
+    local_search: bool | None = None,
 ) -> Schedule:
     """NSGA-II over the gene spaces with the limits allocation.
 
@@ -71,6 +73,8 @@ def nsga2(
     ``time_budget_millis`` has passed (``Schedule.generations`` tells how many ran).
     """
     t0 = time.perf_counter()
+    if local_search is None:
+        local_search = not paper
     names = tuple(str(n) for n in settings.objectives)
     pp = PlacementProblem(problem, names, with_limits=True, penalty=1e3 if paper else None)
     if pp.n_var == 0:
@@ -98,7 +102,6 @@ def nsga2(
         if time.perf_counter() - t0 > budget:
             break
     X = np.asarray(algorithm.pop.get("X")).astype(np.int64)
-    full = pp.full(X)
     # objectives and constraints without any penalty, for an honest report
     clean = PlacementProblem(problem, names, with_limits=True)
     out: dict[str, NDArray[np.float64]] = {}
@@ -106,6 +109,13 @@ def nsga2(
     F, G = out["F"], out["G"]
     cv = np.maximum(G, 0.0).sum(axis=1)
     feasible = cv <= 1e-9
+    n_local = 0
+    if feasible.any() and local_search:
+        idx = np.flatnonzero(feasible)
+        X, F, n_local = pareto_local_search(clean, X[idx], F[idx], deadline=t0 + budget)
+        cv = np.zeros(len(X))
+        feasible = np.ones(len(X), dtype=bool)
+    full = pp.full(X)
     if feasible.any():
         idx = np.flatnonzero(feasible)
         front = idx[non_dominated(F[idx])]
@@ -137,6 +147,6 @@ def nsga2(
         pareto_placements=full[front],
         objective_names=names,
         generations=generations,
-        evaluations=int(algorithm.evaluator.n_eval),
+        evaluations=int(algorithm.evaluator.n_eval) + n_local,
         duration_seconds=time.perf_counter() - t0,
     )

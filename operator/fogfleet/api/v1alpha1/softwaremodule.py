@@ -155,9 +155,28 @@ class SoftwareModuleSpec(FogModel):
         return self
 
 
+class PoolStatus(FogModel):
+    tier: str
+    replicas: int
+    ready: int | None = None
+
+
+class ScalingStatus(FogModel):
+    """The autoscaler's last decision; RobotFleets place this many replicas per tier."""
+
+    desired_replicas: int
+    pools: list[PoolStatus] = Field(default_factory=list)
+    reason: str = ""
+    metrics_available: bool = True
+    last_decision_time: str | None = None
+    last_scale_time: str | None = None
+    observed_slo_millis: float | None = None
+
+
 class SoftwareModuleStatus(FogModel):
     observed_generation: int | None = None
     conditions: list[Condition] = Field(default_factory=list)
+    scaling: ScalingStatus | None = None
     offloadable: Literal["never", "candidate", "preferred"] | None = None
     fleets: list[str] = Field(default_factory=list)
 

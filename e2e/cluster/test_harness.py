@@ -1,0 +1,111 @@
+"""Fast checks of the harness and the kubeconfig guard (no cluster, no network)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+import yaml
+
+from e2e.cluster import harness
+from e2e.cluster.kube import UnsafeKubeconfig, guard_kubeconfig
+
+
+def _kubeconfig(path: Path, *servers: str) -> Path:
+    path.write_text(
+        json.dumps(
+            {
+                "apiVersion": "v1",
+                "kind": "Config",
+                "clusters": [
+                    {"name": f"c{i}", "cluster": {"server": s}} for i, s in enumerate(servers)
+                ],
+                "users": [{"name": "u", "user": {"token": "t"}}],
+                "contexts": [{"name": "ctx", "context": {"cluster": "c0", "user": "u"}}],
+                "current-context": "ctx",
+            }
+        )
+    )
+    return path
+
+
+@pytest.fixture
+def harness_kubeconfig(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Path:
+    path = tmp_path / "kubeconfig"
+    monkeypatch.setattr(harness, "KUBECONFIG", path)
+    return path
+
+
+def test_guard_accepts_the_harness_kubeconfig(harness_kubeconfig: Path) -> None:
+    _kubeconfig(harness_kubeconfig, "https://127.0.0.1:26443")
+    server = guard_kubeconfig(harness_kubeconfig, expected_server="https://127.0.0.1:26443")
+    assert server == "https://127.0.0.1:26443"
+
+
+@pytest.mark.parametrize(
+    "server", ["https://10.0.0.1:6443", "https://127.0.0.1:6443", "https://prod.example.com"]
+)
+def test_guard_refuses_another_api_server(harness_kubeconfig: Path, server: str) -> None:
+    _kubeconfig(harness_kubeconfig, server)
+    with pytest.raises(UnsafeKubeconfig, match="not the harness's own"):
+        guard_kubeconfig(harness_kubeconfig, expected_server="https://127.0.0.1:26443")
+
+
+def test_guard_refuses_a_file_that_is_not_the_harness_kubeconfig(
+    harness_kubeconfig: Path, tmp_path: Path
+) -> None:
+    other = _kubeconfig(tmp_path / "copy", "https://127.0.0.1:26443")
+    with pytest.raises(UnsafeKubeconfig, match="is not the harness kubeconfig"):
+        guard_kubeconfig(other, expected_server="https://127.0.0.1:26443")
+
+
+def test_guard_refuses_a_kubeconfig_with_several_clusters(tmp_path: Path) -> None:
+    path = _kubeconfig(tmp_path / "kc", "https://127.0.0.1:16550", "https://prod:6443")
+    with pytest.raises(UnsafeKubeconfig, match="exactly one cluster"):
+        guard_kubeconfig(path, expected_server=None)
+
+
+def test_staging_modules_come_from_the_v0_0_0_requires() -> None:
+    gomod = """module k8s.io/kubernetes
+require (
+\tk8s.io/api v0.0.0
+\tk8s.io/utils v0.0.0-20260210185600-b8788abfbbc2
+\tk8s.io/kubectl v0.0.0
+)
+require k8s.io/streaming v0.0.0
+replace (
+\tk8s.io/api => ./staging/src/k8s.io/api
+)
+"""
+    assert harness._staging_modules(gomod) == ["k8s.io/api", "k8s.io/kubectl", "k8s.io/streaming"]
+
+
+def test_generated_nodes_label_like_nodes_yaml() -> None:
+    fixed = {d["metadata"]["name"]: d for d in yaml.safe_load_all(harness.NODES_FILE.read_text())}
+    generated = {n["metadata"]["name"]: n for n in harness.generated_nodes(5, 6, 1)}
+    for name, node in generated.items():
+        assert node["metadata"]["labels"] == fixed[name]["metadata"]["labels"], name
+        assert node["status"] == fixed[name]["status"], name
+    assert set(fixed) - set(generated) == {"solo-robot", "solo-edge"}
+    assert all(not d.get("spec", {}).get("taints") for d in fixed.values())
+
+
+def test_scrape_targets_must_be_loopback(tmp_path: Path) -> None:
+    cluster = harness.Cluster(
+        state_dir=tmp_path,
+        bin_dir=tmp_path,
+        kubeconfig=tmp_path / "kc",
+        api_server="https://127.0.0.1:1",
+        prometheus_url="http://127.0.0.1:2",
+        prometheus_targets_dir=tmp_path / "targets",
+        ports={},
+    )
+    path = cluster.add_prometheus_target("twin", "127.0.0.1:9123", labels={"fleet": "w"})
+    assert json.loads(path.read_text()) == [
+        {"targets": ["127.0.0.1:9123"], "labels": {"job": "twin", "fleet": "w"}}
+    ]
+    with pytest.raises(harness.HarnessError, match=r"only 127\.0\.0\.1"):
+        cluster.add_prometheus_target("pod", "10.0.0.7:8080")
+    cluster.remove_prometheus_target("twin")
+    assert not path.exists()
