@@ -52,8 +52,9 @@ e2e: venv ## End-to-end tests on the local control plane (started if not running
 e2e-k3d: venv ## The same e2e suite on a k3d cluster (needs Docker; not run on the dev machines)
 	bash e2e/k3d/run.sh
 
-chart-lint: venv ## helm lint + helm template of charts/fogfleet
-	$(BIN)/python e2e/cluster/harness.py helm lint charts/fogfleet
+chart-lint: venv ## helm lint + helm template of charts/fogfleet (helm from the cluster tools)
+	$(BIN)/python e2e/cluster/harness.py helm lint --strict charts/fogfleet
+	$(BIN)/python e2e/cluster/harness.py helm template fogfleet charts/fogfleet -n fogfleet-system > /dev/null
 
 bench: venv ## Benchmarks: prints a table (scheduling quality and speed)
 	$(BIN)/fogfleet bench scheduling

@@ -1,4 +1,4 @@
-"""fogfleet: place robot-fleet software modules on robot, edge and cloud nodes, and keep them right."""
+"""fogfleet: place robot-fleet software modules on robot, edge and cloud nodes; keep it right."""
 
 __version__ = "0.1.0"
 GROUP = "fogfleet.io"

@@ -39,10 +39,12 @@ def miss_rates(
     module_rates: dict[tuple[str, bool], dict[str, list[float]]] = {}
     for seed in seeds:
         for name in SCHEDULERS:
-            s = plan(p, SchedulerSettings(algorithm=name, seed=seed))  # type: ignore[arg-type]
+            s = plan(p, SchedulerSettings(algorithm=name, seed=seed))
             alloc = p.allocation(s.with_limits)
             for all_active in (True, False):
-                r = simulate(p, s.placement, alloc, duration_s=duration_s, seed=seed, all_active=all_active)
+                r = simulate(
+                    p, s.placement, alloc, duration_s=duration_s, seed=seed, all_active=all_active
+                )
                 rates.setdefault((name, all_active), []).append(r.miss_rate)
                 per = module_rates.setdefault((name, all_active), {})
                 for m, v in r.module_miss_rate.items():

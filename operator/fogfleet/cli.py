@@ -27,7 +27,9 @@ def _catalog(paths: Sequence[str]) -> Any:
 
     catalog = load_paths(paths)
     if not catalog.fleets:
-        raise InvalidSpec(", ".join(paths), "", "no RobotFleet found (pass the folder or file with the fleet)")
+        raise InvalidSpec(
+            ", ".join(paths), "", "no RobotFleet found (pass the folder or file with the fleet)"
+        )
     return catalog
 
 
@@ -94,7 +96,7 @@ def _placement_rows(problem: Any, schedule: Any) -> list[dict[str, Any]]:
         rows.append(
             {
                 "robot": inst.robot or "-",
-                "module": inst.module if not inst.robot else inst.module,
+                "module": inst.module,
                 "replica": inst.replica,
                 "node": problem.nodes[j].name if j >= 0 else None,
                 "tier": problem.nodes[j].tier.value if j >= 0 else None,
@@ -106,7 +108,10 @@ def _placement_rows(problem: Any, schedule: Any) -> list[dict[str, Any]]:
 
 def _table(rows: list[list[str]], header: list[str]) -> str:
     widths = [max(len(str(r[k])) for r in [header, *rows]) for k in range(len(header))]
-    line = lambda r: "  ".join(str(c).ljust(w) for c, w in zip(r, widths, strict=True))  # noqa: E731
+
+    def line(r: Sequence[object]) -> str:
+        return "  ".join(str(c).ljust(w) for c, w in zip(r, widths, strict=True))
+
     return "\n".join([line(header), line(["-" * w for w in widths]), *(line(r) for r in rows)])
 
 
@@ -123,6 +128,7 @@ def cmd_plan(args: argparse.Namespace) -> int:
             "fleet": f"{problem.namespace}/{problem.fleet}",
             "scheduler": schedule.scheduler,
             "feasible": schedule.feasible,
+            "withLimits": schedule.with_limits,
             "placement": rows,
             "objectives": schedule.objectives,
             "durationSeconds": round(schedule.duration_seconds, 4),
@@ -142,11 +148,18 @@ def cmd_plan(args: argparse.Namespace) -> int:
 
 
 def _print_plan(doc: dict[str, Any]) -> None:
-    print(f"Fleet {doc['fleet']}  scheduler={doc['scheduler']}  feasible={doc['feasible']}  "
-          f"({doc['durationSeconds']:.2f} s)")
+    print(
+        f"Fleet {doc['fleet']}  scheduler={doc['scheduler']}  feasible={doc['feasible']}  "
+        f"({doc['durationSeconds']:.2f} s)"
+    )
     rows = [
-        [r["robot"], r["module"] + (f"#{r['replica']}" if r["robot"] == "-" else ""), r["node"] or "UNPLACED",
-         r["tier"] or "-", f"{r['cpu']:g}" if r["cpu"] is not None else "-"]
+        [
+            r["robot"],
+            r["module"] + (f"#{r['replica']}" if r["robot"] == "-" else ""),
+            r["node"] or "UNPLACED",
+            r["tier"] or "-",
+            f"{r['cpu']:g}" if r["cpu"] is not None else "-",
+        ]
         for r in doc["placement"]
     ]
     print(_table(rows, ["ROBOT", "MODULE", "NODE", "TIER", "CPU"]))
@@ -166,7 +179,11 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     catalog = _catalog(args.paths)
     fleet = _fleets(catalog, args.fleet)[0]
     problem = build_problem(fleet, catalog)
-    names = list(SCHEDULERS[:3]) if args.scheduler == "all" else [args.scheduler or fleet.spec.scheduler.algorithm]
+    names = (
+        list(SCHEDULERS[:3])
+        if args.scheduler == "all"
+        else [args.scheduler or fleet.spec.scheduler.algorithm]
+    )
     placements: dict[str, tuple[Any, bool]] = {}
     if args.placement:
         placements["recorded"] = _read_placement(problem, Path(args.placement))
@@ -176,17 +193,32 @@ def cmd_simulate(args: argparse.Namespace) -> int:
         placements[str(name)] = (schedule.placement, schedule.with_limits)
     result: dict[str, Any] = {}
     for name, (placement, with_limits) in placements.items():
-        sim = simulate(problem, placement, problem.allocation(with_limits), duration_s=args.duration,
-                       seed=args.seed if args.seed is not None else 0)
-        result[name] = {"missRate": sim.miss_rate, "modules": dict(sim.module_miss_rate),
-                        "nodeUtilisation": {problem.nodes[j].name: u for j, u in enumerate(sim.node_utilisation)}}
+        sim = simulate(
+            problem,
+            placement,
+            problem.allocation(with_limits),
+            duration_s=args.duration,
+            seed=args.seed if args.seed is not None else 0,
+        )
+        result[name] = {
+            "missRate": sim.miss_rate,
+            "modules": dict(sim.module_miss_rate),
+            "nodeUtilisation": {
+                problem.nodes[j].name: u for j, u in enumerate(sim.node_utilisation)
+            },
+        }
     if args.json:
         print(json.dumps(result, indent=2))
         return 0
     modules = sorted({m for r in result.values() for m in r["modules"]})
-    rows = [[m, *(f"{100 * result[s]['modules'].get(m, 0.0):.2f}%" for s in result)] for m in modules]
+    rows = [
+        [m, *(f"{100 * result[s]['modules'].get(m, 0.0):.2f}%" for s in result)] for m in modules
+    ]
     rows.append(["OVERALL", *(f"{100 * result[s]['missRate']:.2f}%" for s in result)])
-    print(f"Missed-cycle rate, fleet {problem.namespace}/{problem.fleet}, {args.duration:g} s simulated, seed {args.seed or 0}")
+    print(
+        f"Missed-cycle rate, fleet {problem.namespace}/{problem.fleet}, "
+        f"{args.duration:g} s simulated, seed {args.seed or 0}"
+    )
     print(_table(rows, ["MODULE", *result.keys()]))
     return 0
 
@@ -197,14 +229,21 @@ def _read_placement(problem: Any, path: Path) -> tuple[Any, bool]:
     import yaml
 
     doc = yaml.safe_load(path.read_text())
-    if isinstance(doc, dict) and "status" in doc:
-        entries = doc["status"].get("placement", [])
-        with_limits = doc["status"].get("scheduler") != "k8s-default"
-    else:
-        entries = doc.get("placement", []) if isinstance(doc, dict) else []
-        with_limits = (doc or {}).get("scheduler") != "k8s-default"
-    index = {(e.get("robot") if e.get("robot") not in ("-", None) else "", e["module"], int(e.get("replica") or 0)): e.get("node")
-             for e in entries}
+    if not isinstance(doc, dict):
+        raise InvalidSpec(str(path), "", "not a saved plan or a RobotFleet with status")
+    body = doc.get("status", doc) if "status" in doc else doc
+    entries = body.get("placement") or []
+    # plain-Deployment schedulers run with nominal requests and no limits
+    nominal = body.get("scheduler") in ("k8s-default", "onboard")
+    with_limits = bool(body.get("withLimits", not nominal))
+    index = {
+        (
+            e.get("robot") if e.get("robot") not in ("-", None) else "",
+            e["module"],
+            int(e.get("replica") or 0),
+        ): e.get("node")
+        for e in entries
+    }
     placement = np.full(problem.n_instances, -1, dtype=np.int64)
     for i, inst in enumerate(problem.instances):
         node = index.get((inst.robot, inst.module, inst.replica))
@@ -212,7 +251,9 @@ def _read_placement(problem: Any, path: Path) -> tuple[Any, bool]:
             try:
                 placement[i] = problem.node_index(node)
             except KeyError as exc:
-                raise InvalidSpec(str(path), "placement", f"node {node!r} is not in the fleet") from exc
+                raise InvalidSpec(
+                    str(path), "placement", f"node {node!r} is not in the fleet"
+                ) from exc
     return placement, with_limits
 
 
@@ -226,8 +267,23 @@ def cmd_render(args: argparse.Namespace) -> int:
     for fleet in _fleets(catalog, args.fleet):
         settings = _settings(fleet, args.scheduler, args.seed, args)
         problem, schedule = _plan(fleet, catalog, settings, False)
-        docs.extend(render_fleet(fleet, catalog, problem, schedule))
-    print(yaml.safe_dump_all(docs, sort_keys=False), end="")
+        ns = problem.namespace
+        modules = {name: m for (mns, name), m in catalog.modules.items() if mns == ns}
+        docs.extend(
+            render_fleet(
+                problem,
+                modules,
+                schedule.placement,
+                baseline=schedule.scheduler == "k8s-default",
+                plan_id=f"cli-{schedule.scheduler}-{settings.seed}",
+            )
+        )
+
+    class _NoAliases(yaml.SafeDumper):
+        def ignore_aliases(self, data: Any) -> bool:
+            return True
+
+    print(yaml.dump_all(docs, Dumper=_NoAliases, sort_keys=False), end="")
     return 0
 
 
@@ -239,7 +295,10 @@ def cmd_crds(args: argparse.Namespace) -> int:
         for line in drift:
             print(line, file=sys.stderr)
         if drift:
-            print("CRDs drifted from the models: run `make crds` and commit the result.", file=sys.stderr)
+            print(
+                "CRDs drifted from the models: run `make crds` and commit the result.",
+                file=sys.stderr,
+            )
             return 1
         print(f"{args.check}: CRDs match the models")
         return 0
@@ -281,11 +340,15 @@ def _parser() -> argparse.ArgumentParser:
     def fleet_args(sp: argparse.ArgumentParser, scheduler_choices: Sequence[str]) -> None:
         sp.add_argument("paths", nargs="+", help="CR YAML files or folders")
         sp.add_argument("--fleet", help="only this RobotFleet (by name)")
-        sp.add_argument("--scheduler", choices=scheduler_choices, help="override spec.scheduler.algorithm")
+        sp.add_argument(
+            "--scheduler", choices=scheduler_choices, help="override spec.scheduler.algorithm"
+        )
         sp.add_argument("--seed", type=int, help="override spec.scheduler.seed")
         sp.add_argument("--population", type=int, help="override spec.scheduler.population")
         sp.add_argument("--generations", type=int, help="override spec.scheduler.generations")
-        sp.add_argument("--time-budget", type=float, help="seconds; override spec.scheduler.timeBudgetMillis")
+        sp.add_argument(
+            "--time-budget", type=float, help="seconds; override spec.scheduler.timeBudgetMillis"
+        )
 
     sp = sub.add_parser("plan", help="print the placement table and objectives")
     fleet_args(sp, SCHEDULERS)
@@ -296,7 +359,10 @@ def _parser() -> argparse.ArgumentParser:
     sp = sub.add_parser("simulate", help="simulate plans and print missed-cycle rates")
     fleet_args(sp, (*SCHEDULERS, "all"))
     sp.add_argument("--duration", type=float, default=120.0, help="simulated seconds (default 120)")
-    sp.add_argument("--placement", help="also simulate a placement saved from `plan --json` or a fleet's YAML with status")
+    sp.add_argument(
+        "--placement",
+        help="also simulate a placement saved from `plan --json` or a fleet's YAML with status",
+    )
     sp.add_argument("--json", action="store_true")
     sp.set_defaults(func=cmd_simulate)
 

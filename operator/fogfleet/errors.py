@@ -5,7 +5,7 @@
     │   │                      kopf PermanentError, Ready=False with reason InvalidSpec)
     │   ├── DanglingReference  a reference names an object that does not exist
     │   └── Infeasible         valid objects, but no placement can satisfy them
-    └── DependencyUnavailable  a cluster or Prometheus call failed; retry later (kopf TemporaryError)
+    └── DependencyUnavailable  a cluster or Prometheus call failed; retry (kopf TemporaryError)
 
 Adapters translate library exceptions into this tree with ``raise ... from exc``.
 """

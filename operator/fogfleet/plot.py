@@ -24,8 +24,14 @@ def plot_plan(problem: Problem, schedule: Schedule, out: Path) -> None:
     if front is not None and len(names) >= 2 and len(front):
         x, y = names[0], names[1] if len(names) > 1 else names[0]
         ax_front.scatter(front[:, 0], front[:, 1], s=18, label="non-dominated plans")
-        ax_front.scatter([schedule.objectives[x]], [schedule.objectives[y]], s=80, marker="*",
-                         color="crimson", label="chosen")
+        ax_front.scatter(
+            [schedule.objectives[x]],
+            [schedule.objectives[y]],
+            s=80,
+            marker="*",
+            color="crimson",
+            label="chosen",
+        )
         ax_front.set_xlabel(x)
         ax_front.set_ylabel(y)
         ax_front.legend()
@@ -39,8 +45,14 @@ def plot_plan(problem: Problem, schedule: Schedule, out: Path) -> None:
         if j >= 0:
             used[j] += alloc.cpu_request[i, j]
     labels = [n.name for n in problem.nodes]
-    colors = ["tab:orange" if n.tier.value == "robot" else "tab:blue" if n.tier.value == "edge" else "tab:green"
-              for n in problem.nodes]
+    colors = [
+        "tab:orange"
+        if n.tier.value == "robot"
+        else "tab:blue"
+        if n.tier.value == "edge"
+        else "tab:green"
+        for n in problem.nodes
+    ]
     ax_util.bar(labels, 100 * used / problem.capacity[:, 0], color=colors)
     ax_util.axhline(100, color="grey", lw=0.8, ls="--")
     ax_util.set_ylabel("requested CPU, % of allocatable")

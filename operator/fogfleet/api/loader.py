@@ -27,7 +27,7 @@ KINDS: dict[str, type[ComputeNode] | type[SoftwareModule] | type[RobotFleet]] = 
 
 @dataclass
 class Catalog:
-    """Every fogfleet object read, by kind; SoftwareModules and fleets keyed by (namespace, name)."""
+    """Every fogfleet object read, by kind; SoftwareModules keyed by (namespace, name)."""
 
     nodes: dict[str, ComputeNode] = field(default_factory=dict)
     modules: dict[tuple[str, str], SoftwareModule] = field(default_factory=dict)
@@ -88,7 +88,9 @@ def parse_object(doc: Mapping[str, Any]) -> ComputeNode | SoftwareModule | Robot
         raise InvalidSpec(f"{kind or '<no kind>'}/{name}", "kind", f"unknown kind {kind!r}")
     if doc.get("apiVersion") != "fogfleet.io/v1alpha1":
         raise InvalidSpec(
-            f"{kind}/{name}", "apiVersion", f"must be fogfleet.io/v1alpha1, not {doc.get('apiVersion')!r}"
+            f"{kind}/{name}",
+            "apiVersion",
+            f"must be fogfleet.io/v1alpha1, not {doc.get('apiVersion')!r}",
         )
     try:
         return model.model_validate(dict(doc))
@@ -122,7 +124,9 @@ def load_paths(paths: Iterable[str | Path]) -> Catalog:
             if not isinstance(doc, Mapping):
                 continue
             if str(doc.get("apiVersion", "")).split("/")[0] != "fogfleet.io":
-                catalog.ignored.append(f"{doc.get('kind')}/{(doc.get('metadata') or {}).get('name')}")
+                catalog.ignored.append(
+                    f"{doc.get('kind')}/{(doc.get('metadata') or {}).get('name')}"
+                )
                 continue
             catalog.add(parse_object(doc))
     return catalog

