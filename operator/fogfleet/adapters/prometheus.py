@@ -156,7 +156,7 @@ class PrometheusClient:
 
     def query_value(self, promql: str, *, obj: str = "", field: str = QUERY_FIELD) -> float | None:
         with map_errors(self.url, promql, obj, field):
-            result = self._prom.custom_query(promql, timeout=self.timeout)  # type: ignore[arg-type]
+            result = self._prom.custom_query(promql, timeout=self.timeout)
             return value_of(result, promql, obj, field)
 
     def close(self) -> None:
