@@ -31,7 +31,10 @@ from typing import Any, Protocol
 
 import requests
 from prometheus_api_client import PrometheusConnect
-from prometheus_api_client.exceptions import PrometheusApiClientException
+from prometheus_api_client.exceptions import (
+    MetricValueConversionError,
+    PrometheusApiClientException,
+)
 from urllib3.util.retry import Retry
 
 from fogfleet.errors import DependencyUnavailable, InvalidSpec
@@ -89,7 +92,7 @@ def map_errors(url: str, promql: str, obj: str = "", field: str = QUERY_FIELD) -
         ) from exc
     except requests.exceptions.RequestException as exc:  # connection, timeout, retries, JSON
         raise DependencyUnavailable(f"Cannot query Prometheus at {url}: {exc}") from exc
-    except (KeyError, TypeError, ValueError) as exc:  # a 200 that is not Prometheus' JSON
+    except (KeyError, TypeError, ValueError, MetricValueConversionError) as exc:  # not its JSON
         raise DependencyUnavailable(
             f"Prometheus at {url} sent an unexpected answer: {exc!r}"
         ) from exc

@@ -422,7 +422,7 @@ def _read_metrics(
                 return out
             out.tiers = {p.name: base(p, cpu_utilization=cpu[p.name] or 0.0) for p in pools}
     except InvalidSpec as exc:
-        out.problem, out.message = "InvalidSLOQuery", exc.message
+        out.problem, out.message = "InvalidSLOQuery", f"{exc.field}: {exc.message}"
     except DependencyUnavailable as exc:
         out.problem, out.message = "PrometheusUnreachable", str(exc)
     return out

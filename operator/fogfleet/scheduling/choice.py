@@ -19,29 +19,47 @@ from collections.abc import Mapping, Sequence
 import numpy as np
 from numpy.typing import NDArray
 
-__all__ = ["choose", "non_dominated"]
+__all__ = ["choose", "dominance", "non_dominated"]
 
 F64 = NDArray[np.float64]
+_CELLS = 1 << 20  # comparisons per block of ``dominance``
 
 
 def _fmt(v: float) -> str:
     return f"{v:.4g}"
 
 
-def non_dominated(F: F64) -> NDArray[np.int64]:
-    """Indices of the rows of F (minimisation) that no other row dominates; duplicates of a
-    kept row are dropped (first kept)."""
+def dominance(F: F64, A: F64, *, strict: bool = True) -> NDArray[np.bool_]:
+    """Rows of F that some row of A dominates (minimisation: <= everywhere and < somewhere);
+    with ``strict=False`` also rows equal to a row of A (weak dominance). Blocked over F
+    and looped over objectives, so memory stays at (block, len(A))."""
     F = np.asarray(F, dtype=np.float64)
-    keep: list[int] = []
-    for k in range(len(F)):
-        le = np.all(F[k] >= F, axis=1)
-        lt = np.any(F[k] > F, axis=1)
-        if np.any(le & lt):
-            continue
-        if any(np.array_equal(F[k], F[m]) for m in keep):
-            continue
-        keep.append(k)
-    return np.asarray(keep, dtype=np.int64)
+    A = np.asarray(A, dtype=np.float64)
+    out = np.zeros(len(F), dtype=bool)
+    if len(F) == 0 or len(A) == 0:
+        return out
+    block = max(1, _CELLS // len(A))
+    for s in range(0, len(F), block):
+        f = F[s : s + block]
+        le = np.ones((len(f), len(A)), dtype=bool)
+        lt = np.zeros((len(f), len(A)), dtype=bool) if strict else None
+        for k in range(F.shape[1]):
+            a, b = A[None, :, k], f[:, None, k]
+            le &= a <= b
+            if lt is not None:
+                lt |= a < b
+        out[s : s + block] = (le & lt if lt is not None else le).any(axis=1)
+    return out
+
+
+def non_dominated(F: F64) -> NDArray[np.int64]:
+    """Indices (ascending) of the rows of F (minimisation) that no other row dominates;
+    duplicates of a kept row are dropped (first kept)."""
+    F = np.asarray(F, dtype=np.float64)
+    if len(F) == 0:
+        return np.zeros(0, dtype=np.int64)
+    first = np.sort(np.unique(F, axis=0, return_index=True)[1])
+    return np.asarray(first[~dominance(F[first], F[first])], dtype=np.int64)
 
 
 def _normalise(F: F64) -> F64:

@@ -17,87 +17,183 @@ import time
 import numpy as np
 from numpy.typing import NDArray
 
+from .choice import dominance, non_dominated
+from .objectives import EVALUATORS, NODE_OBJECTIVES, Evaluation, miss_probability
 from .problem import PlacementProblem
 
-__all__ = ["dominated_by", "pareto_local_search"]
+__all__ = ["MoveEvaluator", "dominated_by", "pareto_local_search"]
 
 I64 = NDArray[np.int64]
 F64 = NDArray[np.float64]
-# neighbours evaluated per call of the vectorised evaluation (bounds the memory used)
+# moves scored per call of the vectorised evaluation (bounds the memory used)
 CHUNK = 4096
 
 
 def dominated_by(F: F64, A: F64) -> NDArray[np.bool_]:
     """Rows of F weakly dominated by (or equal to) some row of A (minimisation)."""
-    if len(A) == 0 or len(F) == 0:
-        return np.zeros(len(F), dtype=bool)
-    out = np.zeros(len(F), dtype=bool)
-    for s in range(0, len(F), CHUNK):
-        f = F[s : s + CHUNK, None, :]
-        out[s : s + CHUNK] = np.all(A[None, :, :] <= f, axis=2).any(axis=1)
-    return out
+    return dominance(F, A, strict=False)
 
 
 def _filter_front(X: I64, F: F64) -> tuple[I64, F64]:
     """The non-dominated rows of (X, F), one per distinct objective vector (first kept)."""
-    keep = np.ones(len(F), dtype=bool)
-    for k in range(len(F)):
-        if not keep[k]:
-            continue
-        le = np.all(F[k][None, :] <= F, axis=1)
-        lt = np.any(F[k][None, :] < F, axis=1)
-        same = np.all(F[k][None, :] == F, axis=1)
-        same[: k + 1] = False
-        keep &= ~((le & lt) | same)
+    keep = non_dominated(F)
     return X[keep], F[keep]
 
 
-def _neighbours(pp: PlacementProblem, x: I64, limit: int) -> I64:
-    """The one-gene moves of the plan x (G genes) that keep every capacity and uplink
-    constraint: (M, G). Checked incrementally from x's per-node use, so infeasible moves are
-    never evaluated."""
-    fleet, fit = pp.fleet, pp.fit
-    genes = pp.genes
-    g = np.repeat(np.arange(pp.n_var), pp.counts)
-    node = pp.table[g, np.concatenate([np.arange(c) for c in pp.counts])]
-    cur = x[g]
-    move = node != cur
-    g, node, cur = g[move], node[move], cur[move]
-    inst = genes[g]
-    full = pp.full(x)[0]
-    valid = full >= 0
-    xc = np.where(valid, full, 0)
-    n = fleet.n_nodes
-    used = np.zeros((n, 3))
-    for r in range(3):
-        w = np.where(valid, fit.demand[np.arange(fleet.n_instances), xc, r], 0.0)
-        used[:, r] = np.bincount(xc, weights=w, minlength=n)
-    ok = np.all(used[node] + fit.demand[inst, node] <= fit.cap[node] + 1e-9, axis=1)
-    home = fleet.home[inst]
-    h = np.where(home >= 0, home, 0)
-    off_i = valid & (fleet.home >= 0) & (xc != fleet.home)
-    up = np.bincount(
-        np.where(fleet.home >= 0, fleet.home, 0),
-        weights=np.where(off_i, fleet.traffic, 0.0),
-        minlength=n,
-    )
-    delta = fleet.traffic[inst] * ((node != h).astype(float) - (cur != h).astype(float))
-    ok &= (home < 0) | (delta <= 0) | (up[h] + delta <= fit.uplink[h] + 1e-9)
-    g, node = g[ok][:limit], node[ok][:limit]
-    out = np.repeat(x[None, :], len(g), axis=0)
-    out[np.arange(len(g)), g] = node
-    return out
+class MoveEvaluator:
+    """Objectives and constraints of single-instance moves of parent plans, incrementally.
+
+    A move (instance i: node c -> node j) changes the per-node sums (``NODE_SUMS``: cpu and
+    gpu requests, memory, expected cpu use; uplink traffic of i's robot) only at c, j and
+    i's home, so a child's sums are its parent's with those entries patched, and the per-node
+    objectives (F1, F2, F3, cost, energy) and the capacity/uplink constraints follow from
+    them (``Evaluation.of_node_sums``: the same formulas as ``objectives.evaluate``).
+    missRate and missedCycles are sums over instances of a term that depends on the node's
+    contention only: where neither c nor j is contended in the parent or the child (all-active
+    CPU peak within capacity and expected load within capacity: slowdown and kappa exactly 1,
+    always so for feasible ``limits`` plans) only i's own term changes, to its uncontended
+    value on j. Other moves are re-evaluated whole (``Evaluation``). Vectorised over the moves
+    of many parents at once.
+    """
+
+    def __init__(self, pp: PlacementProblem) -> None:
+        fleet, alloc = pp.fleet, pp.alloc
+        self.pp = pp
+        a = fleet.activation
+        al = fleet.allowed
+        self.expected = a[:, None] * alloc.cpu_use  # weight of cpu_expected (I, N)
+        self.cap = fleet.capacity[:, 0]
+        # uncontended per-(instance, node) terms, computed as Evaluation does at slowdown 1
+        net = np.where(al, fleet.net_mean, 0.0)
+        exe = np.where(al, alloc.exe_mean, 0.0)
+        sd = np.sqrt(np.where(al, alloc.exe_std, 0.0) ** 2 + np.where(al, fleet.net_std, 0.0) ** 2)
+        T = np.broadcast_to(fleet.cycle[:, None], net.shape)
+        self.miss = a[:, None] * miss_probability(net + exe, sd, T)
+        t = (net + exe) / fleet.cycle[:, None]
+        self.missed = a[:, None] * np.where(t > 1.0, t, 0.0)
+        # every (instance, allowed node) pair of the search, gene by gene then node by node
+        g = np.repeat(np.arange(pp.n_var), pp.counts)
+        self.pair_inst: I64 = pp.genes[g]
+        self.pair_node: I64 = pp.table[g, np.concatenate([np.arange(c) for c in pp.counts])]
+
+    def parents(self, fulls: I64) -> Evaluation:
+        """The parents' whole evaluation (their per-node sums are what moves patch)."""
+        return Evaluation(self.pp.fleet, fulls, self.pp.alloc)
+
+    def moves(self, fulls: I64, ev: Evaluation, limit: int) -> tuple[I64, I64, I64]:
+        """(parent, instance, new node) of the one-gene moves of the plans ``fulls`` (P, I)
+        that keep every capacity and uplink constraint, at most ``limit``, parent by parent,
+        gene by gene, node by node. Checked from the parents' per-node sums ``ev``, so
+        infeasible moves are never scored."""
+        fleet, fit = self.pp.fleet, self.pp.fit
+        inst, node = self.pair_inst, self.pair_node
+        cur = fulls[:, inst]  # (P, K)
+        ok = node[None, :] != cur
+        for r, used in enumerate((ev.cpu_requested, ev.mem_requested, ev.gpu_requested)):
+            ok &= used[:, node] + fit.demand[inst, node, r][None, :] <= fit.cap[node, r] + 1e-9
+        home = fleet.home[inst]
+        h = np.where(home >= 0, home, 0)
+        delta = fleet.traffic[inst][None, :] * (
+            (node != h)[None, :].astype(float) - (cur != h[None, :]).astype(float)
+        )
+        up = ev.offboard_traffic[:, h]
+        ok &= (home < 0)[None, :] | (delta <= 0) | (up + delta <= fit.uplink[h][None, :] + 1e-9)
+        par, k = np.nonzero(ok)
+        par, k = par[:limit], k[:limit]
+        return par.astype(np.int64), inst[k], node[k]
+
+    @staticmethod
+    def children(fulls: I64, par: I64, inst: I64, node: I64) -> I64:
+        """The moved plans (M, I)."""
+        out = fulls[par]
+        out[np.arange(len(par)), inst] = node
+        return out
+
+    def evaluate(
+        self, fulls: I64, par: I64, inst: I64, node: I64, ev: Evaluation | None = None
+    ) -> tuple[dict[str, F64], F64]:
+        """Every objective of ``EVALUATORS`` (M,) and the constraints G (M, C) of the plans
+        fulls[par[m]] with instance inst[m] moved to node[m] (another node than its parent's):
+        the same values as ``objectives.evaluate`` / ``constraints`` of those plans."""
+        fleet, alloc = self.pp.fleet, self.pp.alloc
+        fulls = np.asarray(fulls, dtype=np.int64)
+        if fulls.ndim == 1:
+            fulls = fulls[None, :]
+        ev = ev if ev is not None else self.parents(fulls)
+        M = len(inst)
+        ar = np.arange(M)
+        cur = fulls[par, inst]
+        if np.any(cur < 0) or np.any(node == cur):
+            raise ValueError("a move takes a placed instance to another node")
+
+        def patch(base: F64, old: F64, new: F64) -> F64:
+            out = base[par]
+            out[ar, cur] -= old
+            out[ar, node] += new
+            return out
+
+        sums = {
+            "cpu_requested": patch(
+                ev.cpu_requested, alloc.cpu_request[inst, cur], alloc.cpu_request[inst, node]
+            ),
+            "mem_requested": patch(ev.mem_requested, fleet.memory[inst], fleet.memory[inst]),
+            "gpu_requested": patch(ev.gpu_requested, fleet.gpu[inst], fleet.gpu[inst]),
+            "cpu_expected": patch(
+                ev.cpu_expected, self.expected[inst, cur], self.expected[inst, node]
+            ),
+        }
+        traffic = ev.offboard_traffic[par]
+        h = fleet.home[inst]
+        hm = h >= 0
+        delta = fleet.traffic[inst] * ((node != h).astype(float) - (cur != h).astype(float))
+        traffic[ar[hm], h[hm]] += delta[hm]
+        sums["offboard_traffic"] = traffic
+        child = Evaluation.of_node_sums(fleet, alloc, sums)
+        out = {n: EVALUATORS[n](child) for n in NODE_OBJECTIVES}
+        allowed = fleet.allowed
+        gene = ev.constraints()[par, -1] + (~allowed[inst, node]).astype(float)
+        gene -= (~allowed[inst, cur]).astype(float)
+        G = np.concatenate([child.node_constraints(), gene[:, None]], axis=1)
+
+        # missRate / missedCycles: only i's own term changes where c and j stay uncontended
+        a_valid = np.where(fulls >= 0, fleet.activation[None, :], 0.0)
+        total = a_valid.sum(axis=1)[par]
+        q_par = a_valid * ev.instance_miss()
+        t_par = ev.tau()
+        m_par = a_valid * np.where(t_par > 1.0, t_par, 0.0)
+        peak = ev.cpu_peak[par]
+        load = ev.cpu_expected[par]
+        use_c, use_j = alloc.cpu_use[inst, cur], alloc.cpu_use[inst, node]
+        cap_c, cap_j = self.cap[cur] * (1 + 1e-9), self.cap[node] * (1 + 1e-9)
+        fast = (peak[ar, cur] <= cap_c) & (peak[ar, node] <= cap_j)
+        fast &= (peak[ar, cur] - use_c <= cap_c) & (peak[ar, node] + use_j <= cap_j)
+        fast &= (load[ar, cur] <= self.cap[cur]) & (load[ar, node] <= self.cap[node])
+        fast &= sums["cpu_expected"][ar, cur] <= self.cap[cur]
+        fast &= sums["cpu_expected"][ar, node] <= self.cap[node]
+        s_miss = q_par.sum(axis=1)[par] - q_par[par, inst] + self.miss[inst, node]
+        out["missRate"] = np.where(total > 0, s_miss / np.where(total > 0, total, 1.0), 0.0)
+        out["missedCycles"] = m_par.sum(axis=1)[par] - m_par[par, inst] + self.missed[inst, node]
+        slow = np.flatnonzero(~fast)
+        if slow.size:
+            whole = Evaluation(
+                fleet, self.children(fulls, par[slow], inst[slow], node[slow]), alloc
+            )
+            out["missRate"][slow] = whole.miss_rate()
+            out["missedCycles"][slow] = whole.missed_cycles()
+        return {n: out[n] for n in EVALUATORS}, G
 
 
-def _evaluate(pp: PlacementProblem, X: I64) -> tuple[F64, NDArray[np.bool_]]:
-    """Quantised objectives and feasibility of the plans X (genes)."""
-    out: dict[str, F64] = {}
-    pp._evaluate(X, out)
-    G = out.get("G")
-    feasible = (
-        np.all(G <= 1e-9, axis=1) if G is not None and G.size else np.ones(len(X), dtype=bool)
-    )
-    return np.asarray(out["F"], dtype=np.float64), feasible
+def _score(
+    me: MoveEvaluator, fulls: I64, par: I64, inst: I64, node: I64, ev: Evaluation
+) -> tuple[F64, NDArray[np.bool_]]:
+    """Quantised objectives of ``me.pp`` (with its penalty, if any) and feasibility."""
+    pp = me.pp
+    vals, G = me.evaluate(fulls, par, inst, node, ev)
+    F = pp.quantise(np.column_stack([vals[n] for n in pp.names]))
+    cv = np.maximum(G, 0.0).sum(axis=1)
+    if pp.penalty is not None:
+        F = F + pp.penalty * cv[:, None]
+    return F, np.all(G <= 1e-9, axis=1)
 
 
 def pareto_local_search(
@@ -106,45 +202,42 @@ def pareto_local_search(
     F: F64,
     *,
     rounds: int = 10,
-    max_cells: int = 4_000_000,
+    max_moves: int = 200_000,
     deadline: float = float("inf"),
 ) -> tuple[I64, F64, int]:
     """Improve the archive (X genes, F quantised objectives; feasible plans) by one-gene moves.
 
-    At most ``max_cells`` (plans evaluated x instances) of work, so the step costs about the
-    same as the NSGA-II run on the warehouse fleet and stays a small share on large fleets;
+    The feasible moves of the archive members to explore are scored incrementally
+    (``MoveEvaluator``), in batches of about ``CHUNK`` moves, at most ``max_moves`` in all;
     the result depends only on the inputs unless ``deadline`` (a ``time.perf_counter``
-    value, checked between evaluation chunks) cuts it short.
-    Returns the new archive (non-dominated, feasible) and the number of plans evaluated.
+    value, checked between batches) cuts it short.
+    Returns the new archive (non-dominated, feasible) and the number of moves scored.
     """
-    max_evals = max(max_cells // max(pp.fleet.n_instances, 1), 1)
+    me = MoveEvaluator(pp)
     X, F = _filter_front(np.asarray(X, dtype=np.int64), np.asarray(F, dtype=np.float64))
     todo = np.ones(len(X), dtype=bool)
     n_eval = 0
+    step = max(1, CHUNK // max(len(me.pair_inst), 1))
     for _ in range(rounds):
-        if not todo.any() or time.perf_counter() > deadline:
-            break
-        left = max_evals - n_eval
-        parts: list[I64] = []
-        for x in X[todo]:
-            if left <= 0:
-                break
-            parts.append(_neighbours(pp, x, left))
-            left -= len(parts[-1])
-        cand = np.unique(np.concatenate(parts), axis=0) if parts else X[:0]
-        if len(cand) == 0:
+        if not todo.any():
             break
         newX: list[I64] = []
         newF: list[F64] = []
-        for s in range(0, len(cand), CHUNK):
-            if time.perf_counter() > deadline:
+        explore = X[todo]
+        for s in range(0, len(explore), step):
+            if n_eval >= max_moves or time.perf_counter() > deadline:
                 break
-            c = cand[s : s + CHUNK]
-            f, ok = _evaluate(pp, c)
-            n_eval += len(c)
+            fulls = pp.full(explore[s : s + step])
+            ev = me.parents(fulls)
+            par, inst, node = me.moves(fulls, ev, max_moves - n_eval)
+            if len(par) == 0:
+                continue
+            f, ok = _score(me, fulls, par, inst, node, ev)
+            n_eval += len(par)
             good = ok & ~dominated_by(f, F)
             if good.any():
-                newX.append(c[good])
+                kids = me.children(fulls, par[good], inst[good], node[good])
+                newX.append(kids[:, pp.genes])
                 newF.append(f[good])
         if not newX:
             break
@@ -159,8 +252,4 @@ def pareto_local_search(
 
 def _strictly_dominated(F: F64, A: F64) -> NDArray[np.bool_]:
     """Rows of F that some row of A dominates (<= everywhere, < somewhere)."""
-    if len(A) == 0:
-        return np.zeros(len(F), dtype=bool)
-    le = np.all(A[None, :, :] <= F[:, None, :], axis=2)
-    lt = np.any(A[None, :, :] < F[:, None, :], axis=2)
-    return np.asarray((le & lt).any(axis=1), dtype=bool)
+    return dominance(F, A)

@@ -16,7 +16,7 @@ Readings of multi-robot-edge-cloud-scheduling III-D (the paper's symbols in brac
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from functools import cached_property
 
 import numpy as np
@@ -27,6 +27,8 @@ from fogfleet.domain.problem import Allocation, Problem
 
 __all__ = [
     "EVALUATORS",
+    "NODE_OBJECTIVES",
+    "NODE_SUMS",
     "OBJECTIVES",
     "UPLINK_SHARE",
     "Evaluation",
@@ -85,6 +87,27 @@ class Evaluation:
         self._flat = (self.x + self.N * np.arange(self.P)[:, None]).ravel()
         self.robots = np.flatnonzero(problem.tier == 0)
         self.remote = np.flatnonzero(problem.tier > 0)
+
+    @classmethod
+    def of_node_sums(
+        cls, problem: Problem, allocation: Allocation, sums: Mapping[str, F64]
+    ) -> Evaluation:
+        """An evaluation of P plans known only by their per-node sums ``sums`` (P, N each;
+        the keys of ``NODE_SUMS``), as a local search gets them by updating a parent's sums.
+        Only the objectives of ``NODE_OBJECTIVES`` and ``node_constraints`` may be called."""
+        missing = set(NODE_SUMS) - set(sums)
+        if missing:
+            raise KeyError(f"missing per-node sum(s): {', '.join(sorted(missing))}")
+        ev = cls.__new__(cls)
+        ev.problem = problem
+        ev.alloc = allocation
+        ev.P, ev.N = next(iter(sums.values())).shape
+        ev.I = problem.n_instances
+        ev.robots = np.flatnonzero(problem.tier == 0)
+        ev.remote = np.flatnonzero(problem.tier > 0)
+        for k in NODE_SUMS:
+            ev.__dict__[k] = sums[k]
+        return ev
 
     # -- helpers --------------------------------------------------------------------------
     def gather(self, a: F64) -> F64:
@@ -289,17 +312,21 @@ class Evaluation:
         watts = watts + pw[None, :, 3] * self.offboard_traffic[:, self.robots] / 1e6
         return np.asarray(watts.sum(axis=1), dtype=np.float64)
 
-    def constraints(self) -> F64:
-        """G <= 0 feasible; each column normalised by its limit (see ``constraint_names``)."""
+    def node_constraints(self) -> F64:
+        """The per-node and per-robot columns of ``constraints`` (all but geneSpace)."""
         cap = self.problem.capacity
         g_cpu = (self.cpu_requested - cap[None, :, 0]) / cap[None, :, 0]
         g_mem = (self.mem_requested - cap[None, :, 1]) / np.maximum(cap[None, :, 1], 1.0)
         g_gpu = (self.gpu_requested - cap[None, :, 2]) / np.maximum(cap[None, :, 2], 1.0)
         limit = UPLINK_SHARE * self.problem.uplink_bandwidth[self.robots]
         g_up = (self.offboard_traffic[:, self.robots] - limit[None, :]) / limit[None, :]
+        return np.concatenate([g_cpu, g_mem, g_gpu, g_up], axis=1)
+
+    def constraints(self) -> F64:
+        """G <= 0 feasible; each column normalised by its limit (see ``constraint_names``)."""
         outside = self.valid & ~self.problem.allowed[self._rows, self.x]
         g_gene = outside.sum(axis=1, keepdims=True).astype(np.float64)
-        return np.concatenate([g_cpu, g_mem, g_gpu, g_up, g_gene], axis=1)
+        return np.concatenate([self.node_constraints(), g_gene], axis=1)
 
 
 def onboard(problem: Problem, X: NDArray[np.integer], allocation: Allocation) -> F64:
@@ -377,6 +404,17 @@ EVALUATORS: dict[str, Callable[[Evaluation], F64]] = {
     "cost": Evaluation.cost,
     "energy": Evaluation.energy,
 }
+
+# Per-node sums (cached properties of Evaluation) from which the per-node objectives follow,
+# and those objectives: what ``Evaluation.of_node_sums`` supports.
+NODE_SUMS = (
+    "cpu_requested",
+    "mem_requested",
+    "gpu_requested",
+    "cpu_expected",
+    "offboard_traffic",
+)
+NODE_OBJECTIVES = ("onboard", "reserve", "balance", "cost", "energy")
 
 OBJECTIVES: dict[str, Callable[[Problem, NDArray[np.integer], Allocation], F64]] = {
     "onboard": onboard,

@@ -17,7 +17,13 @@ from .baselines import finish, k8s_default, onboard_plan, random_plan
 from .choice import choose, non_dominated
 from .exact import scalarised, solve_exact
 from .local import pareto_local_search
-from .operators import CapacityRepair, FleetSampling, GeneCrossover, GeneMutation
+from .operators import (
+    CapacityRepair,
+    FleetSampling,
+    GeneCrossover,
+    GeneDuplicates,
+    GeneMutation,
+)
 from .problem import PlacementProblem
 from .schedule import Schedule
 
@@ -87,7 +93,7 @@ def nsga2(
         crossover=GeneCrossover("single_point" if paper else "uniform"),
         mutation=GeneMutation(prob=1.0, per_gene=mut) if paper else GeneMutation(prob=mut),
         repair=None if paper else CapacityRepair(),
-        eliminate_duplicates=True,
+        eliminate_duplicates=GeneDuplicates(),
     )
     algorithm.setup(
         pp, termination=("n_gen", settings.generations), seed=settings.seed, verbose=False
