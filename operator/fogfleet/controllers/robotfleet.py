@@ -22,7 +22,7 @@ from typing import Any
 
 import numpy as np
 
-from fogfleet.api.loader import parse_object
+from fogfleet.api.loader import Catalog, parse_object
 from fogfleet.api.v1alpha1.common import Tier
 from fogfleet.api.v1alpha1.robotfleet import RobotFleet, SchedulerName
 from fogfleet.domain.problem import Problem, build_problem
@@ -105,7 +105,9 @@ def _reconcile(
     deployments = [d for d in kube.list_deployments(ns, selector) if _owned(d, body)]
     inputs = gather(fleet, kube.list_compute_nodes(), kube.list_modules(ns), kube.list_nodes())
     _raise_broken_references(fleet, inputs.broken)
-    problem = build_problem(fleet, inputs.catalog, current_placement(deployments))
+    problem = build_problem(
+        fleet, inputs.catalog, current_placement(deployments), scaling_pools(inputs.catalog, ns)
+    )
     deps.refs.record(
         key,
         {n.name for n in problem.nodes},
@@ -163,6 +165,16 @@ def _reconcile(
         requeue_after=None if ready else deps.requeue_seconds,
         message=status["conditions"][0]["message"],
     )
+
+
+def scaling_pools(catalog: Catalog, namespace: str) -> dict[str, dict[str, int]]:
+    """The autoscaler's last decision per shared module: {module: {tier: replicas}}."""
+    pools: dict[str, dict[str, int]] = {}
+    for (ns, name), module in catalog.modules.items():
+        scaling = module.status.scaling if module.status else None
+        if ns == namespace and scaling is not None and scaling.pools:
+            pools[name] = {p.tier: p.replicas for p in scaling.pools}
+    return pools
 
 
 def _owned(dep: Obj, fleet: Obj) -> bool:

@@ -68,19 +68,24 @@ class Runtime:
             await self.call(self.deps.kube.delete_deployment, namespace, dep["metadata"]["name"])
 
     # ------------------------------------------------------------------ related objects
-    def _changed(self, kind: str, body: Mapping[str, Any], event_type: str | None) -> bool:
+    def _changed(
+        self, kind: str, body: Mapping[str, Any], event_type: str | None, extra: Any = None
+    ) -> bool:
         meta = body.get("metadata") or {}
         key = (kind, meta.get("namespace") or "", meta.get("name", ""))
         if event_type == "DELETED":
             self._generations.pop(key, None)
             return True
-        gen = meta.get("generation")
+        gen = (meta.get("generation"), extra)
         before = self._generations.get(key, "unseen")
         self._generations[key] = gen
         return event_type is not None and before != gen
 
     def module_event(self, body: Mapping[str, Any], event_type: str | None) -> None:
-        if self._changed("SoftwareModule", body, event_type):
+        # the autoscaler's decision (status.scaling.pools) changes what fleets place, too
+        pools = ((body.get("status") or {}).get("scaling") or {}).get("pools") or []
+        extra = tuple(sorted((p.get("tier"), p.get("replicas")) for p in pools))
+        if self._changed("SoftwareModule", body, event_type, extra):
             meta = body.get("metadata") or {}
             for key in self.deps.refs.using_module(
                 meta.get("namespace") or "default", meta.get("name", "")
