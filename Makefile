@@ -59,11 +59,17 @@ chart-lint: venv ## helm lint + helm template of charts/fogfleet (helm from the 
 bench: venv ## Benchmarks: prints a table (scheduling quality and speed)
 	$(BIN)/fogfleet bench scheduling
 
-demo: venv ## Plan and simulate the warehouse example fleet
+demo: venv ## Plan + simulate the warehouse fleet, then run it on the local control plane (operator, real kube-scheduler)
+	$(BIN)/fogfleet plan manifests/examples/warehouse
+	$(BIN)/fogfleet simulate manifests/examples/warehouse --scheduler all
+	$(BIN)/python e2e/demo.py
+
+demo-offline: venv ## Only plan + simulate the warehouse fleet (no cluster, a few seconds)
 	$(BIN)/fogfleet plan manifests/examples/warehouse
 	$(BIN)/fogfleet simulate manifests/examples/warehouse --scheduler all
 
 clean: ## Remove the virtualenv and caches in the repo
 	rm -rf $(VENV) .pytest_cache .mypy_cache .ruff_cache
 
-.PHONY: help venv lint unit test crds crds-check cluster-tools cluster-up cluster-down cluster-status e2e e2e-k3d chart-lint bench demo clean
+
+.PHONY: help venv lint unit test crds crds-check demo-offline cluster-tools cluster-up cluster-down cluster-status e2e e2e-k3d chart-lint bench demo clean

@@ -313,7 +313,9 @@ def test_prometheus_unreachable_holds_then_scaling_resumes(rig: Rig, tmp_path: P
     assert (cond["status"], cond["reason"]) == ("True", "PrometheusUnreachable")
     assert f"127.0.0.1:{dead_port}" in cond["message"]
     assert rig.conditions()["Scaling"]["status"] == "False"
-    assert len(rig.events("MetricsUnavailable")) == 1
+    # one Warning for the outage (another came earlier, for the NoData before the twin ran)
+    outage = [e for e in rig.events("MetricsUnavailable") if str(dead_port) in e["message"]]
+    assert len(outage) == 1 and outage[0]["type"] == "Warning"
     assert not rig.events("ScaledUp")
 
     rig.deps.prometheus = live
