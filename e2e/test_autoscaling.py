@@ -26,9 +26,9 @@ import yaml
 from e2e.cluster.harness import Cluster
 from e2e.cluster.kube import Kube
 from e2e.operator_fixtures import CRDS, EXAMPLES, free_port
-from fogfleet.adapters.kube import load_config
+from fogfleet.adapters.kube import KubeClient, load_config
 from fogfleet.adapters.prometheus import PrometheusClient
-from fogfleet.controllers.scaling import ScalingDeps, ScalingKubeClient, reconcile_scaling
+from fogfleet.controllers.scaling import ScalingDeps, reconcile_scaling
 from fogfleet.twin.app import Twin
 
 pytestmark = [pytest.mark.e2e, pytest.mark.timeout(180)]
@@ -194,7 +194,7 @@ def rig(
 ) -> Iterator[Rig]:
     api = load_config(str(kube.kubeconfig))
     deps = ScalingDeps(
-        ScalingKubeClient(api),
+        KubeClient(api),
         PrometheusClient(cluster.prometheus_url),
         period_seconds=PERIOD,
         slo_window_seconds=10,

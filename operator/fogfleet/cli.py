@@ -315,6 +315,12 @@ def cmd_run(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_twin(args: argparse.Namespace) -> int:
+    from fogfleet.twin.app import run_twin
+
+    return int(run_twin(args) or 0)
+
+
 def cmd_bench(args: argparse.Namespace) -> int:
     if args.suite == "autoscaling":
         from fogfleet.autoscaling import bench as abench
@@ -378,6 +384,15 @@ def _parser() -> argparse.ArgumentParser:
 
     sp = sub.add_parser("run", help="run the operator (settings from FOGFLEET_* variables)")
     sp.set_defaults(func=cmd_run)
+
+    sp = sub.add_parser(
+        "twin", help="serve simulated workload metrics of fogfleet's pods on 127.0.0.1"
+    )
+    sp.add_argument("--scenario", required=True, help="load scenario YAML (re-read on change)")
+    sp.add_argument("--port", type=int, default=9123, help="metrics port on 127.0.0.1")
+    sp.add_argument("--namespace", help="only pods of this namespace")
+    sp.add_argument("--kubeconfig", help="default: $KUBECONFIG or in-cluster")
+    sp.set_defaults(func=cmd_twin)
 
     sp = sub.add_parser("bench", help="run a benchmark and print a table")
     sp.add_argument("suite", choices=("scheduling", "autoscaling"))

@@ -15,8 +15,10 @@ import kopf
 from fogfleet import GROUP
 from fogfleet.adapters.kube import KubeClient, load_config
 from fogfleet.adapters.metrics import PrometheusMetrics
+from fogfleet.adapters.prometheus import PrometheusClient
 from fogfleet.controllers.deps import Deps
 from fogfleet.controllers.runtime import Runtime
+from fogfleet.controllers.scaling import ScalingDeps
 from fogfleet.handlers import register
 from fogfleet.settings import Settings
 
@@ -32,7 +34,7 @@ def build_runtime(settings: Settings, *, serve_metrics: bool = True) -> Runtime:
     metrics = PrometheusMetrics()
     if serve_metrics and settings.metrics_port:
         metrics.serve(settings.metrics_port, settings.metrics_host)
-    deps = Deps(kube=kube, metrics=metrics)
+    deps = Deps(kube=kube, metrics=metrics, scheduler_defaults=settings.scheduler_defaults())
     return Runtime(deps, workers=settings.workers, debounce=settings.debounce_seconds)
 
 
@@ -81,9 +83,18 @@ def run(
     log.info("Starting fogfleet (namespaces: %s)", ", ".join(settings.namespaces) or "all")
     if threading.current_thread() is not threading.main_thread():
         asyncio.set_event_loop(asyncio.new_event_loop())
+    memo = kopf.Memo(runtime=runtime, settings=settings)
+    if settings.prometheus_url:
+        memo.scaling = ScalingDeps(
+            runtime.deps.kube,
+            PrometheusClient(settings.prometheus_url),
+            period_seconds=settings.scaling_interval_seconds,
+        )
+    else:
+        log.info("Scaling is off: FOGFLEET_PROMETHEUS_URL is not set")
     kopf.run(
         registry=registry,
-        memo=kopf.Memo(runtime=runtime, settings=settings),
+        memo=memo,
         standalone=settings.standalone,
         peering_name=None if settings.standalone else settings.peering_name,
         liveness_endpoint=liveness,

@@ -12,6 +12,11 @@ FOGFLEET_DRIFT_INTERVAL_SECONDS   how often each fleet is re-checked (default 60
 FOGFLEET_DEBOUNCE_SECONDS         quiet time before a re-plan after related edits (default 2)
 FOGFLEET_WORKERS                  worker threads for reconciles and planning (default 4)
 FOGFLEET_STANDALONE               true (default): no kopf peering objects
+FOGFLEET_SCHEDULER_POPULATION     defaults for fleets whose spec.scheduler leaves these out
+FOGFLEET_SCHEDULER_GENERATIONS    (population, generations, timeBudgetMillis); unset: the
+FOGFLEET_SCHEDULER_TIME_BUDGET_MILLIS  CRD's own defaults (100, 100, 20000)
+FOGFLEET_PROMETHEUS_URL           Prometheus for SLO-driven scaling (unset: nothing scales)
+FOGFLEET_SCALING_INTERVAL_SECONDS how often each scaled module decides (default 15, the HPA's sync)
 FOGFLEET_PEERING_NAME             kopf peering name when not standalone
 """
 
@@ -41,6 +46,20 @@ class Settings(BaseSettings):
     workers: Annotated[int, Field(ge=1, le=64)] = 4
     standalone: bool = True
     peering_name: str = "fogfleet"
+    scheduler_population: Annotated[int, Field(ge=4, le=2000)] | None = None
+    scheduler_generations: Annotated[int, Field(ge=1, le=10000)] | None = None
+    scheduler_time_budget_millis: Annotated[int, Field(ge=100)] | None = None
+    prometheus_url: str | None = None
+    scaling_interval_seconds: Annotated[float, Field(gt=0)] = 15.0
+
+    def scheduler_defaults(self) -> dict[str, int]:
+        """Scheduler fields (SchedulerSettings names) that fleets inherit when they omit them."""
+        pairs = {
+            "population": self.scheduler_population,
+            "generations": self.scheduler_generations,
+            "time_budget_millis": self.scheduler_time_budget_millis,
+        }
+        return {k: v for k, v in pairs.items() if v is not None}
 
     @field_validator("namespaces", mode="before")
     @classmethod

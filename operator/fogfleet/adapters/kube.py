@@ -224,6 +224,28 @@ class KubeClient:
                 missing_ok=True,
             )
 
+    def patch_module_status(self, namespace: str, name: str, status: Mapping[str, Any]) -> None:
+        with map_errors(f"patch the status of SoftwareModule {namespace}/{name}"):
+            self._call(
+                "PATCH",
+                f"/apis/{GROUP}/{VERSION}/namespaces/{namespace}/softwaremodules/{name}/status",
+                body={"status": dict(status)},
+                content_type="application/merge-patch+json",
+                missing_ok=True,
+            )
+
+    def patch_module_annotations(
+        self, namespace: str, name: str, annotations: Mapping[str, str | None]
+    ) -> None:
+        with map_errors(f"annotate SoftwareModule {namespace}/{name}"):
+            self._call(
+                "PATCH",
+                f"/apis/{GROUP}/{VERSION}/namespaces/{namespace}/softwaremodules/{name}",
+                body={"metadata": {"annotations": dict(annotations)}},
+                content_type="application/merge-patch+json",
+                missing_ok=True,
+            )
+
     def patch_fleet_status(self, namespace: str, name: str, status: Mapping[str, Any]) -> None:
         with map_errors(f"patch the status of RobotFleet {namespace}/{name}"):
             self._call(

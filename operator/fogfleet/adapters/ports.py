@@ -48,6 +48,16 @@ class KubePort(Protocol):
         """One JSON merge patch of the status subresource (None values remove fields)."""
         ...
 
+    def patch_module_status(self, namespace: str, name: str, status: Mapping[str, Any]) -> None:
+        """A SoftwareModule's status subresource (the autoscaler's decision)."""
+        ...
+
+    def patch_module_annotations(
+        self, namespace: str, name: str, annotations: Mapping[str, str | None]
+    ) -> None:
+        """A SoftwareModule's annotations (the autoscaler's state across restarts)."""
+        ...
+
     def emit_event(
         self, involved: Mapping[str, Any], type_: str, reason: str, message: str
     ) -> None:

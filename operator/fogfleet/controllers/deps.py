@@ -92,5 +92,7 @@ class Deps:
     plans: dict[FleetKey, CachedPlan] = field(default_factory=dict)
     refs: References = field(default_factory=References)
     failures: dict[FleetKey, tuple[str, Exception]] = field(default_factory=dict)  # fp -> error
+    # operator-wide defaults for scheduler fields a fleet leaves out (FOGFLEET_SCHEDULER_*)
+    scheduler_defaults: dict[str, int] = field(default_factory=dict)
     requeue_seconds: float = 2.0  # while pods are on their way
     retry_seconds: float = 10.0  # after DependencyUnavailable

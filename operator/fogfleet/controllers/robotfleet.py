@@ -172,8 +172,12 @@ def scaling_pools(catalog: Catalog, namespace: str) -> dict[str, dict[str, int]]
     pools: dict[str, dict[str, int]] = {}
     for (ns, name), module in catalog.modules.items():
         scaling = module.status.scaling if module.status else None
-        if ns == namespace and scaling is not None and scaling.pools:
+        if ns != namespace or scaling is None:
+            continue
+        if scaling.pools:
             pools[name] = {p.tier: p.replicas for p in scaling.pools}
+        else:
+            pools[name] = {"any": scaling.desired_replicas}
     return pools
 
 
@@ -199,7 +203,9 @@ def _raise_broken_references(fleet: RobotFleet, broken: dict[str, InvalidSpec]) 
 def _plan(
     deps: Deps, key: FleetKey, problem: Problem, fleet: RobotFleet, before: np.ndarray
 ) -> tuple[CachedPlan, bool]:
-    settings = fleet.spec.scheduler
+    given = fleet.spec.scheduler
+    defaults = {k: v for k, v in deps.scheduler_defaults.items() if k not in given.model_fields_set}
+    settings = given.model_copy(update=defaults) if defaults else given
     fp = planning.fingerprint(problem, settings)
     cached = deps.plans.get(key)
     if cached is not None and cached.fingerprint == fp:

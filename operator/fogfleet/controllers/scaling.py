@@ -38,8 +38,6 @@ from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from typing import Any, Protocol
 
-from fogfleet import GROUP, VERSION
-from fogfleet.adapters.kube import KubeClient, map_errors
 from fogfleet.adapters.prometheus import QUERY_FIELD, PrometheusPort
 from fogfleet.api.loader import parse_object
 from fogfleet.api.v1alpha1.base import parse_quantity
@@ -72,7 +70,6 @@ __all__ = [
     "Outcome",
     "ScalingDeps",
     "ScalingKube",
-    "ScalingKubeClient",
     "dump_state",
     "load_state",
     "policy_for",
@@ -107,35 +104,6 @@ class ScalingKube(Protocol):
     def emit_event(
         self, involved: Mapping[str, Any], type_: str, reason: str, message: str
     ) -> None: ...
-
-
-class ScalingKubeClient(KubeClient):
-    """KubeClient plus the two SoftwareModule writes the scaler needs.
-
-    TODO(lead): move these two methods into ``adapters/kube.py`` (and ``KubePort``); the RBAC
-    needs ``softwaremodules: patch`` and ``softwaremodules/status: patch``."""
-
-    def patch_module_status(self, namespace: str, name: str, status: Mapping[str, Any]) -> None:
-        with map_errors(f"patch the status of SoftwareModule {namespace}/{name}"):
-            self._call(
-                "PATCH",
-                f"/apis/{GROUP}/{VERSION}/namespaces/{namespace}/softwaremodules/{name}/status",
-                body={"status": dict(status)},
-                content_type="application/merge-patch+json",
-                missing_ok=True,
-            )
-
-    def patch_module_annotations(
-        self, namespace: str, name: str, annotations: Mapping[str, str | None]
-    ) -> None:
-        with map_errors(f"annotate SoftwareModule {namespace}/{name}"):
-            self._call(
-                "PATCH",
-                f"/apis/{GROUP}/{VERSION}/namespaces/{namespace}/softwaremodules/{name}",
-                body={"metadata": {"annotations": dict(annotations)}},
-                content_type="application/merge-patch+json",
-                missing_ok=True,
-            )
 
 
 @dataclass

@@ -241,13 +241,14 @@ def _transfer(module: SoftwareModule, link: Link) -> tuple[float, float, float]:
 
 
 def _pool_tiers(pool: Mapping[str, int] | None, replicas: int) -> list[Tier | None]:
-    """One entry per replica: the tier whose pool it belongs to (None: any allowed tier)."""
+    """One entry per replica: the tier whose pool it belongs to (None: any allowed tier).
+    The key ``any`` counts replicas that may run on any allowed tier."""
     if not pool:
         return [None] * replicas
     out: list[Tier | None] = []
     for tier in (Tier.EDGE, Tier.CLOUD):
         out += [tier] * max(int(pool.get(tier.value, 0)), 0)
-    return out
+    return out + [None] * max(int(pool.get("any", 0)), 0)
 
 
 def build_problem(
@@ -259,7 +260,8 @@ def build_problem(
     """Resolve a fleet against the catalog into a Problem.
 
     ``current`` maps (robot, module, replica) to the node it runs on now. ``pools`` gives the
-    autoscaler's decision for shared modules: module name -> {tier: replicas}; replica ``r`` of
+    autoscaler's decision for shared modules: module name -> {tier: replicas} (tier ``any``:
+    replicas without a pool); replica ``r`` of
     such a module may then only run on nodes of the tier it was counted for (edge replicas
     first, then cloud), which is how privacy-constrained pools stay on the edge."""
     obj = f"RobotFleet/{fleet.metadata.name}"

@@ -10,6 +10,7 @@ from fogfleet.render.deployments import LABEL_MANAGED_BY, MANAGER
 from fogfleet.settings import Settings
 
 from . import lifecycle, related, robotfleet
+from . import scaling as scaling_handlers
 
 __all__ = ["register"]
 
@@ -35,4 +36,6 @@ def register(registry: kopf.OperatorRegistry, settings: Settings) -> kopf.Operat
     kopf.on.event(
         "apps", "v1", "deployments", labels={LABEL_MANAGED_BY: MANAGER}, registry=registry
     )(related.deployment_event)
+    if settings.prometheus_url:
+        scaling_handlers.register(registry, settings.scaling_interval_seconds)
     return registry

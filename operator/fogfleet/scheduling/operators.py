@@ -112,51 +112,74 @@ def repair_plans(pp: PlacementProblem, x: I64) -> I64:
     if not over_node.any() and not over_up.any():
         return x
     nodes = np.arange(N)
+    n_i = fleet.n_instances
+    h_of = np.where(home >= 0, home, 0)
     # Moves only go to nodes with room and only lower uplink use, so an instance that is not
     # on an overloaded node (or a robot with its uplink over) now never will be. A second
-    # pass, smallest requests first, fills what the first pass left.
+    # pass, smallest requests first, fills what the first pass left. Each plan walks the
+    # order on its own: a step moves, in every plan at once, the next instance (from that
+    # plan's position in the order) that sits on an overloaded node, so the number of steps
+    # is the number of such instances of the worst plan, not the number of instances.
     for order in (f.order, f.order[::-1]):
-        if not over_node.any() and not over_up.any():
-            break
-        xc = np.where(valid, x, 0)
-        off = valid & (home[None, :] >= 0) & (xc != home[None, :])
-        suspect = valid & over_node[np.arange(P)[:, None], xc]
-        suspect |= off & over_up[np.arange(P)[:, None], np.where(home >= 0, home, 0)[None, :]]
-        todo = suspect.any(axis=0)
-        for i in order:
-            if not todo[i]:
-                continue
-            h = int(home[i])
-            cur_all = x[:, i]
-            bad = valid[:, i] & over_node[np.arange(P), np.where(cur_all >= 0, cur_all, 0)]
-            if h >= 0:
-                bad |= valid[:, i] & (cur_all != h) & over_up[:, h]
-            rows = np.flatnonzero(bad)
-            if rows.size == 0:
-                continue
-            d = f.demand[i]
-            cur = cur_all[rows]
-            after = used[rows] + d[None, :, :]
-            after[np.arange(rows.size), cur] -= d[cur]
-            room = np.all(after <= f.cap[None] + _EPS, axis=2) & fleet.allowed[i][None, :]
-            if h >= 0 and fleet.traffic[i] > 0:
-                up_base = up[rows, h] - fleet.traffic[i] * (cur != h)
-                off_ok = up_base + fleet.traffic[i] <= lim[h] + _EPS
-                room &= off_ok[:, None] | (nodes == h)[None, :]
+        active = np.flatnonzero(over_node.any(axis=1) | over_up.any(axis=1))
+        pos = np.zeros(active.size, dtype=np.int64)
+        h_ord = home[order]
+        hc_ord = h_of[order][None, :]
+        k_ord = np.arange(n_i)[None, :]
+        while active.size:
+            xs = x[active][:, order]
+            v = xs >= 0
+            xc = np.where(v, xs, 0)
+            bad = over_node[active[:, None], xc]
+            bad |= (h_ord >= 0)[None, :] & (xc != h_ord[None, :]) & over_up[active[:, None], hc_ord]
+            bad &= v & (k_ord >= pos[:, None])
+            has = bad.any(axis=1)
+            active, bad = active[has], bad[has]
+            if active.size == 0:
+                break
+            k = np.argmax(bad, axis=1)
+            pos = k + 1
+            i = order[k]
+            ar = np.arange(active.size)
+            d = f.demand[i]  # (A, N, 3)
+            cur = x[active, i]
+            after = used[active] + d
+            after[ar, cur] -= d[ar, cur]
+            room = np.all(after <= f.cap[None] + _EPS, axis=2) & fleet.allowed[i]
+            h = home[i]
+            hc = h_of[i]
+            tr = fleet.traffic[i]
+            limited = (h >= 0) & (tr > 0)
+            if limited.any():
+                up_base = up[active, hc] - tr * (cur != h)
+                off_ok = up_base + tr <= lim[hc] + _EPS
+                room &= ~limited[:, None] | off_ok[:, None] | (nodes[None, :] == h[:, None])
             util = np.max(after / np.maximum(f.cap[None], _EPS), axis=2)
-            score = np.where(room, f.pref[i][None, :] + REPAIR_SPREAD * util, np.inf)
+            score = np.where(room, f.pref[i] + REPAIR_SPREAD * util, np.inf)
             j = np.argmin(score, axis=1)
-            ok = np.isfinite(score[np.arange(rows.size), j]) & (j != cur)
-            rows, cur, j = rows[ok], cur[ok], j[ok]
-            if rows.size == 0:
+            ok = np.isfinite(score[ar, j]) & (j != cur)
+            if not ok.any():
                 continue
-            used[rows, cur] -= d[cur]
-            used[rows, j] += d[j]
-            if h >= 0:
-                up[rows, h] += fleet.traffic[i] * (
-                    (j != h).astype(float) - (cur != h).astype(float)
+            rows, cur, j, i, d, h, hc, tr = (
+                active[ok],
+                cur[ok],
+                j[ok],
+                i[ok],
+                d[ok],
+                h[ok],
+                hc[ok],
+                tr[ok],
+            )
+            ar = np.arange(rows.size)
+            used[rows, cur] -= d[ar, cur]
+            used[rows, j] += d[ar, j]
+            robot = h >= 0
+            if robot.any():
+                rr = rows[robot]
+                up[rr, hc[robot]] += tr[robot] * (
+                    (j[robot] != h[robot]).astype(float) - (cur[robot] != h[robot]).astype(float)
                 )
-                over_up[rows] = up[rows] > lim[None, :] + _EPS
+                over_up[rr] = up[rr] > lim[None, :] + _EPS
             x[rows, i] = j
             over_node[rows] = np.any(used[rows] > f.cap[None] + _EPS, axis=2)
     return x

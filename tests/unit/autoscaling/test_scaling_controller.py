@@ -459,3 +459,52 @@ def test_module_without_scaling_or_with_another_backend_is_skipped() -> None:
     out = run(FakeKube(body), FakeProm(), 0.0)
     assert out.skipped
     assert not math.isnan(0.0)
+
+
+# --------------------------------------------------------------------------- HPA / KEDA renderer
+
+
+def test_keda_scaled_object_carries_the_slo_query_bounds_and_tinykube_behaviour() -> None:
+    from fogfleet.api.v1alpha1.scaling import load_scaling_spec
+    from fogfleet.render.scaling import render_scaled_object
+
+    spec = load_scaling_spec(
+        "SoftwareModule/det",
+        {"maxReplicas": 36, "backend": "keda", "behavior": {"preset": "tinykube"},
+         "slo": {"metric": "responseTime", "targetMillis": 350, "percentile": 99}},
+    )  # fmt: skip
+    obj = render_scaled_object(
+        spec, module="det", namespace="fleet", target="det", prometheus_url="http://prom:9090"
+    )
+    trigger = obj["spec"]["triggers"][0]
+    assert trigger["type"] == "prometheus" and trigger["metricType"] == "Value"
+    assert trigger["metadata"]["threshold"] == "0.35"
+    assert 'module="det"' in trigger["metadata"]["query"]
+    assert "histogram_quantile(0.99" in trigger["metadata"]["query"]
+    behavior = obj["spec"]["advanced"]["horizontalPodAutoscalerConfig"]["behavior"]
+    assert behavior["scaleUp"] == {
+        "stabilizationWindowSeconds": 60,
+        "selectPolicy": "Max",
+        "policies": [{"type": "Percent", "value": 100, "periodSeconds": 30}],
+    }
+    assert behavior["scaleDown"]["stabilizationWindowSeconds"] == 300
+    assert (obj["spec"]["minReplicaCount"], obj["spec"]["maxReplicaCount"]) == (1, 36)
+
+
+def test_hpa_uses_cpu_or_an_external_slo_metric() -> None:
+    from fogfleet.api.v1alpha1.scaling import load_scaling_spec
+    from fogfleet.render.scaling import render_hpa
+
+    cpu = load_scaling_spec(
+        "m", {"maxReplicas": 5, "backend": "hpa", "targetCpuUtilizationPercent": 80}
+    )
+    hpa = render_hpa(cpu, module="det", namespace="fleet", target="det")
+    assert hpa["spec"]["metrics"][0]["resource"]["target"]["averageUtilization"] == 80
+    slo = load_scaling_spec(
+        "m", {"maxReplicas": 5, "backend": "hpa", "slo": {"query": "x", "targetMillis": 350}}
+    )
+    ext = render_hpa(slo, module="det", namespace="fleet", target="det")["spec"]["metrics"][0]
+    assert ext["type"] == "External" and ext["external"]["target"] == {
+        "type": "Value",
+        "value": "350m",
+    }

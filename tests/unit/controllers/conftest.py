@@ -148,6 +148,16 @@ class FakeKube:
         self.fleets[(namespace, name)]["status"] = copy.deepcopy(dict(status))
         self.status_patches.append(copy.deepcopy(dict(status)))
 
+    def patch_module_status(self, namespace: str, name: str, status: Mapping[str, Any]) -> None:
+        module = self.modules[(namespace, name)]
+        module.setdefault("status", {}).update(copy.deepcopy(dict(status)))
+
+    def patch_module_annotations(
+        self, namespace: str, name: str, annotations: Mapping[str, str | None]
+    ) -> None:
+        module = self.modules[(namespace, name)]
+        module.setdefault("metadata", {}).setdefault("annotations", {}).update(annotations)
+
     def emit_event(
         self, involved: Mapping[str, Any], type_: str, reason: str, message: str
     ) -> None:

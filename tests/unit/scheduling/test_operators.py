@@ -2,12 +2,14 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from fogfleet.domain.problem import Problem
-from fogfleet.scheduling.objectives import constraints
+from fogfleet.scheduling.objectives import UPLINK_SHARE, Evaluation, constraints
 from fogfleet.scheduling.operators import (
     FleetSampling,
     GeneCrossover,
@@ -43,13 +45,61 @@ def test_repair_keeps_capacity_where_it_held_and_never_adds_violation(seed: int)
     assert _inside(pp, fixed[:, pp.genes])
 
 
-def test_repair_makes_almost_every_random_plan_feasible() -> None:
+def _stuck(pp: PlacementProblem, x: np.ndarray) -> bool:
+    """No instance on an overloaded node of plan x (I) can move to another allowed node
+    that has room for it (and, if it leaves its robot, uplink to spare)."""
+    p, f = pp.fleet, pp.fit
+    ev = Evaluation(p, x[None, :], pp.alloc)
+    used = np.stack([ev.cpu_requested[0], ev.mem_requested[0], ev.gpu_requested[0]], axis=1)
+    over = np.any(used > f.cap + 1e-9, axis=1)
+    for i in np.flatnonzero((x >= 0) & over[np.where(x >= 0, x, 0)]):
+        h = int(p.home[i])
+        for j in np.flatnonzero(p.allowed[i]):
+            if j == x[i] or np.any(used[j] + f.demand[i, j] > f.cap[j] + 1e-9):
+                continue
+            leaves = h >= 0 and x[i] == h
+            if leaves and ev.offboard_traffic[0, h] + p.traffic[i] > f.uplink[h] + 1e-9:
+                continue
+            return False
+    return True
+
+
+def test_repair_makes_every_random_plan_feasible_when_a_node_has_room_for_all() -> None:
+    """By construction every random plan is repairable by single moves: edge-1 can host
+    every instance at once and the uplinks carry all traffic, so each instance on an
+    overloaded node finds room (the pinned ones fit their robot, as the warehouse is
+    feasible)."""
+    p = _warehouse()
+    big = next(k for k, nd in enumerate(p.nodes) if nd.name == "edge-1")
+    pinned = p.allowed.sum(axis=1) == 1
+    assert np.all(p.allowed[:, big] | pinned)
+    cap = p.capacity.copy()
+    cap[big, 0] = np.where(p.allowed[:, big], p.limits.cpu_request[:, big], 0.0).sum()
+    cap[big, 1] = p.memory.sum()
+    uplink = np.full(p.n_nodes, 10 * p.traffic.sum() / UPLINK_SHARE)
+    roomy = replace(p, capacity=cap, uplink_bandwidth=uplink)
+    pp = PlacementProblem(roomy, ("missRate", "reserve"))
+    full = pp.full(pp.random_genes(500, np.random.default_rng(0)))
+    assert (constraints(roomy, full, pp.alloc).max(axis=1) > 0).mean() > 0.5
+    fixed = repair_plans(pp, full)
+    assert np.all(constraints(roomy, fixed, pp.alloc) <= 1e-9)
+
+
+def test_repair_leaves_a_warehouse_plan_infeasible_only_when_no_single_move_fits() -> None:
+    """On the re-calibrated warehouse 4-core instances fill 7.5-core edges: a random plan
+    can leave the free cores fragmented (3.5 here, 3.5 there), and the repair, which moves
+    one instance at a time to a node with room and never swaps, then stops. The right
+    property is that it stops only there: every plan it leaves infeasible has no instance
+    on an overloaded node that could move to an allowed node with room. The share it fixes
+    (0.936 on these 500 plans; 0.98 before the re-calibration) is checked against 0.9 only
+    as a guard against a regression of the repair itself."""
     pp = _pp()
     full = pp.full(pp.random_genes(500, np.random.default_rng(0)))
     assert (constraints(pp.fleet, full, pp.alloc).max(axis=1) > 0).mean() > 0.9
     fixed = repair_plans(pp, full)
     feasible = constraints(pp.fleet, fixed, pp.alloc).max(axis=1) <= 1e-9
-    assert feasible.mean() >= 0.98
+    assert feasible.mean() >= 0.9
+    assert all(_stuck(pp, fixed[r]) for r in np.flatnonzero(~feasible))
 
 
 def test_overloaded_node_is_repaired_by_moving_off_it(tiny: Problem) -> None:
@@ -97,8 +147,6 @@ def test_crossover_children_take_each_gene_from_a_parent() -> None:
 
 
 def test_sampling_starts_with_current_placement(warehouse: Problem) -> None:
-    from dataclasses import replace
-
     current = np.where(warehouse.home >= 0, warehouse.home, 0).astype(np.int64)
     p = replace(warehouse, current=current)
     pp = PlacementProblem(p, ("missRate",))

@@ -1,0 +1,151 @@
+"""Render ``spec.scaling`` as an HPA or a KEDA ScaledObject (``backend: hpa | keda``), for teams
+that already run them (pure: dicts in, dicts out).
+
+Both get the same ``behavior`` block fogfleet's own scaler applies (HPA semantics; the tinyKube
+preset resolved), the module's bounds, and the SLO as a ``Value`` target, so the replica formula
+is ``ceil(replicas * measured / target)`` -- fogfleet's ``reactive`` mode on the SLO:
+
+* **KEDA**: a ``prometheus`` trigger with the contract query (or ``slo.query``), ``metricType:
+  Value``, ``threshold`` = the target in seconds.
+* **HPA** (``autoscaling/v2``): with ``targetCpuUtilizationPercent`` a ``Resource`` metric; with
+  an SLO an ``External`` metric ``fogfleet_slo_seconds{module=...}`` that a Prometheus adapter
+  must serve (its rule: the contract query), target ``Value``.
+
+They scale one workload (``target``: a Deployment name). Pools per tier and the predictive mode
+need fogfleet's own backend (the API rejects ``predictive`` with another backend).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from fogfleet.api.v1alpha1.scaling import ScalingSpec
+from fogfleet.autoscaling import contract
+from fogfleet.autoscaling.behavior import Behavior, ScalingRules
+
+__all__ = ["SLO_METRIC", "behavior_block", "render_hpa", "render_scaled_object", "slo_promql"]
+
+SLO_METRIC = "fogfleet_slo_seconds"
+Obj = dict[str, Any]
+
+
+def _rules(rules: ScalingRules) -> Obj:
+    return {
+        "stabilizationWindowSeconds": rules.stabilization_window_seconds,
+        "selectPolicy": rules.select_policy.value,
+        "policies": [
+            {"type": p.type.value, "value": p.value, "periodSeconds": p.period_seconds}
+            for p in rules.policies
+        ],
+    }
+
+
+def behavior_block(behavior: Behavior) -> Obj:
+    """An HPA ``spec.behavior`` with every field explicit."""
+    return {"scaleUp": _rules(behavior.scale_up), "scaleDown": _rules(behavior.scale_down)}
+
+
+def slo_promql(spec: ScalingSpec, module: str, namespace: str, window_seconds: int = 60) -> str:
+    if spec.slo is None:
+        raise ValueError("the module's scaling has no slo")
+    if spec.slo.query:
+        return spec.slo.query
+    assert spec.slo.metric is not None
+    return contract.slo_query(
+        spec.slo.metric,
+        module=module,
+        namespace=namespace,
+        percentile=spec.slo.percentile,
+        window_seconds=window_seconds,
+    )
+
+
+def _meta(kind_suffix: str, module: str, namespace: str) -> Obj:
+    return {
+        "name": f"{module}-{kind_suffix}"[:63],
+        "namespace": namespace,
+        "labels": {"app.kubernetes.io/managed-by": "fogfleet", "fogfleet.io/module": module},
+    }
+
+
+def render_scaled_object(
+    spec: ScalingSpec,
+    *,
+    module: str,
+    namespace: str,
+    target: str,
+    prometheus_url: str,
+    polling_seconds: int = 15,
+) -> Obj:
+    """A KEDA ``ScaledObject`` scaling Deployment ``target`` on the SLO (or CPU)."""
+    if spec.slo is not None:
+        trigger: Obj = {
+            "type": "prometheus",
+            "metricType": "Value",
+            "metadata": {
+                "serverAddress": prometheus_url,
+                "query": slo_promql(spec, module, namespace),
+                "threshold": f"{spec.slo.target_millis / 1000:g}",
+            },
+        }
+    else:
+        trigger = {
+            "type": "cpu",
+            "metricType": "Utilization",
+            "metadata": {"value": str(spec.target_cpu_utilization_percent or 80)},
+        }
+    return {
+        "apiVersion": "keda.sh/v1alpha1",
+        "kind": "ScaledObject",
+        "metadata": _meta("scaler", module, namespace),
+        "spec": {
+            "scaleTargetRef": {"apiVersion": "apps/v1", "kind": "Deployment", "name": target},
+            "minReplicaCount": spec.min_replicas,
+            "maxReplicaCount": spec.max_replicas,
+            "pollingInterval": polling_seconds,
+            "advanced": {
+                "horizontalPodAutoscalerConfig": {
+                    "behavior": behavior_block(spec.resolved_behavior())
+                }
+            },
+            "triggers": [trigger],
+        },
+    }
+
+
+def render_hpa(spec: ScalingSpec, *, module: str, namespace: str, target: str) -> Obj:
+    """An ``autoscaling/v2`` HorizontalPodAutoscaler for Deployment ``target``."""
+    if spec.slo is not None:
+        metric: Obj = {
+            "type": "External",
+            "external": {
+                "metric": {
+                    "name": SLO_METRIC,
+                    "selector": {"matchLabels": {"module": module, "namespace": namespace}},
+                },
+                "target": {"type": "Value", "value": f"{spec.slo.target_millis}m"},
+            },
+        }
+    else:
+        metric = {
+            "type": "Resource",
+            "resource": {
+                "name": "cpu",
+                "target": {
+                    "type": "Utilization",
+                    "averageUtilization": spec.target_cpu_utilization_percent or 80,
+                },
+            },
+        }
+    return {
+        "apiVersion": "autoscaling/v2",
+        "kind": "HorizontalPodAutoscaler",
+        "metadata": _meta("hpa", module, namespace),
+        "spec": {
+            "scaleTargetRef": {"apiVersion": "apps/v1", "kind": "Deployment", "name": target},
+            "minReplicas": max(spec.min_replicas, 1),  # the HPA's own floor
+            "maxReplicas": spec.max_replicas,
+            "metrics": [metric],
+            "behavior": behavior_block(spec.resolved_behavior()),
+        },
+    }
