@@ -220,8 +220,8 @@ class Watcher:
         self.done = threading.Event()
         self.error: BaseException | None = None
         self._stop = False
-        rv_pods = self.core.list_namespaced_pod(ns).metadata.resource_version
-        rv_deps = self.apps.list_namespaced_deployment(ns).metadata.resource_version
+        rv_pods = str(self.core.list_namespaced_pod(ns).metadata.resource_version)  # type: ignore[union-attr]
+        rv_deps = str(self.apps.list_namespaced_deployment(ns).metadata.resource_version)  # type: ignore[union-attr]
         self._threads = [
             threading.Thread(target=self._guard(self._pods, rv_pods), daemon=True),
             threading.Thread(target=self._guard(self._deps, rv_deps), daemon=True),
@@ -241,10 +241,13 @@ class Watcher:
         return run
 
     def _stream(self, list_fn: Any, rv: str) -> Any:
+        """(type, object) events; after a watch ERROR (e.g. 410 Gone) it re-lists and yields
+        ("RELIST", None) followed by every listed object as "ADDED"."""
         from kubernetes import watch
 
         while not self._stop:
-            w = watch.Watch()
+            w: Any = watch.Watch()  # type: ignore[no-untyped-call]
+            relist = False
             for ev in w.stream(
                 list_fn,
                 self.ns,
@@ -253,6 +256,10 @@ class Watcher:
                 allow_watch_bookmarks=True,
             ):
                 obj = ev["object"]
+                if ev["type"] == "ERROR" or isinstance(obj, dict):
+                    relist = True
+                    w.stop()
+                    break
                 rv = obj.metadata.resource_version or rv
                 if ev["type"] == "BOOKMARK":
                     continue
@@ -260,9 +267,18 @@ class Watcher:
                 if self._stop:
                     w.stop()
                     return
+            if relist and not self._stop:
+                listed = list_fn(self.ns)
+                rv = str(listed.metadata.resource_version)
+                yield "RELIST", None
+                for item in listed.items:
+                    yield "ADDED", item
 
     def _pods(self, rv: str) -> None:
         for kind, pod in self._stream(self.core.list_namespaced_pod, rv):
+            if kind == "RELIST":
+                self.running.clear()
+                continue
             name = pod.metadata.name
             ok = (
                 kind != "DELETED"
@@ -281,7 +297,7 @@ class Watcher:
 
     def _deps(self, rv: str) -> None:
         for kind, dep in self._stream(self.apps.list_namespaced_deployment, rv):
-            if kind != "ADDED" or dep.metadata.name in self.deployments:
+            if kind != "ADDED" or dep is None or dep.metadata.name in self.deployments:
                 continue
             t = time.monotonic()
             self.deployments.add(dep.metadata.name)
@@ -509,13 +525,30 @@ def setup_cluster(kube: Kube, specs: Sequence[FleetSpec]) -> None:
     kube.wait_for(f"{len(names)} bench nodes Ready and untainted", ready, timeout=180, interval=1)
 
 
-def teardown_cluster(kube: Kube, namespaces: Sequence[str]) -> None:
+def drop_fleet_finalizers(kube: Kube, ns: str) -> None:
+    """Safety net when no operator runs any more: a deleted fleet would keep its namespace."""
+    out = kube.kubectl("get", "robotfleets", "-n", ns, "-o", "name", check=False).stdout.split()
+    for name in out:
+        kube.kubectl(
+            "patch", name, "-n", ns, "--type=merge", "-p", '{"metadata":{"finalizers":[]}}',
+            check=False,
+        )  # fmt: skip
+
+
+def teardown_cluster(kube: Kube, namespaces: Sequence[str], operator_running: bool = True) -> None:
     for ns in namespaces:
         if kube.kubectl("get", "namespace", ns, check=False).returncode == 0:
+            if not operator_running:
+                drop_fleet_finalizers(kube, ns)
             try:
-                delete_namespace(kube, ns, timeout=300)
+                delete_namespace(kube, ns, timeout=180)
             except AssertionError as exc:
-                log(f"cleanup: {exc}")
+                log(f"cleanup: {exc}; removing fleet finalizers")
+                drop_fleet_finalizers(kube, ns)
+                try:
+                    delete_namespace(kube, ns, timeout=120)
+                except AssertionError as exc2:
+                    log(f"cleanup: {exc2}")
     sel = f"{BENCH_LABEL}=true"
     kube.kubectl("delete", "computenodes", "-l", sel, "--wait=true", check=False, timeout=120)
     kube.kubectl("delete", "nodes", "-l", sel, "--wait=true", check=False, timeout=300)
@@ -534,13 +567,15 @@ def bench(args: argparse.Namespace) -> Obj:
         specs.append(large_spec(args.robots, args.edges))
     token = secrets.token_hex(2)
     plan_ns = {
-        (s.key, k): f"bench-{token}-op-{s.fleet_name}-{k}" for s in specs for k in range(args.runs)
+        (s.key, k): f"bench-{token}-op-{s.fleet_name}-{k}"
+        for s in specs
+        for k in range(max(args.runs, args.large_runs))
     }
     k8s_ns = {s.key: f"bench-{token}-op-{s.fleet_name}-k8s" for s in specs}
     plain_ns = {
         (s.key, k): f"bench-{token}-plain-{s.fleet_name}-{k}"
         for s in specs
-        for k in range(args.runs)
+        for k in range(max(args.runs, args.large_runs))
     }
     op_namespaces = [*plan_ns.values(), *k8s_ns.values()]
     report: Obj = {
@@ -555,7 +590,7 @@ def bench(args: argparse.Namespace) -> Obj:
     stale = leftover_namespaces(kube)
     if stale:
         log(f"removing {len(stale)} namespaces left by an earlier benchmark: {stale}")
-        teardown_cluster(kube, stale)
+        teardown_cluster(kube, stale, operator_running=False)
     logdir = Path(tempfile.mkdtemp(prefix="fogfleet-bench-"))
     op = Operator(kube.kubeconfig, op_namespaces, logdir / "operator.log")
     try:
@@ -563,38 +598,59 @@ def bench(args: argparse.Namespace) -> Obj:
         op.start().wait_live()
         log(f"operator pid {op.proc.pid if op.proc else '?'}; log {op.log_path}")
         for spec in specs:
-            timeout = args.timeout if spec.pods <= 40 else args.timeout * 4
-            per: dict[str, list[Obj]] = {"operator": [], "plain": []}
-            last_plan: list[Obj] = []
-            for k in range(args.runs):
-                for path in ("operator", "plain"):
-                    ns = plan_ns[(spec.key, k)] if path == "operator" else plain_ns[(spec.key, k)]
-                    load = os.getloadavg()[0]
-                    if path == "operator":
-                        r = run_operator(kube, spec, ns, "nsga2", timeout)
-                        last_plan = r.pop("placement")
-                        r.pop("status")
-                    else:
-                        r = run_plain(kube, spec, ns, timeout)
-                    r["cleanup_s"] = delete_namespace(kube, ns)
-                    r.update({"fleet": spec.key, "path": path, "run": k + 1, "load1": load})
-                    per[path].append(r)
-                    report["runs"].append(r)
-                    log(
-                        f"{spec.key} {path} run {k + 1}: all Running after {r['total_s']:.1f}s"
-                        + (f" (planning {r['planning_s']:.1f}s)" if path == "operator" else "")
-                        + f"; cleanup {r['cleanup_s']:.1f}s; load1 {load:.2f}"
-                    )
-            report["latency"].append(latency_summary(spec, per))
-            if not args.skip_misses:
-                report["missed_cycles"] += missed_cycles(kube, spec, k8s_ns[spec.key], last_plan,
-                                                         args, timeout)  # fmt: skip
+            runs = args.runs if spec.pods <= 40 else args.large_runs
+            try:
+                measure_fleet(kube, spec, args, runs, plan_ns, plain_ns, k8s_ns[spec.key], report)
+            except Exception as exc:  # keep what was measured; report the failure
+                log(f"{spec.key}: FAILED: {exc!r}")
+                report.setdefault("errors", []).append(f"{spec.key}: {exc!r}")
     finally:
-        op.stop()
+        # namespaces first, while the operator still runs (it removes its fleet finalizer)
         teardown_cluster(kube, [*op_namespaces, *plain_ns.values()])
+        op.stop()
         report["operator_log"] = str(op.log_path)
     report["load_after"] = loadavg()
     return report
+
+
+def measure_fleet(
+    kube: Kube,
+    spec: FleetSpec,
+    args: argparse.Namespace,
+    runs: int,
+    plan_ns: dict[tuple[str, int], str],
+    plain_ns: dict[tuple[str, int], str],
+    k8s_ns: str,
+    report: Obj,
+) -> None:
+    timeout = args.timeout if spec.pods <= 40 else args.timeout * 4
+    per: dict[str, list[Obj]] = {"operator": [], "plain": []}
+    last_plan: list[Obj] = []
+    try:
+        for k in range(runs):
+            for path in ("operator", "plain"):  # alternate, so both see the same noise
+                ns = plan_ns[(spec.key, k)] if path == "operator" else plain_ns[(spec.key, k)]
+                load = os.getloadavg()[0]
+                if path == "operator":
+                    r = run_operator(kube, spec, ns, "nsga2", timeout)
+                    last_plan = r.pop("placement")
+                    r.pop("status")
+                else:
+                    r = run_plain(kube, spec, ns, timeout)
+                r["cleanup_s"] = delete_namespace(kube, ns)
+                r.update({"fleet": spec.key, "path": path, "run": k + 1, "load1": load})
+                per[path].append(r)
+                report["runs"].append(r)
+                log(
+                    f"{spec.key} {path} run {k + 1}: all Running after {r['total_s']:.1f}s"
+                    + (f" (planning {r['planning_s']:.1f}s)" if path == "operator" else "")
+                    + f"; cleanup {r['cleanup_s']:.1f}s; load1 {load:.2f}"
+                )
+    finally:
+        if per["operator"] and per["plain"]:
+            report["latency"].append(latency_summary(spec, per))
+    if not args.skip_misses and last_plan:
+        report["missed_cycles"] += missed_cycles(kube, spec, k8s_ns, last_plan, args, timeout)
 
 
 def latency_summary(spec: FleetSpec, per: dict[str, list[Obj]]) -> Obj:
@@ -635,9 +691,13 @@ def missed_cycles(
     log(f"{spec.key}: simulating both plans, {len(seeds)} seeds x {duration:.0f}s x 2 modes")
     t0 = time.monotonic()
     rows = miss_rates(problem, x_ours, x_k8s, seeds, duration)
-    tiers = lambda x: "/".join(  # noqa: E731
-        str(sum(problem.nodes[j].tier.value == t for j in x)) for t in ("robot", "edge", "cloud")
-    )
+
+    def tiers(x: np.ndarray) -> str:
+        return "/".join(
+            str(sum(problem.nodes[j].tier.value == t for j in x))
+            for t in ("robot", "edge", "cloud")
+        )
+
     for row in rows:
         row["fleet"] = spec.key
         row["split_nsga2"] = tiers(x_ours)
@@ -657,7 +717,10 @@ def fmt_s(st: Obj) -> list[str]:
 
 def table(rows: list[list[str]], header: list[str]) -> str:
     widths = [max(len(r[i]) for r in [header, *rows]) for i in range(len(header))]
-    line = lambda r: "  ".join(c.ljust(w) for c, w in zip(r, widths, strict=True))  # noqa: E731
+
+    def line(r: list[str]) -> str:
+        return "  ".join(c.ljust(w) for c, w in zip(r, widths, strict=True)).rstrip()
+
     return "\n".join([line(header), line(["-" * w for w in widths]), *map(line, rows)])
 
 
@@ -726,6 +789,8 @@ def format_report(rep: Obj) -> str:
                 ],
             )
         )
+    for err in rep.get("errors") or []:
+        out.append(f"\nFAILED: {err}")
     out.append(f"\noperator log: {rep.get('operator_log')}")
     return "\n".join(out)
 
@@ -733,6 +798,9 @@ def format_report(rep: Obj) -> str:
 def main(argv: Sequence[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--runs", type=int, default=5, help="runs per fleet and path (median of)")
+    ap.add_argument(
+        "--large-runs", type=int, default=None, help="runs for the large fleet (default --runs)"
+    )
     ap.add_argument("--robots", type=int, default=50, help="robots of the large fleet")
     ap.add_argument("--edges", type=int, default=20, help="edge nodes of the large fleet")
     ap.add_argument("--skip-large", action="store_true", help="warehouse fleet only")
@@ -744,6 +812,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--timeout", type=float, default=180.0, help="per run (x4 for the large)")
     ap.add_argument("--json", action="store_true", help="print the report as JSON instead")
     args = ap.parse_args(argv)
+    if args.large_runs is None:
+        args.large_runs = args.runs
     rep = bench(args)
     if args.json:
         print(json.dumps(rep, indent=1, default=str))

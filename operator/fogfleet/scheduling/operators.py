@@ -13,8 +13,10 @@ from numpy.typing import NDArray
 from pymoo.core.crossover import Crossover
 from pymoo.core.duplicate import DuplicateElimination
 from pymoo.core.mutation import Mutation
+from pymoo.core.population import Population
 from pymoo.core.repair import Repair
 from pymoo.core.sampling import Sampling
+from pymoo.operators.survival.rank_and_crowding import RankAndCrowding
 
 from .heuristics import greedy
 from .problem import PlacementProblem
@@ -25,6 +27,8 @@ __all__ = [
     "GeneCrossover",
     "GeneDuplicates",
     "GeneMutation",
+    "RankAndCrowdingSurvival",
+    "binary_tournament",
     "repair_plans",
     "seed_plans",
 ]
@@ -111,8 +115,9 @@ def repair_plans(pp: PlacementProblem, x: I64) -> I64:
     over_up = up > lim[None, :] + _EPS
     if not over_node.any() and not over_up.any():
         return x
-    nodes = np.arange(N)
     n_i = fleet.n_instances
+    cand_of = np.zeros((n_i, pp.table.shape[1]), dtype=np.int64)
+    cand_of[pp.genes] = pp.table
     h_of = np.where(home >= 0, home, 0)
     # Moves only go to nodes with room and only lower uplink use, so an instance that is not
     # on an overloaded node (or a robot with its uplink over) now never will be. A second
@@ -126,13 +131,22 @@ def repair_plans(pp: PlacementProblem, x: I64) -> I64:
         h_ord = home[order]
         hc_ord = h_of[order][None, :]
         k_ord = np.arange(n_i)[None, :]
-        while active.size:
-            xs = x[active][:, order]
+
+        def bad_of(rows: I64) -> NDArray[np.bool_]:
+            """(rows, I) in ``order``: the instance sits on an overloaded node or is off
+            board on a robot whose uplink is over."""
+            xs = x[rows][:, order]  # noqa: B023
             v = xs >= 0
             xc = np.where(v, xs, 0)
-            bad = over_node[active[:, None], xc]
-            bad |= (h_ord >= 0)[None, :] & (xc != h_ord[None, :]) & over_up[active[:, None], hc_ord]
-            bad &= v & (k_ord >= pos[:, None])
+            b = over_node[rows[:, None], xc]
+            b |= (h_ord >= 0)[None, :] & (xc != h_ord[None, :]) & over_up[rows[:, None], hc_ord]  # noqa: B023
+            return np.asarray(b & v, dtype=bool)
+
+        # a plan's row changes only when the plan moves an instance
+        bad_all = np.zeros((P, n_i), dtype=bool)
+        bad_all[active] = bad_of(active)
+        while active.size:
+            bad = bad_all[active] & (k_ord >= pos[:, None])
             has = bad.any(axis=1)
             active, bad = active[has], bad[has]
             if active.size == 0:
@@ -141,11 +155,15 @@ def repair_plans(pp: PlacementProblem, x: I64) -> I64:
             pos = k + 1
             i = order[k]
             ar = np.arange(active.size)
-            d = f.demand[i]  # (A, N, 3)
             cur = x[active, i]
-            after = used[active] + d
-            after[ar, cur] -= d[ar, cur]
-            room = np.all(after <= f.cap[None] + _EPS, axis=2) & fleet.allowed[i]
+            # candidate targets: i's allowed nodes, ascending (padded with the first), so
+            # argmin breaks ties towards the lowest node index as over all nodes
+            cand = cand_of[i]  # (A, W)
+            d = f.demand[i[:, None], cand]  # (A, W, 3)
+            after = used[active[:, None], cand] + d
+            at_cur = cand == cur[:, None]
+            after = np.where(at_cur[:, :, None], after - d, after)
+            room = np.all(after <= f.cap[cand] + _EPS, axis=2)
             h = home[i]
             hc = h_of[i]
             tr = fleet.traffic[i]
@@ -153,26 +171,25 @@ def repair_plans(pp: PlacementProblem, x: I64) -> I64:
             if limited.any():
                 up_base = up[active, hc] - tr * (cur != h)
                 off_ok = up_base + tr <= lim[hc] + _EPS
-                room &= ~limited[:, None] | off_ok[:, None] | (nodes[None, :] == h[:, None])
-            util = np.max(after / np.maximum(f.cap[None], _EPS), axis=2)
-            score = np.where(room, f.pref[i] + REPAIR_SPREAD * util, np.inf)
-            j = np.argmin(score, axis=1)
-            ok = np.isfinite(score[ar, j]) & (j != cur)
+                room &= ~limited[:, None] | off_ok[:, None] | (cand == h[:, None])
+            util = np.max(after / np.maximum(f.cap[cand], _EPS), axis=2)
+            score = np.where(room, f.pref[i[:, None], cand] + REPAIR_SPREAD * util, np.inf)
+            jj = np.argmin(score, axis=1)
+            j = cand[ar, jj]
+            ok = np.isfinite(score[ar, jj]) & (j != cur)
             if not ok.any():
                 continue
-            rows, cur, j, i, d, h, hc, tr = (
+            rows, cur, j, i, h, hc, tr = (
                 active[ok],
                 cur[ok],
                 j[ok],
                 i[ok],
-                d[ok],
                 h[ok],
                 hc[ok],
                 tr[ok],
             )
-            ar = np.arange(rows.size)
-            used[rows, cur] -= d[ar, cur]
-            used[rows, j] += d[ar, j]
+            used[rows, cur] -= f.demand[i, cur]
+            used[rows, j] += f.demand[i, j]
             robot = h >= 0
             if robot.any():
                 rr = rows[robot]
@@ -182,6 +199,7 @@ def repair_plans(pp: PlacementProblem, x: I64) -> I64:
                 over_up[rr] = up[rr] > lim[None, :] + _EPS
             x[rows, i] = j
             over_node[rows] = np.any(used[rows] > f.cap[None] + _EPS, axis=2)
+            bad_all[rows] = bad_of(rows)
     return x
 
 
@@ -282,3 +300,91 @@ class GeneDuplicates(DuplicateElimination):  # type: ignore[misc]
                 if row.tobytes() in known:
                     is_duplicate[k] = True
         return is_duplicate
+
+
+class RankAndCrowdingSurvival(RankAndCrowding):  # type: ignore[misc]
+    """pymoo's NSGA-II survival with a cheaper feasible/infeasible split: one pass over the
+    individuals' cached CV instead of ``split_by_feasibility``'s ``Population.get`` of F,
+    CV and FEAS (which evaluates each property twice per individual). The same survivors
+    in the same order: feasible ones ranked and crowded, then infeasible ones by CV."""
+
+    def do(
+        self,
+        problem: Any,
+        pop: Any,
+        *args: Any,
+        n_survive: int | None = None,
+        random_state: Any = None,
+        return_indices: bool = False,
+        **kwargs: Any,
+    ) -> Any:
+        if len(pop) == 0 or not (self.filter_infeasible and problem.has_constraints()):
+            return super().do(
+                problem,
+                pop,
+                *args,
+                n_survive=n_survive,
+                random_state=random_state,
+                return_indices=return_indices,
+                **kwargs,
+            )
+        if random_state is None:
+            random_state = np.random.default_rng()
+        n = len(pop) if n_survive is None else min(n_survive, len(pop))
+        cv = np.array([ind.CV[0] for ind in pop], dtype=np.float64)
+        ok = cv <= pop[0].config.get("cv_eps", 0.0)
+        feas = np.where(ok)[0]
+        infeas = np.where(~ok)[0]
+        infeas = infeas[np.argsort(cv[infeas])]
+        if len(feas) == 0:
+            survivors = Population()
+        else:
+            survivors = self._do(
+                problem,
+                pop[feas],
+                *args,
+                n_survive=min(len(feas), n),
+                random_state=random_state,
+                **kwargs,
+            )
+        if n - len(survivors) > 0:
+            survivors = Population.merge(survivors, pop[infeas[: n - len(survivors)]])
+        if return_indices:
+            where = {ind: k for k, ind in enumerate(pop)}
+            return [where[ind] for ind in survivors]
+        return survivors
+
+
+def binary_tournament(pop: Any, P: NDArray[Any], algorithm: Any, **kwargs: Any) -> I64:
+    """pymoo's NSGA-II binary tournament (``comp_by_dom_and_crowding``), vectorised: the
+    lower CV wins if either is infeasible, else the dominating plan, else the larger
+    crowding distance; ties are drawn with ``algorithm.random_state.choice([a, b])`` in
+    tournament order, exactly as pymoo draws them, so runs are unchanged."""
+    if P.shape[1] != 2:
+        raise ValueError("Only implemented for binary tournament!")
+    a, b = P[:, 0], P[:, 1]
+    cv = np.array([ind.CV[0] for ind in pop], dtype=np.float64)
+    F = np.array([ind.F for ind in pop], dtype=np.float64)
+    cd = np.array(
+        [np.nan if (c := ind.data.get("crowding")) is None else c for ind in pop],
+        dtype=np.float64,
+    )
+    S = np.full(len(P), -1, dtype=np.int64)
+    tie = np.zeros(len(P), dtype=bool)
+    infeasible = (cv[a] > 0.0) | (cv[b] > 0.0)
+    lt, gt = cv[a] < cv[b], cv[a] > cv[b]
+    S = np.where(infeasible & lt, a, np.where(infeasible & gt, b, S))
+    tie |= infeasible & ~lt & ~gt
+    a_better = np.any(F[a] < F[b], axis=1)
+    b_better = np.any(F[b] < F[a], axis=1)
+    feas = ~infeasible
+    S = np.where(feas & a_better & ~b_better, a, S)
+    S = np.where(feas & b_better & ~a_better, b, S)
+    crowd = feas & ~(a_better ^ b_better)
+    gt, lt = cd[a] > cd[b], cd[a] < cd[b]
+    S = np.where(crowd & gt, a, np.where(crowd & lt, b, S))
+    tie |= crowd & ~gt & ~lt
+    rng = algorithm.random_state
+    for k in np.flatnonzero(tie):
+        S[k] = rng.choice([a[k], b[k]])
+    return S[:, None]

@@ -9,6 +9,7 @@ from dataclasses import replace
 import numpy as np
 from numpy.typing import NDArray
 from pymoo.algorithms.moo.nsga2 import NSGA2
+from pymoo.operators.selection.tournament import TournamentSelection
 
 from fogfleet.api.v1alpha1.robotfleet import SchedulerName, SchedulerSettings
 from fogfleet.domain.problem import Problem
@@ -23,6 +24,8 @@ from .operators import (
     GeneCrossover,
     GeneDuplicates,
     GeneMutation,
+    RankAndCrowdingSurvival,
+    binary_tournament,
 )
 from .problem import PlacementProblem
 from .schedule import Schedule
@@ -94,6 +97,8 @@ def nsga2(
         mutation=GeneMutation(prob=1.0, per_gene=mut) if paper else GeneMutation(prob=mut),
         repair=None if paper else CapacityRepair(),
         eliminate_duplicates=GeneDuplicates(),
+        survival=RankAndCrowdingSurvival(),
+        selection=TournamentSelection(func_comp=binary_tournament),
     )
     algorithm.setup(
         pp, termination=("n_gen", settings.generations), seed=settings.seed, verbose=False
