@@ -30,6 +30,8 @@ from .operators import (
 from .problem import PlacementProblem
 from .schedule import Schedule
 
+ENUMERATE_LIMIT = 20_000  # plans; smaller search spaces are enumerated exactly
+
 __all__ = ["Progress", "nsga2", "plan"]
 
 Progress = Callable[[int, int], None]
@@ -89,30 +91,18 @@ def nsga2(
     if pp.n_var == 0:
         x = np.full(problem.n_instances, -1, dtype=np.int64)
         return finish(problem, "nsga2", x, True, t0, "no instance has a node it may run on")
-    mut = settings.mutation_percent / 100.0
-    algorithm = NSGA2(
-        pop_size=settings.population,
-        sampling=FleetSampling(heuristics=not paper),
-        crossover=GeneCrossover("single_point" if paper else "uniform"),
-        mutation=GeneMutation(prob=1.0, per_gene=mut) if paper else GeneMutation(prob=mut),
-        repair=None if paper else CapacityRepair(),
-        eliminate_duplicates=GeneDuplicates(),
-        survival=RankAndCrowdingSurvival(),
-        selection=TournamentSelection(func_comp=binary_tournament),
-    )
-    algorithm.setup(
-        pp, termination=("n_gen", settings.generations), seed=settings.seed, verbose=False
-    )
     budget = settings.time_budget_millis / 1000.0
-    generations = 0
-    while algorithm.has_next():
-        algorithm.next()
-        generations = int(algorithm.n_gen) - 1 if algorithm.n_gen is not None else generations + 1
-        if progress is not None:
-            progress(generations, settings.generations)
-        if time.perf_counter() - t0 > budget:
-            break
-    X = np.asarray(algorithm.pop.get("X")).astype(np.int64)
+    space = float(np.prod(pp.counts.astype(np.float64)))
+    exhaustive = not paper and space <= ENUMERATE_LIMIT
+    if exhaustive:
+        # A search space this small is cheaper to enumerate than to evolve (pymoo's mating
+        # loop would spin on duplicates), and the front is then exact.
+        axes = [pp.table[g, : pp.counts[g]] for g in range(pp.n_var)]
+        X = np.stack([a.ravel() for a in np.meshgrid(*axes, indexing="ij")], axis=1)
+        generations, n_eval = settings.generations, len(X)
+        local_search = False
+    else:
+        X, generations, n_eval = _evolve(pp, settings, paper, progress, t0, budget)
     # objectives and constraints without any penalty, for an honest report
     clean = PlacementProblem(problem, names, with_limits=True)
     out: dict[str, NDArray[np.float64]] = {}
@@ -137,6 +127,8 @@ def nsga2(
             {str(w.objective): float(w.weight) for w in settings.weights},
         )
         chosen = int(front[k])
+        if exhaustive:
+            reason += f" (exact front: all {len(X)} plans enumerated)"
     else:
         front = np.array([int(np.argmin(cv))], dtype=np.int64)
         chosen = int(front[0])
@@ -158,6 +150,41 @@ def nsga2(
         pareto_placements=full[front],
         objective_names=names,
         generations=generations,
-        evaluations=int(algorithm.evaluator.n_eval) + n_local,
+        evaluations=n_eval + n_local,
         duration_seconds=time.perf_counter() - t0,
     )
+
+
+def _evolve(
+    pp: PlacementProblem,
+    settings: SchedulerSettings,
+    paper: bool,
+    progress: Progress | None,
+    t0: float,
+    budget: float,
+) -> tuple[NDArray[np.int64], int, int]:
+    """Run NSGA-II; the final population's genes, generations run and evaluations."""
+    mut = settings.mutation_percent / 100.0
+    algorithm = NSGA2(
+        pop_size=settings.population,
+        sampling=FleetSampling(heuristics=not paper),
+        crossover=GeneCrossover("single_point" if paper else "uniform"),
+        mutation=GeneMutation(prob=1.0, per_gene=mut) if paper else GeneMutation(prob=mut),
+        repair=None if paper else CapacityRepair(),
+        eliminate_duplicates=GeneDuplicates(),
+        survival=RankAndCrowdingSurvival(),
+        selection=TournamentSelection(func_comp=binary_tournament),
+    )
+    algorithm.setup(
+        pp, termination=("n_gen", settings.generations), seed=settings.seed, verbose=False
+    )
+    generations = 0
+    while algorithm.has_next():
+        algorithm.next()
+        generations = int(algorithm.n_gen) - 1 if algorithm.n_gen is not None else generations + 1
+        if progress is not None:
+            progress(generations, settings.generations)
+        if time.perf_counter() - t0 > budget:
+            break
+    X = np.asarray(algorithm.pop.get("X")).astype(np.int64)
+    return X, generations, int(algorithm.evaluator.n_eval)
