@@ -56,8 +56,12 @@ chart-lint: venv ## helm lint + helm template of charts/fogfleet (helm from the 
 	$(BIN)/python e2e/cluster/harness.py helm lint --strict charts/fogfleet
 	$(BIN)/python e2e/cluster/harness.py helm template fogfleet charts/fogfleet -n fogfleet-system > /dev/null
 
-bench: venv ## Benchmarks: prints a table (scheduling quality and speed)
+bench: venv ## Benchmarks of the pure core: scheduling (misses, MILP gap, decision time) and autoscaling (tinyKube); prints tables
 	$(BIN)/fogfleet bench scheduling
+	$(BIN)/fogfleet bench autoscaling --runs 7
+
+bench-cluster: venv ## Operator benchmarks on the local control plane: apply-to-Running latency (40 and 400 pods), nsga2 vs kube-scheduler's real placement (~25 min)
+	$(BIN)/python e2e/bench_operator.py --runs 5
 
 demo: venv ## Plan + simulate the warehouse fleet, then run it on the local control plane (operator, real kube-scheduler)
 	$(BIN)/fogfleet plan manifests/examples/warehouse
@@ -72,4 +76,4 @@ clean: ## Remove the virtualenv and caches in the repo
 	rm -rf $(VENV) .pytest_cache .mypy_cache .ruff_cache
 
 
-.PHONY: help venv lint unit test crds crds-check demo-offline cluster-tools cluster-up cluster-down cluster-status e2e e2e-k3d chart-lint bench demo clean
+.PHONY: help venv lint unit test crds crds-check demo-offline bench-cluster cluster-tools cluster-up cluster-down cluster-status e2e e2e-k3d chart-lint bench demo clean

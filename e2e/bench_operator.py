@@ -768,7 +768,9 @@ def format_report(rep: Obj) -> str:
                 f"{100 * r['k8s_real_max']:.3f}]",
                 f"{100 * r['nsga2_median']:.4f}% [{100 * r['nsga2_min']:.4f}-"
                 f"{100 * r['nsga2_max']:.4f}]",
-                f"{100 * r['reduction']:.1f}%",
+                f"{100 * r['reduction']:.1f}%"
+                if r["reduction"] == r["reduction"]
+                else "n/a (k8s median is 0)",
                 "MET" if r["target_met"] else "NOT MET",
                 f"{r['split_k8s_real']} vs {r['split_nsga2']}",
             ]

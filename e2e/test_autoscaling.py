@@ -25,7 +25,15 @@ import yaml
 
 from e2e.cluster.harness import Cluster
 from e2e.cluster.kube import Kube
-from e2e.operator_fixtures import CRDS, EXAMPLES, free_port
+from e2e.operator_fixtures import (
+    CRDS,
+    EXAMPLES,
+    Operator,
+    bound_node,
+    example_docs,
+    free_port,
+    of_kind,
+)
 from fogfleet.adapters.kube import KubeClient, load_config
 from fogfleet.adapters.prometheus import PrometheusClient
 from fogfleet.controllers.scaling import ScalingDeps, reconcile_scaling
@@ -165,9 +173,10 @@ class Rig:
 @pytest.fixture(scope="module")
 def crds(kube: Kube) -> None:
     kube.kubectl("apply", "--server-side", "--force-conflicts", "-f", str(CRDS))
-    kube.kubectl(
-        "wait", "--for=condition=Established", "crd/softwaremodules.fogfleet.io", "--timeout=60s"
-    )
+    for name in ("robotfleets", "softwaremodules", "computenodes"):
+        kube.kubectl(
+            "wait", "--for=condition=Established", f"crd/{name}.fogfleet.io", "--timeout=60s"
+        )
 
 
 def _scenario(path: Path, namespace: str, rate: float) -> Path:
@@ -343,3 +352,205 @@ def test_a_bad_slo_query_is_reported_precisely_and_nothing_scales(rig: Rig) -> N
     assert len(events) == 1 and events[0]["type"] == "Warning"
     assert "parse error" in events[0]["message"]
     assert not rig.events("ScaledUp") and not rig.events("ScaledDown")
+
+
+# --------------------------------------------------------------------------- the whole loop
+
+EDGE_MAX, CLOUD_MAX = 2, 4
+# Decisions come within seconds; the pods follow as fast as kube-controller-manager creates
+# them, which takes tens of seconds while another suite churns hundreds of Deployments.
+START_TIMEOUT = PODS_TIMEOUT = 60
+
+
+def _loop_docs(namespace: str) -> tuple[list[Obj], Obj, Obj]:
+    """The shared-detector example in ``namespace`` with a small edge pool and short windows:
+    (ComputeNodes, modules, fleet). The robot and edge ComputeNodes are the warehouse's."""
+    shared = [
+        d
+        for f in ("nodes.yaml", "modules.yaml", "fleet.yaml")  # not twin-scenario.yaml
+        for d in yaml.safe_load_all((EXAMPLES / "shared-detector" / f).read_text())
+        if d
+    ]
+    for d in shared:
+        if d["kind"] != "ComputeNode":
+            d["metadata"]["namespace"] = namespace
+    fleet_body = of_kind(shared, "RobotFleet")[0]
+    names = set(fleet_body["spec"]["robots"]) | set(fleet_body["spec"]["nodes"])
+    nodes = [
+        d
+        for d in of_kind(example_docs("warehouse"), "ComputeNode") + of_kind(shared, "ComputeNode")
+        if d["metadata"]["name"] in names
+    ]
+    modules = of_kind(shared, "SoftwareModule")
+    detector = next(m for m in modules if m["metadata"]["name"] == MODULE)
+    detector["spec"]["replicas"] = 1
+    detector["spec"]["scaling"].update(
+        {
+            "maxReplicas": EDGE_MAX + CLOUD_MAX,
+            "behavior": {
+                "scaleUp": {"stabilizationWindowSeconds": 0, "policies": [UP_POLICY]},
+                # no scale-down while the test runs: each step only adds replicas
+                "scaleDown": {"stabilizationWindowSeconds": 300, "policies": [DOWN_POLICY]},
+            },
+            "pools": [
+                {"tier": "edge", "maxReplicas": EDGE_MAX, "setupMillis": 1000},
+                {"tier": "cloud", "maxReplicas": CLOUD_MAX, "setupMillis": 2000,
+                 "sloTargetMillis": 500},
+            ],
+        }
+    )  # fmt: skip
+    return nodes, modules, fleet_body
+
+
+@dataclass
+class Seen:
+    """One look at the cluster: the decision, the replica Deployments and where pods run."""
+
+    t: float
+    pools: dict[str, int]
+    deployments: dict[str, str]  # Deployment -> the node its affinity names
+    pods: dict[str, str]  # Running pod -> node
+
+    def key(self) -> tuple[Any, ...]:
+        return self.pools, self.deployments, self.pods
+
+    def on(self, tier: str) -> list[str]:
+        return sorted(n for n in self.pods.values() if _tier(n) == tier)
+
+
+def _tier(node: str) -> str:
+    return "cloud" if node.startswith("cloud-") else "edge" if node.startswith("edge-") else "?"
+
+
+def look(kube: Kube, namespace: str, t0: float) -> Seen:
+    mod = kube.kubectl_json("get", "softwaremodule", MODULE, "-n", namespace)
+    scaling = (mod.get("status") or {}).get("scaling") or {}
+    pools = {p["tier"]: p["replicas"] for p in scaling.get("pools") or []}
+    sel = f"fogfleet.io/module={MODULE}"
+    deps = {
+        d["metadata"]["name"]: ",".join(bound_node(d))
+        for d in kube.kubectl_json("get", "deployments", "-n", namespace, "-l", sel)["items"]
+    }
+    pods = {
+        p["metadata"]["name"]: p["spec"].get("nodeName", "")
+        for p in kube.kubectl_json("get", "pods", "-n", namespace, "-l", sel)["items"]
+        if p["status"].get("phase") == "Running" and not p["metadata"].get("deletionTimestamp")
+    }
+    return Seen(time.monotonic() - t0, pools, deps, pods)
+
+
+@pytest.mark.timeout(300)
+def test_operator_scales_a_shared_service_and_places_new_replicas_on_the_edge_first(
+    kube: Kube, cluster: Cluster, crds: None, rig: Rig, tmp_path: Path, diagnostics: list[Any]
+) -> None:
+    namespace = rig.namespace
+    nodes, modules, fleet_body = _loop_docs(namespace)
+    kube.apply(nodes + modules)
+    kube.apply(fleet_body)
+    op = Operator(
+        kube.kubeconfig,
+        [namespace],
+        tmp_path / "operator.log",
+        env={
+            "FOGFLEET_PROMETHEUS_URL": cluster.prometheus_url,
+            "FOGFLEET_SCALING_INTERVAL_SECONDS": str(int(PERIOD)),
+        },
+    )
+    seen: list[Seen] = []
+    diagnostics.append(lambda: ("operator log", op.logs(200)))
+    diagnostics.append(
+        lambda: ("what the test saw", "\n".join(
+            f"{s.t:5.1f}s pools={s.pools} deployments={s.deployments} pods={s.pods}"
+            for s in seen))
+    )  # fmt: skip
+    t0 = time.monotonic()
+
+    def until(what: str, check: Any, timeout: float) -> Seen:
+        deadline = time.monotonic() + timeout
+        while True:
+            s = look(kube, namespace, t0)
+            if not seen or s.key() != seen[-1].key():
+                seen.append(s)
+            if check(s):
+                return s
+            if time.monotonic() > deadline:
+                raise AssertionError(f"timed out after {timeout:.0f}s waiting for {what}: {s}")
+            time.sleep(1.0)
+
+    def settled(edge: int, cloud: int) -> Any:
+        """The decision is (edge, cloud) and that many replicas run on each tier, where planned."""
+
+        def check(s: Seen) -> bool:
+            placed = sorted(_tier(n) for n in s.deployments.values())
+            return (
+                s.pools == {"edge": edge, "cloud": cloud}
+                and placed == ["cloud"] * cloud + ["edge"] * edge
+                and len(s.on("edge")) == edge
+                and len(s.on("cloud")) == cloud
+                and len(s.pods) == edge + cloud
+            )
+
+        return check
+
+    op.start().wait_live()
+    try:
+        # before any metrics: the starting pools, edge 1 (spec.replicas) + cloud 1 (minReplicas)
+        start = until("the starting replicas to run", settled(1, 1), timeout=START_TIMEOUT)
+        start_twin(rig, tmp_path, rate=0.5)
+        kube.wait_for(
+            "a decision on real metrics",
+            lambda: rig.scaling().get("metricsAvailable") is True,
+            timeout=20,
+        )
+        assert rig.scaling()["desiredReplicas"] == 2, rig.scaling()
+
+        # a moderate load: one more replica, on the edge (its pool is below its max)
+        rig.set_load(4.0)
+        edge_full = until("the edge pool to fill", settled(EDGE_MAX, 1), timeout=PODS_TIMEOUT)
+        assert rig.events("ScaledUp")
+
+        # a surge: the edge pool is full, so the new replicas go to cloud-1
+        rig.set_load(12.0)
+        surge = until("replicas in the cloud", settled(EDGE_MAX, CLOUD_MAX), timeout=PODS_TIMEOUT)
+        up = rig.events("ScaledUp")
+    finally:
+        # while the operator runs: it removes its finalizers (kopf puts one on every module
+        # with a scaling timer, so the namespace would never go away without it)
+        for kind in ("robotfleets", "softwaremodules"):
+            kube.kubectl("delete", kind, "--all", "-n", namespace, "--wait=true",
+                         "--timeout=60s", check=False, timeout=90)  # fmt: skip
+        op.stop()
+    print(
+        f"edge first: {start.pools} at {start.t:.0f}s -> {edge_full.pools} at "
+        f"{edge_full.t:.0f}s -> {surge.pools} at {surge.t:.0f}s; "
+        f"pods {sorted(surge.pods.values())}; ScaledUp: "
+        + "; ".join(e["message"].split(":")[0] for e in up)
+    )
+    assert len(up) >= 2, up
+    # the decisions never grew the cloud pool while the edge pool had room
+    for s in seen:
+        if s.pools.get("cloud", 0) > 1:
+            assert s.pools["edge"] == EDGE_MAX, s
+    # the surge's new replicas all went to cloud-1, the edge ones stayed where they were
+    added = set(surge.deployments) - set(edge_full.deployments)
+    assert len(added) == CLOUD_MAX - 1 and {surge.deployments[d] for d in added} == {"cloud-1"}
+    assert all(surge.deployments[d] == n for d, n in edge_full.deployments.items()), (
+        edge_full.deployments,
+        surge.deployments,
+    )
+    # Growing the edge pool must add an edge replica and leave the running cloud replica alone.
+    added = set(edge_full.deployments) - set(start.deployments)
+    moved = {
+        d: f"{n} -> {edge_full.deployments[d]}"
+        for d, n in start.deployments.items()
+        if edge_full.deployments.get(d) != n
+    }
+    cloud_while_edge_had_room = [
+        s for s in seen if len(s.on("cloud")) > 1 and len(s.on("edge")) < EDGE_MAX
+    ]
+    assert added and {_tier(edge_full.deployments[d]) for d in added} == {"edge"}, (
+        start.deployments,
+        edge_full.deployments,
+    )
+    assert not moved, moved
+    assert not cloud_while_edge_had_room, cloud_while_edge_had_room

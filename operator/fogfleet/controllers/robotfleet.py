@@ -17,12 +17,13 @@ import hashlib
 import logging
 import time
 from collections import Counter
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
-from fogfleet.api.loader import Catalog, parse_object
+from fogfleet.api.loader import parse_object
 from fogfleet.api.v1alpha1.common import Tier
 from fogfleet.api.v1alpha1.robotfleet import RobotFleet, SchedulerName
 from fogfleet.domain.problem import Problem, build_problem
@@ -103,10 +104,11 @@ def _reconcile(
     kube = deps.kube
     selector = {LABEL_FLEET: label_value(name)}
     deployments = [d for d in kube.list_deployments(ns, selector) if _owned(d, body)]
-    inputs = gather(fleet, kube.list_compute_nodes(), kube.list_modules(ns), kube.list_nodes())
+    raw_modules = kube.list_modules(ns)
+    inputs = gather(fleet, kube.list_compute_nodes(), raw_modules, kube.list_nodes())
     _raise_broken_references(fleet, inputs.broken)
     problem = build_problem(
-        fleet, inputs.catalog, current_placement(deployments), scaling_pools(inputs.catalog, ns)
+        fleet, inputs.catalog, current_placement(deployments), scaling_pools(raw_modules)
     )
     deps.refs.record(
         key,
@@ -167,17 +169,23 @@ def _reconcile(
     )
 
 
-def scaling_pools(catalog: Catalog, namespace: str) -> dict[str, dict[str, int]]:
-    """The autoscaler's last decision per shared module: {module: {tier: replicas}}."""
+def scaling_pools(modules: Iterable[Mapping[str, Any]]) -> dict[str, dict[str, int]]:
+    """The autoscaler's last decision per shared module: {module: {tier: replicas}}.
+
+    Read from the SoftwareModules as the API server sends them (one namespace's): the
+    catalog's modules are parsed without their status (``inputs.gather``), so they never
+    carry ``status.scaling``. A status this operator did not write in this shape is ignored."""
     pools: dict[str, dict[str, int]] = {}
-    for (ns, name), module in catalog.modules.items():
-        scaling = module.status.scaling if module.status else None
-        if ns != namespace or scaling is None:
+    for raw in modules:
+        scaling = (raw.get("status") or {}).get("scaling")
+        if not isinstance(scaling, Mapping):
             continue
-        if scaling.pools:
-            pools[name] = {p.tier: p.replicas for p in scaling.pools}
-        else:
-            pools[name] = {"any": scaling.desired_replicas}
+        try:
+            name = str(raw["metadata"]["name"])
+            tiers = {str(p["tier"]): int(p["replicas"]) for p in scaling.get("pools") or []}
+            pools[name] = tiers or {"any": int(scaling["desiredReplicas"])}
+        except (KeyError, TypeError, ValueError):
+            log.warning("Ignored an unreadable status.scaling: %s", scaling)
     return pools
 
 

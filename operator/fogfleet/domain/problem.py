@@ -240,15 +240,30 @@ def _transfer(module: SoftwareModule, link: Link) -> tuple[float, float, float]:
     return t, std, traffic
 
 
-def _pool_tiers(pool: Mapping[str, int] | None, replicas: int) -> list[Tier | None]:
+def _pool_tiers(
+    pool: Mapping[str, int] | None, replicas: int, running: Mapping[int, Tier] | None = None
+) -> list[Tier | None]:
     """One entry per replica: the tier whose pool it belongs to (None: any allowed tier).
-    The key ``any`` counts replicas that may run on any allowed tier."""
+
+    The key ``any`` counts replicas that may run on any allowed tier. ``running[r]`` is the
+    tier replica ``r`` runs on now: it keeps that tier while the pool there has room, so
+    growing the edge pool adds an edge replica instead of moving a serving cloud one. The
+    slots left are filled edge first."""
     if not pool:
         return [None] * replicas
-    out: list[Tier | None] = []
-    for tier in (Tier.EDGE, Tier.CLOUD):
-        out += [tier] * max(int(pool.get(tier.value, 0)), 0)
-    return out + [None] * max(int(pool.get("any", 0)), 0)
+    slots = {t: max(int(pool.get(t.value, 0)), 0) for t in (Tier.EDGE, Tier.CLOUD)}
+    total = sum(slots.values()) + max(int(pool.get("any", 0)), 0)
+    out: list[Tier | None] = [None] * total
+    free = [True] * total
+    for r, tier in sorted((running or {}).items()):
+        if r < total and tier in slots and slots[tier] > 0:
+            out[r], free[r] = tier, False
+            slots[tier] -= 1
+    fill = [t for t in (Tier.EDGE, Tier.CLOUD) for _ in range(slots[t])]
+    for r in range(total):
+        if free[r] and fill:
+            out[r] = fill.pop(0)
+    return out
 
 
 def build_problem(
@@ -299,6 +314,9 @@ def build_problem(
         replicas = ov.replicas or mod.spec.replicas
         modules.append((mod, cycle, act, replicas))
 
+    node_tier: dict[str, Tier] = {}
+    for nd in nodes:
+        node_tier[nd.metadata.name] = node_tier[nd.node_name] = nd.spec.tier
     instances: list[Instance] = []
     inst_mod: list[tuple[SoftwareModule, float, float]] = []
     home: list[int] = []
@@ -311,7 +329,12 @@ def build_problem(
                 home.append(robot_index[robot.metadata.name])
                 pool_tier.append(None)
         else:
-            tiers = _pool_tiers(pools.get(mod.metadata.name) if pools else None, replicas)
+            running = {
+                r: node_tier[n]
+                for (robot, m, r), n in (current or {}).items()
+                if not robot and m == mod.metadata.name and n in node_tier
+            }
+            tiers = _pool_tiers(pools.get(mod.metadata.name) if pools else None, replicas, running)
             for r, tier in enumerate(tiers):
                 instances.append(Instance("", mod.metadata.name, r))
                 inst_mod.append((mod, cycle, act))

@@ -140,3 +140,38 @@ def test_current_placement_is_read_back(warehouse) -> None:  # type: ignore[no-u
     )
     assert p.current[seg] == p.node_index("edge-5")
     assert p.current[ctrl] == -1  # not allowed there, so not a valid current placement
+
+
+def test_growing_the_edge_pool_keeps_a_serving_cloud_replica_in_the_cloud() -> None:
+    from fogfleet.api.v1alpha1.common import Tier
+    from fogfleet.domain.problem import _pool_tiers
+
+    edge, cloud = Tier.EDGE, Tier.CLOUD
+    # edge 1 -> 2 while replica 1 serves from the cloud: replica 1 stays there, 2 is the new edge
+    assert _pool_tiers({"edge": 2, "cloud": 1}, 1, {0: edge, 1: cloud}) == [edge, cloud, edge]
+    # nothing runs yet: edge first
+    assert _pool_tiers({"edge": 2, "cloud": 1}, 1) == [edge, edge, cloud]
+    # scale-in: more running in the cloud than the pool allows -> the extra gets an edge slot
+    assert _pool_tiers({"edge": 1, "cloud": 1}, 1, {0: cloud, 1: cloud}) == [cloud, edge]
+    # no pools: spec.replicas, any tier; `any` adds untiered replicas
+    assert _pool_tiers(None, 3) == [None, None, None]
+    assert _pool_tiers({"any": 2}, 1) == [None, None]
+
+
+def test_the_fleet_controller_reads_pools_from_the_modules_status() -> None:
+    from fogfleet.controllers.robotfleet import scaling_pools
+
+    modules = [
+        {
+            "metadata": {"name": "detector"},
+            "status": {
+                "scaling": {
+                    "desiredReplicas": 3,
+                    "pools": [{"tier": "edge", "replicas": 2}, {"tier": "cloud", "replicas": 1}],
+                }
+            },
+        },
+        {"metadata": {"name": "mapper"}, "status": {"scaling": {"desiredReplicas": 2}}},
+        {"metadata": {"name": "camera"}},
+    ]
+    assert scaling_pools(modules) == {"detector": {"edge": 2, "cloud": 1}, "mapper": {"any": 2}}
