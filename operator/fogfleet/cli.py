@@ -20,6 +20,7 @@ from fogfleet.errors import FogfleetError, InvalidSpec
 __all__ = ["main"]
 
 SCHEDULERS = ("nsga2", "k8s-default", "onboard", "random", "exact")
+AUTOSCALING_FIRST_SEED = 10
 
 
 def _catalog(paths: Sequence[str]) -> Any:
@@ -325,7 +326,9 @@ def cmd_bench(args: argparse.Namespace) -> int:
     if args.suite == "autoscaling":
         from fogfleet.autoscaling import bench as abench
 
-        seeds = [args.seed] if args.seed is not None else list(range(1, args.runs + 1))
+        # the predictive policy's settings were tuned on seeds 1-5: report held-out seeds
+        first = AUTOSCALING_FIRST_SEED
+        seeds = [args.seed] if args.seed is not None else list(range(first, first + args.runs))
         results = {s: abench.run_benchmark(s) for s in seeds}
         if args.json:
             print(json.dumps(results[seeds[0]] if len(seeds) == 1 else results, indent=2))
