@@ -46,6 +46,7 @@ from fogfleet.api.v1alpha1.scaling import Mode, ScalingSpec, TierName
 from fogfleet.api.v1alpha1.softwaremodule import SafetyClass, SoftwareModule
 from fogfleet.autoscaling import contract
 from fogfleet.autoscaling.behavior import BehaviorState, Recommendation, ScaleEvent
+from fogfleet.autoscaling.dispatch import plan_dispatch
 from fogfleet.autoscaling.policy import (
     MetricsSnapshot,
     Policy,
@@ -424,6 +425,35 @@ def _summary(pools: Sequence[Pool], before: Mapping[str, int], after: Mapping[st
     return ", ".join(parts)
 
 
+def _admission_forecast(
+    private_rate: float | None,
+    normal_rate: float | None,
+    pools: Sequence[Pool],
+    replicas: Mapping[str, int],
+) -> Obj:
+    """tinyKube III-B: the share of each traffic class the decided pools would reject, from
+    the queueing model and the dispatcher (privacy-constrained traffic only on pools that
+    accept it). Empty when the offered load is unknown."""
+    if private_rate is None or normal_rate is None:
+        return {}
+    plan = plan_dispatch(
+        private_rate,
+        normal_rate,
+        [p.tier for p in pools],
+        [replicas[p.name] for p in pools],
+        [p.target_seconds for p in pools],
+        DISPATCH_RESERVE,
+    )
+    return {
+        "predictedPrivateRejected": round(plan.private_rejected / private_rate, 6)
+        if private_rate > 0
+        else 0.0,
+        "predictedNormalRejected": round(plan.normal_rejected / normal_rate, 6)
+        if normal_rate > 0
+        else 0.0,
+    }
+
+
 def reconcile_scaling(module: Mapping[str, Any], deps: ScalingDeps, now: float) -> Outcome:
     """One scaling decision for ``module`` (the SoftwareModule as the API server sends it)."""
     meta = module.get("metadata") or {}
@@ -523,6 +553,7 @@ def reconcile_scaling(module: Mapping[str, Any], deps: ScalingDeps, now: float) 
         "lastDecisionTime": _stamp(now),
         "lastScaleTime": _stamp(now) if changed else old_scaling.get("lastScaleTime"),
         "observedSloMillis": slo_millis,
+        **_admission_forecast(read.private_rate, read.normal_rate, pools, replicas),
     }
     deps.kube.patch_module_status(ns, name, {"scaling": new_scaling, "conditions": merged})
     if not read.problem:

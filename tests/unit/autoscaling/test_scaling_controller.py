@@ -423,6 +423,16 @@ def test_predictive_sizes_from_the_offered_rates() -> None:
     assert sum(out.replicas.values()) > 3 and out.replicas["edge"] >= out.replicas["cloud"]
     assert "sized for" in kube.module["status"]["scaling"]["reason"]
     assert kube.module["status"]["scaling"]["observedSloMillis"] == pytest.approx(300)
+    # the admission forecast (tinyKube III-B) of the decided pools: the first step is rate
+    # limited (tinykube preset), so it still rejects; once the pools have grown, both classes
+    # are within the 5 % the p95 target allows
+    first = kube.module["status"]["scaling"]["predictedPrivateRejected"]
+    for t in range(5, 300, 5):
+        kube.set_pods("object-detector", **pools(kube))
+        run(kube, prom, float(t), period_seconds=5.0, rate_window_seconds=5)
+    scaling = kube.module["status"]["scaling"]
+    assert scaling["predictedPrivateRejected"] <= 0.05 < first
+    assert scaling["predictedNormalRejected"] <= 0.05
 
 
 def test_predictive_without_samples_holds() -> None:

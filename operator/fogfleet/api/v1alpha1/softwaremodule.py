@@ -173,6 +173,9 @@ class ScalingStatus(FogModel):
     last_decision_time: str | None = None
     last_scale_time: str | None = None
     observed_slo_millis: float | None = None
+    # tinyKube III-B admission forecast: fractions of each class the pools would reject
+    predicted_private_rejected: float | None = None
+    predicted_normal_rejected: float | None = None
 
 
 class SoftwareModuleStatus(FogModel):
