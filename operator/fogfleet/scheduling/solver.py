@@ -92,8 +92,8 @@ def nsga2(
         x = np.full(problem.n_instances, -1, dtype=np.int64)
         return finish(problem, "nsga2", x, True, t0, "no instance has a node it may run on")
     budget = settings.time_budget_millis / 1000.0
-    space = float(np.prod(pp.counts.astype(np.float64)))
-    exhaustive = not paper and space <= ENUMERATE_LIMIT
+    log_space = float(np.log(pp.counts.astype(np.float64)).sum())  # log: no overflow
+    exhaustive = not paper and log_space <= np.log(ENUMERATE_LIMIT)
     if exhaustive:
         # A search space this small is cheaper to enumerate than to evolve (pymoo's mating
         # loop would spin on duplicates), and the front is then exact.
