@@ -22,8 +22,11 @@ def plot_plan(problem: Problem, schedule: Schedule, out: Path) -> None:
     front = schedule.pareto_front
     names = schedule.objective_names
     if front is not None and len(names) >= 2 and len(front):
-        x, y = names[0], names[1] if len(names) > 1 else names[0]
-        ax_front.scatter(front[:, 0], front[:, 1], s=18, label="non-dominated plans")
+        # the first two objectives (in priority order) that actually vary along the front
+        varying = [k for k in range(len(names)) if np.ptp(front[:, k]) > 0] or [0]
+        a, b = (varying + [k for k in range(len(names)) if k not in varying])[:2]
+        x, y = names[a], names[b]
+        ax_front.scatter(front[:, a], front[:, b], s=18, label="non-dominated plans")
         ax_front.scatter(
             [schedule.objectives[x]],
             [schedule.objectives[y]],

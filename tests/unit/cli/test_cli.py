@@ -187,3 +187,10 @@ def test_a_module_that_fits_nowhere_is_reported_with_the_reason(
 def test_crds_check_passes_on_the_committed_crds(capsys: pytest.CaptureFixture[str]) -> None:
     code, out, _ = run(capsys, "crds", "--check", str(ROOT / "crds"))
     assert code == 0 and "match" in out
+
+
+def test_plot_writes_a_png(capsys: pytest.CaptureFixture[str], tmp_path: Path) -> None:
+    out = tmp_path / "plan.png"
+    code, _, _ = run(capsys, "plan", str(WAREHOUSE), "--generations", "5", "--plot", str(out))
+    assert code == 0
+    assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and out.stat().st_size > 10_000
