@@ -184,6 +184,17 @@ def _better(
     return False, "no objective improves by more than the margin"
 
 
+def _loads(problem: Problem, fit: Any, x: I64) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Requested (cpu, memory, gpu) per node and off-board traffic per robot of plan ``x``."""
+    used = np.zeros((problem.n_nodes, 3))
+    up = np.zeros(problem.n_nodes)
+    for i in np.flatnonzero(x >= 0):
+        used[x[i]] += fit.demand[i, x[i]]
+        if problem.home[i] >= 0 and x[i] != problem.home[i]:
+            up[problem.home[i]] += problem.traffic[i]
+    return used, up
+
+
 def _fill(problem: Problem, fixed: I64, prefer: I64) -> I64:
     """Place the instances that are -1 in ``fixed`` around the fixed ones: the ``prefer`` node
     if it still has room, else the allowed node with room and the lowest miss probability."""
@@ -191,12 +202,7 @@ def _fill(problem: Problem, fixed: I64, prefer: I64) -> I64:
 
     fit = Fit(problem, problem.limits)
     x = fixed.copy()
-    used = np.zeros((problem.n_nodes, 3))
-    up = np.zeros(problem.n_nodes)
-    for i in np.flatnonzero(x >= 0):
-        used[x[i]] += fit.demand[i, x[i]]
-        if problem.home[i] >= 0 and x[i] != problem.home[i]:
-            up[problem.home[i]] += problem.traffic[i]
+    used, up = _loads(problem, fit, x)
     for i in fit.order:
         if x[i] >= 0 or not problem.allowed[i].any():
             continue
@@ -221,15 +227,10 @@ def _fill(problem: Problem, fixed: I64, prefer: I64) -> I64:
 def _release_overloads(problem: Problem, x: I64, new: I64) -> I64:
     """Unpin instances from nodes that no longer fit them all (a module grew): first those the
     new plan moves anyway, largest CPU first, until the node fits."""
+    from fogfleet.scheduling.heuristics import Fit
+
     x = x.copy()
-    demand = np.stack(
-        [
-            problem.limits.cpu_request,
-            np.broadcast_to(problem.memory[:, None], problem.allowed.shape),
-            np.broadcast_to(problem.gpu[:, None], problem.allowed.shape),
-        ],
-        axis=2,
-    )
+    demand = Fit(problem, problem.limits).demand
     for j in range(problem.n_nodes):
         on = [int(i) for i in np.flatnonzero(x == j)]
         load = demand[on, j].sum(axis=0) if on else np.zeros(3)
@@ -249,12 +250,7 @@ def _revert(problem: Problem, new: I64, cur: I64, usable: NDArray[np.bool_]) -> 
 
     fit = Fit(problem, problem.limits)
     x = new.copy()
-    used = np.zeros((problem.n_nodes, 3))
-    up = np.zeros(problem.n_nodes)
-    for i in np.flatnonzero(x >= 0):
-        used[x[i]] += fit.demand[i, x[i]]
-        if problem.home[i] >= 0 and x[i] != problem.home[i]:
-            up[problem.home[i]] += problem.traffic[i]
+    used, up = _loads(problem, fit, x)
     for _ in range(2):
         for i in np.flatnonzero(usable & (x != cur)):
             a, b, h = int(x[i]), int(cur[i]), int(problem.home[i])
