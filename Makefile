@@ -65,12 +65,12 @@ bench-cluster: venv ## Operator benchmarks on the local control plane: apply-to-
 
 demo: venv ## Plan + simulate the warehouse fleet, then run it on the local control plane (operator, real kube-scheduler)
 	$(BIN)/fogfleet plan manifests/examples/warehouse
-	$(BIN)/fogfleet simulate manifests/examples/warehouse --scheduler all
+	$(BIN)/fogfleet simulate manifests/examples/warehouse --scheduler all --all-active
 	$(BIN)/python e2e/demo.py
 
 demo-offline: venv ## Only plan + simulate the warehouse fleet (no cluster, a few seconds)
 	$(BIN)/fogfleet plan manifests/examples/warehouse
-	$(BIN)/fogfleet simulate manifests/examples/warehouse --scheduler all
+	$(BIN)/fogfleet simulate manifests/examples/warehouse --scheduler all --all-active
 
 clean: ## Remove the virtualenv and caches in the repo
 	rm -rf $(VENV) .pytest_cache .mypy_cache .ruff_cache

@@ -194,3 +194,13 @@ def test_plot_writes_a_png(capsys: pytest.CaptureFixture[str], tmp_path: Path) -
     code, _, _ = run(capsys, "plan", str(WAREHOUSE), "--generations", "5", "--plot", str(out))
     assert code == 0
     assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and out.stat().st_size > 10_000
+
+
+def test_all_active_reproduces_the_papers_overloaded_robot(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    args = ("simulate", str(WAREHOUSE), "--scheduler", "onboard", "--duration", "10", "--json")
+    _, rates, _ = run(capsys, *args)
+    _, busy, _ = run(capsys, *args, "--all-active")
+    # IV-B: every module active at once saturates the 6 on-board cores far more often
+    assert json.loads(busy)["onboard"]["missRate"] > 2 * json.loads(rates)["onboard"]["missRate"]
