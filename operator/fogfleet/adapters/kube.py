@@ -224,37 +224,39 @@ class KubeClient:
                 missing_ok=True,
             )
 
-    def patch_module_status(self, namespace: str, name: str, status: Mapping[str, Any]) -> None:
-        with map_errors(f"patch the status of SoftwareModule {namespace}/{name}"):
+    def _merge_patch(self, what: str, path: str, body: Mapping[str, Any]) -> None:
+        """A JSON merge patch of one fogfleet object (a missing object is not an error)."""
+        with map_errors(what):
             self._call(
                 "PATCH",
-                f"/apis/{GROUP}/{VERSION}/namespaces/{namespace}/softwaremodules/{name}/status",
-                body={"status": dict(status)},
-                content_type="application/merge-patch+json",
+                f"/apis/{GROUP}/{VERSION}/namespaces/{path}",
+                body=dict(body),
+                content_type=MERGE,
                 missing_ok=True,
             )
+
+    def patch_module_status(self, namespace: str, name: str, status: Mapping[str, Any]) -> None:
+        self._merge_patch(
+            f"patch the status of SoftwareModule {namespace}/{name}",
+            f"{namespace}/softwaremodules/{name}/status",
+            {"status": dict(status)},
+        )
 
     def patch_module_annotations(
         self, namespace: str, name: str, annotations: Mapping[str, str | None]
     ) -> None:
-        with map_errors(f"annotate SoftwareModule {namespace}/{name}"):
-            self._call(
-                "PATCH",
-                f"/apis/{GROUP}/{VERSION}/namespaces/{namespace}/softwaremodules/{name}",
-                body={"metadata": {"annotations": dict(annotations)}},
-                content_type="application/merge-patch+json",
-                missing_ok=True,
-            )
+        self._merge_patch(
+            f"annotate SoftwareModule {namespace}/{name}",
+            f"{namespace}/softwaremodules/{name}",
+            {"metadata": {"annotations": dict(annotations)}},
+        )
 
     def patch_fleet_status(self, namespace: str, name: str, status: Mapping[str, Any]) -> None:
-        with map_errors(f"patch the status of RobotFleet {namespace}/{name}"):
-            self._call(
-                "PATCH",
-                f"/apis/{GROUP}/{VERSION}/namespaces/{namespace}/robotfleets/{name}/status",
-                body={"status": dict(status)},
-                content_type=MERGE,
-                missing_ok=True,
-            )
+        self._merge_patch(
+            f"patch the status of RobotFleet {namespace}/{name}",
+            f"{namespace}/robotfleets/{name}/status",
+            {"status": dict(status)},
+        )
 
     def emit_event(
         self, involved: Mapping[str, Any], type_: str, reason: str, message: str
