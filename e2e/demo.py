@@ -20,7 +20,7 @@ sys.path.insert(0, str(ROOT))
 
 from e2e.cluster import ensure_up  # noqa: E402
 from e2e.cluster.kube import Kube, guard_kubeconfig  # noqa: E402
-from e2e.operator_fixtures import CRDS, Operator, conditions, example_docs  # noqa: E402
+from e2e.operator_fixtures import Operator, conditions, example_docs, install_crds  # noqa: E402
 
 NAMESPACE = "fogfleet-demo"
 TIMEOUT_SECONDS = 240
@@ -31,8 +31,7 @@ def main() -> int:
     server = guard_kubeconfig(cluster.kubeconfig, expected_server=cluster.api_server)
     kubectl = str(cluster.bin_dir / "kubectl")
     kube = Kube(cluster.kubeconfig, server, kubectl, False, cluster)
-    kube.kubectl("apply", "--server-side", "-f", str(CRDS))
-    kube.kubectl("wait", "--for=condition=Established", "crd", "--all", "--timeout=60s")
+    install_crds(kube)
     kube.kubectl("delete", "namespace", NAMESPACE, "--ignore-not-found", "--wait=true")
     kube.kubectl("create", "namespace", NAMESPACE)
     log = Path(tempfile.mkdtemp(prefix="fogfleet-demo-")) / "operator.log"

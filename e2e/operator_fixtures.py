@@ -193,6 +193,29 @@ def all_pods(kube: Kube, namespace: str) -> list[Obj]:
     return items
 
 
+def install_crds(kube: Kube) -> None:
+    """Apply crds/ (server-side, ours win) and wait until the API server serves all three."""
+    kube.kubectl("apply", "--server-side", "--force-conflicts", "-f", str(CRDS))
+    for name in ("robotfleets", "softwaremodules", "computenodes"):
+        kube.kubectl(
+            "wait", "--for=condition=Established", f"crd/{name}.fogfleet.io", "--timeout=60s"
+        )
+
+
+def add_module_to_fleet(kube: Kube, namespace: str, module: str, fleet: str = "warehouse") -> None:
+    """Append a module reference to a fleet's spec.modules (a JSON patch, as a user would)."""
+    op = [{"op": "add", "path": "/spec/modules/-", "value": {"name": module}}]
+    kube.kubectl("patch", "robotfleet", fleet, "-n", namespace, "--type=json", "-p", json.dumps(op))
+
+
+def deployment_versions(kube: Kube, namespace: str) -> dict[str, str]:
+    """Deployment name -> resourceVersion: equal before and after means nothing was touched."""
+    return {
+        d["metadata"]["name"]: d["metadata"]["resourceVersion"]
+        for d in deployments(kube, namespace)
+    }
+
+
 def deployments(kube: Kube, namespace: str) -> list[Obj]:
     items: list[Obj] = kube.kubectl_json("get", "deployments", "-n", namespace)["items"]
     return items

@@ -26,12 +26,12 @@ import yaml
 from e2e.cluster.harness import Cluster
 from e2e.cluster.kube import Kube
 from e2e.operator_fixtures import (
-    CRDS,
     EXAMPLES,
     Operator,
     bound_node,
     example_docs,
     free_port,
+    install_crds,
     of_kind,
 )
 from fogfleet.adapters.kube import KubeClient, load_config
@@ -172,11 +172,7 @@ class Rig:
 
 @pytest.fixture(scope="module")
 def crds(kube: Kube) -> None:
-    kube.kubectl("apply", "--server-side", "--force-conflicts", "-f", str(CRDS))
-    for name in ("robotfleets", "softwaremodules", "computenodes"):
-        kube.kubectl(
-            "wait", "--for=condition=Established", f"crd/{name}.fogfleet.io", "--timeout=60s"
-        )
+    install_crds(kube)
 
 
 def _scenario(path: Path, namespace: str, rate: float) -> Path:

@@ -17,17 +17,19 @@ import pytest
 from e2e.cluster.harness import Cluster
 from e2e.cluster.kube import Kube
 from e2e.operator_fixtures import (
-    CRDS,
     ROOT,
     Operator,
+    add_module_to_fleet,
     bound_node,
     condition_is,
     conditions,
+    deployment_versions,
     deployments,
     dump,
     events,
     example_docs,
     fleet,
+    install_crds,
     of_kind,
     pods_by_instance,
 )
@@ -38,11 +40,7 @@ N_INSTANCES = 40  # 5 robots x 8 per-robot modules
 
 @pytest.fixture(scope="module")
 def crds(kube: Kube) -> None:
-    kube.kubectl("apply", "--server-side", "--force-conflicts", "-f", str(CRDS))
-    for name in ("robotfleets", "softwaremodules", "computenodes"):
-        kube.kubectl(
-            "wait", "--for=condition=Established", f"crd/{name}.fogfleet.io", "--timeout=60s"
-        )
+    install_crds(kube)
 
 
 @pytest.fixture
@@ -219,22 +217,10 @@ def test_invalid_objects_are_rejected_or_reported_without_touching_what_runs(
 
     apply_warehouse(kube, namespace)
     wait_ready(kube, namespace)
-    before = {
-        d["metadata"]["name"]: d["metadata"]["resourceVersion"]
-        for d in deployments(kube, namespace)
-    }
+    before = deployment_versions(kube, namespace)
 
     # a dangling reference: Ready=False naming the field, an Event, nothing touched
-    kube.kubectl(
-        "patch",
-        "robotfleet",
-        "warehouse",
-        "-n",
-        namespace,
-        "--type=json",
-        "-p",
-        '[{"op": "add", "path": "/spec/modules/-", "value": {"name": "no-such-module"}}]',
-    )
+    add_module_to_fleet(kube, namespace, "no-such-module")
     kube.wait_for(
         "DanglingReference",
         lambda: condition_is(kube, namespace, "Ready", "False", reason="DanglingReference"),
@@ -243,10 +229,7 @@ def test_invalid_objects_are_rejected_or_reported_without_touching_what_runs(
     msg = conditions(fleet(kube, namespace))["Ready"]["message"]
     assert "spec.modules[8].name" in msg and "no-such-module" in msg, msg
     assert events(kube, namespace, "DanglingReference")
-    after = {
-        d["metadata"]["name"]: d["metadata"]["resourceVersion"]
-        for d in deployments(kube, namespace)
-    }
+    after = deployment_versions(kube, namespace)
     assert after == before
 
     # the module appears: the fleet re-plans by itself
@@ -268,20 +251,8 @@ def test_invalid_objects_are_rejected_or_reported_without_touching_what_runs(
     greedy = {**greedy, "metadata": {"name": "memory-hog", "namespace": namespace}}
     greedy["spec"] = {**greedy["spec"], "resources": {"cpu": "500m", "memory": "64Gi"}}
     kube.apply(greedy)
-    before = {
-        d["metadata"]["name"]: d["metadata"]["resourceVersion"]
-        for d in deployments(kube, namespace)
-    }
-    kube.kubectl(
-        "patch",
-        "robotfleet",
-        "warehouse",
-        "-n",
-        namespace,
-        "--type=json",
-        "-p",
-        '[{"op": "add", "path": "/spec/modules/-", "value": {"name": "memory-hog"}}]',
-    )
+    before = deployment_versions(kube, namespace)
+    add_module_to_fleet(kube, namespace, "memory-hog")
     kube.wait_for(
         "Infeasible",
         lambda: condition_is(kube, namespace, "Ready", "False", reason="Infeasible"),
@@ -290,10 +261,7 @@ def test_invalid_objects_are_rejected_or_reported_without_touching_what_runs(
     assert events(kube, namespace, "PlanFailed")
     msg = conditions(fleet(kube, namespace))["Ready"]["message"]
     assert "memory" in msg, msg
-    after = {
-        d["metadata"]["name"]: d["metadata"]["resourceVersion"]
-        for d in deployments(kube, namespace)
-    }
+    after = deployment_versions(kube, namespace)
     assert after == before
 
 
