@@ -1,0 +1,149 @@
+"""Shared ground of the e2e harness: paths, errors, logging, subprocesses, locking, waiting.
+
+Stdlib only, so every harness module runs with any python3 >= 3.11.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import fcntl
+import os
+import socket
+import ssl
+import subprocess
+import sys
+import time
+import urllib.request
+from collections.abc import Callable, Iterator, Mapping, Sequence
+from pathlib import Path
+
+HERE = Path(__file__).resolve().parent
+REPO_ROOT = HERE.parent.parent
+VERSIONS_FILE = HERE / "versions.env"
+
+CACHE_ROOT = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "fogfleet"
+TOOLS_DIR = CACHE_ROOT / "tools"
+BIN_DIR = CACHE_ROOT / "bin"
+STATE_DIR = CACHE_ROOT / "cluster"
+KUBECONFIG = STATE_DIR / "kubeconfig"
+PROMETHEUS_TARGETS_DIR = STATE_DIR / "prometheus-targets"
+LOCK_FILE = CACHE_ROOT / "harness.lock"
+
+HOST = "127.0.0.1"
+
+
+class HarnessError(RuntimeError):
+    """Anything that stops the harness: missing toolchain, registry outage, unhealthy process."""
+
+
+_T0 = time.monotonic()
+
+
+def log(msg: str) -> None:
+    print(f"[harness {time.monotonic() - _T0:6.1f}s] {msg}", file=sys.stderr, flush=True)
+
+
+def load_versions(path: Path = VERSIONS_FILE) -> dict[str, str]:
+    versions: dict[str, str] = {}
+    for raw in path.read_text().splitlines():
+        line = raw.strip()
+        if not line or line.startswith("#"):
+            continue
+        key, sep, value = line.partition("=")
+        if not sep:
+            raise HarnessError(f"{path}: bad line {raw!r}")
+        versions[key.strip()] = value.strip()
+    return versions
+
+
+def run(
+    cmd: Sequence[str | os.PathLike[str]],
+    *,
+    cwd: Path | None = None,
+    env: Mapping[str, str] | None = None,
+    log_file: Path | None = None,
+    timeout: float | None = None,
+    hint: str = "",
+) -> str:
+    """Run a command, return stdout+stderr; on failure raise HarnessError with the output tail."""
+    argv = [str(c) for c in cmd]
+    try:
+        proc = subprocess.run(
+            argv,
+            cwd=cwd,
+            env=dict(env) if env is not None else None,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.STDOUT,
+            text=True,
+            timeout=timeout,
+            check=False,
+        )
+    except FileNotFoundError as exc:
+        raise HarnessError(f"command not found: {argv[0]} {hint}".strip()) from exc
+    except subprocess.TimeoutExpired as exc:
+        raise HarnessError(f"timed out after {timeout}s: {' '.join(argv)}") from exc
+    if log_file is not None:
+        with log_file.open("a") as fh:
+            fh.write(f"$ {' '.join(argv)}\n{proc.stdout}\n")
+    if proc.returncode != 0:
+        tail = "\n".join(proc.stdout.splitlines()[-40:])
+        raise HarnessError(
+            f"command failed (exit {proc.returncode}): {' '.join(argv)}\n{tail}\n{hint}".rstrip()
+        )
+    return proc.stdout
+
+
+@contextlib.contextmanager
+def locked() -> Iterator[None]:
+    """Serialise build/up/down across processes (two pytest sessions, make in another shell)."""
+    CACHE_ROOT.mkdir(parents=True, exist_ok=True)
+    with LOCK_FILE.open("a") as fh:
+        fcntl.flock(fh, fcntl.LOCK_EX)
+        try:
+            yield
+        finally:
+            fcntl.flock(fh, fcntl.LOCK_UN)
+
+
+def wait_for(what: str, check: Callable[[], bool], timeout: float, interval: float = 0.5) -> None:
+    deadline = time.monotonic() + timeout
+    while True:
+        try:
+            if check():
+                return
+        except Exception:  # a probe that raises counts as "not yet"
+            pass
+        if time.monotonic() > deadline:
+            raise HarnessError(f"timed out after {timeout:.0f}s waiting for {what}")
+        time.sleep(interval)
+
+
+def http_get(url: str, *, context: ssl.SSLContext | None = None, timeout: float = 3) -> str:
+    with urllib.request.urlopen(url, context=context, timeout=timeout) as resp:
+        body: bytes = resp.read()
+        return body.decode()
+
+
+def insecure_tls() -> ssl.SSLContext:
+    ctx = ssl.create_default_context()
+    ctx.check_hostname = False
+    ctx.verify_mode = ssl.CERT_NONE
+    return ctx
+
+
+def port_is_free(port: int) -> bool:
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+        # as the Go servers do: a port in TIME_WAIT from a previous run counts as free
+        s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        try:
+            s.bind((HOST, port))
+        except OSError:
+            return False
+        return True
+
+
+def free_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+        s.bind((HOST, 0))
+        port: int = s.getsockname()[1]
+        return port
