@@ -149,15 +149,6 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     parser.error(f"unknown command {ns.cmd}")
     return 2
-        return 0
-    if ns.cmd == "status":
-        return status()
-    if ns.cmd == "nodes":
-        names = create_nodes(ns.robots, ns.edges, ns.cloud)
-        print(f"{len(names)} nodes: {' '.join(names)}")
-        return 0
-    parser.error(f"unknown command {ns.cmd}")
-    return 2
 
 
 if __name__ == "__main__":
