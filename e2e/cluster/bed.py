@@ -6,10 +6,17 @@ down()       stops every process by pid and removes every file, mount, link and 
 
 from __future__ import annotations
 
+import json
 import shutil
+import socket
+import sys
 import time
+from pathlib import Path
 
+from e2e.cluster import bednet, realnodes
 from e2e.cluster.base import (
+    HERE,
+    HOST,
     STATE_DIR,
     VERSIONS_FILE,
     load_versions,
@@ -27,15 +34,86 @@ from e2e.cluster.controlplane import (
     _write_state,
 )
 from e2e.cluster.fakenodes import NODES_FILE, _apply_nodes
-from e2e.cluster.processes import _alive, _start
+from e2e.cluster.processes import _alive, _start, _stop
 from e2e.cluster.tools import ensure_built
+
+GATEWAY = "bed-gateway"
+POD_DISCOVERY = "pod-discovery"
+
+
+def _bed_images() -> list[Path]:
+    """Image archives every real node gets (the pause image first)."""
+    from e2e.cluster import images
+
+    return images.bed_archives()
+
+
+def _kubernetes_endpoints(cluster: Cluster) -> None:
+    """Point the `kubernetes` Service at the apiserver's bridge address (no reconciler runs)."""
+    port = cluster.ports["kube-apiserver"]
+    slice_ = {
+        "apiVersion": "discovery.k8s.io/v1",
+        "kind": "EndpointSlice",
+        "metadata": {
+            "name": "kubernetes-bed",
+            "namespace": "default",
+            "labels": {
+                "kubernetes.io/service-name": "kubernetes",
+                "endpointslice.kubernetes.io/managed-by": "fogfleet-e2e-harness",
+            },
+        },
+        "addressType": "IPv4",
+        "endpoints": [{"addresses": [bednet.BRIDGE_IP], "conditions": {"ready": True}}],
+        "ports": [{"name": "https", "port": port, "protocol": "TCP"}],
+    }
+    cluster.kubectl("apply", "-f", "-", input=json.dumps(slice_))
+
+
+def _start_real_nodes(cluster: Cluster, real: list[realnodes.RealNode]) -> None:
+    t0 = time.monotonic()
+    images = _bed_images()
+    bednet.ensure_bridge()
+    port = cluster.ports["kube-apiserver"]
+    _start(
+        GATEWAY,
+        [sys.executable, str(HERE / "gateway.py"), f"{bednet.BRIDGE_IP}:{port}={HOST}:{port}"],
+    )
+    wait_for(
+        "the bed gateway",
+        lambda: socket.create_connection((bednet.BRIDGE_IP, port), timeout=1).close() is None,
+        20,
+    )
+    _kubernetes_endpoints(cluster)
+    _start(
+        POD_DISCOVERY,
+        [
+            sys.executable,
+            str(HERE / "poddiscovery.py"),
+            str(STATE_DIR),
+            cluster.api_server,
+            str(cluster.prometheus_targets_dir / "kubernetes-pods.json"),
+        ],
+    )
+    realnodes.start(real, f"https://{bednet.BRIDGE_IP}:{port}", images)
+    log(f"real nodes started in {time.monotonic() - t0:.1f}s")
+
+
+def _stop_everything() -> None:
+    state = _read_state() or {}
+    names = state.get("real_nodes", [])
+    nodes = [realnodes.RealNode(n, i + 1, {}, 0, 0) for i, n in enumerate(names)]
+    realnodes.stop(nodes)
+    _stop(POD_DISCOVERY)
+    _stop(GATEWAY)
+    _stop_all()
 
 
 def ensure_up(*, nodes: bool = True) -> Cluster:
-    """Start the control plane unless it already runs healthy; return it.
+    """Start the bed unless it already runs healthy; return it.
 
-    With `nodes`, a fresh cluster gets the fake Nodes of e2e/cluster/nodes.yaml. A cluster that
-    was already running is left alone (a scale test may have replaced the node set).
+    The bed is the control plane, the real nodes of e2e/cluster/nodes.yaml (always) and, with
+    `nodes`, its fake nodes. A bed that was already running is left alone (a scale test may
+    have replaced the fake node set).
     """
     with locked():
         cluster = running()
@@ -48,13 +126,15 @@ def ensure_up(*, nodes: bool = True) -> Cluster:
         if _read_state() is not None or any(_alive(c) for c in COMPONENTS):
             sick = [c for c in COMPONENTS if _alive(c) is None]
             log(f"found a stale or unhealthy cluster (down: {sick or 'none'}); restarting it")
-            _stop_all()
+        _stop_everything()
+        bednet.teardown()
         shutil.rmtree(STATE_DIR, ignore_errors=True)
         ensure_built()
+        fake, real = realnodes.split_manifest(NODES_FILE.read_text())
         t0 = time.monotonic()
         STATE_DIR.mkdir(parents=True)
         ports = _choose_ports()
-        _write_state(ports, "starting")
+        _write_state(ports, "starting", [n.name for n in real])
         _write_configs(ports)
         argv = _argv(ports)
         try:
@@ -75,25 +155,39 @@ def ensure_up(*, nodes: bool = True) -> Cluster:
                 lambda: cluster.kubectl("get", "sa", "default", check=False).returncode == 0,
                 60,
             )
+            if real:
+                _start_real_nodes(cluster, real)
             if nodes:
-                _apply_nodes(cluster, NODES_FILE.read_text())
+                _apply_nodes(
+                    cluster, json.dumps({"apiVersion": "v1", "kind": "List", "items": fake})
+                )
+            if real:
+                realnodes.wait_ready(cluster.kubectl, [n.name for n in real])
         except BaseException:
             log(f"start-up failed; stopping what was started (logs kept in {STATE_DIR / 'logs'})")
-            _stop_all()
-            _write_state(ports, "failed")
+            for node in real:
+                if node.dir.exists():
+                    log(realnodes.diagnose(node))
+            _stop_everything()
+            _write_state(ports, "failed", [n.name for n in real])
             raise
-        _write_state(ports, "running")
-        log(f"cluster up in {time.monotonic() - t0:.1f}s")
+        _write_state(ports, "running", [n.name for n in real])
+        log(f"cluster up in {time.monotonic() - t0:.1f}s ({len(real)} real nodes)")
         return cluster
 
 
 def down() -> None:
-    """Stop every process the harness started (stored pids only) and remove the state."""
+    """Stop every process the harness started (stored pids only) and remove the state.
+
+    Real nodes: their processes (by pid, then whatever is left in their cgroups), namespaces,
+    veths, bridge, routes, cgroups, the mount points the bed created and their directories.
+    """
     with locked():
         if not STATE_DIR.exists():
             log("not running (no state)")
+            bednet.teardown()
             return
-        _stop_all()
+        _stop_everything()
         shutil.rmtree(STATE_DIR, ignore_errors=True)
         log(f"removed {STATE_DIR}")
 

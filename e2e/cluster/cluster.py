@@ -98,11 +98,13 @@ class Cluster:
     prometheus_url: str
     prometheus_targets_dir: Path
     ports: Mapping[str, int]
+    real_nodes: tuple[str, ...] = ()
 
     @classmethod
     def from_state(cls, state: Mapping[str, Any]) -> Cluster:
         ports = dict(state["ports"])
         return cls(
+            real_nodes=tuple(state.get("real_nodes", ())),
             state_dir=STATE_DIR,
             bin_dir=BIN_DIR,
             kubeconfig=KUBECONFIG,
@@ -200,6 +202,10 @@ def running() -> Cluster | None:
     if state is None or state.get("phase") != "running":
         return None
     cluster = Cluster.from_state(state)
-    if all(_alive(c) for c in COMPONENTS) and all(ok for ok, _ in cluster.health().values()):
+    real = [f"node-{n}" for n in state.get("real_nodes", [])]
+    gateway = ["bed-gateway", "pod-discovery"] if real else []
+    if not all(_alive(c) for c in (*COMPONENTS, *real, *gateway)):
+        return None
+    if all(ok for ok, _ in cluster.health().values()):
         return cluster
     return None

@@ -24,6 +24,7 @@ from e2e.cluster.base import (
     port_is_free,
     run,
 )
+from e2e.cluster.bednet import SERVICE_CIDR
 from e2e.cluster.cluster import (
     COMPONENTS,
     HEARTBEAT_LABEL,
@@ -138,10 +139,13 @@ def _argv(ports: Mapping[str, int]) -> dict[str, tuple[list[str], dict[str, str]
                 "--service-account-issuer=https://kubernetes.default.svc.cluster.local",
                 f"--service-account-key-file={pki / 'sa.key'}",
                 f"--service-account-signing-key-file={pki / 'sa.key'}",
-                "--service-cluster-ip-range=10.96.0.0/16",
+                f"--service-cluster-ip-range={SERVICE_CIDR}",
                 "--authorization-mode=Node,RBAC",
                 "--allow-privileged=true",
-                "--kubelet-preferred-address-types=Hostname",
+                # real nodes report their bed address; kwok's fake nodes only `localhost`
+                "--kubelet-preferred-address-types=InternalIP,Hostname",
+                f"--kubelet-client-certificate={pki / 'admin.crt'}",
+                f"--kubelet-client-key={pki / 'admin.key'}",
                 f"--default-not-ready-toleration-seconds={POD_EVICTION_TOLERATION_SECONDS}",
                 f"--default-unreachable-toleration-seconds={POD_EVICTION_TOLERATION_SECONDS}",
                 # front-proxy/requestheader settings, so kcm and the scheduler find a complete
@@ -195,6 +199,8 @@ def _argv(ports: Mapping[str, int]) -> dict[str, tuple[list[str], dict[str, str]
                 str(b / "kwok"),
                 f"--kubeconfig={kc}",
                 f"--config={s / 'kwok.yaml'}",
+                # only the fake nodes: real nodes have kubelets of their own
+                "--manage-nodes-with-annotation-selector=kwok.x-k8s.io/node=fake",
                 f"--manage-nodes-with-label-selector={HEARTBEAT_LABEL}!=stopped",
                 "--node-name=localhost",
                 "--node-ip=",
@@ -259,9 +265,10 @@ def _write_configs(ports: Mapping[str, int]) -> None:
     run([BIN_DIR / "promtool", "check", "config", STATE_DIR / "prometheus.yml"])
 
 
-def _write_state(ports: Mapping[str, int], phase: str) -> None:
+def _write_state(ports: Mapping[str, int], phase: str, real_nodes: list[str] | None = None) -> None:
     state = {
         "phase": phase,
+        "real_nodes": list(real_nodes or []),
         "ports": dict(ports),
         "versions": load_versions(),
         "api_server": f"https://{HOST}:{ports['kube-apiserver']}",

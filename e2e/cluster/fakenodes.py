@@ -85,5 +85,6 @@ def create_nodes(robots: int | None = None, edges: int | None = None, cloud: int
     else:
         items = generated_nodes(robots or 0, edges or 0, cloud)
         manifest = json.dumps({"apiVersion": "v1", "kind": "List", "items": items})
-    cluster.kubectl("delete", "nodes", "--all", "--wait=true", timeout=300)
+    # only the fake ones: a real node's kubelet registers its Node once, at start
+    cluster.kubectl("delete", "nodes", "-l", "!fogfleet.io/e2e-real", "--wait=true", timeout=300)
     return _apply_nodes(cluster, manifest, timeout=300)
