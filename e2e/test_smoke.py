@@ -78,7 +78,7 @@ def _deployment(name: str, replicas: int, hostname: str) -> dict[str, Any]:
 
 
 def test_pods_of_a_pinned_deployment_run_on_exactly_that_node(kube: Kube, namespace: str) -> None:
-    robots = _ready_nodes(kube, "fogfleet.io/tier=robot")
+    robots = _ready_nodes(kube, "fogfleet.io/tier=robot,!fogfleet.io/e2e-real")
     assert len(robots) >= 2, f"need two Ready robot nodes, found {robots}"
     target = robots[-1]  # not the first one, so a scheduler ignoring affinity is caught
     hostname = kube.kubectl_json("get", "node", target)["metadata"]["labels"][
@@ -364,7 +364,7 @@ def _ready_status(kube: Kube, node: str) -> tuple[str, set[str]]:
 
 
 def test_a_node_can_be_made_not_ready_and_recover(kube: Kube, cluster: Cluster) -> None:
-    edges = _ready_nodes(kube, "fogfleet.io/tier=edge")
+    edges = _ready_nodes(kube, "fogfleet.io/tier=edge,!fogfleet.io/e2e-real")
     assert len(edges) >= 2, f"need two Ready edge nodes, found {edges}"
     reported, lost = edges[-1], edges[-2]
     try:

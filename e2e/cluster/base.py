@@ -20,6 +20,7 @@ from pathlib import Path
 HERE = Path(__file__).resolve().parent
 REPO_ROOT = HERE.parent.parent
 VERSIONS_FILE = HERE / "versions.env"
+NODES_FILE = HERE / "nodes.yaml"
 
 CACHE_ROOT = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "fogfleet"
 TOOLS_DIR = CACHE_ROOT / "tools"

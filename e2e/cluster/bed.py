@@ -209,6 +209,19 @@ def status() -> int:
             f"{name:<25} {pid or '-':>8} {cluster.ports[name]:>6}  "
             f"{'ok' if ok else 'DOWN'} {'' if ok else detail[:60]}"
         )
+    real = state.get("real_nodes", [])
+    for name in real:
+        node = realnodes.declared(name)
+        pid = _alive(node.process_name)
+        all_ok &= pid is not None
+        link = node.link
+        print(
+            f"{'node ' + name:<25} {pid or '-':>8} {'':>6}  {'ok' if pid else 'DOWN'}  "
+            f"cpu {node.cpu_millis}m, memory {node.memory_bytes // 2**20}Mi, {node.net.ip}, "
+            f"pods {node.net.pod_cidr}, link {link.get('type')} "
+            f"{link.get('latencyMillis')}±{link.get('jitterMillis', 0)} ms "
+            f"{link.get('bandwidthMbps')} Mbit/s"
+        )
     print(f"kubeconfig:      {cluster.kubeconfig}")
     print(f"api server:      {cluster.api_server}")
     print(f"prometheus:      {cluster.prometheus_url}")

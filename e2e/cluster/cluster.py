@@ -9,7 +9,7 @@ import subprocess
 import urllib.error
 import urllib.parse
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -99,12 +99,14 @@ class Cluster:
     prometheus_targets_dir: Path
     ports: Mapping[str, int]
     real_nodes: tuple[str, ...] = ()
+    versions: Mapping[str, str] = field(default_factory=dict)
 
     @classmethod
     def from_state(cls, state: Mapping[str, Any]) -> Cluster:
         ports = dict(state["ports"])
         return cls(
             real_nodes=tuple(state.get("real_nodes", ())),
+            versions=dict(state.get("versions", {})),
             state_dir=STATE_DIR,
             bin_dir=BIN_DIR,
             kubeconfig=KUBECONFIG,
@@ -191,6 +193,26 @@ class Cluster:
 
     def resume_node_heartbeat(self, node: str) -> None:
         self.kubectl("label", "node", node, f"{HEARTBEAT_LABEL}-")
+
+    def set_link(self, node: str, **change: float) -> None:
+        """Change a real node's emulated link while the bed runs (delay_ms, jitter_ms,
+        rate_mbit, loss_percent; unnamed fields keep nodes.yaml's values). loss 100 cuts it."""
+        from e2e.cluster import realnodes
+
+        realnodes.set_link(self._real(node), **change)
+
+    def reset_link(self, node: str) -> None:
+        """Back to the link nodes.yaml declares for the node."""
+        from e2e.cluster import realnodes
+
+        realnodes.set_link(self._real(node))
+
+    def _real(self, name: str) -> Any:
+        from e2e.cluster import realnodes
+
+        if name not in self.real_nodes:
+            raise HarnessError(f"{name} is not a real node of this bed ({self.real_nodes})")
+        return realnodes.declared(name)
 
     def log_tail(self, component: str, lines: int = 40) -> str:
         return log_tail(component, lines)

@@ -6,10 +6,8 @@ import json
 import time
 from typing import Any
 
-from e2e.cluster.base import HERE, HarnessError, log, wait_for
+from e2e.cluster.base import NODES_FILE, HarnessError, log, wait_for
 from e2e.cluster.cluster import Cluster, running
-
-NODES_FILE = HERE / "nodes.yaml"
 
 
 def node_object(
@@ -76,15 +74,20 @@ def _apply_nodes(cluster: Cluster, manifest: str, timeout: float = 120) -> list[
 
 
 def create_nodes(robots: int | None = None, edges: int | None = None, cloud: int = 1) -> list[str]:
-    """Replace every Node with a generated set (or nodes.yaml when no counts are given)."""
+    """Replace every fake Node with a generated set (or nodes.yaml's when no counts are given).
+
+    Real nodes stay as they are.
+    """
+    from e2e.cluster.realnodes import split_manifest
+
     cluster = running()
     if cluster is None:
         raise HarnessError("the cluster is not running; run `harness.py up` first")
     if robots is None and edges is None:
-        manifest = NODES_FILE.read_text()
+        items, _ = split_manifest(NODES_FILE.read_text())
     else:
         items = generated_nodes(robots or 0, edges or 0, cloud)
-        manifest = json.dumps({"apiVersion": "v1", "kind": "List", "items": items})
+    manifest = json.dumps({"apiVersion": "v1", "kind": "List", "items": items})
     # only the fake ones: a real node's kubelet registers its Node once, at start
     cluster.kubectl("delete", "nodes", "-l", "!fogfleet.io/e2e-real", "--wait=true", timeout=300)
     return _apply_nodes(cluster, manifest, timeout=300)

@@ -33,7 +33,7 @@ from pathlib import Path
 from typing import Any
 
 from e2e.cluster import bednet, cgroups
-from e2e.cluster.base import BIN_DIR, HERE, STATE_DIR, HarnessError, log, run, wait_for
+from e2e.cluster.base import BIN_DIR, HERE, NODES_FILE, STATE_DIR, HarnessError, log, run, wait_for
 from e2e.cluster.bednet import NodeAddresses
 from e2e.cluster.pki import issue_cert, kubeconfig
 from e2e.cluster.processes import _alive, _start, _stop, log_tail
@@ -131,6 +131,24 @@ def split_manifest(text: str) -> tuple[list[dict[str, Any]], list[RealNode]]:
             raise HarnessError(f"nodes.yaml: real node {name}: bad or missing {exc}") from exc
         real.append(node)
     return fake, real
+
+
+def declared(name: str) -> RealNode:
+    """The real node `name` as nodes.yaml declares it."""
+    _, real = split_manifest(NODES_FILE.read_text())
+    for node in real:
+        if node.name == name:
+            return node
+    raise HarnessError(f"nodes.yaml declares no real node {name!r}")
+
+
+def set_link(node: RealNode, **change: float) -> None:
+    """Apply the node's declared link, with `change` (LinkSpec fields) on top."""
+    from e2e.cluster import links
+
+    spec = links.LinkSpec.from_network(node.link)
+    spec = links.LinkSpec(**{**spec.__dict__, **change})
+    links.apply_link(node.net.netns, node.net.node_veth, node.net.host_veth, spec)
 
 
 # --------------------------------------------------------------------------------------------

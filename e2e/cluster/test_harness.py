@@ -6,10 +6,10 @@ import json
 from pathlib import Path
 
 import pytest
-import yaml
 
 from e2e.cluster import harness
 from e2e.cluster.kube import UnsafeKubeconfig, guard_kubeconfig
+from e2e.cluster.realnodes import split_manifest
 
 
 def _kubeconfig(path: Path, *servers: str) -> Path:
@@ -82,13 +82,39 @@ replace (
 
 
 def test_generated_nodes_label_like_nodes_yaml() -> None:
-    fixed = {d["metadata"]["name"]: d for d in yaml.safe_load_all(harness.NODES_FILE.read_text())}
+    fake, _ = split_manifest(harness.NODES_FILE.read_text())
+    fixed = {d["metadata"]["name"]: d for d in fake}
     generated = {n["metadata"]["name"]: n for n in harness.generated_nodes(5, 6, 1)}
     for name, node in generated.items():
         assert node["metadata"]["labels"] == fixed[name]["metadata"]["labels"], name
         assert node["status"] == fixed[name]["status"], name
     assert set(fixed) - set(generated) == {"solo-robot", "solo-edge"}
     assert all(not d.get("spec", {}).get("taints") for d in fixed.values())
+    assert all(d["metadata"]["annotations"]["kwok.x-k8s.io/node"] == "fake" for d in fake)
+
+
+def test_nodes_yaml_declares_two_real_robots_and_a_real_edge_node() -> None:
+    _, real = split_manifest(harness.NODES_FILE.read_text())
+    tiers = sorted(n.labels["fogfleet.io/tier"] for n in real)
+    assert tiers == ["edge", "robot", "robot"]
+    for node in real:
+        assert node.labels["fogfleet.io/e2e-real"] == "true"  # fake-node tests exclude them
+        assert 0 < node.cpu_millis < 2000 and node.memory_bytes >= 2**30
+        assert node.link["latencyMillis"] >= 0 and node.link["type"] in ("wifi", "lan", "wan")
+    assert [n.index for n in real] == [1, 2, 3]
+    assert len({n.net.ip for n in real} | {n.net.pod_cidr for n in real}) == 6
+
+
+def test_a_real_node_without_its_share_is_refused() -> None:
+    doc = """
+apiVersion: v1
+kind: Node
+metadata:
+  name: r
+  annotations: {fogfleet.io/e2e-real: "true", fogfleet.io/e2e-memory: 1Gi}
+"""
+    with pytest.raises(harness.HarnessError, match=r"real node r: bad or missing .*e2e-cpu"):
+        split_manifest(doc)
 
 
 def test_scrape_targets_must_be_loopback(tmp_path: Path) -> None:

@@ -28,7 +28,9 @@ from e2e.cluster.base import (
     run,
 )
 
-TOOLS = ("k8s", "etcd", "kwok", "helm", "prometheus")
+TOOLS = ("k8s", "etcd", "kwok", "helm", "prometheus", "node-runtime")
+# Debian packages a real node runs on (the kubelet and kube-proxy come from the k8s build).
+NODE_PACKAGES = ("containerd", "runc", "containernetworking-plugins", "iptables")
 K8S_COMMANDS = (
     "kube-apiserver",
     "kube-controller-manager",
@@ -117,10 +119,13 @@ class Tool:
     binaries: dict[str, Path]
     checks: list[tuple[Path, list[str], str]] = field(default_factory=list)
     extra: dict[str, Path] = field(default_factory=dict)
+    files: list[Path] = field(default_factory=list)
 
     def ok(self) -> bool:
-        return all(_version_ok(b, a, e) for b, a, e in self.checks) and all(
-            p.exists() for p in self.extra.values()
+        return (
+            all(_version_ok(b, a, e) for b, a, e in self.checks)
+            and all(p.exists() for p in self.extra.values())
+            and all(p.exists() for p in self.files)
         )
 
 
@@ -154,7 +159,22 @@ def tool_specs(v: Mapping[str, str]) -> dict[str, Tool]:
         },
     )
     prom.checks.append((prom.binaries["prometheus"], ["--version"], f"version {pv.split('+')[0]}"))
-    return {"k8s": k8s, "etcd": etcd, "kwok": kwok, "helm": helm, "prometheus": prom}
+    runtime = Tool("node-runtime", TOOLS_DIR / "node-runtime", {})
+    runtime.checks += [
+        (Path("/usr/bin/containerd"), ["--version"], "containerd"),
+        (Path("/usr/sbin/runc"), ["--version"], "runc version"),
+        (Path("/usr/bin/ctr"), ["--version"], "ctr"),
+        (Path("/usr/sbin/iptables"), ["--version"], "iptables"),
+    ]
+    runtime.files += [Path("/usr/lib/cni/bridge"), Path("/usr/lib/cni/host-local")]
+    return {
+        "k8s": k8s,
+        "etcd": etcd,
+        "kwok": kwok,
+        "helm": helm,
+        "prometheus": prom,
+        "node-runtime": runtime,
+    }
 
 
 def _staging_modules(gomod_text: str) -> list[str]:
@@ -317,7 +337,54 @@ def _build_prometheus(tool: Tool, v: Mapping[str, str], go: GoToolchain | None, 
     shutil.rmtree(dl, ignore_errors=True)
 
 
+def install_debian_packages(packages: Sequence[str], blog: Path | None = None) -> None:
+    """apt-get install what is missing, as root, without starting any service.
+
+    Debian's containerd would otherwise start a daemon on /run/containerd; a policy-rc.d that
+    answers 101 keeps every package's service down (the bed starts its own, per node).
+    """
+    missing = [
+        p
+        for p in packages
+        if subprocess.run(
+            ["dpkg-query", "-W", "-f=${Status}", p], capture_output=True, text=True, check=False
+        ).stdout.strip()
+        != "install ok installed"
+    ]
+    if not missing:
+        return
+    if os.geteuid() != 0 or shutil.which("apt-get") is None:
+        raise HarnessError(
+            f"the bed needs the Debian packages {' '.join(missing)}: install them as root "
+            f"(apt-get install {' '.join(missing)})"
+        )
+    policy = Path("/usr/sbin/policy-rc.d")
+    had_policy = policy.exists()
+    if not had_policy:
+        policy.write_text("#!/bin/sh\n# fogfleet bed: packages never start services\nexit 101\n")
+        policy.chmod(0o755)
+    env = dict(os.environ, DEBIAN_FRONTEND="noninteractive")
+    try:
+        try:
+            run(["apt-get", "install", "-y", "--no-install-recommends", *missing], env=env,
+                log_file=blog, timeout=900)  # fmt: skip
+        except HarnessError:
+            log("apt-get install failed; running apt-get update and retrying")
+            run(["apt-get", "update"], env=env, log_file=blog, timeout=600)
+            run(["apt-get", "install", "-y", "--no-install-recommends", *missing], env=env,
+                log_file=blog, timeout=900)  # fmt: skip
+    finally:
+        if not had_policy:
+            policy.unlink(missing_ok=True)
+    log(f"installed Debian packages: {' '.join(missing)}")
+
+
+def _build_node_runtime(tool: Tool, v: Mapping[str, str], go: object, blog: Path) -> None:
+    install_debian_packages(NODE_PACKAGES, blog)
+
+
 BUILDERS: dict[str, Callable[..., None]] = {
+    "node-runtime": _build_node_runtime,
     "k8s": _build_k8s,
     "etcd": _build_etcd,
     "kwok": _build_kwok,
@@ -346,7 +413,7 @@ def ensure_built(only: Sequence[str] = TOOLS, *, force: bool = False, quiet: boo
         if not force and tool.ok():
             timings.append((name, time.monotonic() - t0, "cached"))
         else:
-            if go is None and name != "prometheus":
+            if go is None and name not in ("prometheus", "node-runtime"):
                 go = GoToolchain.find(v)
             tool.root.mkdir(parents=True, exist_ok=True)
             blog = tool.root / "build.log"
