@@ -6,7 +6,9 @@
 from __future__ import annotations
 
 import asyncio
+import http.server
 import logging
+import signal
 import threading
 from typing import Any
 
@@ -14,6 +16,7 @@ import kopf
 
 from fogfleet import GROUP
 from fogfleet.adapters.kube import KubeClient, load_config
+from fogfleet.adapters.leases import LeaseLock, LeaseSettings
 from fogfleet.adapters.metrics import PrometheusMetrics
 from fogfleet.adapters.prometheus import PrometheusClient
 from fogfleet.controllers.deps import Deps
@@ -56,13 +59,83 @@ def configure_kopf(kopf_settings: kopf.OperatorSettings, settings: Settings) -> 
     kopf_settings.peering.name = settings.peering_name
 
 
+def _standby_health(settings: Settings) -> http.server.HTTPServer | None:
+    """Answer the liveness probe while waiting for the Lease (kopf serves it once leader)."""
+    if not settings.liveness_port:
+        return None
+
+    class Healthz(http.server.BaseHTTPRequestHandler):
+        def do_GET(self) -> None:
+            self.send_response(200 if self.path == "/healthz" else 404)
+            self.end_headers()
+            self.wfile.write(b"standby\n")
+
+        def log_message(self, *_: Any) -> None:
+            return
+
+    http.server.HTTPServer.allow_reuse_address = True
+    server = http.server.HTTPServer((settings.liveness_host, settings.liveness_port), Healthz)
+    threading.Thread(target=server.serve_forever, name="fogfleet-standby", daemon=True).start()
+    return server
+
+
+def _lead(settings: Settings, stop: threading.Event) -> LeaseLock | None:
+    """Block until this replica holds the Lease; None when stopped first."""
+    lock = LeaseLock(
+        load_config(settings.kubeconfig),
+        LeaseSettings(
+            namespace=settings.leader_election_namespace,
+            name=settings.leader_election_lease,
+            identity=settings.leader_election_identity,
+            lease_seconds=settings.lease_seconds,
+        ),
+    )
+    previous = {}
+    if threading.current_thread() is threading.main_thread():
+        for sig in (signal.SIGTERM, signal.SIGINT):
+            previous[sig] = signal.signal(sig, lambda *_: stop.set())
+    health = _standby_health(settings)
+    try:
+        return lock if lock.acquire(stop) else None
+    finally:
+        if health is not None:
+            health.shutdown()
+            health.server_close()
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+
+
 def run(
     settings: Settings,
     *,
     stop_flag: threading.Event | None = None,
     ready_flag: threading.Event | None = None,
 ) -> None:
-    """Run the operator until stopped (SIGINT/SIGTERM, or ``stop_flag`` when given)."""
+    """Run the operator until stopped (SIGINT/SIGTERM, or ``stop_flag`` when given).
+
+    With leader election, wait as a standby until this replica holds the Lease, and stop
+    reconciling at once if the Lease is lost (the container then restarts as a standby).
+    """
+    lock: LeaseLock | None = None
+    if settings.leader_election:
+        stop_flag = stop_flag or threading.Event()
+        lock = _lead(settings, stop_flag)
+        if lock is None:
+            return
+        lock.hold(stop_flag, on_lost=stop_flag.set)
+    try:
+        _run_kopf(settings, stop_flag=stop_flag, ready_flag=ready_flag)
+    finally:
+        if lock is not None:
+            lock.release()
+
+
+def _run_kopf(
+    settings: Settings,
+    *,
+    stop_flag: threading.Event | None,
+    ready_flag: threading.Event | None,
+) -> None:
     kopf.configure(
         debug=settings.log_level == "DEBUG",
         verbose=settings.log_level == "DEBUG",

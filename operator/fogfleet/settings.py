@@ -18,10 +18,17 @@ FOGFLEET_SCHEDULER_TIME_BUDGET_MILLIS  CRD's own defaults (100, 100, 20000)
 FOGFLEET_PROMETHEUS_URL           Prometheus for SLO-driven scaling (unset: nothing scales)
 FOGFLEET_SCALING_INTERVAL_SECONDS how often each scaled module decides (default 15, the HPA's sync)
 FOGFLEET_PEERING_NAME             kopf peering name when not standalone
+FOGFLEET_LEADER_ELECTION          true: only the holder of a Lease reconciles (several replicas)
+FOGFLEET_LEADER_ELECTION_NAMESPACE  the Lease's namespace (the chart sets the pod's namespace)
+FOGFLEET_LEADER_ELECTION_LEASE    the Lease's name (default fogfleet-operator)
+FOGFLEET_LEADER_ELECTION_IDENTITY this replica's identity (the chart sets the pod's name)
+FOGFLEET_LEASE_SECONDS            lease duration: a dead leader is replaced within this + 2 s
 """
 
 from __future__ import annotations
 
+import secrets
+import socket
 from typing import Annotated, Literal
 
 from pydantic import Field, field_validator
@@ -51,6 +58,13 @@ class Settings(BaseSettings):
     scheduler_time_budget_millis: Annotated[int, Field(ge=100)] | None = None
     prometheus_url: str | None = None
     scaling_interval_seconds: Annotated[float, Field(gt=0)] = 15.0
+    leader_election: bool = False
+    leader_election_namespace: str = "fogfleet-system"
+    leader_election_lease: str = "fogfleet-operator"
+    leader_election_identity: str = Field(
+        default_factory=lambda: f"{socket.gethostname()}-{secrets.token_hex(3)}"
+    )
+    lease_seconds: Annotated[int, Field(ge=3, le=300)] = 15
 
     def scheduler_defaults(self) -> dict[str, int]:
         """Scheduler fields (SchedulerSettings names) that fleets inherit when they omit them."""

@@ -107,13 +107,14 @@ def test_install_has_namespace_account_rbac_and_operator() -> None:
     objs = _install_objects()
     assert set(objs) == {
         "Namespace", "ServiceAccount", "ClusterRole", "ClusterRoleBinding", "Deployment",
+        "Role", "RoleBinding", "NetworkPolicy",
     }  # fmt: skip
     assert objs["Namespace"]["metadata"]["name"] == "fogfleet-system"
     assert (
         objs["Namespace"]["metadata"]["labels"]["pod-security.kubernetes.io/enforce"]
         == "restricted"
     )
-    for kind in ("ServiceAccount", "Deployment"):
+    for kind in ("ServiceAccount", "Deployment", "Role", "RoleBinding", "NetworkPolicy"):
         assert objs[kind]["metadata"]["namespace"] == "fogfleet-system"
     binding = objs["ClusterRoleBinding"]
     assert binding["roleRef"]["name"] == objs["ClusterRole"]["metadata"]["name"]
@@ -137,13 +138,45 @@ def test_cluster_role_is_least_privilege() -> None:
 def test_operator_deployment_is_locked_down() -> None:
     deployment = _install_objects()["Deployment"]
     spec = deployment["spec"]
-    assert spec["replicas"] == 1
-    assert spec["strategy"] == {"type": "Recreate"}
+    # two replicas, one leader: a rolling update never runs two reconcilers (the Lease decides)
+    assert spec["replicas"] == 2
+    assert spec["strategy"]["rollingUpdate"] == {"maxUnavailable": 0, "maxSurge": 1}
     pod = spec["template"]["spec"]
     assert pod["serviceAccountName"] == "fogfleet-operator"
     _assert_secure_pod(pod)
+    env = {e["name"]: e for e in pod["containers"][0]["env"]}
+    assert env["FOGFLEET_LEADER_ELECTION"]["value"] == "true"
+    assert env["FOGFLEET_LEADER_ELECTION_IDENTITY"]["valueFrom"]["fieldRef"] == {
+        "fieldPath": "metadata.name"
+    }
+    # never on a robot's own computer
+    (term,) = pod["affinity"]["nodeAffinity"]["requiredDuringSchedulingIgnoredDuringExecution"][
+        "nodeSelectorTerms"
+    ]
+    assert term["matchExpressions"] == [
+        {"key": "fogfleet.io/tier", "operator": "NotIn", "values": ["robot"]}
+    ]
     selector = spec["selector"]["matchLabels"]
     assert selector.items() <= spec["template"]["metadata"]["labels"].items()
+
+
+def test_leader_election_role_grants_only_leases_in_its_namespace() -> None:
+    objs = _install_objects()
+    role, binding = objs["Role"], objs["RoleBinding"]
+    _assert_no_wildcards(role["rules"])
+    assert _grants(role["rules"]) == {
+        ("coordination.k8s.io", "leases"): {"get", "create", "update"}
+    }
+    assert binding["roleRef"]["name"] == role["metadata"]["name"]
+    assert binding["subjects"][0]["name"] == "fogfleet-operator"
+
+
+def test_network_policy_admits_only_probes_and_metrics() -> None:
+    policy = _install_objects()["NetworkPolicy"]
+    pod_labels = _install_objects()["Deployment"]["spec"]["template"]["metadata"]["labels"]
+    assert policy["spec"]["podSelector"]["matchLabels"].items() <= pod_labels.items()
+    (ingress,) = policy["spec"]["ingress"]
+    assert sorted(p["port"] for p in ingress["ports"]) == [8080, 9100]
 
 
 def test_operator_environment_is_what_fogfleet_settings_reads(
@@ -158,6 +191,7 @@ def test_operator_environment_is_what_fogfleet_settings_reads(
     settings = Settings()
     assert settings.namespaces == []
     assert settings.standalone is True
+    assert settings.leader_election is True and settings.lease_seconds == 15
     # Probes and scrapes reach the pod IP: the endpoints must not stay on 127.0.0.1.
     assert (settings.liveness_host, settings.liveness_port) == ("0.0.0.0", 8080)
     assert (settings.metrics_host, settings.metrics_port) == ("0.0.0.0", 9100)
@@ -231,6 +265,9 @@ def test_values_defaults_match_the_plain_manifests() -> None:
     )
     pod = _install_objects()["Deployment"]["spec"]["template"]["spec"]
     assert values["podSecurityContext"] == pod["securityContext"]
+    assert values["affinity"] == pod["affinity"]
+    assert values["replicaCount"] == _install_objects()["Deployment"]["spec"]["replicas"]
+    assert env["FOGFLEET_LEASE_SECONDS"] == str(values["leaderElection"]["leaseSeconds"])
 
 
 def test_chart_clusterrole_template_has_the_same_rules_as_the_manifest() -> None:
@@ -310,6 +347,14 @@ def test_helm_template_renders_the_manifests_rbac_and_a_locked_down_pod(tmp_path
     assert role["metadata"]["name"] == "fogfleet-operator"
     (deployment,) = by_kind["Deployment"]
     assert deployment["metadata"]["namespace"] == "fogfleet-system"
+    manifest = _install_objects()
+    for kind in ("Role", "NetworkPolicy"):
+        (rendered,) = by_kind[kind]
+        assert (
+            rendered["spec" if kind == "NetworkPolicy" else "rules"]
+            == (manifest[kind]["spec" if kind == "NetworkPolicy" else "rules"])
+        ), kind
+    assert deployment["spec"]["strategy"] == manifest["Deployment"]["spec"]["strategy"]
     _assert_secure_pod(deployment["spec"]["template"]["spec"])
     (account,) = by_kind["ServiceAccount"]
     (binding,) = by_kind["ClusterRoleBinding"]

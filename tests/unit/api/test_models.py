@@ -85,7 +85,7 @@ def test_every_example_object_round_trips_through_its_wire_form() -> None:
 
 
 def test_other_kinds_are_ignored_not_rejected() -> None:
-    catalog = load_paths([WAREHOUSE / "namespace.yaml"])
+    catalog = load_paths([WAREHOUSE / "00-namespace.yaml"])
     assert catalog.ignored == ["Namespace/warehouse"]
 
 
