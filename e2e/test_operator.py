@@ -17,9 +17,12 @@ import pytest
 from e2e.cluster.harness import Cluster
 from e2e.cluster.kube import Kube
 from e2e.operator_fixtures import (
+    N_INSTANCES,
     ROOT,
     Operator,
     add_module_to_fleet,
+    apply_warehouse,
+    assert_pods_where_planned,
     bound_node,
     condition_is,
     conditions,
@@ -32,10 +35,10 @@ from e2e.operator_fixtures import (
     install_crds,
     of_kind,
     pods_by_instance,
+    wait_ready,
 )
 
 pytestmark = [pytest.mark.e2e, pytest.mark.timeout(420)]
-N_INSTANCES = 40  # 5 robots x 8 per-robot modules
 
 
 @pytest.fixture(scope="module")
@@ -64,41 +67,6 @@ def operator(
         timeout=90,
     )
     op.stop()
-
-
-def apply_warehouse(kube: Kube, namespace: str, **fleet_spec: Any) -> dict[str, Any]:
-    docs = example_docs("warehouse", namespace)
-    kube.apply(of_kind(docs, "ComputeNode") + of_kind(docs, "SoftwareModule"))
-    body = of_kind(docs, "RobotFleet")[0]
-    body["spec"].update(fleet_spec)
-    kube.apply(body)
-    return body
-
-
-def wait_ready(kube: Kube, namespace: str, name: str = "warehouse", timeout: float = 180) -> None:
-    kube.wait_for(
-        f"RobotFleet {name} Ready",
-        lambda: condition_is(kube, namespace, "Ready", "True", name),
-        timeout=timeout,
-        interval=1,
-    )
-
-
-def assert_pods_where_planned(
-    kube: Kube, namespace: str, name: str = "warehouse"
-) -> dict[str, Any]:
-    status = fleet(kube, namespace, name)["status"]
-    planned = {(p["robot"], p["module"]): p["node"] for p in status["placement"]}
-    assert len(planned) == N_INSTANCES
-    pods = pods_by_instance(kube, namespace)
-    deps = {d["metadata"]["name"]: d for d in deployments(kube, namespace)}
-    assert len(deps) == N_INSTANCES, sorted(deps)
-    for dname, dep in deps.items():
-        ann = dep["metadata"]["annotations"]
-        want = planned[(ann["fogfleet.io/robot"], ann["fogfleet.io/module"])]
-        assert bound_node(dep) == [want]
-        assert pods[dname]["spec"]["nodeName"] == want, dname
-    return pods
 
 
 def test_warehouse_runs_where_planned_replans_once_and_cleans_up(
