@@ -1,4 +1,4 @@
-"""The operator as users install it: `helm install` of the chart, from its own image, on a real node.
+"""The operator as users install it: `helm install` of the chart, from its image, on a real node.
 
 The image is the one `make images` builds from the repository's Dockerfile, imported into the
 real nodes' containerd; the operator reaches the API server through the `kubernetes` Service
