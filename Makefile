@@ -4,6 +4,11 @@ PY ?= python3
 VENV ?= .venv
 BIN := $(VENV)/bin
 export PYTHONDONTWRITEBYTECODE := 1
+CACHE_HOME := $(or $(XDG_CACHE_HOME),$(HOME)/.cache)/fogfleet
+# checkov lives in its own venv outside the repo (its dependencies would fight ours).
+CHECKOV_VERSION ?= 3.3.30
+CHECKOV_VENV ?= $(CACHE_HOME)/checkov-$(CHECKOV_VERSION)
+CHECKOV := BC_SKIP_MAPPING=TRUE CHECKOV_RUN_SCA_PACKAGE_SCAN_V2=false $(CHECKOV_VENV)/bin/checkov --framework kubernetes --skip-download --quiet --compact
 
 .DEFAULT_GOAL := help
 
@@ -56,6 +61,19 @@ chart-lint: venv ## helm lint + helm template of charts/fogfleet (helm from the 
 	$(BIN)/python e2e/cluster/harness.py helm lint --strict charts/fogfleet
 	$(BIN)/python e2e/cluster/harness.py helm template fogfleet charts/fogfleet -n fogfleet-system > /dev/null
 
+$(CHECKOV_VENV)/bin/checkov:
+	$(PY) -m venv $(CHECKOV_VENV)
+	$(CHECKOV_VENV)/bin/pip install -q checkov==$(CHECKOV_VERSION)
+
+checkov: venv $(CHECKOV_VENV)/bin/checkov ## checkov (offline) over manifests/install, the rendered chart and the rendered warehouse Deployments
+	@d=$$(mktemp -d); trap 'rm -rf "$$d"' EXIT; set -e; \
+	$(BIN)/python e2e/cluster/harness.py helm template fogfleet charts/fogfleet -n fogfleet-system > "$$d/chart.yaml"; \
+	mkdir "$$d/warehouse"; $(BIN)/fogfleet render manifests/examples/warehouse > "$$d/warehouse/deployments.yaml"; \
+	for target in manifests/install "$$d/chart.yaml" "$$d/warehouse"; do \
+	  echo "checkov: $$target"; \
+	  if [ -d "$$target" ]; then $(CHECKOV) -d "$$target"; else $(CHECKOV) -f "$$target"; fi; \
+	done
+
 bench: venv ## Benchmarks of the pure core: scheduling (misses, MILP gap, decision time) and autoscaling (tinyKube); prints tables
 	$(BIN)/fogfleet bench scheduling
 	$(BIN)/fogfleet bench autoscaling --runs 7
@@ -76,4 +94,4 @@ clean: ## Remove the virtualenv and caches in the repo
 	rm -rf $(VENV) .pytest_cache .mypy_cache .ruff_cache
 
 
-.PHONY: help venv lint unit test crds crds-check demo-offline bench-cluster cluster-tools cluster-up cluster-down cluster-status e2e e2e-k3d chart-lint bench demo clean
+.PHONY: help venv lint unit test checkov images crds crds-check demo-offline bench-cluster cluster-tools cluster-up cluster-down cluster-status e2e e2e-k3d chart-lint bench demo clean
