@@ -13,7 +13,7 @@ import sys
 import time
 from pathlib import Path
 
-from e2e.cluster import bednet, realnodes
+from e2e.cluster import bednet, cgroups, realnodes
 from e2e.cluster.base import (
     HERE,
     HOST,
@@ -176,20 +176,50 @@ def ensure_up(*, nodes: bool = True) -> Cluster:
         return cluster
 
 
-def down() -> None:
+def leftovers() -> list[str]:
+    """What a stopped bed must not leave behind: processes, namespaces, links, cgroups, paths."""
+    found: list[str] = []
+    if STATE_DIR.exists():
+        found.append(f"state directory {STATE_DIR}")
+    pids = cgroups.pids(f"/{cgroups.TOP}")
+    if pids:
+        found.append(f"processes in /{cgroups.TOP} cgroups: {sorted(pids)[:10]}")
+    for h in cgroups.hierarchies():
+        if (h / cgroups.TOP).exists():
+            found.append(f"cgroup {h / cgroups.TOP}")
+    netns = Path("/run/netns")
+    found += (
+        [f"netns {p.name}" for p in netns.glob(f"{bednet.NETNS_PREFIX}*")] if netns.exists() else []
+    )
+    found += [f"link {p.name}" for p in Path("/sys/class/net").glob("ff*")]
+    watched = (str(STATE_DIR), *realnodes.TMPFS_PATHS, *realnodes.BIND_PATHS.values())
+    for line in Path("/proc/self/mounts").read_text().splitlines():
+        target = line.split()[1]
+        if any(target == w or target.startswith(w + "/") for w in watched):
+            found.append(f"mount {target}")
+    return found
+
+
+def down() -> int:
     """Stop every process the harness started (stored pids only) and remove the state.
 
     Real nodes: their processes (by pid, then whatever is left in their cgroups), namespaces,
     veths, bridge, routes, cgroups, the mount points the bed created and their directories.
+    Returns 1 (and says what) when anything is left behind.
     """
     with locked():
-        if not STATE_DIR.exists():
+        if STATE_DIR.exists():
+            _stop_everything()
+            shutil.rmtree(STATE_DIR, ignore_errors=True)
+            log(f"removed {STATE_DIR}")
+        else:
             log("not running (no state)")
             bednet.teardown()
-            return
-        _stop_everything()
-        shutil.rmtree(STATE_DIR, ignore_errors=True)
-        log(f"removed {STATE_DIR}")
+            cgroups.teardown_all()
+        left = leftovers()
+        for item in left:
+            log(f"left behind: {item}")
+        return 1 if left else 0
 
 
 def status() -> int:

@@ -160,6 +160,11 @@ def teardown() -> None:
     if _exists("link", BRIDGE):
         _ip("link", "del", BRIDGE)
         log(f"bednet: removed bridge {BRIDGE} and {len(names)} node namespaces")
+    # `ip netns add` made /run/netns a mount of its own; give it back when nothing is in it
+    if netns_dir.is_dir() and not any(netns_dir.iterdir()):
+        subprocess.run(["umount", str(netns_dir)], capture_output=True, check=False)
+        with contextlib.suppress(OSError):
+            netns_dir.rmdir()
 
 
 def _in_bed(cidr: str) -> bool:

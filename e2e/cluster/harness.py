@@ -139,8 +139,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"export KUBECONFIG={cluster.kubeconfig}")
         return 0
     if ns.cmd == "down":
-        down()
-        return 0
+        return down()
     if ns.cmd == "status":
         return status()
     if ns.cmd == "nodes":
