@@ -30,7 +30,7 @@ from pathlib import Path
 
 import pytest
 
-from e2e.cluster import harness
+from e2e.cluster import harness, realnodes
 from e2e.cluster.kube import Kube, UnsafeKubeconfig, guard_kubeconfig
 
 ENV_EXTERNAL = "FOGFLEET_E2E_EXTERNAL"
@@ -241,6 +241,8 @@ def _dump(kube: Kube, namespace: str | None, extra: list[Diagnostic]) -> str:
                 f"log tail: {component} ({kube.cluster.logs_dir}/{component}.log)",
                 kube.cluster.log_tail(component, 25),
             )
+        for node in kube.cluster.real_nodes:
+            section(f"real node {node}", _limit(realnodes.diagnose(realnodes.declared(node)), 120))
     return "\n".join(out)
 
 
