@@ -95,6 +95,10 @@ def main(argv: list[str] | None = None) -> int:
         if not KUBECONFIG.exists():
             raise HarnessError("no cluster: run `harness.py up` first")
         _exec([str(BIN_DIR / "kubectl"), f"--kubeconfig={KUBECONFIG}", *args[1:]])
+    if args and args[0] == "link":
+        from e2e.cluster import links
+
+        return links.main(args[1:])
     if args and args[0] == "helm":
         with locked():
             ensure_built(["helm"], quiet=True)
@@ -123,6 +127,9 @@ def main(argv: list[str] | None = None) -> int:
     n.add_argument("--cloud", type=int, default=1)
     sub.add_parser("kubectl", help="kubectl ARGS... with the test kubeconfig")
     sub.add_parser("helm", help="helm ARGS... (cached helm binary)")
+    sub.add_parser(
+        "link", help="NODE [--delay 20ms] [--jitter 5ms] [--rate 50mbit] [--loss 100%%] [--reset]"
+    )
     ns = parser.parse_args(args)
 
     if ns.cmd == "build":

@@ -28,13 +28,14 @@ import subprocess
 import sys
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
 from e2e.cluster import bednet, cgroups
 from e2e.cluster.base import BIN_DIR, HERE, NODES_FILE, STATE_DIR, HarnessError, log, run, wait_for
 from e2e.cluster.bednet import NodeAddresses
+from e2e.cluster.links import LinkSpec, apply_link, stop_link
 from e2e.cluster.pki import issue_cert, kubeconfig
 from e2e.cluster.processes import _alive, _start, _stop, log_tail
 
@@ -142,13 +143,10 @@ def declared(name: str) -> RealNode:
     raise HarnessError(f"nodes.yaml declares no real node {name!r}")
 
 
-def set_link(node: RealNode, **change: float) -> None:
+def set_link(node: RealNode, **change: float) -> LinkSpec:
     """Apply the node's declared link, with `change` (LinkSpec fields) on top."""
-    from e2e.cluster import links
-
-    spec = links.LinkSpec.from_network(node.link)
-    spec = links.LinkSpec(**{**spec.__dict__, **change})
-    links.apply_link(node.net.netns, node.net.node_veth, node.net.host_veth, spec)
+    spec = replace(LinkSpec.from_network(node.link), **change)
+    return apply_link(node.net.netns, node.net.node_veth, node.net.host_veth, spec)
 
 
 # --------------------------------------------------------------------------------------------
@@ -415,6 +413,7 @@ def start(nodes: Sequence[RealNode], api_server: str, images: Sequence[Path]) ->
         t0 = time.monotonic()
         cgroups.create(node.name, node.cpu_millis, node.memory_bytes)
         bednet.add_node(node.net, nets)
+        spec = set_link(node)
         cfg = _write_node_files(node, api_server)
         (node.dir / "containerd.ready").unlink(missing_ok=True)
         argv = [
@@ -430,7 +429,10 @@ def start(nodes: Sequence[RealNode], api_server: str, images: Sequence[Path]) ->
             time.sleep(0.2)
         for archive in images:
             import_image(node, archive)
-        log(f"{node.name}: containerd up, {len(images)} images in {time.monotonic() - t0:.1f}s")
+        log(
+            f"{node.name}: containerd up, {len(images)} images, link {spec.describe()} "
+            f"in {time.monotonic() - t0:.1f}s"
+        )
 
 
 def _node_alive(node: RealNode) -> bool:
@@ -475,6 +477,7 @@ def stop(nodes: Sequence[RealNode]) -> None:
     """Stop the nodes (nodehost cleans its children), then kill anything left in their trees."""
     for node in nodes:
         _stop(node.process_name, grace=30)
+        stop_link(node.net.netns)
     cgroups.teardown_all()
     bednet.teardown()
     _remove_mountpoints()
