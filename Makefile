@@ -42,6 +42,9 @@ crds-check: venv ## Fail when crds/ drifts from the models
 cluster-tools: venv ## Build (or reuse from ~/.cache/fogfleet) etcd, kube-*, kwok, helm and Prometheus
 	$(BIN)/python e2e/cluster/harness.py build
 
+images: venv ## Build (or reuse from ~/.cache/fogfleet/images) the operator, workload, pause and busybox images without Docker
+	$(BIN)/python e2e/cluster/images.py build
+
 cluster-up: venv ## Start the local control plane (etcd, kube-apiserver, kcm, scheduler, kwok, Prometheus) on 127.0.0.1
 	$(BIN)/python e2e/cluster/harness.py up
 

@@ -60,9 +60,16 @@ def create(node: str, cpu_millis: int, memory_bytes: int) -> None:
             _mkdir(h, node_path(node, sub))
     cpu = CGROUP_ROOT / "cpu" / node_path(node).lstrip("/")
     (cpu / "cpu.cfs_period_us").write_text(str(CFS_PERIOD_US))
-    (cpu / "cpu.cfs_quota_us").write_text(str(cpu_millis * CFS_PERIOD_US // 1000))
+    set_cpu_quota(node, cpu_millis)
     mem = CGROUP_ROOT / "memory" / node_path(node).lstrip("/")
     (mem / "memory.limit_in_bytes").write_text(str(memory_bytes))
+
+
+def set_cpu_quota(node: str, cpu_millis: int | None) -> None:
+    """The node's CFS quota (None: unlimited), e.g. lifted while images are preloaded."""
+    cpu = CGROUP_ROOT / "cpu" / node_path(node).lstrip("/")
+    quota = -1 if cpu_millis is None else cpu_millis * CFS_PERIOD_US // 1000
+    (cpu / "cpu.cfs_quota_us").write_text(str(quota))
 
 
 def join(pid: int, path: str) -> None:

@@ -28,6 +28,7 @@ import subprocess
 import sys
 import time
 from collections.abc import Sequence
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -427,12 +428,28 @@ def start(nodes: Sequence[RealNode], api_server: str, images: Sequence[Path]) ->
             if time.monotonic() > deadline:
                 raise HarnessError(f"{node.name}: containerd not up after 60 s\n{diagnose(node)}")
             time.sleep(0.2)
+        log(f"{node.name}: containerd up, link {spec.describe()} in {time.monotonic() - t0:.1f}s")
+    _import_everywhere(nodes, images)
+
+
+def _import_everywhere(nodes: Sequence[RealNode], images: Sequence[Path]) -> None:
+    """Preload the images into every node at once, as provisioning would, with the nodes'
+    CPU quota lifted meanwhile (unpacking 600 MiB within a 0.4-CPU share takes minutes)."""
+    t0 = time.monotonic()
+
+    def preload(node: RealNode) -> None:
         for archive in images:
             import_image(node, archive)
-        log(
-            f"{node.name}: containerd up, {len(images)} images, link {spec.describe()} "
-            f"in {time.monotonic() - t0:.1f}s"
-        )
+
+    for node in nodes:
+        cgroups.set_cpu_quota(node.name, None)
+    try:
+        with ThreadPoolExecutor(max_workers=len(nodes)) as pool:
+            list(pool.map(preload, nodes))
+    finally:
+        for node in nodes:
+            cgroups.set_cpu_quota(node.name, node.cpu_millis)
+    log(f"{len(images)} images in {len(nodes)} nodes in {time.monotonic() - t0:.1f}s")
 
 
 def _node_alive(node: RealNode) -> bool:
