@@ -55,11 +55,11 @@ def helm(*args: str, timeout: float = 300) -> str:
     return proc.stdout
 
 
-def operator_pods(kube: Kube) -> list[dict[str, Any]]:
+def operator_pods(kube: Kube, *, terminating: bool = False) -> list[dict[str, Any]]:
     items: list[dict[str, Any]] = kube.kubectl_json(
         "get", "pods", "-n", SYSTEM, "-l", OPERATOR_LABELS
     )["items"]
-    return [p for p in items if not p["metadata"].get("deletionTimestamp")]
+    return [p for p in items if terminating or not p["metadata"].get("deletionTimestamp")]
 
 
 def leader(kube: Kube) -> str | None:
@@ -130,10 +130,15 @@ def test_helm_upgrade_rolls_the_operator_without_touching_running_modules(
         "--set", "logLevel=debug", "--wait", "--timeout", "240s",
     )  # fmt: skip
     kube.wait_for(
-        "the rolled operator pods",
-        lambda: len(running_pod_names(kube) - before_pods) == 2 and len(operator_pods(kube)) == 2,
+        "only the rolled operator pods",
+        lambda: (
+            len(running_pod_names(kube) - before_pods) == 2
+            and len(operator_pods(kube, terminating=True)) == 2
+        ),
         180,
     )
+    # the old leader released the Lease on its way out: a new pod leads
+    kube.wait_for("a new leader", lambda: leader(kube) in running_pod_names(kube), 30)
     time.sleep(10)  # a resumed operator re-checks every fleet: give it the time to (not) act
     assert deployment_versions(kube, watched) == before
     wait_ready(kube, watched)

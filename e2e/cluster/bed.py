@@ -95,7 +95,25 @@ def _start_real_nodes(cluster: Cluster, real: list[realnodes.RealNode]) -> None:
         ],
     )
     realnodes.start(real, f"https://{bednet.BRIDGE_IP}:{port}", images)
+    IMPORTED.write_text(json.dumps(sorted(a.name for a in images)) + "\n")
     log(f"real nodes started in {time.monotonic() - t0:.1f}s")
+
+
+IMPORTED = STATE_DIR / "imported-images.json"
+
+
+def _refresh_images(cluster: Cluster) -> None:
+    """Rebuild what the repository changed since the bed started and import it into the
+    running real nodes (so `make e2e` on a running bed tests the current code)."""
+    if not cluster.real_nodes:
+        return
+    archives = _bed_images()
+    known = set(json.loads(IMPORTED.read_text())) if IMPORTED.exists() else set()
+    fresh = [a for a in archives if a.name not in known]
+    if fresh:
+        nodes = [realnodes.declared(n) for n in cluster.real_nodes]
+        realnodes.import_everywhere(nodes, fresh)
+    IMPORTED.write_text(json.dumps(sorted(a.name for a in archives)) + "\n")
 
 
 def _stop_everything() -> None:
@@ -120,6 +138,7 @@ def ensure_up(*, nodes: bool = True) -> Cluster:
         state = _read_state() or {}
         if cluster is not None and state.get("versions") == load_versions():
             log(f"already running and healthy: {cluster.api_server}")
+            _refresh_images(cluster)
             return cluster
         if cluster is not None:
             log(f"running with other versions than {VERSIONS_FILE.name}; restarting it")

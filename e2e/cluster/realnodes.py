@@ -429,10 +429,10 @@ def start(nodes: Sequence[RealNode], api_server: str, images: Sequence[Path]) ->
                 raise HarnessError(f"{node.name}: containerd not up after 60 s\n{diagnose(node)}")
             time.sleep(0.2)
         log(f"{node.name}: containerd up, link {spec.describe()} in {time.monotonic() - t0:.1f}s")
-    _import_everywhere(nodes, images)
+    import_everywhere(nodes, images)
 
 
-def _import_everywhere(nodes: Sequence[RealNode], images: Sequence[Path]) -> None:
+def import_everywhere(nodes: Sequence[RealNode], images: Sequence[Path]) -> None:
     """Preload the images into every node at once, as provisioning would, with the nodes'
     CPU quota lifted meanwhile (unpacking 600 MiB within a 0.4-CPU share takes minutes)."""
     t0 = time.monotonic()

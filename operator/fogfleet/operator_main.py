@@ -116,18 +116,20 @@ def run(
     With leader election, wait as a standby until this replica holds the Lease, and stop
     reconciling at once if the Lease is lost (the container then restarts as a standby).
     """
-    lock: LeaseLock | None = None
-    if settings.leader_election:
-        stop_flag = stop_flag or threading.Event()
-        lock = _lead(settings, stop_flag)
-        if lock is None:
-            return
-        lock.hold(stop_flag, on_lost=stop_flag.set)
-    try:
+    if not settings.leader_election:
         _run_kopf(settings, stop_flag=stop_flag, ready_flag=ready_flag)
+        return
+    stop = stop_flag or threading.Event()
+    lock = _lead(settings, stop)
+    if lock is None:
+        return
+    renewing = threading.Event()
+    lock.hold(renewing, on_lost=stop.set)
+    try:
+        _run_kopf(settings, stop_flag=stop, ready_flag=ready_flag, set_on_exit=stop)
     finally:
-        if lock is not None:
-            lock.release()
+        renewing.set()
+        lock.release()
 
 
 def _run_kopf(
@@ -135,6 +137,7 @@ def _run_kopf(
     *,
     stop_flag: threading.Event | None,
     ready_flag: threading.Event | None,
+    set_on_exit: threading.Event | None = None,
 ) -> None:
     kopf.configure(
         debug=settings.log_level == "DEBUG",
@@ -145,6 +148,13 @@ def _run_kopf(
     logging.getLogger("fogfleet").setLevel(settings.log_level)
     runtime = build_runtime(settings)
     registry = register(kopf.OperatorRegistry(), settings)
+    if set_on_exit is not None:
+        # kopf waits for a threading.Event stop flag in an executor thread and, when a signal
+        # stops it instead, waits for that thread on exit: release it as the operator exits.
+        def release_stop_flag(**_: Any) -> None:
+            set_on_exit.set()
+
+        kopf.on.cleanup(registry=registry)(release_stop_flag)
     liveness = (
         f"http://{settings.liveness_host}:{settings.liveness_port}/healthz"
         if settings.liveness_port
