@@ -48,7 +48,7 @@ def configure_kopf(kopf_settings: kopf.OperatorSettings, settings: Settings) -> 
     p.diffbase_storage = kopf.AnnotationsDiffBaseStorage(
         prefix=GROUP, key="last-handled-configuration"
     )
-    p.finalizer = f"{GROUP}/finalizer"
+    p.finalizer = f"{GROUP}/finalizer"  # none is added: no handler of ours requires one
     kopf_settings.posting.level = logging.WARNING  # our own Events say what happened
     kopf_settings.posting.reporting_component = "fogfleet"
     kopf_settings.watching.server_timeout = 300

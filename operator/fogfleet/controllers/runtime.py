@@ -11,10 +11,12 @@ from __future__ import annotations
 import asyncio
 import functools
 import logging
+import time
 from collections.abc import Callable, Mapping
 from concurrent.futures import ThreadPoolExecutor
 from typing import Any, TypeVar
 
+from fogfleet.errors import FogfleetError
 from fogfleet.render.deployments import LABEL_FLEET
 
 from .deps import Deps, FleetKey
@@ -41,6 +43,37 @@ class Runtime:
         )
         self._generations: dict[tuple[str, str, str], Any] = {}
         self._nodes: dict[str, tuple[Any, ...]] = {}
+        # shared modules with spec.scaling, by (namespace, name): the scaling loop's work list
+        self.scaled: dict[tuple[str, str], Obj] = {}
+        self._loops: list[asyncio.Task[None]] = []
+
+    # ------------------------------------------------------------------ periodic work
+    # Our own loops instead of kopf timers: a kopf timer puts a finalizer on every object it
+    # serves, which leaves namespaces Terminating forever once the operator is gone. Owner
+    # references already clean up what fleets create, so fogfleet needs no finalizer at all.
+
+    def start_periodic(self, drift_seconds: float, scaling: Any = None) -> None:
+        """Re-check every known fleet each `drift_seconds`; decide scaling each period."""
+        self._loops.append(asyncio.create_task(self._drift(drift_seconds), name="fogfleet-drift"))
+        if scaling is not None:
+            self._loops.append(asyncio.create_task(self._scaling(scaling), name="fogfleet-scaling"))
+
+    async def _drift(self, seconds: float) -> None:
+        while True:
+            await asyncio.sleep(seconds)
+            for key in sorted(self.deps.refs.fleets()):
+                self.queue.schedule(key)
+
+    async def _scaling(self, scaling: Any) -> None:
+        from .scaling import reconcile_scaling
+
+        while True:
+            await asyncio.sleep(scaling.period_seconds)
+            for key, body in sorted(self.scaled.items()):
+                try:
+                    await self.call(reconcile_scaling, dict(body), scaling, time.time())
+                except FogfleetError as exc:  # said in the module's conditions; retried next time
+                    log.warning("Scaling SoftwareModule %s/%s failed: %s", *key, exc)
 
     async def call(self, fn: Callable[..., T], *args: Any) -> T:
         loop = asyncio.get_running_loop()
@@ -82,6 +115,12 @@ class Runtime:
         return event_type is not None and before != gen
 
     def module_event(self, body: Mapping[str, Any], event_type: str | None) -> None:
+        meta = body.get("metadata") or {}
+        module_key = (meta.get("namespace") or "default", meta.get("name", ""))
+        if event_type == "DELETED" or not (body.get("spec") or {}).get("scaling"):
+            self.scaled.pop(module_key, None)
+        else:
+            self.scaled[module_key] = dict(body)
         # the autoscaler's decision (status.scaling.pools) changes what fleets place, too
         pools = ((body.get("status") or {}).get("scaling") or {}).get("pools") or []
         extra = tuple(sorted((p.get("tier"), p.get("replicas")) for p in pools))
@@ -129,5 +168,7 @@ class Runtime:
                 self.queue.schedule(key, min(self.queue.debounce, 1.0))
 
     async def close(self) -> None:
+        for task in self._loops:
+            task.cancel()
         await self.queue.close()
         self.executor.shutdown(wait=False, cancel_futures=True)

@@ -10,7 +10,6 @@ from fogfleet.render.deployments import LABEL_MANAGED_BY, MANAGER
 from fogfleet.settings import Settings
 
 from . import lifecycle, related, robotfleet
-from . import scaling as scaling_handlers
 
 __all__ = ["register"]
 
@@ -23,19 +22,14 @@ def register(registry: kopf.OperatorRegistry, settings: Settings) -> kopf.Operat
     kopf.on.cleanup(registry=registry)(lifecycle.cleanup)
     for on in (kopf.on.create, kopf.on.update, kopf.on.resume):
         on(*FLEETS, registry=registry)(robotfleet.fleet_changed)
-    kopf.on.delete(*FLEETS, registry=registry)(robotfleet.fleet_deleted)
-    kopf.timer(
-        *FLEETS,
-        interval=settings.drift_interval_seconds,
-        initial_delay=settings.drift_interval_seconds,
-        registry=registry,
-    )(robotfleet.fleet_drift)
+    # optional: no finalizer (owner references delete the Deployments without the operator);
+    # the drift re-check and scaling are the runtime's own loops (lifecycle.startup), since
+    # kopf timers would put a finalizer on every fleet and scaled module.
+    kopf.on.delete(*FLEETS, registry=registry, optional=True)(robotfleet.fleet_deleted)
     kopf.on.event(GROUP, VERSION, "softwaremodules", registry=registry)(related.module_event)
     kopf.on.event(GROUP, VERSION, "computenodes", registry=registry)(related.compute_node_event)
     kopf.on.event("", "v1", "nodes", registry=registry)(related.node_event)
     kopf.on.event(
         "apps", "v1", "deployments", labels={LABEL_MANAGED_BY: MANAGER}, registry=registry
     )(related.deployment_event)
-    if settings.prometheus_url:
-        scaling_handlers.register(registry, settings.scaling_interval_seconds)
     return registry

@@ -14,6 +14,9 @@ async def startup(settings: kopf.OperatorSettings, memo: Any, **_: Any) -> None:
     from fogfleet.operator_main import configure_kopf
 
     configure_kopf(settings, memo.settings)
+    memo.runtime.start_periodic(
+        memo.settings.drift_interval_seconds, getattr(memo, "scaling", None)
+    )
 
 
 def login(memo: Any, **_: Any) -> kopf.ConnectionInfo:

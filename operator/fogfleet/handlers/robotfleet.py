@@ -1,4 +1,4 @@
-"""kopf handlers for RobotFleet: create, update, resume and the drift timer all reconcile."""
+"""kopf handlers for RobotFleet: create, update and resume reconcile; delete is best effort."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ from typing import Any
 
 from .errors import translated
 
-__all__ = ["fleet_changed", "fleet_deleted", "fleet_drift"]
+__all__ = ["fleet_changed", "fleet_deleted"]
 
 
 async def fleet_changed(namespace: str | None, name: str, memo: Any, **_: Any) -> None:
@@ -15,13 +15,8 @@ async def fleet_changed(namespace: str | None, name: str, memo: Any, **_: Any) -
         await memo.runtime.reconcile_fleet(namespace or "default", name)
 
 
-async def fleet_drift(namespace: str | None, name: str, memo: Any, **_: Any) -> None:
-    """The periodic drift check: the same reconcile (a no-op when nothing changed)."""
-    async with translated(memo.runtime):
-        await memo.runtime.reconcile_fleet(namespace or "default", name)
-
-
 async def fleet_deleted(namespace: str | None, name: str, memo: Any, **_: Any) -> None:
-    """Remove the fleet's Deployments before the finalizer goes."""
+    """Best effort (no finalizer): forget the fleet and delete its Deployments at once; the
+    garbage collector does the same through their owner references when we miss it."""
     async with translated(memo.runtime):
         await memo.runtime.delete_fleet(namespace or "default", name)

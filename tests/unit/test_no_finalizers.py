@@ -1,0 +1,31 @@
+"""fogfleet puts no finalizer on anything: a stopped or uninstalled operator must never leave a
+namespace stuck in Terminating (owner references already delete what fleets create)."""
+
+from __future__ import annotations
+
+import kopf
+
+from fogfleet.handlers import register
+from fogfleet.settings import Settings
+
+
+def _handlers(registry: kopf.OperatorRegistry) -> list[object]:
+    found: list[object] = []
+    for sub in (registry._changing, registry._spawning, registry._watching):
+        found += list(sub._handlers)
+    return found
+
+
+def test_no_registered_handler_requires_a_finalizer() -> None:
+    for settings in (Settings(), Settings(prometheus_url="http://127.0.0.1:9")):
+        handlers = _handlers(register(kopf.OperatorRegistry(), settings))
+        assert handlers, "nothing registered"
+        needing = [h for h in handlers if getattr(h, "requires_finalizer", None)]
+        assert needing == [], [getattr(h, "id", h) for h in needing]
+
+
+def test_the_fleet_delete_handler_is_optional_and_no_timer_is_registered() -> None:
+    registry = register(kopf.OperatorRegistry(), Settings(prometheus_url="http://127.0.0.1:9"))
+    assert list(registry._spawning._handlers) == []  # timers and daemons imply finalizers
+    deletes = [h for h in registry._changing._handlers if h.reason == "delete"]
+    assert len(deletes) == 1 and deletes[0].requires_finalizer is False
