@@ -18,7 +18,7 @@ help: ## Show this help
 $(BIN)/fogfleet: pyproject.toml
 	$(PY) -m venv $(VENV)
 	$(BIN)/pip install -q -U pip
-	$(BIN)/pip install -q -e '.[dev]'
+	$(BIN)/pip install -q -e '.[dev,ros]'
 	@touch $@
 
 venv: $(BIN)/fogfleet ## Create .venv with fogfleet and the dev tools

@@ -1,0 +1,46 @@
+"""``python -m fogfleet.workload module | discovery-server`` (the ROS 2 workload image's entry)."""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+
+from .spec import WorkloadSpec
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="fogfleet-workload", description=__doc__)
+    sub = parser.add_subparsers(dest="cmd", required=True)
+    m = sub.add_parser("module", help="play the SoftwareModule in $FOGFLEET_MODULE_SPEC")
+    m.add_argument("--host", default=os.environ.get("FOGFLEET_METRICS_HOST", "0.0.0.0"))
+    m.add_argument("--port", type=int, default=int(os.environ.get("FOGFLEET_METRICS_PORT", "9100")))
+    d = sub.add_parser("discovery-server", help="the robot's Fast DDS discovery server")
+    d.add_argument("--listen", default="0.0.0.0")
+    d.add_argument("--port", type=int, default=11811)
+    ns = parser.parse_args(argv)
+    if ns.cmd == "discovery-server":
+        from .discovery import run_discovery_server
+
+        run_discovery_server(ns.listen, ns.port)
+        return 0
+    try:
+        spec = WorkloadSpec.from_env(os.environ)
+    except ValueError as exc:
+        print(f"fogfleet-workload: {exc}", file=sys.stderr)
+        return 2
+    from .module import run_module
+
+    print(
+        f"fogfleet-workload: {spec.robot or 'shared'}/{spec.module} on {spec.node} "
+        f"({spec.tier}, {spec.cpu:g} CPU): cycle {spec.cycle_s * 1e3:g} ms, "
+        f"activation {spec.activation:.0%}, work {spec.row.mean_s * 1e3:g}±"
+        f"{spec.row.std_s * 1e3:g} ms at {spec.row.cpu:g} CPU",
+        flush=True,
+    )
+    run_module(spec, ns.host, ns.port)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

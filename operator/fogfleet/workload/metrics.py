@@ -1,0 +1,94 @@
+"""The workload's Prometheus endpoint: the metrics contract plus message counters, and /healthz.
+
+Served on 0.0.0.0:9100 in a pod (the pod's own address; Prometheus and the kubelet's probes
+reach it there), 127.0.0.1 in tests.
+"""
+
+from __future__ import annotations
+
+import threading
+from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
+from typing import Any
+
+from prometheus_client import CollectorRegistry, Counter, Histogram, generate_latest
+from prometheus_client.exposition import CONTENT_TYPE_LATEST
+
+from fogfleet.autoscaling.contract import CYCLE_TIME, HISTOGRAM_BUCKETS_SECONDS, MISSED_CYCLES
+
+__all__ = ["WorkloadMetrics"]
+
+
+class WorkloadMetrics:
+    def __init__(self, module: str, robot: str, tier: str) -> None:
+        self.registry = CollectorRegistry()
+        ids = {"module": module, "robot": robot, "tier": tier}
+        self.cycle = Histogram(
+            CYCLE_TIME.removesuffix("_seconds"),
+            "Input transfer + execution + output of one cycle (eq. 4)",
+            list(ids),
+            unit="seconds",
+            buckets=HISTOGRAM_BUCKETS_SECONDS,
+            registry=self.registry,
+        ).labels(**ids)
+        self.missed = Counter(
+            MISSED_CYCLES.removesuffix("_total"),
+            "Cycles longer than the module's cycle time",
+            list(ids),
+            registry=self.registry,
+        ).labels(**ids)
+        topic_labels = [*ids, "topic"]
+        self._received = Counter(
+            "fogfleet_messages_received", "Messages received", topic_labels,
+            registry=self.registry,
+        )  # fmt: skip
+        self._foreign = Counter(
+            "fogfleet_foreign_messages",
+            "Messages received from another robot's instance (isolation leaks)",
+            [*topic_labels, "sender"],
+            registry=self.registry,
+        )
+        self._published = Counter(
+            "fogfleet_messages_published", "Messages published", topic_labels,
+            registry=self.registry,
+        )  # fmt: skip
+        self._ids = ids
+        self.healthy = True
+
+    def received(self, topic: str) -> None:
+        self._received.labels(**self._ids, topic=topic).inc()
+
+    def foreign(self, topic: str, sender: str) -> None:
+        self._foreign.labels(**self._ids, topic=topic, sender=sender).inc()
+
+    def published(self, topic: str) -> None:
+        self._published.labels(**self._ids, topic=topic).inc()
+
+    def cycle_done(self, seconds: float, limit: float) -> None:
+        self.cycle.observe(seconds)
+        if seconds > limit:
+            self.missed.inc()
+
+    def serve(self, host: str, port: int) -> ThreadingHTTPServer:
+        metrics = self
+
+        class Handler(BaseHTTPRequestHandler):
+            def do_GET(self) -> None:
+                if self.path.startswith("/metrics"):
+                    body, ctype = generate_latest(metrics.registry), CONTENT_TYPE_LATEST
+                elif self.path == "/healthz" and metrics.healthy:
+                    body, ctype = b"ok\n", "text/plain"
+                else:
+                    self.send_response(404 if self.path != "/healthz" else 503)
+                    self.end_headers()
+                    return
+                self.send_response(200)
+                self.send_header("Content-Type", ctype)
+                self.end_headers()
+                self.wfile.write(body)
+
+            def log_message(self, *_: Any) -> None:
+                return
+
+        server = ThreadingHTTPServer((host, port), Handler)
+        threading.Thread(target=server.serve_forever, name="metrics", daemon=True).start()
+        return server
