@@ -31,7 +31,7 @@ lint: venv ## ruff, mypy (strict on the pure core) and import-linter contracts
 unit: venv ## Unit tests (pure core, CLI, render; no cluster)
 	$(BIN)/pytest tests -q
 
-test: venv lint crds-check unit chart-lint e2e ## Everything CI runs: lint, CRD drift, unit tests, chart lint, e2e on the local control plane
+test: venv lint crds-check unit chart-lint checkov e2e ## Everything CI runs: lint, CRD drift, unit tests, chart lint, checkov, e2e on the local bed (real and kwok nodes)
 
 crds: venv ## Write the CRD YAML in crds/ from the pydantic models
 	$(BIN)/fogfleet crds --out crds
@@ -72,10 +72,12 @@ checkov: venv $(CHECKOV_VENV)/bin/checkov ## checkov (offline) over manifests/in
 	@d=$$(mktemp -d); trap 'rm -rf "$$d"' EXIT; set -e; \
 	$(BIN)/python e2e/cluster/harness.py helm template fogfleet charts/fogfleet -n fogfleet-system > "$$d/chart.yaml"; \
 	mkdir "$$d/warehouse"; $(BIN)/fogfleet render manifests/examples/warehouse > "$$d/warehouse/deployments.yaml"; \
-	for target in manifests/install "$$d/chart.yaml" "$$d/warehouse"; do \
+	for target in manifests/install "$$d/chart.yaml"; do \
 	  echo "checkov: $$target"; \
 	  if [ -d "$$target" ]; then $(CHECKOV) -d "$$target"; else $(CHECKOV) -f "$$target"; fi; \
-	done
+	done; \
+	echo "checkov: fogfleet render manifests/examples/warehouse (the user's images: digest and pull policy are theirs)"; \
+	$(CHECKOV) -d "$$d/warehouse" --skip-check CKV_K8S_43,CKV_K8S_15
 
 bench: venv ## Benchmarks of the pure core: scheduling (misses, MILP gap, decision time) and autoscaling (tinyKube); prints tables
 	$(BIN)/fogfleet bench scheduling

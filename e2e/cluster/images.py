@@ -218,8 +218,21 @@ def _copy_sources(dockerfile: Path) -> list[str]:
     return sources
 
 
+def _matches(rel: str, pattern: str) -> bool:
+    if pattern.startswith("**/"):
+        sub = pattern[3:]
+        return any(fnmatch.fnmatch(part, sub) for part in rel.split("/"))
+    return fnmatch.fnmatch(rel, pattern) or rel.startswith(pattern + "/")
+
+
 def _ignored(rel: str, patterns: list[str]) -> bool:
-    return any(fnmatch.fnmatch(rel, p) or rel.startswith(p.rstrip("/") + "/") for p in patterns)
+    """.dockerignore semantics: the last pattern that matches decides; `!` re-includes."""
+    ignored = False
+    for raw in patterns:
+        negate = raw.startswith("!")
+        if _matches(rel, raw.lstrip("!").rstrip("/")):
+            ignored = not negate
+    return ignored
 
 
 def _context_files(recipe: Recipe) -> Iterator[Path]:

@@ -263,7 +263,20 @@ def _read_placement(problem: Any, path: Path) -> tuple[Any, bool]:
 def cmd_render(args: argparse.Namespace) -> int:
     import yaml
 
-    from fogfleet.render.deployments import render_fleet
+    from fogfleet.render.deployments import (
+        LABEL_FLEET,
+        LABEL_MANAGED_BY,
+        MANAGER,
+        _dns,
+        label_value,
+        render_fleet,
+    )
+    from fogfleet.render.ros import (
+        RosWiring,
+        discovery_servers,
+        fleet_network_policy,
+        service_address,
+    )
 
     catalog = _catalog(args.paths)
     docs: list[dict[str, Any]] = []
@@ -272,6 +285,24 @@ def cmd_render(args: argparse.Namespace) -> int:
         problem, schedule = _plan(fleet, catalog, settings, False)
         ns = problem.namespace
         modules = {name: m for (mns, name), m in catalog.modules.items() if mns == ns}
+        wiring = None
+        if fleet.spec.ros.enabled:
+            labels = {LABEL_FLEET: label_value(problem.fleet), LABEL_MANAGED_BY: MANAGER}
+            servers = discovery_servers(problem, fleet.spec.ros, labels, [], _dns)
+            # offline: the Services' DNS names (the operator uses their cluster IPs)
+            wiring = RosWiring(fleet.spec.ros, {r: service_address(s) for r, s, _ in servers})
+            for _, service, deployment in servers:
+                docs += [service, deployment]
+            ports = [m.spec.template.metrics_port for m in modules.values()]
+            docs.append(
+                fleet_network_policy(
+                    name=_dns(f"{problem.fleet}-pods")[:63],
+                    namespace=ns,
+                    selector={LABEL_FLEET: label_value(problem.fleet)},
+                    metrics_ports=[p for p in ports if p],
+                    owner_refs=[],
+                )
+            )
         docs.extend(
             render_fleet(
                 problem,
@@ -279,6 +310,7 @@ def cmd_render(args: argparse.Namespace) -> int:
                 schedule.placement,
                 baseline=schedule.scheduler == "k8s-default",
                 plan_id=f"cli-{schedule.scheduler}-{settings.seed}",
+                wiring=wiring,
             )
         )
 

@@ -15,6 +15,8 @@ Verbs used (the chart's ClusterRole must grant exactly these):
     ""           pods                        list watch
     ""           events                      create
     apps         deployments                 get list watch patch delete
+    ""           services                    get list watch patch delete  (ROS discovery servers)
+    networking.k8s.io  networkpolicies       get list watch patch         (one per fleet)
 """
 
 from __future__ import annotations
@@ -214,6 +216,40 @@ class KubeClient:
                 content_type=APPLY,
             )
         return out or {}
+
+    def apply_service(self, body: Obj) -> Obj:
+        """Server-side apply of a Service; returns it as stored (with its cluster IP)."""
+        ns, name = body["metadata"]["namespace"], body["metadata"]["name"]
+        with map_errors(f"apply Service {ns}/{name}", f"Service/{name}"):
+            out = self._call(
+                "PATCH",
+                f"/api/v1/namespaces/{ns}/services/{name}",
+                query={"fieldManager": self.manager, "force": "true"},
+                body=body,
+                content_type=APPLY,
+            )
+        return out or {}
+
+    def apply_network_policy(self, body: Obj) -> Obj:
+        ns, name = body["metadata"]["namespace"], body["metadata"]["name"]
+        with map_errors(f"apply NetworkPolicy {ns}/{name}", f"NetworkPolicy/{name}"):
+            out = self._call(
+                "PATCH",
+                f"/apis/networking.k8s.io/v1/namespaces/{ns}/networkpolicies/{name}",
+                query={"fieldManager": self.manager, "force": "true"},
+                body=body,
+                content_type=APPLY,
+            )
+        return out or {}
+
+    def list_services(self, namespace: str, selector: Mapping[str, str]) -> list[Obj]:
+        return self._list(
+            f"/api/v1/namespaces/{namespace}/services", f"list Services in {namespace}", selector
+        )
+
+    def delete_service(self, namespace: str, name: str) -> None:
+        with map_errors(f"delete Service {namespace}/{name}"):
+            self._call("DELETE", f"/api/v1/namespaces/{namespace}/services/{name}", missing_ok=True)
 
     def delete_deployment(self, namespace: str, name: str) -> None:
         with map_errors(f"delete Deployment {namespace}/{name}"):

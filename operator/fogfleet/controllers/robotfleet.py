@@ -26,6 +26,7 @@ import numpy as np
 from fogfleet.api.loader import parse_object
 from fogfleet.api.v1alpha1.common import Tier
 from fogfleet.api.v1alpha1.robotfleet import RobotFleet, SchedulerName
+from fogfleet.controllers.ros import apply_ros_wiring, is_ros_object
 from fogfleet.domain.problem import Problem, build_problem
 from fogfleet.errors import DanglingReference, Infeasible, InvalidSpec
 from fogfleet.render.deployments import (
@@ -103,7 +104,9 @@ def _reconcile(
     ns, name = key
     kube = deps.kube
     selector = {LABEL_FLEET: label_value(name)}
-    deployments = [d for d in kube.list_deployments(ns, selector) if _owned(d, body)]
+    deployments = [
+        d for d in kube.list_deployments(ns, selector) if _owned(d, body) and not is_ros_object(d)
+    ]
     raw_modules = kube.list_modules(ns)
     inputs = gather(fleet, kube.list_compute_nodes(), raw_modules, kube.list_nodes())
     _raise_broken_references(fleet, inputs.broken)
@@ -136,16 +139,28 @@ def _reconcile(
     baseline = fleet.spec.scheduler.algorithm is SchedulerName.K8S_DEFAULT
     cached: CachedPlan | None = None
     planned = False
-    if baseline:
-        desired = render_fleet(problem, modules, None, baseline=True, owner=owner)
-    else:
+    if not baseline:
         cached, planned = _plan(deps, key, problem, fleet, before)
+    # after planning: an infeasible fleet gets nothing applied, not even its discovery servers
+    wiring = apply_ros_wiring(deps.kube, fleet, problem, owner, selector, modules.values())
+    if baseline or cached is None:
+        desired = render_fleet(problem, modules, None, baseline=True, owner=owner, wiring=wiring)
+    else:
         desired = render_fleet(
-            problem, modules, cached.placement, owner=owner, plan_id=cached.plan_id
+            problem,
+            modules,
+            cached.placement,
+            owner=owner,
+            plan_id=cached.plan_id,
+            wiring=wiring,
         )
     applied, pruned = _apply(deps, ns, desired, deployments, problem, stranded)
     if applied or pruned:
-        deployments = [d for d in kube.list_deployments(ns, selector) if _owned(d, body)]
+        deployments = [
+            d
+            for d in kube.list_deployments(ns, selector)
+            if _owned(d, body) and not is_ros_object(d)
+        ]
     pods = kube.list_pods(ns, selector)
     roll = rollout(desired, deployments, pods)
     status = _status(

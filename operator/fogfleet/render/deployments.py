@@ -25,6 +25,7 @@ import numpy as np
 from fogfleet import API_VERSION
 from fogfleet.api.v1alpha1.softwaremodule import SoftwareModule
 from fogfleet.domain.problem import Instance, Problem
+from fogfleet.render.ros import RosWiring, module_env, pod_security
 
 __all__ = [
     "ANNOTATION_MODULE",
@@ -137,19 +138,33 @@ def _affinity(node_names: Sequence[str]) -> dict[str, Any]:
     }
 
 
-def _container(module: SoftwareModule, resources: dict[str, Any]) -> dict[str, Any]:
+def _container(
+    module: SoftwareModule, resources: dict[str, Any], owned_env: list[dict[str, str]]
+) -> dict[str, Any]:
     tpl = module.spec.template
     container: dict[str, Any] = {
         "name": _dns(module.metadata.name)[:MAX_NAME] or "module",
         "image": tpl.image,
     }
+    if tpl.image_pull_policy:
+        container["imagePullPolicy"] = tpl.image_pull_policy
     if tpl.command:
         container["command"] = list(tpl.command)
     if tpl.args:
         container["args"] = list(tpl.args)
-    if tpl.env:
-        container["env"] = [{"name": e.name, "value": e.value} for e in tpl.env]
+    env = [{"name": e.name, "value": e.value} for e in tpl.env] + owned_env
+    if env:
+        container["env"] = env
     container["resources"] = resources
+    _, container["securityContext"] = pod_security()
+    container["volumeMounts"] = [{"name": "tmp", "mountPath": "/tmp"}]
+    if tpl.metrics_port:
+        container["ports"] = [
+            {"name": "metrics", "containerPort": tpl.metrics_port, "protocol": "TCP"}
+        ]
+        probe = {"httpGet": {"path": "/healthz", "port": "metrics"}, "periodSeconds": 10}
+        container["livenessProbe"] = {**probe, "initialDelaySeconds": 10, "failureThreshold": 6}
+        container["readinessProbe"] = {**probe, "initialDelaySeconds": 2}
     return container
 
 
@@ -162,6 +177,7 @@ def render_instance(
     baseline: bool = False,
     owner: Owner | None = None,
     plan_id: str = "",
+    wiring: RosWiring | None = None,
 ) -> dict[str, Any]:
     """The Deployment of instance ``i`` allowed on ``nodes`` (one node unless ``baseline``)."""
     inst = problem.instances[i]
@@ -192,6 +208,22 @@ def render_instance(
         ANNOTATION_MODULE: inst.module,
         ANNOTATION_REPLICA: str(inst.replica),
     }
+    pod_annotations = dict(annotations)
+    port = module.spec.template.metrics_port
+    if port:
+        pod_annotations |= {"prometheus.io/scrape": "true", "prometheus.io/port": str(port)}
+    node = problem.nodes[j]
+    owned_env = module_env(
+        wiring,
+        fleet=problem.fleet,
+        robot=inst.robot,
+        module=module,
+        tier=tier or "",
+        node="" if baseline else node.node_name,
+        hardware_type="" if baseline else node.hardware_type,
+        cpu="" if baseline else cpu,
+    )
+    pod_sc, _ = pod_security()
     metadata: dict[str, Any] = {
         "name": name,
         "namespace": problem.namespace,
@@ -222,11 +254,14 @@ def render_instance(
                 "rollingUpdate": {"maxSurge": 1, "maxUnavailable": 1},
             },
             "template": {
-                "metadata": {"labels": labels, "annotations": dict(annotations)},
+                "metadata": {"labels": labels, "annotations": pod_annotations},
                 "spec": {
                     "affinity": _affinity([problem.nodes[k].node_name for k in nodes]),
-                    "containers": [_container(module, resources)],
+                    "automountServiceAccountToken": False,
+                    "securityContext": pod_sc,
+                    "containers": [_container(module, resources, owned_env)],
                     "enableServiceLinks": False,
+                    "volumes": [{"name": "tmp", "emptyDir": {"sizeLimit": "64Mi"}}],
                 },
             },
         },
@@ -245,6 +280,7 @@ def render_fleet(
     baseline: bool = False,
     owner: Owner | None = None,
     plan_id: str = "",
+    wiring: RosWiring | None = None,
 ) -> list[dict[str, Any]]:
     """Deployments for a fleet, in instance order.
 
@@ -265,7 +301,14 @@ def render_fleet(
         if nodes:
             out.append(
                 render_instance(
-                    problem, i, module, nodes, baseline=baseline, owner=owner, plan_id=plan_id
+                    problem,
+                    i,
+                    module,
+                    nodes,
+                    baseline=baseline,
+                    owner=owner,
+                    plan_id=plan_id,
+                    wiring=wiring,
                 )
             )
     return out

@@ -18,11 +18,12 @@ def main(argv: list[str] | None = None) -> int:
     d = sub.add_parser("discovery-server", help="the robot's Fast DDS discovery server")
     d.add_argument("--listen", default="0.0.0.0")
     d.add_argument("--port", type=int, default=11811)
+    d.add_argument("--tcp-port", type=int, default=None, help="also listen on TCP (probes)")
     ns = parser.parse_args(argv)
     if ns.cmd == "discovery-server":
         from .discovery import run_discovery_server
 
-        run_discovery_server(ns.listen, ns.port)
+        run_discovery_server(ns.listen, ns.port, ns.tcp_port)
         return 0
     try:
         spec = WorkloadSpec.from_env(os.environ)

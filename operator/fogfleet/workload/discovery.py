@@ -15,7 +15,7 @@ __all__ = ["discovery_command", "run_discovery_server"]
 
 
 def discovery_command(
-    listen: str = "0.0.0.0", port: int = 11811
+    listen: str = "0.0.0.0", port: int = 11811, tcp_port: int | None = None
 ) -> tuple[list[str], dict[str, str]]:
     prefix = Path(sys.prefix)
     binary = prefix / "bin" / "fast-discovery-server"
@@ -25,9 +25,14 @@ def discovery_command(
     env = dict(os.environ)
     env["LD_LIBRARY_PATH"] = ":".join([*map(str, libs), env.get("LD_LIBRARY_PATH", "")]).rstrip(":")
     # 42 is the tool's "server" command (tools/fastdds/discovery/parser.py)
-    return [str(binary), "42", "-l", listen, "-p", str(port)], env
+    argv = [str(binary), "42", "-l", listen, "-p", str(port)]
+    if tcp_port:  # a TCP listener too: what the kubelet's probes check
+        argv += ["-t", listen, "-q", str(tcp_port)]
+    return argv, env
 
 
-def run_discovery_server(listen: str = "0.0.0.0", port: int = 11811) -> None:
-    argv, env = discovery_command(listen, port)
+def run_discovery_server(
+    listen: str = "0.0.0.0", port: int = 11811, tcp_port: int | None = None
+) -> None:
+    argv, env = discovery_command(listen, port, tcp_port)
     os.execve(argv[0], argv, env)

@@ -102,13 +102,24 @@ def test_render_binds_each_deployment_to_its_node(capsys: pytest.CaptureFixture[
     code, out, _ = run(capsys, "render", str(WAREHOUSE), "--scheduler", "onboard")
     assert code == 0
     docs = [d for d in yaml.safe_load_all(out) if d]
-    assert len(docs) == 40 and all(d["kind"] == "Deployment" for d in docs)
-    for d in docs:
+    modules = [d for d in docs if "fogfleet.io/module" in d["metadata"]["labels"]]
+    assert len(modules) == 40 and all(d["kind"] == "Deployment" for d in modules)
+    for d in modules:
         terms = d["spec"]["template"]["spec"]["affinity"]["nodeAffinity"][
             "requiredDuringSchedulingIgnoredDuringExecution"
         ]["nodeSelectorTerms"]
         values = terms[0]["matchExpressions"][0]["values"]
         assert values == [d["metadata"]["labels"]["fogfleet.io/robot"]]
+    # the ROS wiring is visible: one discovery server (Service + Deployment) per robot
+    others = [d for d in docs if d not in modules]
+    kinds = sorted(d["kind"] for d in others)
+    assert kinds == ["Deployment"] * 5 + ["NetworkPolicy"] + ["Service"] * 5
+    env = {
+        e["name"]: e["value"]
+        for e in modules[0]["spec"]["template"]["spec"]["containers"][0]["env"]
+    }
+    robot = modules[0]["metadata"]["labels"]["fogfleet.io/robot"]
+    assert env["ROS_DISCOVERY_SERVER"] == f"warehouse-{robot}-dds.warehouse.svc:11811"
 
 
 def _fleet(tmp_path: Path, spec: str) -> Path:

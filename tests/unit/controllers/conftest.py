@@ -37,6 +37,8 @@ class FakeKube:
         self.modules: dict[tuple[str, str], Obj] = {}
         self.nodes: dict[str, Obj] = {}
         self.deployments: dict[tuple[str, str], Obj] = {}
+        self.services: dict[tuple[str, str], Obj] = {}
+        self.network_policies: dict[tuple[str, str], Obj] = {}
         self.pods: dict[tuple[str, str], Obj] = {}
         self.applied: list[str] = []
         self.deleted: list[str] = []
@@ -143,6 +145,32 @@ class FakeKube:
     def delete_deployment(self, namespace: str, name: str) -> None:
         self.deployments.pop((namespace, name), None)
         self.deleted.append(name)
+
+    def apply_service(self, body: Obj) -> Obj:
+        key = (body["metadata"]["namespace"], body["metadata"]["name"])
+        new = copy.deepcopy(body)
+        old = self.services.get(key)
+        # the API server allocates a cluster IP once and keeps it
+        ip = old["spec"]["clusterIP"] if old else f"198.19.0.{10 + len(self.services)}"
+        new["spec"]["clusterIP"] = ip
+        self.services[key] = new
+        return copy.deepcopy(new)
+
+    def apply_network_policy(self, body: Obj) -> Obj:
+        self.network_policies[(body["metadata"]["namespace"], body["metadata"]["name"])] = body
+        return copy.deepcopy(body)
+
+    def list_services(self, namespace: str, selector: Mapping[str, str]) -> list[Obj]:
+        return copy.deepcopy(
+            [
+                d
+                for (ns, _), d in self.services.items()
+                if ns == namespace and _match(d["metadata"]["labels"], selector)
+            ]
+        )
+
+    def delete_service(self, namespace: str, name: str) -> None:
+        self.services.pop((namespace, name), None)
 
     def patch_fleet_status(self, namespace: str, name: str, status: Mapping[str, Any]) -> None:
         self.fleets[(namespace, name)]["status"] = copy.deepcopy(dict(status))

@@ -5,6 +5,7 @@ from __future__ import annotations
 import pytest
 
 from fogfleet.controllers.robotfleet import reconcile
+from fogfleet.controllers.ros import is_ros_object
 from fogfleet.errors import DanglingReference, Infeasible
 from fogfleet.render.deployments import identity_of
 
@@ -19,9 +20,14 @@ def conditions(kube) -> dict[str, dict]:
     return {c["type"]: c for c in kube.fleets[KEY]["status"]["conditions"]}
 
 
+def module_deps(kube) -> dict:
+    """The modules' Deployments (not the robots' ROS discovery servers)."""
+    return {k: d for k, d in kube.deployments.items() if not is_ros_object(d)}
+
+
 def placement(kube) -> dict[tuple, str]:
     out = {}
-    for dep in kube.deployments.values():
+    for dep in module_deps(kube).values():
         node = dep["spec"]["template"]["spec"]["affinity"]["nodeAffinity"][
             "requiredDuringSchedulingIgnoredDuringExecution"
         ]["nodeSelectorTerms"][0]["matchExpressions"][0]["values"]
@@ -32,7 +38,7 @@ def placement(kube) -> dict[tuple, str]:
 def test_first_reconcile_plans_applies_every_instance_and_waits_for_pods(kube, deps):
     out = run(kube, deps)
     assert out.planned and out.applied == 40 and not out.ready and out.requeue_after
-    assert len(kube.deployments) == 40
+    assert len(module_deps(kube)) == 40
     cond = conditions(kube)
     assert cond["Ready"]["status"] == "False" and cond["Ready"]["reason"] == "RollingOut"
     assert cond["Scheduled"]["status"] == "True"
@@ -100,7 +106,7 @@ def test_a_changed_cycle_time_replans_once_and_leaves_the_others_alone(kube, dep
     kube.run_pods()
     before = {
         k: d["metadata"]["annotations"]["fogfleet.io/spec-hash"]
-        for k, d in kube.deployments.items()
+        for k, d in module_deps(kube).items()
     }
     mod = kube.modules[("warehouse", "arm-motion-generation")]
     mod["spec"]["cycleTimeMillis"] = 400
@@ -112,7 +118,7 @@ def test_a_changed_cycle_time_replans_once_and_leaves_the_others_alone(kube, dep
     assert deps.planner.calls == calls + 1
     changed = {
         k[1]
-        for k, d in kube.deployments.items()
+        for k, d in module_deps(kube).items()
         if d["metadata"]["annotations"]["fogfleet.io/spec-hash"] != before[k]
     }
     assert set(kube.applied) == changed
@@ -161,14 +167,14 @@ def test_stale_deployments_are_pruned(kube, deps):
     kube.fleets[KEY]["spec"]["modules"] = kube.fleets[KEY]["spec"]["modules"][:7]
     kube.fleets[KEY]["metadata"]["generation"] = 2
     out = run(kube, deps)
-    assert out.pruned == 5 and len(kube.deployments) == 35
+    assert out.pruned == 5 and len(module_deps(kube)) == 35
 
 
 def test_the_k8s_default_fleet_records_kube_schedulers_placement(kube, deps):
     kube.fleets[KEY]["spec"]["scheduler"] = {"algorithm": "k8s-default"}
     out = run(kube, deps)
     assert not out.planned and deps.planner.calls == 0 and out.applied == 40
-    dep = next(iter(kube.deployments.values()))
+    dep = next(iter(module_deps(kube).values()))
     assert "limits" not in dep["spec"]["template"]["spec"]["containers"][0]["resources"]
     assert kube.fleets[KEY]["status"]["placement"] == []
     kube.run_pods()
@@ -184,3 +190,50 @@ def test_a_paused_fleet_is_left_alone(kube, deps):
     run(kube, deps)
     assert not kube.deployments
     assert conditions(kube)["Scheduled"]["reason"] == "Paused"
+
+
+def _env(dep: dict) -> dict[str, str]:
+    container = dep["spec"]["template"]["spec"]["containers"][0]
+    return {e["name"]: e.get("value", "") for e in container.get("env", [])}
+
+
+def test_every_robot_gets_a_discovery_server_on_its_own_node_and_its_modules_use_it(kube, deps):
+    run(kube, deps)
+    servers = {k[1]: d for k, d in kube.deployments.items() if is_ros_object(d)}
+    assert len(servers) == 5 and len(kube.services) == 5
+    for dep in servers.values():
+        robot = dep["metadata"]["name"].removeprefix("warehouse-").removesuffix("-dds")
+        assert dep["spec"]["template"]["spec"]["affinity"]["nodeAffinity"][
+            "requiredDuringSchedulingIgnoredDuringExecution"
+        ]["nodeSelectorTerms"][0]["matchExpressions"][0]["values"] == [robot]
+    ips = {k[1]: s["spec"]["clusterIP"] for k, s in kube.services.items()}
+    offloaded = 0
+    for dep in module_deps(kube).values():
+        robot = dep["metadata"]["annotations"]["fogfleet.io/robot"]
+        env = _env(dep)
+        # wherever the module runs, it discovers through its own robot's server
+        assert env["ROS_DISCOVERY_SERVER"] == f"{ips[f'warehouse-{robot}-dds']}:11811"
+        assert env["FOGFLEET_ROBOT"] == robot and env["FASTDDS_BUILTIN_TRANSPORTS"] == "UDPv4"
+        assert env["ROS_AUTOMATIC_DISCOVERY_RANGE"] == "SUBNET"
+        offloaded += env["FOGFLEET_TIER"] != "robot"
+    assert offloaded > 0, "the plan offloads something, so discovery must cross nodes"
+    # a second reconcile keeps the servers and their addresses
+    run(kube, deps)
+    assert {k[1]: s["spec"]["clusterIP"] for k, s in kube.services.items()} == ips
+
+
+def test_a_robot_leaving_the_fleet_takes_its_discovery_server_along(kube, deps):
+    run(kube, deps)
+    kube.fleets[KEY]["spec"]["robots"] = kube.fleets[KEY]["spec"]["robots"][:4]
+    kube.fleets[KEY]["metadata"]["generation"] = 2
+    run(kube, deps)
+    assert len([d for d in kube.deployments.values() if is_ros_object(d)]) == 4
+    assert len(kube.services) == 4
+
+
+def test_without_ros_wiring_modules_get_only_the_fogfleet_variables(kube, deps):
+    kube.fleets[KEY]["spec"]["ros"] = {"enabled": False}
+    run(kube, deps)
+    assert not kube.services and all(not is_ros_object(d) for d in kube.deployments.values())
+    env = _env(next(iter(module_deps(kube).values())))
+    assert "ROS_DISCOVERY_SERVER" not in env and env["FOGFLEET_MODULE_SPEC"].startswith("{")

@@ -12,6 +12,7 @@ from .common import Condition, LabelSelector, Name, ObjectMeta
 
 __all__ = [
     "ChoiceRule",
+    "DiscoveryRange",
     "ModuleRef",
     "ObjectiveName",
     "ObjectiveValue",
@@ -20,6 +21,7 @@ __all__ = [
     "RobotFleet",
     "RobotFleetSpec",
     "RobotFleetStatus",
+    "RosSettings",
     "SchedulerName",
     "SchedulerSettings",
 ]
@@ -97,6 +99,41 @@ class SchedulerSettings(FogModel):
         return self
 
 
+class DiscoveryRange(StrEnum):
+    """ROS_AUTOMATIC_DISCOVERY_RANGE of every module (ROS 2 Jazzy and later)."""
+
+    SUBNET = "SUBNET"
+    LOCALHOST = "LOCALHOST"
+    OFF = "OFF"
+    SYSTEM_DEFAULT = "SYSTEM_DEFAULT"
+
+
+class RosSettings(FogModel):
+    """How the operator wires the fleet's ROS 2 modules together.
+
+    Isolation and discovery: one Fast DDS discovery server per robot, on that robot's own
+    computer, behind a ClusterIP Service; every module of the robot is its client
+    (``ROS_DISCOVERY_SERVER``) wherever it runs, so an offloaded module still finds its
+    robot's topics, and a module never discovers another robot's modules (multicast
+    discovery, which most pod networks drop anyway, is not used). Shared modules are clients
+    of every robot's server. Unmodified nodes with absolute topic names stay isolated.
+    """
+
+    enabled: bool = Field(default=True, description="Inject the ROS 2 wiring into the modules.")
+    rmw_implementation: Annotated[str, Field(min_length=1)] = Field(
+        default="rmw_fastrtps_cpp", description="RMW_IMPLEMENTATION of every module."
+    )
+    discovery_range: DiscoveryRange = DiscoveryRange.SUBNET
+    domain_id: Annotated[int, Field(ge=0, le=232)] = Field(
+        default=0, description="ROS_DOMAIN_ID of the whole fleet."
+    )
+    discovery_server_image: Annotated[str, Field(min_length=1)] = Field(
+        default="ghcr.io/fogfleet/ros2-module:0.1.0",
+        description="Image with `python -m fogfleet.workload discovery-server`.",
+    )
+    discovery_server_port: Annotated[int, Field(ge=1024, le=65535)] = 11811
+
+
 class RobotFleetSpec(FogModel):
     robots: list[Name] = Field(default_factory=list, description="Robot ComputeNode names.")
     robot_selector: LabelSelector | None = None
@@ -104,6 +141,7 @@ class RobotFleetSpec(FogModel):
     nodes: list[Name] = Field(default_factory=list, description="Edge/cloud ComputeNode names.")
     node_selector: LabelSelector | None = None
     scheduler: SchedulerSettings = Field(default_factory=SchedulerSettings)
+    ros: RosSettings = Field(default_factory=RosSettings)
     paused: bool = False
 
     @model_validator(mode="after")

@@ -71,11 +71,35 @@ class EnvVar(FogModel):
     value: str = ""
 
 
+# Environment fogfleet owns in every module container (the ROS wiring and FOGFLEET_*).
+RESERVED_ENV_PREFIXES = ("FOGFLEET_", "ROS_", "RMW_", "FASTDDS_", "FASTRTPS_")
+
+
 class ContainerTemplate(FogModel):
     image: Annotated[str, Field(min_length=1)]
+    image_pull_policy: Literal["Always", "IfNotPresent", "Never"] | None = None
     command: list[str] = Field(default_factory=list)
     args: list[str] = Field(default_factory=list)
     env: list[EnvVar] = Field(default_factory=list)
+    metrics_port: Annotated[int, Field(ge=1, le=65535)] | None = Field(
+        default=None,
+        description=(
+            "Port on which the module serves the metrics contract (/metrics) and /healthz: "
+            "fogfleet then adds the port, liveness and readiness probes and Prometheus "
+            "scrape annotations. The ROS 2 workload image serves 9100."
+        ),
+    )
+
+    @model_validator(mode="after")
+    def _owned_env(self) -> ContainerTemplate:
+        for k, e in enumerate(self.env):
+            if e.name.startswith(RESERVED_ENV_PREFIXES):
+                raise ValueError(
+                    f"env[{k}].name: {e.name} is set by fogfleet (the ROS 2 wiring and "
+                    f"FOGFLEET_* variables: {', '.join(RESERVED_ENV_PREFIXES)}); configure it "
+                    "in the RobotFleet's spec.ros instead"
+                )
+        return self
 
 
 class ModuleResources(FogModel):

@@ -1,0 +1,291 @@
+"""ROS 2 wiring of a fleet (pure): per-robot discovery servers and what every module is told.
+
+* One Fast DDS discovery server per robot: a Deployment pinned to the robot's own node and a
+  ClusterIP Service in front of it (``<fleet>-<robot>-dds``). Its address is the Service's
+  cluster IP once the operator has applied it (no cluster DNS needed), else its DNS name
+  (``fogfleet render`` offline).
+* Every module container gets the ROS environment (RMW, domain, discovery range, its robot's
+  server; a shared module: every robot's) and the ``FOGFLEET_*`` variables the ROS 2 workload
+  (``python -m fogfleet.workload``) plays its module from: who and where it is, the CPU it was
+  given and its spec (cycle time, activation, topics, the profile rows of its node's hardware).
+* Secure defaults for every pod fogfleet renders: non-root, seccomp RuntimeDefault, no
+  privilege escalation, every capability dropped, read-only root with an emptyDir on /tmp, no
+  ServiceAccount token, the metrics port with probes and Prometheus annotations.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+from fogfleet.api.v1alpha1.robotfleet import RosSettings
+from fogfleet.api.v1alpha1.softwaremodule import SoftwareModule
+
+__all__ = [
+    "COMPONENT_DISCOVERY",
+    "METRICS_PORT",
+    "RosWiring",
+    "discovery_servers",
+    "discovery_service_name",
+    "fleet_network_policy",
+    "module_env",
+    "pod_security",
+    "render_discovery",
+    "service_address",
+]
+
+METRICS_PORT = 9100
+PROBE_PORT = 42100  # the discovery server's TCP listener, for the kubelet's probes
+LABEL_COMPONENT = "app.kubernetes.io/component"
+COMPONENT_DISCOVERY = "ros-discovery-server"
+NON_ROOT_UID = 65532
+
+
+@dataclass(frozen=True)
+class RosWiring:
+    """The fleet's ROS settings and the discovery server address of each robot."""
+
+    settings: RosSettings
+    servers: Mapping[str, str] = field(default_factory=dict)  # robot -> host:port
+
+    def server_for(self, robot: str) -> str:
+        """ROS_DISCOVERY_SERVER of an instance: its robot's server, or all (shared)."""
+        if robot:
+            return self.servers.get(robot, "")
+        return ";".join(self.servers[r] for r in sorted(self.servers))
+
+
+def discovery_service_name(fleet: str, robot: str, dns: Any) -> str:
+    return str(dns(f"{fleet}-{robot}-dds"))[:63].rstrip("-")
+
+
+def pod_security() -> tuple[dict[str, Any], dict[str, Any]]:
+    """(pod securityContext, container securityContext) of the restricted Pod Security level."""
+    pod = {
+        "runAsNonRoot": True,
+        "runAsUser": NON_ROOT_UID,
+        "runAsGroup": NON_ROOT_UID,
+        "fsGroup": NON_ROOT_UID,
+        "seccompProfile": {"type": "RuntimeDefault"},
+    }
+    container = {
+        "allowPrivilegeEscalation": False,
+        "readOnlyRootFilesystem": True,
+        "runAsNonRoot": True,
+        "runAsUser": NON_ROOT_UID,
+        "capabilities": {"drop": ["ALL"]},
+        "seccompProfile": {"type": "RuntimeDefault"},
+    }
+    return pod, container
+
+
+def _env(pairs: Mapping[str, str]) -> list[dict[str, str]]:
+    return [{"name": k, "value": v} for k, v in pairs.items()]
+
+
+def module_spec_json(module: SoftwareModule, hardware_type: str) -> str:
+    """What the workload needs of the module: cycle, activation, topics, its node's profile."""
+    spec = module.spec
+    rows = [r for r in spec.profile if r.hardware_type == hardware_type] or [
+        r for r in spec.profile if r.hardware_type == "default"
+    ]
+    body = {
+        "cycleTimeMillis": spec.cycle_time_millis,
+        "activationPercent": spec.activation_percent,
+        "topics": spec.topics.model_dump(by_alias=True, mode="json"),
+        "profile": [r.model_dump(by_alias=True, mode="json") for r in rows],
+    }
+    return json.dumps(body, separators=(",", ":"), sort_keys=True)
+
+
+def module_env(
+    wiring: RosWiring | None,
+    *,
+    fleet: str,
+    robot: str,
+    module: SoftwareModule,
+    tier: str,
+    node: str,
+    hardware_type: str,
+    cpu: str,
+) -> list[dict[str, str]]:
+    """The environment fogfleet owns in a module container (ROS wiring + FOGFLEET_*)."""
+    env = {
+        "FOGFLEET_FLEET": fleet,
+        "FOGFLEET_ROBOT": robot,
+        "FOGFLEET_MODULE": module.metadata.name,
+        "FOGFLEET_TIER": tier,
+        "FOGFLEET_NODE": node,
+        "FOGFLEET_HARDWARE_TYPE": hardware_type,
+        "FOGFLEET_CPU": cpu,
+        "FOGFLEET_MODULE_SPEC": module_spec_json(module, hardware_type),
+    }
+    if wiring is not None and wiring.settings.enabled:
+        ros = wiring.settings
+        env |= {
+            "RMW_IMPLEMENTATION": ros.rmw_implementation,
+            "ROS_DOMAIN_ID": str(ros.domain_id),
+            "ROS_AUTOMATIC_DISCOVERY_RANGE": ros.discovery_range.value,
+            # no shared memory between pods: Fast DDS would try it on one node and fail
+            "FASTDDS_BUILTIN_TRANSPORTS": "UDPv4",
+        }
+        server = wiring.server_for(robot)
+        if server:
+            env["ROS_DISCOVERY_SERVER"] = server
+    return _env(env)
+
+
+def render_discovery(
+    *,
+    fleet: str,
+    namespace: str,
+    robot: str,
+    node_name: str,
+    settings: RosSettings,
+    labels: Mapping[str, str],
+    owner_refs: Sequence[Mapping[str, Any]],
+    dns: Any,
+) -> tuple[dict[str, Any], dict[str, Any]]:
+    """(Service, Deployment) of the robot's discovery server, pinned to the robot's node."""
+    name = discovery_service_name(fleet, robot, dns)
+    selector = {**labels, LABEL_COMPONENT: COMPONENT_DISCOVERY}
+    meta = {
+        "name": name,
+        "namespace": namespace,
+        "labels": dict(selector),
+        **({"ownerReferences": [dict(o) for o in owner_refs]} if owner_refs else {}),
+    }
+    port = settings.discovery_server_port
+    service = {
+        "apiVersion": "v1",
+        "kind": "Service",
+        "metadata": meta,
+        "spec": {
+            "type": "ClusterIP",
+            "selector": selector,
+            "ports": [{"name": "dds-udp", "port": port, "targetPort": port, "protocol": "UDP"}],
+        },
+    }
+    pod_sc, container_sc = pod_security()
+    container = {
+        "name": "discovery-server",
+        "image": settings.discovery_server_image,
+        "args": ["discovery-server", "--port", str(port), "--tcp-port", str(PROBE_PORT)],
+        "ports": [
+            {"name": "dds-udp", "containerPort": port, "protocol": "UDP"},
+            {"name": "dds-tcp", "containerPort": PROBE_PORT, "protocol": "TCP"},
+        ],
+        "livenessProbe": {"tcpSocket": {"port": "dds-tcp"}, "periodSeconds": 10},
+        "readinessProbe": {"tcpSocket": {"port": "dds-tcp"}, "periodSeconds": 5},
+        "resources": {
+            "requests": {"cpu": "20m", "memory": "64Mi"},
+            "limits": {"cpu": "100m", "memory": "128Mi"},
+        },
+        "securityContext": container_sc,
+        "volumeMounts": [{"name": "tmp", "mountPath": "/tmp"}],
+    }
+    deployment = {
+        "apiVersion": "apps/v1",
+        "kind": "Deployment",
+        "metadata": meta,
+        "spec": {
+            "replicas": 1,
+            "selector": {"matchLabels": selector},
+            "strategy": {"type": "Recreate"},
+            "template": {
+                "metadata": {"labels": selector},
+                "spec": {
+                    "affinity": {
+                        "nodeAffinity": {
+                            "requiredDuringSchedulingIgnoredDuringExecution": {
+                                "nodeSelectorTerms": [
+                                    {
+                                        "matchExpressions": [
+                                            {
+                                                "key": "kubernetes.io/hostname",
+                                                "operator": "In",
+                                                "values": [node_name],
+                                            }
+                                        ]
+                                    }
+                                ]
+                            }
+                        }
+                    },
+                    "automountServiceAccountToken": False,
+                    "enableServiceLinks": False,
+                    "securityContext": pod_sc,
+                    "containers": [container],
+                    "volumes": [{"name": "tmp", "emptyDir": {"sizeLimit": "16Mi"}}],
+                },
+            },
+        },
+    }
+    return service, deployment
+
+
+def discovery_servers(
+    problem: Any,
+    settings: RosSettings,
+    labels: Mapping[str, str],
+    owner_refs: Sequence[Mapping[str, Any]],
+    dns: Any,
+) -> list[tuple[str, dict[str, Any], dict[str, Any]]]:
+    """(robot, Service, Deployment) for every robot of the plan, on the robot's own node."""
+    nodes = {n.name: n.node_name for n in problem.nodes}
+    robots = sorted({inst.robot for inst in problem.instances if inst.robot})
+    return [
+        (
+            robot,
+            *render_discovery(
+                fleet=problem.fleet,
+                namespace=problem.namespace,
+                robot=robot,
+                node_name=nodes[robot],
+                settings=settings,
+                labels=labels,
+                owner_refs=owner_refs,
+                dns=dns,
+            ),
+        )
+        for robot in robots
+        if robot in nodes
+    ]
+
+
+def service_address(service: Mapping[str, Any]) -> str:
+    """host:port of a discovery server: its cluster IP once allocated, else its DNS name."""
+    meta, spec = service["metadata"], service.get("spec") or {}
+    ip = spec.get("clusterIP")
+    host = ip if ip and ip != "None" else f"{meta['name']}.{meta['namespace']}.svc"
+    return f"{host}:{spec['ports'][0]['port']}"
+
+
+def fleet_network_policy(
+    *, name: str, namespace: str, selector: Mapping[str, str], metrics_ports: Sequence[int],
+    owner_refs: Sequence[Mapping[str, Any]],
+) -> dict[str, Any]:  # fmt: skip
+    """The fleet's pods take traffic only from each other (DDS, any port) and, on their
+    metrics ports, from anywhere (Prometheus). Egress stays open: a robot's modules talk to
+    shared services and discovery servers wherever they run."""
+    ingress: list[dict[str, Any]] = [{"from": [{"podSelector": {"matchLabels": dict(selector)}}]}]
+    if metrics_ports:
+        ingress.append(
+            {"ports": [{"protocol": "TCP", "port": p} for p in sorted(set(metrics_ports))]}
+        )
+    meta: dict[str, Any] = {"name": name, "namespace": namespace, "labels": dict(selector)}
+    if owner_refs:
+        meta["ownerReferences"] = [dict(o) for o in owner_refs]
+    return {
+        "apiVersion": "networking.k8s.io/v1",
+        "kind": "NetworkPolicy",
+        "metadata": meta,
+        "spec": {
+            "podSelector": {"matchLabels": dict(selector)},
+            "policyTypes": ["Ingress", "Egress"],
+            "ingress": ingress,
+            "egress": [{}],
+        },
+    }
