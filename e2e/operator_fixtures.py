@@ -184,7 +184,9 @@ def pods_by_instance(kube: Kube, namespace: str) -> dict[str, Obj]:
     for pod in items:
         if pod["metadata"].get("deletionTimestamp") or pod["status"].get("phase") != "Running":
             continue
-        out.setdefault(pod["metadata"]["labels"]["fogfleet.io/instance"], pod)
+        instance = pod["metadata"]["labels"].get("fogfleet.io/instance")
+        if instance:  # not the robots' discovery servers
+            out.setdefault(instance, pod)
     return out
 
 

@@ -27,16 +27,34 @@ def burn(cpu_seconds: float) -> float:
 
 
 class Burner:
+    """One core's worth of work is burnt in the calling thread (time.thread_time counts only
+    its own CPU, so sharing the GIL with the ROS executor does not change the work); more
+    than one core's worth goes to worker processes, recreated if one dies (a container's
+    memory limit can kill a worker, and a lost task would hang the module)."""
+
     def __init__(self, workers: int) -> None:
         self.workers = max(1, workers)
-        self._pool: Pool = multiprocessing.get_context("fork").Pool(self.workers)
+        self._pool: Pool | None = self._new_pool() if self.workers > 1 else None
+
+    def _new_pool(self) -> Pool:
+        return multiprocessing.get_context("fork").Pool(self.workers)
 
     def run(self, cpu_seconds: float) -> float:
         """Burn `cpu_seconds` across the workers; the wall time until all are done."""
         t0 = time.monotonic()
+        if self._pool is None:
+            burn(cpu_seconds)
+            return time.monotonic() - t0
         share = cpu_seconds / self.workers
-        self._pool.map(burn, [share] * self.workers, chunksize=1)
+        try:
+            self._pool.map_async(burn, [share] * self.workers, chunksize=1).get(
+                timeout=60 + 100 * cpu_seconds
+            )
+        except multiprocessing.TimeoutError:
+            self._pool.terminate()
+            self._pool = self._new_pool()
         return time.monotonic() - t0
 
     def close(self) -> None:
-        self._pool.terminate()
+        if self._pool is not None:
+            self._pool.terminate()

@@ -1,0 +1,175 @@
+"""A real ROS 2 fleet on real nodes: two robots whose modules are split between the robots and
+the edge node, wired by the operator (a discovery server per robot), measured by Prometheus.
+
+Everything here is real: rclpy processes in containers under the nodes' CPU quotas, Fast DDS
+unicast discovery through ClusterIP Services (kube-proxy), messages over the emulated links,
+the workload's own counters scraped by Prometheus.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from e2e.cluster.harness import Cluster
+from e2e.cluster.kube import Kube
+from e2e.operator_fixtures import Operator, fleet, install_crds, pods_by_instance, wait_ready
+
+pytestmark = [pytest.mark.e2e, pytest.mark.real, pytest.mark.timeout(600)]
+
+ROBOTS = ("bed-robot-1", "bed-robot-2")
+EDGE = "bed-edge-1"
+IMAGE = "ghcr.io/fogfleet/ros2-module:0.1.0"
+
+
+def _compute_node(name: str, tier: str, hardware: str, link: dict[str, Any]) -> dict[str, Any]:
+    return {
+        "apiVersion": "fogfleet.io/v1alpha1",
+        "kind": "ComputeNode",
+        "metadata": {"name": name},
+        # capacity comes from the Node (the bed's real share); the link is the emulated one
+        "spec": {"tier": tier, "hardwareType": hardware, "network": [link], "privacyLevel": 3},
+    }
+
+
+def _module(
+    name: str,
+    ns: str,
+    *,
+    cycle_ms: int,
+    taxonomy: tuple[str, str, str],
+    subscribes: list[tuple[str, int, int]],
+    publishes: list[tuple[str, int, int]],
+    profile: list[tuple[str, str, float, float]],
+    tiers: list[str] | None = None,
+) -> dict[str, Any]:
+    def topics(items: list[tuple[str, int, int]]) -> list[dict[str, Any]]:
+        return [{"name": n, "sizeBytes": s, "rateHz": r} for n, s, r in items]
+
+    spec: dict[str, Any] = {
+        "template": {"image": IMAGE, "metricsPort": 9100, "imagePullPolicy": "Never"},
+        "taxonomy": dict(zip(("executionPattern", "realtime", "safety"), taxonomy, strict=True)),
+        "cycleTimeMillis": cycle_ms,
+        "activationPercent": 100,
+        "resources": {"cpu": "100m", "memory": "256Mi"},
+        "topics": {"subscribes": topics(subscribes), "publishes": topics(publishes)},
+        "profile": [
+            # quoted: fractional quantities are strings in this API version
+            {"hardwareType": hw, "cpu": cpu, "meanMillis": f"{mean:g}", "stdMillis": f"{std:g}"}
+            for hw, cpu, mean, std in profile
+        ],
+    }
+    if tiers:
+        spec["requirements"] = {"tiers": tiers}
+    return {
+        "apiVersion": "fogfleet.io/v1alpha1",
+        "kind": "SoftwareModule",
+        "metadata": {"name": name, "namespace": ns},
+        "spec": spec,
+    }
+
+
+def _fleet_objects(ns: str) -> list[dict[str, Any]]:
+    wifi = {"type": "wifi", "latencyMillis": 4, "jitterMillis": 1, "bandwidthMbps": 100}
+    lan = {"type": "lan", "latencyMillis": 1, "jitterMillis": 0, "bandwidthMbps": 1000}
+    nodes = [_compute_node(r, "robot", "bed-robot", wifi) for r in ROBOTS]
+    nodes.append(_compute_node(EDGE, "edge", "bed-edge", lan))
+    modules = [
+        # the lidar driver: hard real time, stays on its robot
+        _module("lidar", ns, cycle_ms=100, taxonomy=("periodic", "hard", "critical"),
+                subscribes=[], publishes=[("scan", 4096, 10)],
+                profile=[("bed-robot", "50m", 4, 0.5)]),
+        # localization: runs on the robot here
+        _module("localizer", ns, cycle_ms=100, taxonomy=("continuous", "soft", "relevant"),
+                subscribes=[("scan", 4096, 10)], publishes=[("pose", 256, 10)],
+                profile=[("bed-robot", "100m", 15, 2), ("bed-edge", "100m", 10, 1)],
+                tiers=["robot"]),
+        # the planner: offloaded to the edge, talks to its robot through the discovery server
+        _module("planner", ns, cycle_ms=1000, taxonomy=("periodic", "soft", "relevant"),
+                subscribes=[("pose", 256, 10)], publishes=[("plan", 2048, 1)],
+                profile=[("bed-robot", "200m", 300, 20), ("bed-edge", "200m", 120, 10)],
+                tiers=["edge"]),
+    ]  # fmt: skip
+    fleet_obj = {
+        "apiVersion": "fogfleet.io/v1alpha1",
+        "kind": "RobotFleet",
+        "metadata": {"name": "bedfleet", "namespace": ns},
+        "spec": {
+            "robots": list(ROBOTS),
+            "nodes": [EDGE],
+            "modules": [{"name": m["metadata"]["name"]} for m in modules],
+            "scheduler": {"population": 20, "generations": 10, "seed": 1},
+        },
+    }
+    return [*nodes, *modules, fleet_obj]
+
+
+@pytest.fixture
+def ros_fleet(
+    kube: Kube, cluster: Cluster, namespace: str, tmp_path: Path, diagnostics: list[Any]
+) -> Iterator[str]:
+    assert set(ROBOTS) | {EDGE} <= set(cluster.real_nodes)
+    install_crds(kube)
+    op = Operator(kube.kubeconfig, [namespace], tmp_path / "operator.log")
+    diagnostics.append(lambda: ("operator log", op.logs(150)))
+    op.start().wait_live()
+    try:
+        kube.apply(_fleet_objects(namespace))
+        wait_ready(kube, namespace, "bedfleet", timeout=300)
+        yield namespace
+    finally:
+        op.stop()
+
+
+def _series(cluster: Cluster, promql: str) -> dict[tuple[str, str], float]:
+    out = {}
+    for r in cluster.prometheus_query(promql):
+        m = r["metric"]
+        out[(m.get("module", ""), m.get("robot", ""))] = float(r["value"][1])
+    return out
+
+
+def test_a_split_ros_fleet_talks_across_nodes_within_each_robot_only(
+    kube: Kube, cluster: Cluster, ros_fleet: str
+) -> None:
+    ns = ros_fleet
+    status = fleet(kube, ns, "bedfleet")["status"]
+    where = {(p["robot"], p["module"]): p["node"] for p in status["placement"]}
+    for robot in ROBOTS:
+        assert where[(robot, "lidar")] == robot and where[(robot, "localizer")] == robot
+        assert where[(robot, "planner")] == EDGE
+    pods = pods_by_instance(kube, ns)
+    assert len(pods) == 6 and all(p["status"]["podIP"].startswith("198.18.") for p in pods.values())
+    sel = f'namespace="{ns}"'
+    kube.wait_for(
+        "every module's cycles in Prometheus",
+        lambda: len(_series(cluster, f"fogfleet_cycle_time_seconds_count{{{sel}}} > 5")) == 6,
+        180,
+        interval=3,
+    )
+    # the offloaded planners hear their own robot's localizer, across the emulated links
+    received = _series(
+        cluster, f"sum by (module, robot) (fogfleet_messages_received_total{{{sel}}})"
+    )
+    for robot in ROBOTS:
+        assert received.get(("planner", robot), 0) > 10, received
+        assert received.get(("localizer", robot), 0) > 10, received
+    # and never the other robot's (the workload's own leak counter)
+    leaks = _series(cluster, f"sum by (module, robot) (fogfleet_foreign_messages_total{{{sel}}})")
+    assert sum(leaks.values()) == 0, f"cross-robot messages: {leaks}"
+    # measured cycle times are in the range the profiles predict (work at the planned CPU limit
+    # plus the input's transfer), and below the cycle time
+    mean = _series(
+        cluster,
+        f"sum by (module, robot) (fogfleet_cycle_time_seconds_sum{{{sel}}})"
+        f" / sum by (module, robot) (fogfleet_cycle_time_seconds_count{{{sel}}})",
+    )
+    expected = {"lidar": (0.004, 0.100), "localizer": (0.015, 0.100), "planner": (0.120, 1.0)}
+    report = {f"{m}/{r}": f"{v * 1e3:.1f} ms" for (m, r), v in sorted(mean.items())}
+    print(f"measured mean cycle times: {report}")
+    for (module, robot), value in mean.items():
+        low, high = expected[module]
+        assert 0.8 * low <= value <= high, f"{module}/{robot}: {value * 1e3:.1f} ms ({report})"
