@@ -41,6 +41,12 @@ PROBE_PORT = 42100  # the discovery server's TCP listener, for the kubelet's pro
 LABEL_COMPONENT = "app.kubernetes.io/component"
 COMPONENT_DISCOVERY = "ros-discovery-server"
 NON_ROOT_UID = 65532
+LABEL_ROBOT = "fogfleet.io/robot"
+
+
+def robot_label(robot: str) -> str:
+    """A label value for a robot name (names are DNS subdomains; label values are shorter)."""
+    return robot[:63].rstrip("-._")
 
 
 @dataclass(frozen=True)
@@ -150,7 +156,8 @@ def render_discovery(
 ) -> tuple[dict[str, Any], dict[str, Any]]:
     """(Service, Deployment) of the robot's discovery server, pinned to the robot's node."""
     name = discovery_service_name(fleet, robot, dns)
-    selector = {**labels, LABEL_COMPONENT: COMPONENT_DISCOVERY}
+    # the robot in the selector: each Service must reach its own robot's server only
+    selector = {**labels, LABEL_COMPONENT: COMPONENT_DISCOVERY, LABEL_ROBOT: robot_label(robot)}
     meta = {
         "name": name,
         "namespace": namespace,

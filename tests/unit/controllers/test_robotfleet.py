@@ -207,6 +207,18 @@ def test_every_robot_gets_a_discovery_server_on_its_own_node_and_its_modules_use
             "requiredDuringSchedulingIgnoredDuringExecution"
         ]["nodeSelectorTerms"][0]["matchExpressions"][0]["values"] == [robot]
     ips = {k[1]: s["spec"]["clusterIP"] for k, s in kube.services.items()}
+    # each Service selects its own robot's server pod, never another robot's
+    for (_, name), svc in kube.services.items():
+        robot = name.removeprefix("warehouse-").removesuffix("-dds")
+        assert svc["spec"]["selector"]["fogfleet.io/robot"] == robot
+        (server,) = [d for d in servers.values() if d["metadata"]["name"] == name]
+        labels = server["spec"]["template"]["metadata"]["labels"]
+        assert svc["spec"]["selector"].items() <= labels.items()
+        others = [d for d in servers.values() if d["metadata"]["name"] != name]
+        assert not any(
+            svc["spec"]["selector"].items() <= d["spec"]["template"]["metadata"]["labels"].items()
+            for d in others
+        )
     offloaded = 0
     for dep in module_deps(kube).values():
         robot = dep["metadata"]["annotations"]["fogfleet.io/robot"]
