@@ -205,42 +205,32 @@ class KubeClient:
         )
 
     # ---------------------------------------------------------------- writes
-    def apply_deployment(self, body: Obj) -> Obj:
+    def _server_side_apply(self, kind: str, collection: str, body: Obj) -> Obj:
+        """Server-side apply under the ``fogfleet`` field manager, forcing conflicts."""
         ns, name = body["metadata"]["namespace"], body["metadata"]["name"]
-        with map_errors(f"apply Deployment {ns}/{name}", f"Deployment/{name}"):
+        with map_errors(f"apply {kind} {ns}/{name}", f"{kind}/{name}"):
             out = self._call(
                 "PATCH",
-                f"/apis/apps/v1/namespaces/{ns}/deployments/{name}",
+                f"{collection.format(ns=ns)}/{name}",
                 query={"fieldManager": self.manager, "force": "true"},
                 body=body,
                 content_type=APPLY,
             )
         return out or {}
+
+    def apply_deployment(self, body: Obj) -> Obj:
+        return self._server_side_apply(
+            "Deployment", "/apis/apps/v1/namespaces/{ns}/deployments", body
+        )
 
     def apply_service(self, body: Obj) -> Obj:
-        """Server-side apply of a Service; returns it as stored (with its cluster IP)."""
-        ns, name = body["metadata"]["namespace"], body["metadata"]["name"]
-        with map_errors(f"apply Service {ns}/{name}", f"Service/{name}"):
-            out = self._call(
-                "PATCH",
-                f"/api/v1/namespaces/{ns}/services/{name}",
-                query={"fieldManager": self.manager, "force": "true"},
-                body=body,
-                content_type=APPLY,
-            )
-        return out or {}
+        """A Service as stored (with its cluster IP)."""
+        return self._server_side_apply("Service", "/api/v1/namespaces/{ns}/services", body)
 
     def apply_network_policy(self, body: Obj) -> Obj:
-        ns, name = body["metadata"]["namespace"], body["metadata"]["name"]
-        with map_errors(f"apply NetworkPolicy {ns}/{name}", f"NetworkPolicy/{name}"):
-            out = self._call(
-                "PATCH",
-                f"/apis/networking.k8s.io/v1/namespaces/{ns}/networkpolicies/{name}",
-                query={"fieldManager": self.manager, "force": "true"},
-                body=body,
-                content_type=APPLY,
-            )
-        return out or {}
+        return self._server_side_apply(
+            "NetworkPolicy", "/apis/networking.k8s.io/v1/namespaces/{ns}/networkpolicies", body
+        )
 
     def list_services(self, namespace: str, selector: Mapping[str, str]) -> list[Obj]:
         return self._list(
