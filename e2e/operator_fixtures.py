@@ -22,6 +22,7 @@ from typing import Any
 import yaml
 
 from e2e.cluster.kube import Kube
+from fogfleet.controllers.ros import is_ros_object
 
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLES = ROOT / "manifests" / "examples"
@@ -219,8 +220,9 @@ def deployment_versions(kube: Kube, namespace: str) -> dict[str, str]:
 
 
 def deployments(kube: Kube, namespace: str) -> list[Obj]:
+    """The modules' Deployments (not the robots' ROS discovery servers)."""
     items: list[Obj] = kube.kubectl_json("get", "deployments", "-n", namespace)["items"]
-    return items
+    return [d for d in items if not is_ros_object(d)]
 
 
 def bound_node(dep: Obj) -> list[str]:

@@ -82,6 +82,15 @@ def running_pod_names(kube: Kube) -> set[str]:
 def watched(kube: Kube, cluster: Cluster) -> Iterator[str]:
     """The namespace the installed operator watches (the release itself is in fogfleet-system)."""
     install_crds(kube)
+    # an interrupted earlier run may have left the plain-manifest install (not Helm's) behind
+    for what in (
+        ["clusterrolebinding", "fogfleet-operator"],
+        ["clusterrole", "fogfleet-operator"],
+        ["serviceaccount", "fogfleet-operator", "-n", SYSTEM],
+    ):
+        obj = kube.kubectl("get", *what, "-o", "json", check=False)
+        if obj.returncode == 0 and "Helm" not in obj.stdout:
+            kube.kubectl("delete", *what, check=False)
     ns = f"e2e-incluster-{secrets.token_hex(3)}"
     kube.apply({"apiVersion": "v1", "kind": "Namespace", "metadata": {"name": ns}})
     helm(

@@ -321,3 +321,6 @@ def test_the_operator_works_under_the_charts_least_privilege_rbac(
         assert "forbidden" not in logs.lower() and " 403" not in logs, op.logs(60)
     finally:
         op.stop()
+        # leave nothing cluster-wide behind (the Helm install test owns these names)
+        for name in ("21-clusterrolebinding.yaml", "20-clusterrole.yaml", "10-serviceaccount.yaml"):
+            kube.kubectl("delete", "-f", str(install / name), "--ignore-not-found", check=False)
