@@ -21,6 +21,7 @@ sys.path.insert(0, str(ROOT))
 from e2e.cluster import ensure_up  # noqa: E402
 from e2e.cluster.kube import Kube, guard_kubeconfig  # noqa: E402
 from e2e.operator_fixtures import Operator, conditions, example_docs, install_crds  # noqa: E402
+from fogfleet.controllers.ros import is_ros_object  # noqa: E402
 
 NAMESPACE = "fogfleet-demo"
 TIMEOUT_SECONDS = 240
@@ -65,8 +66,10 @@ def main() -> int:
                 f"{row['robot']:9} {row['module']:24} {row['node']:9} {row['tier']:6} {row['cpu']}"
             )
         print()
+        servers = [p for p in pods if is_ros_object(p)]
         print(
-            f"{len(pods)} pods Running on {len(bound)} nodes, bound by kube-scheduler, "
+            f"{len(pods) - len(servers)} module pods and {len(servers)} ROS discovery servers "
+            f"Running on {len(bound)} nodes, bound by kube-scheduler, "
             f"{elapsed:.1f} s after kubectl apply (planning {status.get('planningMillis')} ms)"
         )
         print(f"Predicted missed-cycle rate: {status.get('predictedMissRate')}")
