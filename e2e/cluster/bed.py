@@ -192,7 +192,7 @@ def ensure_up(*, nodes: bool = True) -> Cluster:
             raise
         _write_state(ports, "running", [n.name for n in real])
         log(f"cluster up in {time.monotonic() - t0:.1f}s ({len(real)} real nodes)")
-        return cluster
+        return Cluster.from_state(_read_state() or {})  # with its real nodes and versions
 
 
 def leftovers() -> list[str]:

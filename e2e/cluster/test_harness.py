@@ -135,3 +135,10 @@ def test_scrape_targets_must_be_loopback(tmp_path: Path) -> None:
         cluster.add_prometheus_target("pod", "10.0.0.7:8080")
     cluster.remove_prometheus_target("twin")
     assert not path.exists()
+
+
+def test_a_cluster_from_state_knows_its_real_nodes_and_versions() -> None:
+    state = {"ports": {"kube-apiserver": 1, "prometheus": 2}, "real_nodes": ["bed-robot-1"],
+             "versions": {"K8S_VERSION": "1.36.3"}}  # fmt: skip
+    cluster = harness.Cluster.from_state(state)
+    assert cluster.real_nodes == ("bed-robot-1",) and cluster.versions["K8S_VERSION"] == "1.36.3"
