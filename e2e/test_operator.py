@@ -41,6 +41,29 @@ from fogfleet.controllers.ros import is_ros_object
 
 pytestmark = [pytest.mark.e2e, pytest.mark.timeout(420)]
 
+FULL_TEMPLATE: dict[str, Any] = {
+    "image": "ghcr.io/fogfleet/ros2-module:0.1.0",
+    "metricsPort": 9100,
+    "env": [{"name": "TOKEN", "valueFrom": {"secretKeyRef": {"name": "api", "key": "token"}}}],
+    "envFrom": [{"configMapRef": {"name": "params"}}],
+    "ports": [{"name": "grpc", "containerPort": 50051, "protocol": "TCP"}],
+    "volumes": [
+        {"name": "params", "configMap": {"name": "params"}},
+        {"name": "camera", "hostPath": {"path": "/dev/video0", "type": "CharDevice"}},
+    ],
+    "volumeMounts": [{"name": "params", "mountPath": "/params", "readOnly": True}],
+    "readinessProbe": {"tcpSocket": {"port": "grpc"}, "periodSeconds": 5},
+    "securityContext": {"supplementalGroups": [44], "capabilities": {"add": ["SYS_NICE"]}},
+    "extraResources": {"squat.ai/video": 1},
+    "tolerations": [{"key": "fogfleet.io/robot", "operator": "Exists", "effect": "NoSchedule"}],
+    "imagePullSecrets": [{"name": "ghcr"}],
+    "serviceAccountName": "detector",
+    "sidecars": [
+        {"name": "cycle-probe", "image": "ghcr.io/fogfleet/ros2-module:0.1.0",
+         "args": ["probe"], "metricsPort": 9101},
+    ],
+}  # fmt: skip
+
 
 @pytest.fixture(scope="module")
 def crds(kube: Kube) -> None:
@@ -88,6 +111,7 @@ def test_warehouse_runs_where_planned_replans_once_and_cleans_up(
         f"\napply-to-Ready (40 pods, plan included): {ready_s:.1f}s; "
         f"planning {f['status']['planningMillis']} ms"
     )
+    assert_usage_status(kube, namespace, f["status"]["placement"])
 
     # one module's cycle time changes: one re-plan, the other modules keep their pods
     before_uids = {name: pod["metadata"]["uid"] for name, pod in pods.items()}
@@ -124,6 +148,36 @@ def test_warehouse_runs_where_planned_replans_once_and_cleans_up(
     # deleting the fleet removes every Deployment it owned
     kube.kubectl("delete", "robotfleet", "warehouse", "-n", namespace, "--wait=true", timeout=90)
     kube.wait_for("no Deployments left", lambda: not deployments(kube, namespace), 60)
+
+
+def assert_usage_status(kube: Kube, namespace: str, placement: list[dict[str, Any]]) -> None:
+    """SoftwareModules and ComputeNodes say which fleets place them and how many instances
+    (the operator's usage pass, written through the real status subresource and CRD schema)."""
+    per_module: dict[str, int] = {}
+    for entry in placement:
+        per_module[entry["module"]] = per_module.get(entry["module"], 0) + 1
+
+    def modules_done() -> bool:
+        mods = kube.kubectl_json("get", "softwaremodules", "-n", namespace)["items"]
+        got = {m["metadata"]["name"]: (m.get("status") or {}) for m in mods}
+        return all(
+            got.get(name, {}).get("instances") == n
+            and got[name].get("fleets") == ["warehouse"]
+            and got[name].get("offloadable") in ("never", "candidate", "preferred")
+            for name, n in per_module.items()
+        )
+
+    kube.wait_for("module usage status", modules_done, 60)
+    node = placement[0]["node"]
+    here = sum(e["node"] == node for e in placement)
+    cn = kube.kubectl_json("get", "computenode", node)
+    assert f"{namespace}/warehouse" in cn["status"]["fleets"], cn["status"]
+    assert cn["status"]["instances"] >= here, cn["status"]
+    assert conditions(cn)["Ready"]["status"] == "True", cn["status"]
+    table = kube.kubectl("get", "softwaremodules", "-n", namespace).stdout
+    assert "INSTANCES" in table and "SPLIT" in table, table
+    explained = kube.kubectl("explain", "robotfleet.spec.scheduler.population").stdout
+    assert "NSGA-II population size. Default: 100." in explained, explained
 
 
 def test_a_not_ready_edge_node_is_left_and_the_fleet_recovers(
@@ -183,6 +237,35 @@ def test_invalid_objects_are_rejected_or_reported_without_touching_what_runs(
     module["spec"] = {**module["spec"], "cycleTimeMillis": -5}
     proc = kube.kubectl("apply", "-f", "-", input=dump(module), check=False)
     assert proc.returncode != 0 and "cycleTimeMillis" in proc.stderr, proc.stderr
+    # a pod-template field fogfleet owns: refused by the API server with the reason
+    owned = dict(of_kind(docs, "SoftwareModule")[0])
+    owned["spec"] = {**owned["spec"], "template": {**owned["spec"]["template"], "affinity": {}}}
+    proc = kube.kubectl("apply", "-f", "-", input=dump(owned), check=False)
+    assert proc.returncode != 0, proc.stdout
+    assert "affinity: set by fogfleet (the pod's placement is the plan's" in proc.stderr, (
+        proc.stderr
+    )
+    # the pod-template subset users set is accepted as it is written in a Deployment
+    full = dict(of_kind(docs, "SoftwareModule")[0])
+    full["metadata"] = {"name": "e2e-full-template", "namespace": namespace}
+    full["spec"] = {**full["spec"], "template": FULL_TEMPLATE}
+    kube.apply(full)
+    stored = kube.kubectl_json("get", "softwaremodule", "e2e-full-template", "-n", namespace)
+    assert stored["spec"]["template"] == FULL_TEMPLATE  # nothing pruned by the schema
+    bad_volume = {**full, "metadata": {"name": "e2e-bad-volume", "namespace": namespace}}
+    bad_volume["spec"] = {
+        **full["spec"],
+        "template": {**FULL_TEMPLATE, "readinessProbe": {"tcpSocket": {"port": 70000}}},
+    }
+    proc = kube.kubectl("apply", "-f", "-", input=dump(bad_volume), check=False)
+    assert proc.returncode != 0 and "readinessProbe" in proc.stderr, proc.stderr
+    kube.kubectl("delete", "softwaremodule", "e2e-full-template", "-n", namespace)
+    # a robot listed twice would double every module of it: the API server refuses it
+    twice = dict(of_kind(docs, "RobotFleet")[0])
+    twice["metadata"] = {"name": "e2e-twice", "namespace": namespace}
+    twice["spec"] = {**twice["spec"], "robots": ["robot-1", "robot-1"]}
+    proc = kube.kubectl("apply", "-f", "-", input=dump(twice), check=False)
+    assert proc.returncode != 0 and "spec.robots[1]: Duplicate value" in proc.stderr, proc.stderr
 
     apply_warehouse(kube, namespace)
     wait_ready(kube, namespace)

@@ -8,6 +8,8 @@ the workload's own counters scraped by Prometheus.
 
 from __future__ import annotations
 
+import re
+import urllib.request
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -23,6 +25,7 @@ pytestmark = [pytest.mark.e2e, pytest.mark.real, pytest.mark.timeout(600)]
 ROBOTS = ("bed-robot-1", "bed-robot-2")
 EDGE = "bed-edge-1"
 IMAGE = "ghcr.io/fogfleet/ros2-module:0.1.0"
+PROBE_PORT = 9101
 
 
 def _compute_node(name: str, tier: str, hardware: str, link: dict[str, Any]) -> dict[str, Any]:
@@ -45,6 +48,7 @@ def _module(
     publishes: list[tuple[str, int, int]],
     profile: list[tuple[str, str, float, float]],
     tiers: list[str] | None = None,
+    probe: bool = False,
 ) -> dict[str, Any]:
     def topics(items: list[tuple[str, int, int]]) -> list[dict[str, Any]]:
         return [{"name": n, "sizeBytes": s, "rateHz": r} for n, s, r in items]
@@ -64,6 +68,11 @@ def _module(
     }
     if tiers:
         spec["requirements"] = {"tiers": tiers}
+    if probe:  # the cycle-time sidecar users add to a module nobody instrumented
+        spec["template"]["sidecars"] = [
+            {"name": "cycle-probe", "image": IMAGE, "imagePullPolicy": "Never",
+             "args": ["probe", "--port", str(PROBE_PORT)], "metricsPort": PROBE_PORT},
+        ]  # fmt: skip
     return {
         "apiVersion": "fogfleet.io/v1alpha1",
         "kind": "SoftwareModule",
@@ -91,7 +100,7 @@ def _fleet_objects(ns: str) -> list[dict[str, Any]]:
         _module("planner", ns, cycle_ms=1000, taxonomy=("periodic", "soft", "relevant"),
                 subscribes=[("pose", 256, 10)], publishes=[("plan", 2048, 1)],
                 profile=[("bed-robot", "200m", 300, 20), ("bed-edge", "200m", 120, 10)],
-                tiers=["edge"]),
+                tiers=["edge"], probe=True),
     ]  # fmt: skip
     fleet_obj = {
         "apiVersion": "fogfleet.io/v1alpha1",
@@ -180,3 +189,33 @@ def test_a_split_ros_fleet_talks_across_nodes_within_each_robot_only(
         assert 0.8 * work <= value <= min(throttled, cycle_s), f"{module}/{robot} ({report})"
     missed = _series(cluster, f"sum by (module, robot) (fogfleet_missed_cycles_total{{{sel}}})")
     print(f"missed cycles: {missed}")
+
+    # the cycle-time probe beside each planner measures it from the messages alone: the
+    # planner's cycle plus the wait of its freshest pose for the next 1 s tick (poses come
+    # every 100 ms, so at most ~0.1 s more), and every one of its outputs is timed
+    for robot in ROBOTS:
+        pod = next(
+            p
+            for p in pods.values()
+            if p["metadata"]["labels"].get("fogfleet.io/robot") == robot
+            and p["metadata"]["labels"].get("fogfleet.io/module") == "planner"
+        )
+        probed = _scrape(f"http://{pod['status']['podIP']}:{PROBE_PORT}/metrics")
+        count = probed["fogfleet_cycle_time_seconds_count"]
+        probe_mean = probed["fogfleet_cycle_time_seconds_sum"] / count
+        own = mean[("planner", robot)]
+        print(f"planner/{robot}: own {own * 1e3:.1f} ms, probe {probe_mean * 1e3:.1f} ms")
+        assert count >= 3, probed
+        assert own - 0.005 <= probe_mean <= own + 0.1 + 0.05, (own, probe_mean)
+        assert probed.get("fogfleet_foreign_messages_total", 0.0) == 0, probed
+
+
+def _scrape(url: str) -> dict[str, float]:
+    """Totals per metric name (labels summed) from a Prometheus text endpoint."""
+    text = urllib.request.urlopen(url, timeout=5).read().decode()
+    out: dict[str, float] = {}
+    for line in text.splitlines():
+        m = re.match(r"^(fogfleet_\w+)(\{[^}]*\})?\s+([0-9.eE+-]+)$", line)
+        if m and not re.search(r'[{,]le="', m.group(2) or ""):  # not a histogram bucket
+            out[m.group(1)] = out.get(m.group(1), 0.0) + float(m.group(3))
+    return out

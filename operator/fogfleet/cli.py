@@ -293,13 +293,13 @@ def cmd_render(args: argparse.Namespace) -> int:
             wiring = RosWiring(fleet.spec.ros, {r: service_address(s) for r, s, _ in servers})
             for _, service, deployment in servers:
                 docs += [service, deployment]
-            ports = [m.spec.template.metrics_port for m in modules.values()]
+            ports = sorted({p for m in modules.values() for p in m.spec.template.metrics_ports()})
             docs.append(
                 fleet_network_policy(
                     name=_dns(f"{problem.fleet}-pods")[:63],
                     namespace=ns,
                     selector={LABEL_FLEET: label_value(problem.fleet)},
-                    metrics_ports=[p for p in ports if p],
+                    metrics_ports=ports,
                     owner_refs=[],
                 )
             )

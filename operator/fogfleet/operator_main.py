@@ -14,7 +14,6 @@ from typing import Any
 
 import kopf
 
-from fogfleet import GROUP
 from fogfleet.adapters.kube import KubeClient, load_config
 from fogfleet.adapters.leases import LeaseLock, LeaseSettings
 from fogfleet.adapters.metrics import PrometheusMetrics
@@ -25,7 +24,7 @@ from fogfleet.controllers.scaling import ScalingDeps
 from fogfleet.handlers import register
 from fogfleet.settings import Settings
 
-__all__ = ["build_runtime", "configure_kopf", "run"]
+__all__ = ["build_runtime", "run"]
 
 log = logging.getLogger("fogfleet")
 FORMATS = {"plain": kopf.LogFormat.PLAIN, "full": kopf.LogFormat.FULL, "json": kopf.LogFormat.JSON}
@@ -39,24 +38,6 @@ def build_runtime(settings: Settings, *, serve_metrics: bool = True) -> Runtime:
         metrics.serve(settings.metrics_port, settings.metrics_host)
     deps = Deps(kube=kube, metrics=metrics, scheduler_defaults=settings.scheduler_defaults())
     return Runtime(deps, workers=settings.workers, debounce=settings.debounce_seconds)
-
-
-def configure_kopf(kopf_settings: kopf.OperatorSettings, settings: Settings) -> None:
-    """State in annotations under fogfleet.io, our finalizer, quiet event posting."""
-    p = kopf_settings.persistence
-    p.progress_storage = kopf.AnnotationsProgressStorage(prefix=GROUP)
-    p.diffbase_storage = kopf.AnnotationsDiffBaseStorage(
-        prefix=GROUP, key="last-handled-configuration"
-    )
-    p.finalizer = f"{GROUP}/finalizer"  # none is added: no handler of ours requires one
-    kopf_settings.posting.level = logging.WARNING  # our own Events say what happened
-    kopf_settings.posting.reporting_component = "fogfleet"
-    kopf_settings.watching.server_timeout = 300
-    kopf_settings.watching.client_timeout = 330
-    kopf_settings.watching.connect_timeout = 10
-    kopf_settings.networking.request_timeout = 60
-    kopf_settings.peering.standalone = settings.standalone
-    kopf_settings.peering.name = settings.peering_name
 
 
 def _standby_health(settings: Settings) -> http.server.HTTPServer | None:

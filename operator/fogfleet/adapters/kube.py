@@ -27,7 +27,6 @@ import logging
 import secrets
 import urllib.parse
 from collections.abc import Iterator, Mapping
-from datetime import UTC, datetime
 from typing import Any
 
 import urllib3
@@ -36,8 +35,9 @@ from kubernetes.client.exceptions import ApiException, OpenApiException
 from kubernetes.config.config_exception import ConfigException
 
 from fogfleet import GROUP, VERSION
+from fogfleet.api.labels import MANAGER
+from fogfleet.api.timestamps import timestamp
 from fogfleet.errors import DependencyUnavailable, InvalidSpec
-from fogfleet.render.deployments import MANAGER
 
 __all__ = ["KubeClient", "load_config", "map_errors"]
 
@@ -183,10 +183,11 @@ class KubeClient:
     def list_compute_nodes(self) -> list[Obj]:
         return self._list(f"/apis/{GROUP}/{VERSION}/computenodes", "list ComputeNodes")
 
-    def list_modules(self, namespace: str) -> list[Obj]:
+    def list_modules(self, namespace: str | None) -> list[Obj]:
+        where = f"/namespaces/{namespace}" if namespace else ""
         return self._list(
-            f"/apis/{GROUP}/{VERSION}/namespaces/{namespace}/softwaremodules",
-            f"list SoftwareModules in {namespace}",
+            f"/apis/{GROUP}/{VERSION}{where}/softwaremodules",
+            f"list SoftwareModules in {namespace or 'all namespaces'}",
         )
 
     def list_nodes(self) -> list[Obj]:
@@ -251,11 +252,14 @@ class KubeClient:
             )
 
     def _merge_patch(self, what: str, path: str, body: Mapping[str, Any]) -> None:
-        """A JSON merge patch of one fogfleet object (a missing object is not an error)."""
+        """A JSON merge patch of one fogfleet object (a missing object is not an error);
+        ``path`` is ``<namespace>/<plural>/<name>...`` or ``/<plural>/<name>...`` for a
+        cluster-scoped kind."""
+        where = path if path.startswith("/") else f"/namespaces/{path}"
         with map_errors(what):
             self._call(
                 "PATCH",
-                f"/apis/{GROUP}/{VERSION}/namespaces/{path}",
+                f"/apis/{GROUP}/{VERSION}{where}",
                 body=dict(body),
                 content_type=MERGE,
                 missing_ok=True,
@@ -265,6 +269,13 @@ class KubeClient:
         self._merge_patch(
             f"patch the status of SoftwareModule {namespace}/{name}",
             f"{namespace}/softwaremodules/{name}/status",
+            {"status": dict(status)},
+        )
+
+    def patch_compute_node_status(self, name: str, status: Mapping[str, Any]) -> None:
+        self._merge_patch(
+            f"patch the status of ComputeNode {name}",
+            f"/computenodes/{name}/status",
             {"status": dict(status)},
         )
 
@@ -289,7 +300,7 @@ class KubeClient:
     ) -> None:
         meta = involved.get("metadata") or {}
         ns = meta.get("namespace") or "default"
-        now_s = datetime.now(UTC).strftime("%Y-%m-%dT%H:%M:%SZ")
+        now_s = timestamp()
         event = {
             "apiVersion": "v1",
             "kind": "Event",

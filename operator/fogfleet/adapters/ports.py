@@ -28,7 +28,9 @@ class KubePort(Protocol):
 
     def list_compute_nodes(self) -> list[Obj]: ...
 
-    def list_modules(self, namespace: str) -> list[Obj]: ...
+    def list_modules(self, namespace: str | None) -> list[Obj]:
+        """SoftwareModules of one namespace (None: of every namespace)."""
+        ...
 
     def list_nodes(self) -> list[Obj]: ...
 
@@ -60,6 +62,10 @@ class KubePort(Protocol):
 
     def patch_module_status(self, namespace: str, name: str, status: Mapping[str, Any]) -> None:
         """A SoftwareModule's status subresource (the autoscaler's decision)."""
+        ...
+
+    def patch_compute_node_status(self, name: str, status: Mapping[str, Any]) -> None:
+        """A ComputeNode's status subresource (which fleets use it, its Node's readiness)."""
         ...
 
     def patch_module_annotations(

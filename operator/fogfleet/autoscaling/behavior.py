@@ -32,7 +32,14 @@ from __future__ import annotations
 import math
 from collections.abc import Iterable
 from dataclasses import dataclass, field
-from enum import StrEnum
+
+from fogfleet.api.v1alpha1.scaling import (
+    BehaviorSpec,
+    PolicyType,
+    ScalingRulesSpec,
+    ScalingSpec,
+    SelectPolicy,
+)
 
 __all__ = [
     "DEFAULT_BEHAVIOR",
@@ -47,21 +54,12 @@ __all__ = [
     "SelectPolicy",
     "Step",
     "normalize",
+    "resolve_behavior",
+    "resolve_rules",
     "scale_down_limit",
     "scale_up_limit",
     "stabilize",
 ]
-
-
-class PolicyType(StrEnum):
-    PODS = "Pods"
-    PERCENT = "Percent"
-
-
-class SelectPolicy(StrEnum):
-    MAX = "Max"
-    MIN = "Min"
-    DISABLED = "Disabled"
 
 
 @dataclass(frozen=True)
@@ -291,3 +289,30 @@ def normalize(
             ScaleEvent(now, replicas - current),
         )
     return Step(replicas, reason, BehaviorState(recommendations, events))
+
+
+def resolve_rules(spec: ScalingRulesSpec | None, default: ScalingRules) -> ScalingRules:
+    """One direction of a spec's ``behavior``; unset fields take ``default``'s (the HPA's)."""
+    if spec is None:
+        return default
+    return ScalingRules(
+        default.stabilization_window_seconds
+        if spec.stabilization_window_seconds is None
+        else spec.stabilization_window_seconds,
+        default.policies
+        if spec.policies is None
+        else tuple(ScalingPolicy(p.type, p.value, p.period_seconds) for p in spec.policies),
+        default.select_policy if spec.select_policy is None else spec.select_policy,
+    )
+
+
+def resolve_behavior(spec: ScalingSpec | BehaviorSpec | None) -> Behavior:
+    """The engine's Behavior for a scaling spec: ``preset: tinykube`` fills the directions
+    left unset, otherwise the HPA's defaults do."""
+    behavior = spec.behavior if isinstance(spec, ScalingSpec) else spec
+    behavior = behavior or BehaviorSpec()
+    base = TINYKUBE_BEHAVIOR if behavior.preset == "tinykube" else DEFAULT_BEHAVIOR
+    return Behavior(
+        resolve_rules(behavior.scale_up, base.scale_up),
+        resolve_rules(behavior.scale_down, base.scale_down),
+    )

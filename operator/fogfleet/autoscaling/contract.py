@@ -32,6 +32,10 @@ from __future__ import annotations
 import re
 from collections.abc import Mapping
 from enum import StrEnum
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:  # the workload image imports this module without pydantic
+    from fogfleet.api.v1alpha1.scaling import SloMetric
 
 __all__ = [
     "CYCLE_TIME",
@@ -43,7 +47,7 @@ __all__ = [
     "REQUESTS_SERVED",
     "RESPONSE_TIME",
     "Label",
-    "SloMetric",
+    "histogram_of",
     "offered_rate_query",
     "selector",
     "slo_query",
@@ -74,15 +78,9 @@ class Label(StrEnum):
     NAMESPACE = "namespace"
 
 
-class SloMetric(StrEnum):
-    """Histogram metrics an SLO can name in ``ScalingSpec.slo.metric``."""
-
-    RESPONSE_TIME = "responseTime"
-    CYCLE_TIME = "cycleTime"
-
-    @property
-    def histogram(self) -> str:
-        return RESPONSE_TIME if self is SloMetric.RESPONSE_TIME else CYCLE_TIME
+def histogram_of(metric: SloMetric) -> str:
+    """The contract histogram an SLO metric names."""
+    return RESPONSE_TIME if metric == "responseTime" else CYCLE_TIME
 
 
 _LABEL_NAME = re.compile(r"^[a-zA-Z_][a-zA-Z0-9_]*$")
@@ -125,7 +123,7 @@ def slo_query(
     labels = {Label.MODULE.value: module, Label.NAMESPACE.value: namespace}
     if tier is not None:
         labels[Label.TIER.value] = tier
-    buckets = f"{metric.histogram}_bucket{selector(labels)}[{_window(window_seconds)}]"
+    buckets = f"{histogram_of(metric)}_bucket{selector(labels)}[{_window(window_seconds)}]"
     return f"histogram_quantile({percentile / 100:g}, sum by (le) (rate({buckets})))"
 
 

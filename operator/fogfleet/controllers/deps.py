@@ -8,18 +8,22 @@ ComputeNode, Kubernetes Node and SoftwareModule, so a change re-plans exactly th
 from __future__ import annotations
 
 import threading
+from collections.abc import Mapping
 from dataclasses import dataclass, field
+from typing import Any, Protocol
 
 import numpy as np
 from numpy.typing import NDArray
 
 from fogfleet.adapters.ports import KubePort, MetricsPort, NullMetrics, Planner
+from fogfleet.adapters.prometheus import PrometheusPort
 from fogfleet.controllers.planning import CorePlanner
 from fogfleet.scheduling.schedule import Schedule
 
-__all__ = ["CachedPlan", "Deps", "FleetKey", "References"]
+__all__ = ["CachedPlan", "Deps", "FleetKey", "References", "ScalingDeps", "ScalingKube"]
 
 FleetKey = tuple[str, str]  # (namespace, name)
+Obj = dict[str, Any]
 
 
 @dataclass(frozen=True)
@@ -32,6 +36,8 @@ class CachedPlan:
     choice_reason: str
     planned_at: str
     moves: tuple[str, ...] = ()  # "robot-1/module edge-1->edge-2" for the Migrated Event
+    objectives: dict[str, float] = field(default_factory=dict)
+    """The objectives of ``placement`` (the plan deployed), not of the solver's proposal."""
 
 
 @dataclass
@@ -96,3 +102,31 @@ class Deps:
     scheduler_defaults: dict[str, int] = field(default_factory=dict)
     requeue_seconds: float = 2.0  # while pods are on their way
     retry_seconds: float = 10.0  # after DependencyUnavailable
+
+
+class ScalingKube(Protocol):
+    """What the scaling controller needs from the API server (blocking calls)."""
+
+    def list_pods(self, namespace: str, selector: Mapping[str, str]) -> list[Obj]: ...
+
+    def patch_module_status(self, namespace: str, name: str, status: Mapping[str, Any]) -> None:
+        """One JSON merge patch of the SoftwareModule's status subresource."""
+        ...
+
+    def patch_module_annotations(
+        self, namespace: str, name: str, annotations: Mapping[str, str | None]
+    ) -> None: ...
+
+    def emit_event(
+        self, involved: Mapping[str, Any], type_: str, reason: str, message: str
+    ) -> None: ...
+
+
+@dataclass
+class ScalingDeps:
+    kube: ScalingKube
+    prometheus: PrometheusPort
+    period_seconds: float = 15.0  # how often the timer decides (the HPA's sync period)
+    slo_window_seconds: int = 60  # rate() window of the SLO histogram
+    rate_window_seconds: int = 10  # rate() window of the offered load (predictive)
+    cpu_window_seconds: int = 60

@@ -12,20 +12,13 @@ from collections.abc import Iterable, Mapping
 from typing import Any
 
 from fogfleet.adapters.ports import KubePort
+from fogfleet.api.labels import ANNOTATION_SPEC_HASH, LABEL_COMPONENT, LABEL_MANAGED_BY, MANAGER
 from fogfleet.api.v1alpha1.robotfleet import RobotFleet
 from fogfleet.api.v1alpha1.softwaremodule import SoftwareModule
 from fogfleet.domain.problem import Problem
-from fogfleet.render.deployments import (
-    ANNOTATION_SPEC_HASH,
-    LABEL_MANAGED_BY,
-    MANAGER,
-    Owner,
-    _dns,
-    spec_hash,
-)
+from fogfleet.render.deployments import Owner, _dns, spec_hash
 from fogfleet.render.ros import (
     COMPONENT_DISCOVERY,
-    LABEL_COMPONENT,
     RosWiring,
     discovery_servers,
     fleet_network_policy,
@@ -92,7 +85,7 @@ def apply_ros_wiring(
         )
         if old_hash != deployment["metadata"]["annotations"][ANNOTATION_SPEC_HASH]:
             kube.apply_deployment(deployment)
-    ports = sorted({m.spec.template.metrics_port for m in modules if m.spec.template.metrics_port})
+    ports = sorted({p for m in modules for p in m.spec.template.metrics_ports()})
     kube.apply_network_policy(
         fleet_network_policy(
             name=_dns(f"{problem.fleet}-pods")[:63],

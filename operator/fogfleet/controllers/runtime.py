@@ -16,13 +16,14 @@ from collections.abc import Callable, Mapping
 from concurrent.futures import ThreadPoolExecutor
 from typing import Any, TypeVar
 
+from fogfleet.api.labels import LABEL_FLEET
 from fogfleet.errors import FogfleetError
-from fogfleet.render.deployments import LABEL_FLEET
 
 from .deps import Deps, FleetKey
 from .inputs import node_health
 from .queue import ReconcileQueue
 from .robotfleet import Outcome, forget, reconcile
+from .usage import reconcile_usage
 
 __all__ = ["Runtime"]
 
@@ -46,6 +47,7 @@ class Runtime:
         # shared modules with spec.scaling, by (namespace, name): the scaling loop's work list
         self.scaled: dict[tuple[str, str], Obj] = {}
         self._loops: list[asyncio.Task[None]] = []
+        self._usage_due = asyncio.Event()
 
     # ------------------------------------------------------------------ periodic work
     # Our own loops instead of kopf timers: a kopf timer puts a finalizer on every object it
@@ -55,6 +57,8 @@ class Runtime:
     def start_periodic(self, drift_seconds: float, scaling: Any = None) -> None:
         """Re-check every known fleet each `drift_seconds`; decide scaling each period."""
         self._loops.append(asyncio.create_task(self._drift(drift_seconds), name="fogfleet-drift"))
+        self._loops.append(asyncio.create_task(self._usage(), name="fogfleet-usage"))
+        self.usage_changed()
         if scaling is not None:
             self._loops.append(asyncio.create_task(self._scaling(scaling), name="fogfleet-scaling"))
 
@@ -63,6 +67,22 @@ class Runtime:
             await asyncio.sleep(seconds)
             for key in sorted(self.deps.refs.fleets()):
                 self.queue.schedule(key)
+            self.usage_changed()
+
+    def usage_changed(self) -> None:
+        """Plans or nodes changed: refresh the usage status of modules and ComputeNodes soon
+        (one pass for any burst of changes)."""
+        self._usage_due.set()
+
+    async def _usage(self) -> None:
+        while True:
+            await self._usage_due.wait()
+            await asyncio.sleep(self.queue.debounce)
+            self._usage_due.clear()
+            try:
+                await self.call(reconcile_usage, self.deps)
+            except FogfleetError as exc:  # the next change or drift tick retries
+                log.warning("Updating the usage status of modules and nodes failed: %s", exc)
 
     async def _scaling(self, scaling: Any) -> None:
         from .scaling import reconcile_scaling
@@ -84,8 +104,11 @@ class Runtime:
         if body is None or (body.get("metadata") or {}).get("deletionTimestamp"):
             forget(self.deps, key)
             self.queue.cancel(key)
+            self.usage_changed()
             return None
-        return await self.call(reconcile, body, self.deps)
+        outcome = await self.call(reconcile, body, self.deps)
+        self.usage_changed()
+        return outcome
 
     # ------------------------------------------------------------------ fleets
     async def reconcile_fleet(self, namespace: str, name: str) -> Outcome | None:
@@ -99,6 +122,7 @@ class Runtime:
         deps = await self.call(self.deps.kube.list_deployments, namespace, {LABEL_FLEET: name})
         for dep in deps:
             await self.call(self.deps.kube.delete_deployment, namespace, dep["metadata"]["name"])
+        self.usage_changed()
 
     # ------------------------------------------------------------------ related objects
     def _changed(
@@ -125,6 +149,7 @@ class Runtime:
         pools = ((body.get("status") or {}).get("scaling") or {}).get("pools") or []
         extra = tuple(sorted((p.get("tier"), p.get("replicas")) for p in pools))
         if self._changed("SoftwareModule", body, event_type, extra):
+            self.usage_changed()
             meta = body.get("metadata") or {}
             for key in self.deps.refs.using_module(
                 meta.get("namespace") or "default", meta.get("name", "")
@@ -133,6 +158,7 @@ class Runtime:
 
     def compute_node_event(self, body: Mapping[str, Any], event_type: str | None) -> None:
         if self._changed("ComputeNode", body, event_type):
+            self.usage_changed()
             for key in self.deps.refs.using_compute_node(
                 (body.get("metadata") or {}).get("name", "")
             ):
@@ -155,6 +181,7 @@ class Runtime:
             self._nodes[name] = sig
             if before == sig or (event_type is None and before is None):
                 return
+        self.usage_changed()
         for key in self.deps.refs.using_node(name):
             self.queue.schedule(key)
 

@@ -8,18 +8,58 @@ from __future__ import annotations
 
 import math
 from collections.abc import Iterable, Mapping, Sequence
-from datetime import UTC, datetime
 from typing import Any
 
-from fogfleet.render.deployments import ANNOTATION_SPEC_HASH, LABEL_INSTANCE
+from pydantic import BaseModel
 
-__all__ = ["Rollout", "condition", "finite", "merge_conditions", "now", "rollout", "same_status"]
+from fogfleet.api.labels import ANNOTATION_SPEC_HASH, LABEL_INSTANCE
+from fogfleet.api.timestamps import timestamp
+
+__all__ = [
+    "Rollout",
+    "complete",
+    "condition",
+    "finite",
+    "merge_conditions",
+    "now",
+    "pod_ready",
+    "rollout",
+    "same_status",
+    "split_text",
+    "typed",
+    "wire_keys",
+]
 
 Obj = dict[str, Any]
 
 
+def wire_keys(model: type[BaseModel]) -> tuple[str, ...]:
+    """The camelCase keys of a status model: what one writer owns."""
+    return tuple(f.alias or name for name, f in model.model_fields.items())
+
+
+def typed(model: type[BaseModel], status: Obj) -> Obj:
+    """``status`` checked against its kind's status model (the one the CRD is generated from)
+    before it is written: a controller bug fails here, naming the field, not in the API
+    server's pruning."""
+    model.model_validate({k: v for k, v in status.items() if v is not None})
+    return status
+
+
+def complete(status: Obj, keys: Iterable[str]) -> Obj:
+    """``status`` with every owned key, absent ones as None: the merge patch then removes a
+    field a reconcile stopped writing instead of keeping it forever."""
+    return {**{k: None for k in keys}, **status}
+
+
+def split_text(tiers: Mapping[str, int]) -> str:
+    """Instances on robots/edge/cloud, as "3/2/0" (``status.split`` of fleets and modules)."""
+    return "/".join(str(tiers.get(t, 0)) for t in ("robot", "edge", "cloud"))
+
+
 def now() -> str:
-    return datetime.now(UTC).strftime("%Y-%m-%dT%H:%M:%SZ")
+    """The current time as a status timestamp."""
+    return timestamp()
 
 
 def condition(
@@ -72,7 +112,8 @@ class Rollout:
         self.bound: dict[str, str] = {}  # Deployment name -> node of its running pod
 
 
-def _pod_running(pod: Mapping[str, Any]) -> bool:
+def pod_ready(pod: Mapping[str, Any]) -> bool:
+    """Running, Ready (or not reporting readiness) and not being deleted."""
     st = pod.get("status") or {}
     if (pod.get("metadata") or {}).get("deletionTimestamp") or st.get("phase") != "Running":
         return False
@@ -111,7 +152,7 @@ def rollout(desired: Sequence[Obj], deployments: Sequence[Obj], pods: Sequence[O
     for pod in pods:
         inst = ((pod.get("metadata") or {}).get("labels") or {}).get(LABEL_INSTANCE)
         node = (pod.get("spec") or {}).get("nodeName")
-        if inst and node and _pod_running(pod):
+        if inst and node and pod_ready(pod):
             running.setdefault(inst, []).append(node)
     out = Rollout()
     for want in desired:

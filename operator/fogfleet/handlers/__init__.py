@@ -6,7 +6,7 @@ from __future__ import annotations
 import kopf
 
 from fogfleet import GROUP, VERSION
-from fogfleet.render.deployments import LABEL_MANAGED_BY, MANAGER
+from fogfleet.api.labels import LABEL_MANAGED_BY, MANAGER
 from fogfleet.settings import Settings
 
 from . import lifecycle, related, robotfleet

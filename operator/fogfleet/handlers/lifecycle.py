@@ -2,17 +2,19 @@
 
 from __future__ import annotations
 
+import logging
 from typing import Any
 
 import kopf
 
-__all__ = ["cleanup", "login", "startup"]
+from fogfleet import GROUP
+from fogfleet.settings import Settings
+
+__all__ = ["cleanup", "configure_kopf", "login", "startup"]
 
 
 async def startup(settings: kopf.OperatorSettings, memo: Any, **_: Any) -> None:
     """Apply fogfleet's kopf settings (storage in annotations, our finalizer, posting)."""
-    from fogfleet.operator_main import configure_kopf
-
     configure_kopf(settings, memo.settings)
     memo.runtime.start_periodic(
         memo.settings.drift_interval_seconds, getattr(memo, "scaling", None)
@@ -26,3 +28,21 @@ def login(memo: Any, **_: Any) -> kopf.ConnectionInfo:
 
 async def cleanup(memo: Any, **_: Any) -> None:
     await memo.runtime.close()
+
+
+def configure_kopf(kopf_settings: kopf.OperatorSettings, settings: Settings) -> None:
+    """State in annotations under fogfleet.io, our finalizer, quiet event posting."""
+    p = kopf_settings.persistence
+    p.progress_storage = kopf.AnnotationsProgressStorage(prefix=GROUP)
+    p.diffbase_storage = kopf.AnnotationsDiffBaseStorage(
+        prefix=GROUP, key="last-handled-configuration"
+    )
+    p.finalizer = f"{GROUP}/finalizer"  # none is added: no handler of ours requires one
+    kopf_settings.posting.level = logging.WARNING  # our own Events say what happened
+    kopf_settings.posting.reporting_component = "fogfleet"
+    kopf_settings.watching.server_timeout = 300
+    kopf_settings.watching.client_timeout = 330
+    kopf_settings.watching.connect_timeout = 10
+    kopf_settings.networking.request_timeout = 60
+    kopf_settings.peering.standalone = settings.standalone
+    kopf_settings.peering.name = settings.peering_name

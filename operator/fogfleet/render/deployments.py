@@ -23,9 +23,25 @@ from typing import Any
 import numpy as np
 
 from fogfleet import API_VERSION
+from fogfleet.api.labels import (
+    ANNOTATION_MODULE,
+    ANNOTATION_PLAN,
+    ANNOTATION_REPLICA,
+    ANNOTATION_ROBOT,
+    ANNOTATION_SPEC_HASH,
+    HOSTNAME_KEY,
+    LABEL_FLEET,
+    LABEL_INSTANCE,
+    LABEL_MANAGED_BY,
+    LABEL_MODULE,
+    LABEL_ROBOT,
+    LABEL_TIER,
+    MANAGER,
+)
 from fogfleet.api.v1alpha1.softwaremodule import SoftwareModule
 from fogfleet.domain.problem import Instance, Problem
-from fogfleet.render.ros import RosWiring, module_env, pod_security
+from fogfleet.render.podtemplate import module_pod_spec, scrape_port
+from fogfleet.render.ros import RosWiring, module_env
 
 __all__ = [
     "ANNOTATION_MODULE",
@@ -50,19 +66,6 @@ __all__ = [
     "spec_hash",
 ]
 
-MANAGER = "fogfleet"
-LABEL_MANAGED_BY = "app.kubernetes.io/managed-by"
-LABEL_FLEET = "fogfleet.io/fleet"
-LABEL_ROBOT = "fogfleet.io/robot"
-LABEL_MODULE = "fogfleet.io/module"
-LABEL_TIER = "fogfleet.io/tier"
-LABEL_INSTANCE = "fogfleet.io/instance"
-ANNOTATION_ROBOT = "fogfleet.io/robot"
-ANNOTATION_MODULE = "fogfleet.io/module"
-ANNOTATION_REPLICA = "fogfleet.io/replica"
-ANNOTATION_PLAN = "fogfleet.io/plan-id"
-ANNOTATION_SPEC_HASH = "fogfleet.io/spec-hash"
-HOSTNAME_KEY = "kubernetes.io/hostname"
 MAX_NAME = 63
 _NOT_DNS = re.compile(r"[^a-z0-9-]+")
 
@@ -138,36 +141,6 @@ def _affinity(node_names: Sequence[str]) -> dict[str, Any]:
     }
 
 
-def _container(
-    module: SoftwareModule, resources: dict[str, Any], owned_env: list[dict[str, str]]
-) -> dict[str, Any]:
-    tpl = module.spec.template
-    container: dict[str, Any] = {
-        "name": _dns(module.metadata.name)[:MAX_NAME] or "module",
-        "image": tpl.image,
-    }
-    if tpl.image_pull_policy:
-        container["imagePullPolicy"] = tpl.image_pull_policy
-    if tpl.command:
-        container["command"] = list(tpl.command)
-    if tpl.args:
-        container["args"] = list(tpl.args)
-    env = [{"name": e.name, "value": e.value} for e in tpl.env] + owned_env
-    if env:
-        container["env"] = env
-    container["resources"] = resources
-    _, container["securityContext"] = pod_security()
-    container["volumeMounts"] = [{"name": "tmp", "mountPath": "/tmp"}]
-    if tpl.metrics_port:
-        container["ports"] = [
-            {"name": "metrics", "containerPort": tpl.metrics_port, "protocol": "TCP"}
-        ]
-        probe = {"httpGet": {"path": "/healthz", "port": "metrics"}, "periodSeconds": 10}
-        container["livenessProbe"] = {**probe, "initialDelaySeconds": 10, "failureThreshold": 6}
-        container["readinessProbe"] = {**probe, "initialDelaySeconds": 2}
-    return container
-
-
 def render_instance(
     problem: Problem,
     i: int,
@@ -209,7 +182,7 @@ def render_instance(
         ANNOTATION_REPLICA: str(inst.replica),
     }
     pod_annotations = dict(annotations)
-    port = module.spec.template.metrics_port
+    port = scrape_port(module.spec.template)
     if port:
         pod_annotations |= {"prometheus.io/scrape": "true", "prometheus.io/port": str(port)}
     node = problem.nodes[j]
@@ -223,7 +196,6 @@ def render_instance(
         hardware_type="" if baseline else node.hardware_type,
         cpu="" if baseline else cpu,
     )
-    pod_sc, _ = pod_security()
     metadata: dict[str, Any] = {
         "name": name,
         "namespace": problem.namespace,
@@ -255,14 +227,13 @@ def render_instance(
             },
             "template": {
                 "metadata": {"labels": labels, "annotations": pod_annotations},
-                "spec": {
-                    "affinity": _affinity([problem.nodes[k].node_name for k in nodes]),
-                    "automountServiceAccountToken": False,
-                    "securityContext": pod_sc,
-                    "containers": [_container(module, resources, owned_env)],
-                    "enableServiceLinks": False,
-                    "volumes": [{"name": "tmp", "emptyDir": {"sizeLimit": "64Mi"}}],
-                },
+                "spec": module_pod_spec(
+                    module,
+                    container_name=_dns(module.metadata.name)[:MAX_NAME] or "module",
+                    affinity=_affinity([problem.nodes[k].node_name for k in nodes]),
+                    resources=resources,
+                    owned_env=owned_env,
+                ),
             },
         },
     }

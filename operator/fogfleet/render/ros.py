@@ -20,6 +20,7 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
+from fogfleet.api.labels import LABEL_COMPONENT, LABEL_ROBOT
 from fogfleet.api.v1alpha1.robotfleet import RosSettings
 from fogfleet.api.v1alpha1.softwaremodule import SoftwareModule
 
@@ -38,10 +39,8 @@ __all__ = [
 
 METRICS_PORT = 9100
 PROBE_PORT = 42100  # the discovery server's TCP listener, for the kubelet's probes
-LABEL_COMPONENT = "app.kubernetes.io/component"
 COMPONENT_DISCOVERY = "ros-discovery-server"
 NON_ROOT_UID = 65532
-LABEL_ROBOT = "fogfleet.io/robot"
 
 
 def robot_label(robot: str) -> str:

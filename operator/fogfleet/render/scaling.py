@@ -19,9 +19,10 @@ from __future__ import annotations
 
 from typing import Any
 
+from fogfleet.api.labels import LABEL_MANAGED_BY, LABEL_MODULE, MANAGER
 from fogfleet.api.v1alpha1.scaling import ScalingSpec
 from fogfleet.autoscaling import contract
-from fogfleet.autoscaling.behavior import Behavior, ScalingRules
+from fogfleet.autoscaling.behavior import Behavior, ScalingRules, resolve_behavior
 
 __all__ = ["SLO_METRIC", "behavior_block", "render_hpa", "render_scaled_object", "slo_promql"]
 
@@ -64,7 +65,7 @@ def _meta(kind_suffix: str, module: str, namespace: str) -> Obj:
     return {
         "name": f"{module}-{kind_suffix}"[:63],
         "namespace": namespace,
-        "labels": {"app.kubernetes.io/managed-by": "fogfleet", "fogfleet.io/module": module},
+        "labels": {LABEL_MANAGED_BY: MANAGER, LABEL_MODULE: module},
     }
 
 
@@ -105,7 +106,7 @@ def render_scaled_object(
             "pollingInterval": polling_seconds,
             "advanced": {
                 "horizontalPodAutoscalerConfig": {
-                    "behavior": behavior_block(spec.resolved_behavior())
+                    "behavior": behavior_block(resolve_behavior(spec))
                 }
             },
             "triggers": [trigger],
@@ -146,6 +147,6 @@ def render_hpa(spec: ScalingSpec, *, module: str, namespace: str, target: str) -
             "minReplicas": max(spec.min_replicas, 1),  # the HPA's own floor
             "maxReplicas": spec.max_replicas,
             "metrics": [metric],
-            "behavior": behavior_block(spec.resolved_behavior()),
+            "behavior": behavior_block(resolve_behavior(spec)),
         },
     }

@@ -4,14 +4,18 @@ node with room, so each is feasible whenever a greedy packing exists."""
 
 from __future__ import annotations
 
+import time
+
 import numpy as np
 from numpy.typing import NDArray
 
+from fogfleet.api.v1alpha1.robotfleet import SchedulerSettings
 from fogfleet.domain.problem import Allocation, Problem
 
 from .objectives import UPLINK_SHARE, miss_probability
+from .schedule import Schedule
 
-__all__ = ["Fit", "greedy", "uncontended_miss"]
+__all__ = ["Fit", "greedy", "greedy_schedule", "uncontended_miss"]
 
 F64 = NDArray[np.float64]
 I64 = NDArray[np.int64]
@@ -96,3 +100,28 @@ def greedy(
         if h >= 0 and j != h:
             up[h] += problem.traffic[i]
     return x
+
+
+def greedy_schedule(problem: Problem, settings: SchedulerSettings) -> Schedule:
+    """The first feasible of the greedy plans (best-fit, spread, on-board), as a Schedule: a
+    fast deterministic planner for tests and for a first answer."""
+    from .stickiness import feasible, objective_values
+
+    t0 = time.perf_counter()
+    names = [o.value for o in settings.objectives]
+    for style in ("best-fit", "spread", "onboard"):
+        x = greedy(problem, problem.limits, style)
+        if feasible(problem, x, True):
+            break
+    values = objective_values(problem, x, True, names)
+    return Schedule(
+        scheduler="greedy",
+        placement=x,
+        with_limits=True,
+        objectives=values,
+        feasible=feasible(problem, x, True) and not problem.reasons,
+        duration_seconds=time.perf_counter() - t0,
+        choice_reason=f"greedy {style}",
+        objective_names=tuple(names),
+        reasons=dict(problem.reasons),
+    )

@@ -11,6 +11,7 @@ from numpy.typing import NDArray
 from pymoo.algorithms.moo.nsga2 import NSGA2
 from pymoo.operators.selection.tournament import TournamentSelection
 
+from fogfleet.api.v1alpha1.base import parse_quantity
 from fogfleet.api.v1alpha1.robotfleet import SchedulerName, SchedulerSettings
 from fogfleet.domain.problem import Problem
 
@@ -32,10 +33,16 @@ from .schedule import Schedule
 
 ENUMERATE_LIMIT = 20_000  # plans; smaller search spaces are enumerated exactly
 
-__all__ = ["Progress", "nsga2", "plan"]
+__all__ = ["Progress", "nsga2", "plan", "weights_of"]
 
 Progress = Callable[[int, int], None]
 I64 = NDArray[np.int64]
+
+
+def weights_of(settings: SchedulerSettings) -> dict[str, float]:
+    """The weighted choice's weights by objective; a weight is a number or a quantity
+    ("500m" = 0.5), as the CRD accepts it."""
+    return {w.objective.value: parse_quantity(w.weight) for w in settings.weights}
 
 
 def plan(
@@ -124,7 +131,7 @@ def nsga2(
             F[front],
             names,
             str(settings.choice.value),
-            {str(w.objective): float(w.weight) for w in settings.weights},
+            weights_of(settings),
         )
         chosen = int(front[k])
         if exhaustive:

@@ -32,12 +32,12 @@ from typing import Any, Protocol
 
 from prometheus_client import CONTENT_TYPE_LATEST, generate_latest
 
+from fogfleet.api.labels import LABEL_MANAGED_BY, LABEL_TIER, MANAGER
 from fogfleet.api.loader import parse_object
 from fogfleet.api.v1alpha1.softwaremodule import SoftwareModule
 from fogfleet.autoscaling.policy import Pool
-from fogfleet.controllers.scaling import DISPATCH_RESERVE, pools_for
+from fogfleet.autoscaling.pools import DISPATCH_RESERVE, pools_for
 from fogfleet.errors import FogfleetError
-from fogfleet.render.deployments import LABEL_MANAGED_BY, MANAGER
 
 from .exporter import TwinMetrics
 from .model import ServiceSim
@@ -48,7 +48,6 @@ __all__ = ["Twin", "TwinKube", "run_twin"]
 
 log = logging.getLogger(__name__)
 Obj = dict[str, Any]
-TIER_LABEL = "fogfleet.io/tier"
 
 
 class TwinKube(Protocol):
@@ -180,7 +179,7 @@ class Twin:
         """Read pods, nodes and modules; update each service's replicas."""
         scenario = self.scenario
         nodes = {
-            n["metadata"]["name"]: (n["metadata"].get("labels") or {}).get(TIER_LABEL, "")
+            n["metadata"]["name"]: (n["metadata"].get("labels") or {}).get(LABEL_TIER, "")
             for n in self.kube.list_nodes()
         }
         pods: list[Obj] = []

@@ -11,24 +11,15 @@ its model), then *ready*.
 from __future__ import annotations
 
 from collections.abc import Iterable, Mapping
-from datetime import UTC, datetime
 from typing import Any
 
-from fogfleet.render.deployments import LABEL_MODULE, LABEL_TIER
+from fogfleet.api.labels import LABEL_MODULE, LABEL_TIER
+from fogfleet.api.timestamps import parse_timestamp
 
 __all__ = ["ReplicaCount", "count_replicas", "ready_since"]
 
 Obj = Mapping[str, Any]
 ReplicaCount = dict[tuple[str, str], dict[str, tuple[int, int]]]  # (ns, module) -> tier -> (r, s)
-
-
-def _parse(stamp: str | None) -> float | None:
-    if not stamp:
-        return None
-    try:
-        return datetime.strptime(stamp, "%Y-%m-%dT%H:%M:%SZ").replace(tzinfo=UTC).timestamp()
-    except ValueError:
-        return None
 
 
 def ready_since(pod: Obj) -> float | None:
@@ -40,7 +31,9 @@ def ready_since(pod: Obj) -> float | None:
     ready = next((c for c in st.get("conditions") or [] if c.get("type") == "Ready"), None)
     if ready is not None and ready.get("status") != "True":
         return None
-    stamp = _parse((ready or {}).get("lastTransitionTime")) or _parse(st.get("startTime"))
+    stamp = parse_timestamp((ready or {}).get("lastTransitionTime")) or parse_timestamp(
+        st.get("startTime")
+    )
     return stamp if stamp is not None else 0.0
 
 

@@ -1,4 +1,5 @@
-"""``python -m fogfleet.workload module | discovery-server`` (the ROS 2 workload image's entry)."""
+"""``python -m fogfleet.workload module | probe | discovery-server`` (the ROS 2 workload image's
+entry points)."""
 
 from __future__ import annotations
 
@@ -15,6 +16,11 @@ def main(argv: list[str] | None = None) -> int:
     m = sub.add_parser("module", help="play the SoftwareModule in $FOGFLEET_MODULE_SPEC")
     m.add_argument("--host", default=os.environ.get("FOGFLEET_METRICS_HOST", "0.0.0.0"))
     m.add_argument("--port", type=int, default=int(os.environ.get("FOGFLEET_METRICS_PORT", "9100")))
+    p = sub.add_parser(
+        "probe", help="measure the cycle times of the module in $FOGFLEET_MODULE_SPEC (sidecar)"
+    )
+    p.add_argument("--host", default=os.environ.get("FOGFLEET_METRICS_HOST", "0.0.0.0"))
+    p.add_argument("--port", type=int, default=9101)
     d = sub.add_parser("discovery-server", help="the robot's Fast DDS discovery server")
     d.add_argument("--listen", default="0.0.0.0")
     d.add_argument("--port", type=int, default=11811)
@@ -30,6 +36,17 @@ def main(argv: list[str] | None = None) -> int:
     except ValueError as exc:
         print(f"fogfleet-workload: {exc}", file=sys.stderr)
         return 2
+    if ns.cmd == "probe":
+        from .probe import run_probe
+
+        print(
+            f"fogfleet-workload: probing {spec.robot or 'shared'}/{spec.module}: outputs "
+            f"{', '.join(t.name for t in spec.publishes) or 'none'}, cycle "
+            f"{spec.cycle_s * 1e3:g} ms",
+            flush=True,
+        )
+        run_probe(spec, ns.host, ns.port)
+        return 0
     from .module import run_module
 
     print(

@@ -2,6 +2,7 @@
 
 import pytest
 
+from fogfleet.api.v1alpha1.scaling import SloMetric
 from fogfleet.autoscaling import contract as c
 
 
@@ -16,7 +17,7 @@ def test_names_follow_prometheus_conventions() -> None:
 
 def test_slo_query_is_the_standard_histogram_quantile() -> None:
     query = c.slo_query(
-        c.SloMetric.RESPONSE_TIME, module="detector", namespace="fleet", percentile=95
+        SloMetric.RESPONSE_TIME, module="detector", namespace="fleet", percentile=95
     )
     assert query == (
         "histogram_quantile(0.95, sum by (le) (rate(fogfleet_response_time_seconds_bucket"
@@ -26,7 +27,7 @@ def test_slo_query_is_the_standard_histogram_quantile() -> None:
 
 def test_slo_query_can_select_a_tier_and_window() -> None:
     query = c.slo_query(
-        c.SloMetric.CYCLE_TIME,
+        SloMetric.CYCLE_TIME,
         module="m",
         namespace="n",
         percentile=99,
@@ -47,7 +48,7 @@ def test_label_values_are_escaped() -> None:
 
 def test_percentile_must_be_a_percentage() -> None:
     with pytest.raises(ValueError):
-        c.slo_query(c.SloMetric.RESPONSE_TIME, module="m", namespace="n", percentile=100)
+        c.slo_query(SloMetric.RESPONSE_TIME, module="m", namespace="n", percentile=100)
 
 
 def test_offered_rate_adds_served_and_rejected() -> None:

@@ -20,15 +20,9 @@ from fogfleet.adapters.prometheus import QUERY_FIELD, PrometheusClient, value_of
 from fogfleet.api.loader import parse_object
 from fogfleet.autoscaling.behavior import BehaviorState, Recommendation, ScaleEvent
 from fogfleet.autoscaling.policy import MetricsSnapshot, ScalerState
-from fogfleet.controllers.scaling import (
-    ANNOTATION_STATE,
-    ScalingDeps,
-    dump_state,
-    load_state,
-    pools_for,
-    reconcile_scaling,
-    service_rate,
-)
+from fogfleet.autoscaling.pools import pools_for, service_rate
+from fogfleet.autoscaling.state import ANNOTATION_STATE, dump_state, load_state
+from fogfleet.controllers.scaling import ScalingDeps, reconcile_scaling
 from fogfleet.errors import DependencyUnavailable, InvalidSpec
 
 ROOT = Path(__file__).resolve().parents[3]

@@ -5,12 +5,13 @@ import pytest
 from fogfleet.api.v1alpha1.scaling import (
     Backend,
     Mode,
+    PolicyType,
     ScalingSpec,
     effective_min_replicas,
     load_scaling_spec,
     require_safe_minimum,
 )
-from fogfleet.autoscaling.behavior import DEFAULT_BEHAVIOR, TINYKUBE_BEHAVIOR, PolicyType
+from fogfleet.autoscaling.behavior import DEFAULT_BEHAVIOR, TINYKUBE_BEHAVIOR, resolve_behavior
 from fogfleet.errors import InvalidSpec
 
 TINYKUBE = {
@@ -40,7 +41,7 @@ def test_tinykube_example_round_trips() -> None:
 
 
 def test_tinykube_preset_is_section_iv_c() -> None:
-    behavior = load_scaling_spec("m", TINYKUBE).resolved_behavior()
+    behavior = resolve_behavior(load_scaling_spec("m", TINYKUBE))
     assert behavior == TINYKUBE_BEHAVIOR
     assert behavior.scale_up.stabilization_window_seconds == 60
     assert behavior.scale_up.policies[0].period_seconds == 30
@@ -56,14 +57,14 @@ def test_explicit_direction_overrides_the_preset() -> None:
             "scaleDown": {"stabilizationWindowSeconds": 30},
         },
     }
-    behavior = load_scaling_spec("m", data).resolved_behavior()
+    behavior = resolve_behavior(load_scaling_spec("m", data))
     assert behavior.scale_down.stabilization_window_seconds == 30
     assert behavior.scale_down.policies == TINYKUBE_BEHAVIOR.scale_down.policies
     assert behavior.scale_up == TINYKUBE_BEHAVIOR.scale_up
 
 
 def test_no_behavior_means_the_hpa_defaults() -> None:
-    assert load_scaling_spec("m", {"maxReplicas": 3}).resolved_behavior() == DEFAULT_BEHAVIOR
+    assert resolve_behavior(load_scaling_spec("m", {"maxReplicas": 3})) == DEFAULT_BEHAVIOR
 
 
 def test_policies_parse_hpa_names() -> None:
@@ -76,7 +77,7 @@ def test_policies_parse_hpa_names() -> None:
             }
         },
     }
-    up = load_scaling_spec("m", data).resolved_behavior().scale_up
+    up = resolve_behavior(load_scaling_spec("m", data)).scale_up
     assert up.policies[0].type is PolicyType.PODS
     assert up.select_policy.value == "Min"
 

@@ -11,8 +11,8 @@ import pytest
 import yaml
 
 from fogfleet.api.v1alpha1.robotfleet import SchedulerSettings
-from fogfleet.controllers.planning import _greedy
 from fogfleet.domain.problem import Problem
+from fogfleet.scheduling.heuristics import greedy_schedule
 from fogfleet.scheduling.schedule import Schedule
 
 ROOT = Path(__file__).resolve().parents[3]
@@ -24,6 +24,17 @@ def docs(*paths: Path) -> list[Obj]:
     for p in paths:
         out += [d for d in yaml.safe_load_all(p.read_text()) if isinstance(d, dict)]
     return out
+
+
+def _merge(target: Obj, patch: Mapping[str, Any]) -> None:
+    """RFC 7386 JSON merge patch, as the API server applies it (None removes a key)."""
+    for key, value in patch.items():
+        if value is None:
+            target.pop(key, None)
+        elif isinstance(value, Mapping) and isinstance(target.get(key), dict):
+            _merge(target[key], value)
+        else:
+            target[key] = copy.deepcopy(value)
 
 
 def _match(labels: Mapping[str, str], selector: Mapping[str, str]) -> bool:
@@ -43,6 +54,7 @@ class FakeKube:
         self.applied: list[str] = []
         self.deleted: list[str] = []
         self.status_patches: list[Obj] = []
+        self.module_patches: list[tuple[str, str]] = []
         self.events: list[tuple[str, str, str]] = []
 
     # seeding
@@ -108,8 +120,8 @@ class FakeKube:
     def list_compute_nodes(self) -> list[Obj]:
         return copy.deepcopy(list(self.compute_nodes.values()))
 
-    def list_modules(self, namespace: str) -> list[Obj]:
-        return copy.deepcopy([m for (ns, _), m in self.modules.items() if ns == namespace])
+    def list_modules(self, namespace: str | None) -> list[Obj]:
+        return copy.deepcopy([m for (ns, _), m in self.modules.items() if namespace in (None, ns)])
 
     def list_nodes(self) -> list[Obj]:
         return copy.deepcopy(list(self.nodes.values()))
@@ -173,12 +185,16 @@ class FakeKube:
         self.services.pop((namespace, name), None)
 
     def patch_fleet_status(self, namespace: str, name: str, status: Mapping[str, Any]) -> None:
-        self.fleets[(namespace, name)]["status"] = copy.deepcopy(dict(status))
+        _merge(self.fleets[(namespace, name)].setdefault("status", {}), status)
         self.status_patches.append(copy.deepcopy(dict(status)))
 
     def patch_module_status(self, namespace: str, name: str, status: Mapping[str, Any]) -> None:
-        module = self.modules[(namespace, name)]
-        module.setdefault("status", {}).update(copy.deepcopy(dict(status)))
+        _merge(self.modules[(namespace, name)].setdefault("status", {}), status)
+        self.module_patches.append((namespace, name))
+
+    def patch_compute_node_status(self, name: str, status: Mapping[str, Any]) -> None:
+        _merge(self.compute_nodes[name].setdefault("status", {}), status)
+        self.status_patches.append({"computenode": name, **copy.deepcopy(dict(status))})
 
     def patch_module_annotations(
         self, namespace: str, name: str, annotations: Mapping[str, str | None]
@@ -200,7 +216,7 @@ class CountingPlanner:
 
     def plan(self, problem: Problem, settings: SchedulerSettings) -> Schedule:
         self.calls += 1
-        return _greedy(problem, settings)
+        return greedy_schedule(problem, settings)
 
 
 @pytest.fixture

@@ -249,3 +249,108 @@ def test_without_ros_wiring_modules_get_only_the_fogfleet_variables(kube, deps):
     assert not kube.services and all(not is_ros_object(d) for d in kube.deployments.values())
     env = _env(next(iter(module_deps(kube).values())))
     assert "ROS_DISCOVERY_SERVER" not in env and env["FOGFLEET_MODULE_SPEC"].startswith("{")
+
+
+# --- regressions (issue: one source of truth) ---------------------------------------------------
+
+
+class ShiftingPlanner:
+    """Plans greedily, then moves one running instance to another allowed node: a "new" plan
+    that is never better by a 100% margin, so the running placement must be kept."""
+
+    def __init__(self) -> None:
+        from tests.unit.controllers.conftest import CountingPlanner
+
+        self.inner = CountingPlanner()
+        self.calls = 0
+        self.shift = False
+
+    def plan(self, problem, settings):
+        import dataclasses
+
+        import numpy as np
+
+        from fogfleet.scheduling.stickiness import objective_values
+
+        self.calls += 1
+        schedule = self.inner.plan(problem, settings)
+        if not self.shift:
+            return schedule
+        x = np.array(schedule.placement)
+        for i in range(problem.n_instances):
+            others = [j for j in np.flatnonzero(problem.allowed[i]) if j != x[i]]
+            if others:
+                x[i] = others[-1]
+                break
+        values = objective_values(problem, x, True, list(schedule.objectives))
+        values["missRate"] = 0.5  # a value the kept plan cannot have
+        return dataclasses.replace(schedule, placement=x, objectives=values)
+
+
+def test_status_reports_the_objectives_of_the_placement_actually_deployed(kube, make_deps):
+    from fogfleet.controllers.deps import Deps
+
+    planner = ShiftingPlanner()
+    deps = Deps(kube=kube, planner=planner)
+    kube.fleets[KEY]["spec"].setdefault("scheduler", {})["migrationMarginPercent"] = 100
+    run(kube, deps)
+    kube.run_pods()
+    deployed = placement(kube)
+    first = dict(kube.fleets[KEY]["status"])
+    planner.shift = True
+    fresh = Deps(kube=kube, planner=planner)  # a restart: plans again, keeps what runs
+    out = reconcile(kube.get_fleet(*KEY), fresh)
+    assert out.planned and out.migrations == 0 and placement(kube) == deployed
+    status = kube.fleets[KEY]["status"]
+    assert "kept running modules in place" in status["choiceReason"]
+    # the same placement runs, so the same predictions: not the discarded plan's 0.5
+    assert status["predictedMissRate"] == pytest.approx(first["predictedMissRate"])
+    assert {o["name"]: o["value"] for o in status["objectives"]} == pytest.approx(
+        {o["name"]: o["value"] for o in first["objectives"]}
+    )
+    assert "missRate 50.00%" not in " ".join(e[2] for e in kube.events)
+
+
+def test_a_quantity_weight_is_accepted_by_the_solver(kube, deps):
+    from fogfleet.api.v1alpha1.robotfleet import RobotFleet
+    from fogfleet.scheduling.solver import weights_of
+
+    body = kube.get_fleet(*KEY)
+    body["spec"]["scheduler"] = {
+        "choice": "weighted",
+        "weights": [
+            {"objective": "missRate", "weight": "500m"},
+            {"objective": "cost", "weight": 2},
+        ],
+    }
+    settings = RobotFleet.model_validate(body).spec.scheduler
+    assert weights_of(settings) == {"missRate": 0.5, "cost": 2.0}
+
+
+def test_fields_a_reconcile_stops_writing_are_removed_from_status(kube, deps):
+    run(kube, deps)
+    assert kube.fleets[KEY]["status"].get("choiceReason") is not None
+    kube.fleets[KEY]["spec"].setdefault("scheduler", {})["algorithm"] = "k8s-default"
+    kube.fleets[KEY]["metadata"]["generation"] += 1
+    run(kube, deps)
+    status = kube.fleets[KEY]["status"]
+    for stale in ("choiceReason", "planningMillis", "lastPlanTime", "migrations"):
+        assert stale not in status, stale
+    patches = len(kube.status_patches)
+    run(kube, deps)
+    assert len(kube.status_patches) == patches  # converged: no patch on every reconcile
+
+
+def test_a_robot_listed_twice_is_refused_naming_it():
+    from pydantic import ValidationError
+
+    from fogfleet.api.v1alpha1.robotfleet import RobotFleetSpec
+
+    with pytest.raises(ValidationError, match=r"robots: robot-1 listed more than once"):
+        RobotFleetSpec.model_validate(
+            {"robots": ["robot-1", "robot-1"], "modules": [{"name": "m"}]}
+        )
+    with pytest.raises(ValidationError, match=r"nodes: edge-1 listed more than once"):
+        RobotFleetSpec.model_validate(
+            {"robots": ["r"], "nodes": ["edge-1", "edge-1"], "modules": [{"name": "m"}]}
+        )

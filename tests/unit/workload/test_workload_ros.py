@@ -87,6 +87,14 @@ class Fleet:
                 "--port", str(port)]  # fmt: skip
         self._start(argv, _env(robot, module, spec, server), f"{robot}-{module}")
 
+    def probe(self, robot: str, module: str, spec: dict[str, object], server: str | None) -> None:
+        """The cycle-time sidecar beside (robot, module), served under (robot, module-probe)."""
+        port = _port()
+        self.ports[(robot, f"{module}-probe")] = port
+        argv = [sys.executable, "-m", "fogfleet.workload", "probe", "--host", "127.0.0.1",
+                "--port", str(port)]  # fmt: skip
+        self._start(argv, _env(robot, module, spec, server), f"{robot}-{module}-probe")
+
     def _start(self, argv: list[str], env: dict[str, str], name: str) -> None:
         log = (self.tmp / f"{name}.log").open("wb")
         self.procs.append(subprocess.Popen(argv, env=env, stdout=log, stderr=log))
@@ -151,3 +159,27 @@ def test_without_discovery_servers_robots_hear_each_other(fleet: Fleet) -> None:
     time.sleep(10)
     foreign = _total(fleet.metrics("robot-1", "localizer"), "fogfleet_foreign_messages_total")
     assert foreign > 10
+
+
+def test_the_probe_sidecar_measures_what_the_module_measures_itself(fleet: Fleet) -> None:
+    """A module nobody instrumented gets its cycle times from the sidecar: here the workload
+    measures itself too, so the two can be compared."""
+    server = fleet.server()
+    fleet.module("robot-1", "lidar", SENSOR, server)
+    fleet.module("robot-1", "localizer", LOCALIZER, server)
+    fleet.probe("robot-1", "localizer", LOCALIZER, server)
+    time.sleep(14)
+    own = fleet.metrics("robot-1", "localizer")
+    probed = fleet.metrics("robot-1", "localizer-probe")
+    own_n = _total(own, "fogfleet_cycle_time_seconds_count")
+    probe_n = _total(probed, "fogfleet_cycle_time_seconds_count")
+    assert probe_n > 20, probed
+    assert probe_n <= own_n + 2, (probe_n, own_n)  # one per cycle, not one per message
+    own_mean = _total(own, "fogfleet_cycle_time_seconds_sum") / own_n
+    probe_mean = _total(probed, "fogfleet_cycle_time_seconds_sum") / probe_n
+    # the workload is timer-driven: the probe sees its cycle plus the input's wait for the
+    # next tick (0 to one 100 ms period), never less than the cycle, never more than a period
+    assert own_mean <= probe_mean + 0.002, (own_mean, probe_mean)
+    assert probe_mean < own_mean + 0.100 + 0.010, (own_mean, probe_mean)
+    assert _total(probed, "fogfleet_foreign_messages_total") == 0
+    assert _total(probed, "fogfleet_messages_received_total") > 40  # inputs and outputs

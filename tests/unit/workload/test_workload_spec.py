@@ -80,3 +80,20 @@ def test_sampled_work_is_never_negative() -> None:
     rng = random.Random(1)
     row = ExecRow(1.0, 0.01, 0.05)  # a spread larger than the mean
     assert min(sample_exec_seconds(row, rng) for _ in range(1000)) >= 0.001
+
+
+def test_the_workload_imports_with_only_what_its_image_installs() -> None:
+    """The ROS 2 image installs fogfleet with --no-deps (rclpy and prometheus-client only):
+    no workload entry point may pull pydantic, numpy, kopf or kubernetes in."""
+    import subprocess
+    import sys
+
+    blocked = ["pydantic", "numpy", "kopf", "kubernetes", "pymoo", "yaml"]
+    code = (
+        "import sys\n"
+        + "".join(f"sys.modules[{name!r}] = None\n" for name in blocked)
+        + "import fogfleet.workload.__main__, fogfleet.workload.module, fogfleet.workload.probe\n"
+        + "import fogfleet.workload.discovery\n"
+    )
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 0, proc.stderr

@@ -23,14 +23,21 @@ __all__ = [
     "parse_cpu",
     "parse_memory",
     "parse_quantity",
+    "refuse_duplicates",
 ]
 
 
 class FogModel(BaseModel):
-    """Base of every wire model: camelCase aliases, extra fields forbidden, immutable."""
+    """Base of every wire model: camelCase aliases, extra fields forbidden, immutable.
+
+    The docstring under each field is its documentation: it becomes the field's description in
+    the generated CRD, which is what ``kubectl explain`` prints (a test keeps every field
+    documented).
+    """
 
     model_config = ConfigDict(
         alias_generator=to_camel,
+        use_attribute_docstrings=True,
         populate_by_name=True,
         extra="forbid",
         frozen=True,
@@ -108,3 +115,16 @@ CpuQuantity = Quantity
 MemoryQuantity = Quantity
 PosInt = Annotated[int, Field(ge=1)]
 NonNegInt = Annotated[int, Field(ge=0)]
+
+
+def refuse_duplicates(values: list[Any], field: str) -> None:
+    """Raise naming the field and the duplicate(s) when a list that names things repeats one
+    (the CRD says the same with ``x-kubernetes-list-type``)."""
+    seen: set[Any] = set()
+    dup: set[str] = set()
+    for value in values:
+        if value in seen:
+            dup.add(str(value))
+        seen.add(value)
+    if dup:
+        raise ValueError(f"{field}: {', '.join(sorted(dup))} listed more than once")

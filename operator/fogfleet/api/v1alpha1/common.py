@@ -49,6 +49,7 @@ class LabelSelector(FogModel):
     """A Kubernetes label selector (matchLabels only: equality is all fleets need)."""
 
     match_labels: dict[str, str] = Field(default_factory=dict)
+    """Labels an object must carry, all of them, with these values."""
 
     def matches(self, labels: dict[str, str]) -> bool:
         return all(labels.get(k) == v for k, v in self.match_labels.items())
@@ -61,11 +62,17 @@ class Condition(FogModel):
     """A status condition (Kubernetes API conventions): CamelCase reason, readable message."""
 
     type: str
+    """The condition's type (Ready, Planned, ...)."""
     status: ConditionStatus
+    """True, False or Unknown."""
     reason: str = Field(pattern=r"^[A-Za-z]([A-Za-z0-9_,:]*[A-Za-z0-9_])?$")
+    """Why, in one CamelCase word."""
     message: str = ""
+    """Why, for a person."""
     last_transition_time: str | None = None
+    """When the status last changed (RFC 3339)."""
     observed_generation: int | None = None
+    """The metadata.generation the condition describes."""
 
 
 def strip_none(value: Any) -> Any:

@@ -13,7 +13,7 @@ from typing import Annotated, Literal
 
 from pydantic import Field, model_validator
 
-from .base import FogModel, NonNegInt, Quantity
+from .base import FogModel, NonNegInt, Quantity, refuse_duplicates
 from .common import Condition, Name, ObjectMeta, Tier
 
 __all__ = [
@@ -30,6 +30,8 @@ __all__ = [
 
 
 class DeviceType(StrEnum):
+    """A kind of device a module may need (MBSE deployment constraints)."""
+
     CAMERA = "camera"
     DEPTH_CAMERA = "depth-camera"
     LIDAR = "lidar"
@@ -54,18 +56,29 @@ class Device(FogModel):
     """A device attached to the node; modules that read it must run here."""
 
     name: Name
+    """The device's name on this node (e.g. front-camera)."""
     type: DeviceType
+    """What kind of device it is; modules list the types they need in requirements.devices."""
 
 
 class NodeResources(FogModel):
+    """Allocatable resources of the node."""
+
     cpu: Quantity
+    """CPU cores, as a quantity ("8", "7500m")."""
     memory: Quantity
+    """Memory in bytes, as a quantity ("32Gi")."""
     gpu: NonNegInt = 0
+    """Number of GPUs (device-plugin resources the modules may request)."""
 
 
 class ReservedResources(FogModel):
+    """Resources kept free for the system and for what fogfleet does not plan."""
+
     cpu: Quantity = 0
+    """CPU cores never given to planned modules."""
     memory: Quantity = 0
+    """Memory in bytes never given to planned modules."""
 
 
 class NetworkLink(FogModel):
@@ -76,59 +89,96 @@ class NetworkLink(FogModel):
     """
 
     type: LinkType
+    """Link technology; Wi-Fi and cellular links are the robot side of eq. 4's transfer time."""
     latency_millis: Quantity
+    """One-way latency of this link in milliseconds (eq. 4's latency term)."""
     jitter_millis: Quantity = 0
+    """Standard deviation of the one-way latency in milliseconds."""
     bandwidth_mbps: Quantity
+    """Usable bandwidth in megabit/s (eq. 4's size/bandwidth term; 80% is the planning cap)."""
     loss_percent: Quantity = 0
+    """Packet loss in percent."""
 
 
 class PowerModel(FogModel):
     """Robot energy model (fog-iot-resource-optimization): idle + per busy core + radio."""
 
     battery_watt_hours: Quantity
+    """Battery capacity in watt-hours."""
     idle_watts: Quantity = 0
+    """Power drawn by the computer when idle, in watts."""
     per_core_watts: Quantity = 0
+    """Extra power per busy core, in watts."""
     radio_watts_per_mbps: Quantity = 0
+    """Radio power per megabit/s sent or received, in watts."""
 
 
 class ComputeNodeSpec(FogModel):
+    """What fogfleet needs to know about a Kubernetes node to place modules on it."""
+
     node_name: Name | None = Field(
         default=None, description="The Kubernetes Node this describes (default: metadata.name)."
     )
     tier: Tier
+    """robot (a robot's own computer), edge (on the site's LAN) or cloud (over the WAN)."""
     hardware_type: Annotated[str, Field(min_length=1, max_length=63)]
+    """Key into the modules' execution-time profiles (Fig. 3), e.g. jetson-orin or D16s_v3."""
     capacity: NodeResources | None = Field(
         default=None,
         description="Allocatable resources. The operator reads them from the Node when omitted.",
     )
     reserved: ReservedResources = Field(default_factory=ReservedResources)
+    """Resources kept free on this node (default: none)."""
     speed_factor: Quantity = Field(
         default=1,
         description="Relative CPU speed, used only when no profile names this hardware type.",
     )
     devices: list[Device] = Field(default_factory=list)
+    """Devices attached to this node (cameras, lidars, arms...)."""
     realtime_kernel: bool = False
+    """The node runs a real-time (PREEMPT_RT) kernel; hard real-time modules may need one."""
     privacy_level: Annotated[int, Field(ge=0, le=3)] = 0
+    """How private the data a node may see can be, 0 (public) to 3 (robot only) (tinyKube);
+    a module runs only where privacyLevel >= its requirements.minPrivacy."""
     cost_per_core_hour: Quantity = 0
+    """Price of one core for one hour, in the fleet's currency (the cost objective)."""
     power: PowerModel | None = None
+    """Battery and power model of a robot (robot nodes only; the energy objective)."""
     network: list[NetworkLink] = Field(default_factory=list, max_length=8)
+    """The node's uplinks; the first is the one the planner uses (at most 8)."""
 
     @model_validator(mode="after")
     def _robot_has_uplink(self) -> ComputeNodeSpec:
         if self.tier is not Tier.ROBOT and self.power is not None:
             raise ValueError("power: only robot nodes have a battery model")
+        refuse_duplicates([d.name for d in self.devices], "devices")
         return self
 
 
 class ComputeNodeStatus(FogModel):
+    """What the operator observed about the node (written by the operator)."""
+
     observed_generation: int | None = None
+    """The metadata.generation this status describes."""
     conditions: list[Condition] = Field(default_factory=list)
+    """Ready: the Kubernetes Node exists, is Ready and not cordoned."""
     allocatable_cpu: str | None = None
+    """The Node's allocatable CPU as Kubernetes reports it."""
     allocatable_memory: str | None = None
+    """The Node's allocatable memory as Kubernetes reports it."""
     ready: bool | None = None
+    """The Node exists, is Ready and is not cordoned."""
+    fleets: list[str] = Field(default_factory=list)
+    """RobotFleets (namespace/name) whose plan places module instances on this node."""
+    instances: int | None = None
+    """Module instances those plans place here."""
+    cpu_planned: str | None = None
+    """CPU those instances are given, in cores (their requests = limits)."""
 
 
 class ComputeNode(FogModel):
+    """A Kubernetes node as fogfleet sees it: tier, hardware type, devices, links, privacy."""
+
     api_version: Literal["fogfleet.io/v1alpha1"] = "fogfleet.io/v1alpha1"
     kind: Literal["ComputeNode"] = "ComputeNode"
     metadata: ObjectMeta

@@ -7,7 +7,7 @@ from typing import Annotated, Literal
 
 from pydantic import Field, model_validator
 
-from .base import FogModel, PosInt, Quantity
+from .base import FogModel, PosInt, Quantity, refuse_duplicates
 from .common import Condition, LabelSelector, Name, ObjectMeta
 
 __all__ = [
@@ -28,6 +28,9 @@ __all__ = [
 
 
 class SchedulerName(StrEnum):
+    """nsga2 (the paper's planner), k8s-default (what kube-scheduler would do), onboard
+    (everything on its robot), random, exact (a MILP over a scalarised objective)."""
+
     NSGA2 = "nsga2"
     K8S_DEFAULT = "k8s-default"
     ONBOARD = "onboard"
@@ -48,29 +51,48 @@ class ObjectiveName(StrEnum):
 
 
 class ChoiceRule(StrEnum):
+    """How one plan is picked from the Pareto front."""
+
     LEXICOGRAPHIC = "lexicographic"
     WEIGHTED = "weighted"
     KNEE = "knee"
 
 
 class ObjectiveWeight(FogModel):
+    """The weight of one objective in the weighted choice."""
+
     objective: ObjectiveName
+    """The objective weighted."""
     weight: Quantity = 1
+    """Its weight (a number or quantity; objectives are normalised over the front first)."""
 
 
 class ModuleOverrides(FogModel):
+    """Per-fleet changes to a module's spec (unset: the module's own value)."""
+
     cycle_time_millis: Quantity | None = None
+    """Deadline of one cycle in milliseconds, for this fleet."""
     activation_percent: Annotated[int, Field(ge=1, le=100)] | None = None
+    """Share of time the module is active (1-100), for this fleet."""
     replicas: PosInt | None = None
+    """Replicas of a shared module, for this fleet."""
 
 
 class ModuleRef(FogModel):
+    """A SoftwareModule (same namespace) the fleet runs."""
+
     name: Name
+    """The SoftwareModule's name."""
     overrides: ModuleOverrides = Field(default_factory=ModuleOverrides)
+    """Per-fleet changes to the module's spec (default: none)."""
 
 
 class SchedulerSettings(FogModel):
+    """How the fleet is planned: algorithm, objectives, choice rule and NSGA-II's parameters
+    (multi-robot-edge-cloud-scheduling III-C/D)."""
+
     algorithm: SchedulerName = SchedulerName.NSGA2
+    """The planner."""
     objectives: list[ObjectiveName] = Field(
         default_factory=lambda: [
             ObjectiveName.MISS_RATE,
@@ -81,21 +103,32 @@ class SchedulerSettings(FogModel):
         ],
         min_length=1,
         max_length=len(ObjectiveName),
-        description="Objectives, in priority order for the lexicographic choice.",
+        description="Objectives, in priority order for the lexicographic choice. Default: "
+        "missRate, missedCycles, onboard, reserve, balance.",
     )
     weights: list[ObjectiveWeight] = Field(default_factory=list)
+    """Weights of the weighted choice (unlisted objectives weigh 1)."""
     choice: ChoiceRule = ChoiceRule.LEXICOGRAPHIC
+    """lexicographic (objectives in order), weighted, or knee (the front's knee point)."""
     population: Annotated[int, Field(ge=4, le=2000)] = 100
+    """NSGA-II population size."""
     generations: Annotated[int, Field(ge=1, le=10000)] = 100
+    """NSGA-II generations (the time budget may stop it earlier)."""
     mutation_percent: Annotated[int, Field(ge=0, le=100)] = 30
+    """Probability, in percent, that a child is mutated."""
     seed: Annotated[int, Field(ge=0)] = 1
+    """Random seed: the same inputs and seed give the same plan."""
     time_budget_millis: Annotated[int, Field(ge=100)] = 20000
+    """Wall-clock budget of one planning run, in milliseconds."""
     migration_margin_percent: Annotated[int, Field(ge=0, le=100)] = 5
+    """A new plan replaces the running one only if it is this many percent better; keeps
+    modules from moving for marginal gains."""
 
     @model_validator(mode="after")
     def _unique(self) -> SchedulerSettings:
         if len(set(self.objectives)) != len(self.objectives):
             raise ValueError("objectives: each objective may be listed once")
+        refuse_duplicates([w.objective.value for w in self.weights], "weights")
         return self
 
 
@@ -124,6 +157,7 @@ class RosSettings(FogModel):
         default="rmw_fastrtps_cpp", description="RMW_IMPLEMENTATION of every module."
     )
     discovery_range: DiscoveryRange = DiscoveryRange.SUBNET
+    """ROS_AUTOMATIC_DISCOVERY_RANGE of every module and discovery server."""
     domain_id: Annotated[int, Field(ge=0, le=232)] = Field(
         default=0, description="ROS_DOMAIN_ID of the whole fleet."
     )
@@ -132,60 +166,98 @@ class RosSettings(FogModel):
         description="Image with `python -m fogfleet.workload discovery-server`.",
     )
     discovery_server_port: Annotated[int, Field(ge=1024, le=65535)] = 11811
+    """UDP port of each robot's discovery server."""
 
 
 class RobotFleetSpec(FogModel):
+    """The robots, the modules each runs, the edge/cloud nodes it may use, and how to plan."""
+
     robots: list[Name] = Field(default_factory=list, description="Robot ComputeNode names.")
     robot_selector: LabelSelector | None = None
+    """Robot ComputeNodes chosen by label (with or instead of robots)."""
     modules: list[ModuleRef] = Field(min_length=1)
+    """The SoftwareModules every robot runs (shared modules: once for the fleet)."""
     nodes: list[Name] = Field(default_factory=list, description="Edge/cloud ComputeNode names.")
     node_selector: LabelSelector | None = None
+    """Edge/cloud ComputeNodes chosen by label (with nodes; neither: every edge/cloud node)."""
     scheduler: SchedulerSettings = Field(default_factory=SchedulerSettings)
+    """How to plan (default: NSGA-II, lexicographic choice with missRate first)."""
     ros: RosSettings = Field(default_factory=RosSettings)
+    """ROS 2 wiring: a discovery server per robot, RMW and domain (default: enabled)."""
     paused: bool = False
+    """Keep the running placement; plan nothing until unpaused."""
 
     @model_validator(mode="after")
     def _check(self) -> RobotFleetSpec:
         if not self.robots and self.robot_selector is None:
             raise ValueError("robots: list at least one robot or set robotSelector")
-        names = [m.name for m in self.modules]
-        dup = sorted({n for n in names if names.count(n) > 1})
-        if dup:
-            raise ValueError(f"modules: {', '.join(dup)} listed more than once")
+        refuse_duplicates(self.robots, "robots")
+        refuse_duplicates(self.nodes, "nodes")
+        refuse_duplicates([m.name for m in self.modules], "modules")
         return self
 
 
 class PlacementEntry(FogModel):
+    """Where one module instance runs."""
+
     robot: str
+    """The robot the instance serves (empty for a shared module's replica)."""
     module: str
+    """The SoftwareModule."""
     node: str
+    """The Kubernetes Node its pod is bound to (node affinity)."""
     tier: str
+    """robot, edge or cloud."""
     cpu: str | None = None
+    """CPU request = limit given to the instance, in cores."""
     replica: int | None = None
+    """Replica index of a shared module."""
 
 
 class ObjectiveValue(FogModel):
+    """One objective of the deployed plan."""
+
     name: str
+    """The objective (F1-F4 and the extensions)."""
     value: float
+    """Its value (lower is better)."""
 
 
 class RobotFleetStatus(FogModel):
+    """The deployed plan and how its rollout stands (written by the operator)."""
+
     observed_generation: int | None = None
+    """The metadata.generation this status describes."""
     conditions: list[Condition] = Field(default_factory=list)
+    """Ready (every instance runs where planned), Scheduled (planned or bound) and Degraded
+    (instances moving or stranded on an unavailable node)."""
     scheduler: str | None = None
+    """The algorithm that made the plan."""
     placement: list[PlacementEntry] = Field(default_factory=list)
+    """Where every module instance runs."""
     objectives: list[ObjectiveValue] = Field(default_factory=list)
+    """The deployed plan's objective values."""
     predicted_miss_rate: float | None = None
+    """Predicted fraction of missed cycles of the deployed plan (0-1)."""
     modules_placed: int | None = None
+    """Instances placed."""
     modules_total: int | None = None
-    split: str | None = Field(default=None, description="on-board/edge/cloud instance counts")
+    """Instances the fleet needs."""
+    split: str | None = None
+    """Instances on robots/edge/cloud, as "3/2/0"."""
     planning_millis: int | None = None
+    """How long planning took, in milliseconds."""
     choice_reason: str | None = None
+    """Why this plan was chosen from the Pareto front."""
     migrations: int | None = None
+    """Instances the last plan moved."""
     last_plan_time: str | None = None
+    """When the fleet was last planned (RFC 3339)."""
 
 
 class RobotFleet(FogModel):
+    """A robot fleet: its robots, their modules, the nodes they may use, and how to plan."""
+
     api_version: Literal["fogfleet.io/v1alpha1"] = "fogfleet.io/v1alpha1"
     kind: Literal["RobotFleet"] = "RobotFleet"
     metadata: ObjectMeta

@@ -26,8 +26,6 @@ from typing import Annotated, Any, Literal
 from pydantic import Field, ValidationError, model_validator
 
 from fogfleet.api.v1alpha1.base import FogModel, NonNegInt, PosInt
-from fogfleet.autoscaling import behavior as engine
-from fogfleet.autoscaling.contract import SloMetric
 from fogfleet.errors import InvalidSpec
 
 __all__ = [
@@ -48,8 +46,27 @@ __all__ = [
     "require_safe_minimum",
 ]
 
-PolicyType = engine.PolicyType
-SelectPolicy = engine.SelectPolicy
+
+class PolicyType(StrEnum):
+    """How a scaling policy counts: whole pods or a percentage of the current replicas."""
+
+    PODS = "Pods"
+    PERCENT = "Percent"
+
+
+class SelectPolicy(StrEnum):
+    """Which policy wins when several apply (HPA semantics)."""
+
+    MAX = "Max"
+    MIN = "Min"
+    DISABLED = "Disabled"
+
+
+class SloMetric(StrEnum):
+    """Histograms of the metrics contract an SLO can name (fogfleet.autoscaling.contract)."""
+
+    RESPONSE_TIME = "responseTime"
+    CYCLE_TIME = "cycleTime"
 
 
 class _FieldError(ValueError):
@@ -62,6 +79,9 @@ class _FieldError(ValueError):
 
 
 class Mode(StrEnum):
+    """reactive (follow the metric, like the HPA) or predictive (size replicas for the SLO
+    with tinyKube's queueing forecast)."""
+
     REACTIVE = "reactive"
     PREDICTIVE = "predictive"
 
@@ -75,59 +95,56 @@ class Backend(StrEnum):
 
 
 class TierName(StrEnum):
+    """A tier replicas can run in."""
+
     EDGE = "edge"
     CLOUD = "cloud"
 
 
 class ScalingPolicySpec(FogModel):
-    type: engine.PolicyType
+    """One HPA scaling policy: change by at most value (Pods or Percent) per period."""
+
+    type: PolicyType
+    """Pods or Percent."""
     value: PosInt
+    """How many pods, or what percent of the current replicas."""
     period_seconds: Annotated[int, Field(ge=1, le=1800)]
+    """The window the limit applies to, in seconds."""
 
 
 class ScalingRulesSpec(FogModel):
     """One direction of the HPA ``behavior``; unset fields take the HPA's defaults."""
 
     stabilization_window_seconds: Annotated[int, Field(ge=0, le=3600)] | None = None
+    """Past recommendations considered, in seconds (HPA: 0 up, 300 down)."""
     policies: Annotated[list[ScalingPolicySpec], Field(min_length=1)] | None = None
-    select_policy: engine.SelectPolicy | None = None
-
-    def resolve(self, default: engine.ScalingRules) -> engine.ScalingRules:
-        return engine.ScalingRules(
-            default.stabilization_window_seconds
-            if self.stabilization_window_seconds is None
-            else self.stabilization_window_seconds,
-            default.policies
-            if self.policies is None
-            else tuple(
-                engine.ScalingPolicy(p.type, p.value, p.period_seconds) for p in self.policies
-            ),
-            default.select_policy if self.select_policy is None else self.select_policy,
-        )
+    """Limits on the rate of change."""
+    select_policy: SelectPolicy | None = None
+    """Max, Min or Disabled: which policy applies when several do."""
 
 
 class BehaviorSpec(FogModel):
     """HPA ``behavior`` semantics; ``preset: tinykube`` fills the directions left unset."""
 
     preset: Literal["tinykube"] | None = None
+    """tinykube: tinyKube's rules (IV-C) for the directions left unset."""
     scale_up: ScalingRulesSpec | None = None
+    """Rules when adding replicas."""
     scale_down: ScalingRulesSpec | None = None
-
-    def resolve(self) -> engine.Behavior:
-        """The engine's :class:`~fogfleet.autoscaling.behavior.Behavior` for this spec."""
-        base = engine.TINYKUBE_BEHAVIOR if self.preset == "tinykube" else engine.DEFAULT_BEHAVIOR
-        up = self.scale_up.resolve(base.scale_up) if self.scale_up else base.scale_up
-        down = self.scale_down.resolve(base.scale_down) if self.scale_down else base.scale_down
-        return engine.Behavior(up, down)
+    """Rules when removing replicas."""
 
 
 class SloSpec(FogModel):
     """A latency SLO: a contract metric or a raw PromQL query (in seconds), and its target."""
 
     metric: SloMetric | None = None
+    """A metric of the metrics contract (set this or query)."""
     query: Annotated[str, Field(min_length=1)] | None = None
+    """A PromQL query returning seconds (set this or metric)."""
     target_millis: PosInt
+    """The SLO target, in milliseconds."""
     percentile: Annotated[int, Field(ge=1, le=99)] = 95
+    """Which percentile of the metric must meet the target (1-99)."""
 
     @model_validator(mode="after")
     def _metric_xor_query(self) -> SloSpec:
@@ -142,11 +159,18 @@ class PoolSpec(FogModel):
     """The replicas of one tier. Unset fields inherit from the ScalingSpec."""
 
     tier: TierName
+    """edge or cloud."""
     max_replicas: PosInt
+    """Most replicas in this tier."""
     min_replicas: NonNegInt | None = None
+    """Fewest replicas in this tier (default: the module's minReplicas)."""
     slo_target_millis: PosInt | None = None
+    """The SLO target in this tier, in milliseconds (default: slo.targetMillis)."""
     setup_millis: NonNegInt | None = None
+    """Time for a new replica to become ready, in milliseconds (tinyKube: 1800 edge, 4700
+    cloud)."""
     accepts_private: bool | None = None
+    """Whether private requests may go to this tier (default: edge only)."""
 
     @property
     def private_allowed(self) -> bool:
@@ -157,15 +181,26 @@ class PoolSpec(FogModel):
 
 
 class ScalingSpec(FogModel):
+    """SLO-driven autoscaling of a shared module (tinyKube III-B, IV-C)."""
+
     min_replicas: NonNegInt = 1
+    """Fewest replicas (safety-relevant modules keep at least 1)."""
     max_replicas: PosInt
+    """Most replicas."""
     slo: SloSpec | None = None
+    """The latency SLO the replicas are sized for (or set targetCpuUtilizationPercent)."""
     target_cpu_utilization_percent: Annotated[int, Field(ge=1, le=100)] | None = None
+    """Scale on CPU use instead of an SLO, in percent of the request."""
     behavior: BehaviorSpec | None = None
+    """How fast replicas change (HPA behavior semantics)."""
     mode: Mode = Mode.REACTIVE
+    """reactive or predictive."""
     setup_millis: NonNegInt | None = None
+    """Time for a new replica to become ready, in milliseconds (predictive mode)."""
     pools: list[PoolSpec] | None = None
+    """Replicas per tier (edge first, then cloud); default: one pool over any tier."""
     backend: Backend = Backend.FOGFLEET
+    """Who scales: fogfleet itself, or a rendered HPA or KEDA ScaledObject."""
 
     @model_validator(mode="after")
     def _consistent(self) -> ScalingSpec:
@@ -203,9 +238,6 @@ class ScalingSpec(FogModel):
                     f"pools[{i}].minReplicas", f"{low} exceeds maxReplicas ({pool.max_replicas})"
                 )
         return self
-
-    def resolved_behavior(self) -> engine.Behavior:
-        return (self.behavior or BehaviorSpec()).resolve()
 
 
 def effective_min_replicas(spec: ScalingSpec, *, safety_relevant: bool) -> int:

@@ -1,0 +1,49 @@
+"""Every label and annotation key fogfleet writes or reads, in one place.
+
+Labels select (Services, NetworkPolicies, the operator's queries); annotations carry what a
+reconcile must remember without a status field (which plan, which spec, the scaler's memory).
+"""
+
+from __future__ import annotations
+
+__all__ = [
+    "ANNOTATION_MODULE",
+    "ANNOTATION_PLAN",
+    "ANNOTATION_REPLICA",
+    "ANNOTATION_ROBOT",
+    "ANNOTATION_SCALER_STATE",
+    "ANNOTATION_SPEC_HASH",
+    "HOSTNAME_KEY",
+    "LABEL_COMPONENT",
+    "LABEL_FLEET",
+    "LABEL_INSTANCE",
+    "LABEL_MANAGED_BY",
+    "LABEL_MODULE",
+    "LABEL_PART_OF",
+    "LABEL_ROBOT",
+    "LABEL_TIER",
+    "MANAGER",
+]
+
+MANAGER = "fogfleet"
+"""Value of app.kubernetes.io/managed-by on everything the operator creates."""
+
+LABEL_MANAGED_BY = "app.kubernetes.io/managed-by"
+LABEL_PART_OF = "app.kubernetes.io/part-of"
+LABEL_COMPONENT = "app.kubernetes.io/component"
+LABEL_FLEET = "fogfleet.io/fleet"
+LABEL_ROBOT = "fogfleet.io/robot"
+LABEL_MODULE = "fogfleet.io/module"
+LABEL_TIER = "fogfleet.io/tier"
+"""On module pods (where the plan put them) and on Nodes (the tier a node belongs to)."""
+LABEL_INSTANCE = "fogfleet.io/instance"
+
+ANNOTATION_ROBOT = "fogfleet.io/robot"
+ANNOTATION_MODULE = "fogfleet.io/module"
+ANNOTATION_REPLICA = "fogfleet.io/replica"
+ANNOTATION_PLAN = "fogfleet.io/plan-id"
+ANNOTATION_SPEC_HASH = "fogfleet.io/spec-hash"
+ANNOTATION_SCALER_STATE = "fogfleet.io/scaler-state"
+
+HOSTNAME_KEY = "kubernetes.io/hostname"
+"""The well-known Node label node affinity pins a module to."""

@@ -1,0 +1,223 @@
+"""A RobotFleet's status (Kubernetes API conventions) and Events, from the placement actually
+deployed and what the cluster shows: conditions keyed by type with CamelCase reasons and
+messages a person can act on, the placement table, the deployed plan's objective values.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections import Counter
+from typing import Any
+
+import numpy as np
+
+from fogfleet.api.v1alpha1.robotfleet import RobotFleet, RobotFleetStatus
+from fogfleet.domain.problem import Problem
+from fogfleet.errors import DanglingReference, Infeasible, InvalidSpec
+from fogfleet.render.deployments import format_cpu, identity_of
+from fogfleet.scheduling import stickiness
+
+from .deps import CachedPlan, Deps
+from .status import (
+    complete,
+    condition,
+    finite,
+    merge_conditions,
+    same_status,
+    split_text,
+    typed,
+    wire_keys,
+)
+
+__all__ = ["FLEET_STATUS_KEYS", "fleet_status", "plan_events", "report_failure"]
+
+log = logging.getLogger(__name__)
+FLEET_STATUS_KEYS = wire_keys(RobotFleetStatus)
+Obj = dict[str, Any]
+
+
+def _key(body: Obj) -> tuple[str, str]:
+    meta = body.get("metadata") or {}
+    return meta.get("namespace") or "default", meta["name"]
+
+
+def fleet_status(
+    fleet: RobotFleet,
+    problem: Problem,
+    desired: list[Obj],
+    roll: Any,
+    stranded: set[int],
+    cached: CachedPlan | None,
+    planned: bool,
+    baseline: bool,
+    generation: int | None,
+    old: Obj,
+) -> Obj:
+    names = [d["metadata"]["name"] for d in desired]
+    by_name = dict(zip(names, desired, strict=True))
+    placement: list[Obj] = []
+    tiers: Counter[str] = Counter()
+    index = {(inst.robot, inst.module, inst.replica): i for i, inst in enumerate(problem.instances)}
+    for dname, dep in by_name.items():
+        ident = identity_of(dep)
+        i = index.get(ident, -1) if ident else -1
+        if baseline:
+            node = roll.bound.get(dname)
+            if node is None:
+                continue
+            try:
+                j = problem.node_index(node)
+            except KeyError:
+                continue
+        else:
+            if cached is None or i < 0:
+                continue
+            j = int(cached.placement[i])
+        nd = problem.nodes[j]
+        tiers[nd.tier.value] += 1
+        alloc = problem.nominal if baseline else problem.limits
+        entry: Obj = {
+            "robot": ident[0] if ident else "",
+            "module": ident[1] if ident else "",
+            "node": nd.name,
+            "tier": nd.tier.value,
+            "cpu": format_cpu(float(alloc.cpu_request[i, j])),
+        }
+        if ident and not ident[0]:
+            entry["replica"] = ident[2]
+        placement.append(entry)
+    total = problem.n_instances
+    stuck = [problem.reasons[i] for i in sorted(stranded)]
+    waiting = [n for n in roll.waiting] + [n for n in roll.moving]
+    ready = not waiting and not stranded
+    if ready:
+        ready_c = condition(
+            "Ready",
+            True,
+            "AllModulesRunning",
+            f"All {len(desired)} modules run where planned",
+            generation,
+        )
+    elif stranded:
+        ready_c = condition("Ready", False, "NodeUnavailable", "; ".join(stuck), generation)
+    else:
+        ready_c = condition(
+            "Ready",
+            False,
+            "RollingOut",
+            f"Waiting for {len(waiting)} of {len(desired)} modules to run where "
+            f"planned: {', '.join(sorted(waiting)[:10])}",
+            generation,
+        )
+    if roll.moving or stranded:
+        msg = f"{len(roll.moving)} module(s) moving to their new node" if roll.moving else ""
+        msg = "; ".join(x for x in [msg, *stuck] if x)
+        degraded = condition(
+            "Degraded", True, "NodeUnavailable" if stranded else "Migrating", msg, generation
+        )
+    else:
+        degraded = condition(
+            "Degraded", False, "AsPlanned", "Every module is where it was planned", generation
+        )
+    if baseline:
+        sched = condition(
+            "Scheduled",
+            len(placement) == len(desired),
+            "KubeScheduler",
+            f"kube-scheduler bound {len(placement)} of {len(desired)} modules",
+            generation,
+        )
+    else:
+        sched = condition(
+            "Scheduled",
+            True,
+            "Planned",
+            f"Planned {total - len(stranded)} of {total} modules",
+            generation,
+        )
+    status: Obj = {
+        "observedGeneration": generation,
+        "conditions": merge_conditions(old.get("conditions") or [], [ready_c, sched, degraded]),
+        "scheduler": fleet.spec.scheduler.algorithm.value,
+        "placement": placement,
+        "modulesPlaced": len(placement),
+        "modulesTotal": total,
+        "split": split_text(tiers),
+    }
+    if cached is not None:
+        objectives = cached.objectives
+        status.update(
+            {
+                "objectives": [
+                    {"name": k, "value": finite(v)}
+                    for k, v in objectives.items()
+                    if finite(v) is not None
+                ],
+                "predictedMissRate": finite(objectives.get("missRate")),
+                "planningMillis": round(cached.schedule.duration_seconds * 1000),
+                "choiceReason": cached.choice_reason,
+                "migrations": cached.migrations,
+                "lastPlanTime": cached.planned_at,
+            }
+        )
+    elif baseline and len(placement) == len(desired) and placement:
+        x = np.full(problem.n_instances, -1, dtype=np.int64)
+        for entry in placement:
+            key = (str(entry["robot"]), str(entry["module"]), int(entry.get("replica", 0)))
+            x[index[key]] = problem.node_index(entry["node"])
+        values = stickiness.objective_values(problem, x, False, ["missRate", "missedCycles"])
+        status["objectives"] = [{"name": k, "value": finite(v)} for k, v in values.items()]
+        status["predictedMissRate"] = finite(values.get("missRate"))
+    return complete(typed(RobotFleetStatus, status), FLEET_STATUS_KEYS)
+
+
+def plan_events(deps: Deps, body: Obj, problem: Problem, cached: CachedPlan) -> None:
+    p = cached.placement
+    split = Counter(problem.nodes[j].tier.value for j in p if j >= 0)
+    miss = cached.objectives.get("missRate")
+    miss_txt = (
+        f"; predicted miss rate {miss * 100:.2f}%" if miss is not None and np.isfinite(miss) else ""
+    )
+    deps.kube.emit_event(
+        body,
+        "Normal",
+        "Planned",
+        f"Planned {int((p >= 0).sum())} modules ({split['robot']} on board, "
+        f"{split['edge']} edge, {split['cloud']} cloud) with "
+        f"{cached.schedule.scheduler} in "
+        f"{cached.schedule.duration_seconds * 1000:.0f} ms{miss_txt}",
+    )
+    if cached.moves:
+        deps.kube.emit_event(
+            body,
+            "Normal",
+            "Migrated",
+            f"Moved {len(cached.moves)} running modules: {', '.join(cached.moves[:10])}",
+        )
+
+
+def report_failure(
+    body: Obj, deps: Deps, old: Obj, generation: int | None, exc: InvalidSpec
+) -> None:
+    """Ready=False with the precise reason, one Event; nothing that runs is touched."""
+    ns, name = _key(body)
+    deps.metrics.count_error(name, exc.reason)
+    msg = str(exc)
+    if isinstance(exc, DanglingReference):
+        msg += " (create it, or fix the reference)"
+    conds = [
+        condition("Ready", False, exc.reason, msg, generation),
+        condition("Scheduled", False, exc.reason, msg, generation),
+    ]
+    keep = [c for c in old.get("conditions") or [] if c.get("type") == "Degraded"]
+    status = {
+        **old,
+        "observedGeneration": generation,
+        "conditions": merge_conditions(old.get("conditions") or [], conds) + keep,
+    }
+    if not same_status(old, status):
+        deps.kube.patch_fleet_status(ns, name, status)
+        deps.kube.emit_event(
+            body, "Warning", "PlanFailed" if isinstance(exc, Infeasible) else exc.reason, msg
+        )
+    log.warning("Failed to reconcile RobotFleet %s/%s: %s", ns, name, msg)

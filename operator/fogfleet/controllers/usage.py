@@ -1,0 +1,191 @@
+"""Status of the shared kinds: which fleets use a SoftwareModule or a ComputeNode, and how many
+instances run where.
+
+Everything is derived from the plans actually deployed (every RobotFleet's
+``status.placement``), so it needs no state of its own and any replica of the operator can
+rebuild it. One pass (``reconcile_usage``) lists the fleets, modules, ComputeNodes and Nodes
+and patches only the statuses that changed; each patch carries every field this pass owns
+(no ``None``), so a merge patch never leaves a stale value behind. The autoscaler owns
+``status.scaling`` and the ``Scaling``/``MetricsUnavailable`` conditions of a module; this
+pass never writes them.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections import Counter
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+from pydantic import ValidationError
+
+from fogfleet.api.v1alpha1.base import parse_cpu
+from fogfleet.api.v1alpha1.computenode import ComputeNodeStatus
+from fogfleet.api.v1alpha1.softwaremodule import SoftwareModuleStatus, Taxonomy
+from fogfleet.domain.taxonomy import classify
+
+from .deps import Deps
+from .inputs import node_health
+from .status import condition, merge_conditions, split_text, typed
+
+__all__ = [
+    "Usage",
+    "compute_node_status",
+    "module_status",
+    "reconcile_usage",
+    "usage_by_module",
+    "usage_by_node",
+]
+
+log = logging.getLogger(__name__)
+Obj = dict[str, Any]
+
+
+@dataclass
+class Usage:
+    """Who places instances of one object, and where."""
+
+    fleets: set[str] = field(default_factory=set)
+    tiers: Counter[str] = field(default_factory=Counter)
+    cpu: float = 0.0
+
+    @property
+    def instances(self) -> int:
+        return sum(self.tiers.values())
+
+
+def _placements(fleets: Iterable[Mapping[str, Any]]) -> Iterable[tuple[str, str, Obj]]:
+    for fleet in fleets:
+        meta = fleet.get("metadata") or {}
+        for entry in (fleet.get("status") or {}).get("placement") or []:
+            yield meta.get("namespace") or "default", meta.get("name", ""), entry
+
+
+def _cores(value: Any) -> float:
+    try:
+        return parse_cpu(value) if value not in (None, "") else 0.0
+    except ValueError:
+        return 0.0
+
+
+def usage_by_module(fleets: Iterable[Mapping[str, Any]]) -> dict[tuple[str, str], Usage]:
+    """(namespace, module) -> the fleets (by name, same namespace) placing it, per tier."""
+    out: dict[tuple[str, str], Usage] = {}
+    for ns, fleet, entry in _placements(fleets):
+        use = out.setdefault((ns, str(entry.get("module", ""))), Usage())
+        use.fleets.add(fleet)
+        use.tiers[str(entry.get("tier", ""))] += 1
+        use.cpu += _cores(entry.get("cpu"))
+    return out
+
+
+def usage_by_node(fleets: Iterable[Mapping[str, Any]]) -> dict[str, Usage]:
+    """Kubernetes Node name -> the fleets (``namespace/name``) placing instances on it."""
+    out: dict[str, Usage] = {}
+    for ns, fleet, entry in _placements(fleets):
+        use = out.setdefault(str(entry.get("node", "")), Usage())
+        use.fleets.add(f"{ns}/{fleet}")
+        use.tiers[str(entry.get("tier", ""))] += 1
+        use.cpu += _cores(entry.get("cpu"))
+    return out
+
+
+def _offloadable(module: Mapping[str, Any]) -> str | None:
+    try:
+        return classify(Taxonomy.model_validate((module.get("spec") or {}).get("taxonomy"))).value
+    except ValidationError:
+        return None  # the fleet's reconcile reports the invalid spec, naming the field
+
+
+def module_status(module: Mapping[str, Any], usage: Usage | None) -> Obj:
+    """The part of a SoftwareModule's status this pass owns."""
+    use = usage or Usage()
+    status = {
+        "observedGeneration": (module.get("metadata") or {}).get("generation"),
+        "offloadable": _offloadable(module),
+        "fleets": sorted(use.fleets),
+        "instances": use.instances,
+        "split": split_text(use.tiers),
+    }
+    return typed(SoftwareModuleStatus, status)
+
+
+def _format_cores(cores: float) -> str:
+    millis = round(cores * 1000)
+    return str(millis // 1000) if millis % 1000 == 0 else f"{millis}m"
+
+
+def compute_node_status(
+    compute_node: Mapping[str, Any], usage: Usage | None, node: Mapping[str, Any] | None
+) -> Obj:
+    """The status of a ComputeNode: its Node's readiness and allocatable, and who uses it."""
+    use = usage or Usage()
+    meta = compute_node.get("metadata") or {}
+    generation = meta.get("generation")
+    name = (compute_node.get("spec") or {}).get("nodeName") or meta.get("name", "")
+    health = node_health(node)
+    alloc = ((node or {}).get("status") or {}).get("allocatable") or {}
+    if node is None:
+        ready = condition("Ready", False, "NodeNotFound", f"No Kubernetes Node {name}", generation)
+    elif health:
+        ready = condition("Ready", False, "NodeUnavailable", f"Node {name} is {health}", generation)
+    else:
+        ready = condition("Ready", True, "NodeReady", f"Node {name} can run pods", generation)
+    conditions = merge_conditions(
+        (compute_node.get("status") or {}).get("conditions") or [], [ready]
+    )
+    status = {
+        "observedGeneration": generation,
+        "conditions": conditions,
+        "ready": not health,
+        "allocatableCpu": str(alloc.get("cpu", "")),
+        "allocatableMemory": str(alloc.get("memory", "")),
+        "fleets": sorted(use.fleets),
+        "instances": use.instances,
+        "cpuPlanned": _format_cores(use.cpu),
+    }
+    return typed(ComputeNodeStatus, status)
+
+
+def _differs(old: Mapping[str, Any], new: Mapping[str, Any]) -> bool:
+    def strip(conds: Any) -> Any:
+        return [{k: v for k, v in c.items() if k != "lastTransitionTime"} for c in conds or []]
+
+    for key, value in new.items():
+        if key == "conditions":
+            if strip(old.get(key)) != strip(value):
+                return True
+        elif old.get(key) != value:
+            return True
+    return False
+
+
+def reconcile_usage(deps: Deps) -> int:
+    """Bring every SoftwareModule's and ComputeNode's usage status up to date; return the
+    number of objects patched (0 when nothing changed: the pass is idempotent)."""
+    kube = deps.kube
+    fleets = kube.list_fleets(None)
+    patched = 0
+    by_module = usage_by_module(fleets)
+    for module in kube.list_modules(None):
+        meta = module.get("metadata") or {}
+        ns, name = meta.get("namespace") or "default", meta.get("name", "")
+        status = module_status(module, by_module.get((ns, name)))
+        if status["offloadable"] is None:
+            del status["offloadable"]
+        if _differs(module.get("status") or {}, status):
+            kube.patch_module_status(ns, name, status)
+            patched += 1
+    by_node = usage_by_node(fleets)
+    nodes = {(n.get("metadata") or {}).get("name", ""): n for n in kube.list_nodes()}
+    for cn in kube.list_compute_nodes():
+        meta = cn.get("metadata") or {}
+        node_name = (cn.get("spec") or {}).get("nodeName") or meta.get("name", "")
+        status = compute_node_status(cn, by_node.get(node_name), nodes.get(node_name))
+        if _differs(cn.get("status") or {}, status):
+            kube.patch_compute_node_status(meta.get("name", ""), status)
+            patched += 1
+    if patched:
+        log.info("Updated the usage status of %d SoftwareModules/ComputeNodes", patched)
+    return patched

@@ -1,0 +1,266 @@
+"""Keep what runs where it runs (the migration-margin rule), and the planning inputs'
+fingerprint and node availability the controller re-plans on.
+
+The scheduling core already starts its search from the current placement (STYLE.md: "the first
+individual is the current placement"); this module adds the controller's promise on top: a
+running instance stays where it is unless the new plan is better by
+``migrationMarginPercent`` on the fleet's first objective (by default the predicted miss
+rate): secondary objectives such as on-board use or balance never justify disturbing a running
+module.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+import logging
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from fogfleet.api.v1alpha1.robotfleet import SchedulerSettings
+from fogfleet.domain.problem import Problem, freeze
+
+__all__ = [
+    "Stickiness",
+    "feasible",
+    "fingerprint",
+    "keep_running",
+    "mask_unavailable",
+    "objective_values",
+]
+
+log = logging.getLogger(__name__)
+I64 = NDArray[np.int64]
+# Below this absolute difference two objective values count as equal (miss rates near zero).
+ABS_TOLERANCE = 1e-3
+
+
+def objective_values(
+    problem: Problem, x: I64, with_limits: bool, names: Sequence[str]
+) -> dict[str, float]:
+    from fogfleet.scheduling.objectives import evaluate
+
+    out = evaluate(
+        problem,
+        np.asarray(x, dtype=np.int64)[None, :],
+        problem.allocation(with_limits),
+        list(names),
+    )
+    return {k: float(v[0]) for k, v in out.items()}
+
+
+def feasible(problem: Problem, x: I64, with_limits: bool = True) -> bool:
+    """Every hard constraint of the plan holds (capacity, uplink, gene spaces)."""
+    from fogfleet.scheduling.objectives import constraints
+
+    g = constraints(
+        problem, np.asarray(x, dtype=np.int64)[None, :], problem.allocation(with_limits)
+    )
+    return bool(np.all(g <= 1e-9))
+
+
+def fingerprint(problem: Problem, settings: SchedulerSettings) -> str:
+    """A hash of every planning input (not the current placement): same hash, same plan."""
+    h = hashlib.sha256()
+    h.update(
+        json.dumps(
+            [
+                problem.fleet,
+                problem.namespace,
+                [dataclasses.astuple(n) for n in problem.nodes],
+                [dataclasses.astuple(i) for i in problem.instances],
+                settings.wire(),
+            ],
+            default=str,
+            sort_keys=True,
+        ).encode()
+    )
+    for f in dataclasses.fields(problem):
+        value = getattr(problem, f.name)
+        if f.name == "current":
+            continue
+        if isinstance(value, np.ndarray):
+            h.update(f.name.encode())
+            h.update(np.ascontiguousarray(value).tobytes())
+        elif dataclasses.is_dataclass(value):
+            for g in dataclasses.fields(value):
+                arr = getattr(value, g.name)
+                h.update(
+                    np.ascontiguousarray(arr).tobytes()
+                    if isinstance(arr, np.ndarray)
+                    else repr(arr).encode()
+                )
+    return h.hexdigest()[:16]
+
+
+def mask_unavailable(problem: Problem, unavailable: Mapping[int, str]) -> tuple[Problem, set[int]]:
+    """Drop unavailable nodes (NotReady, cordoned, missing) from every gene space.
+
+    Returns the narrowed problem and the *stranded* instances: those that could run before
+    but now have no node left (e.g. the on-board modules of a robot that is down).
+    """
+    if not unavailable:
+        return problem, set()
+    allowed = problem.allowed.copy()
+    cols = sorted(unavailable)
+    allowed[:, cols] = False
+    current = problem.current.copy()
+    current[np.isin(current, cols)] = -1
+    stranded = {int(i) for i in np.flatnonzero(problem.allowed.any(axis=1) & ~allowed.any(axis=1))}
+    reasons = dict(problem.reasons)
+    for i in stranded:
+        why = "; ".join(
+            f"{problem.nodes[j].name} is {unavailable[j]}" for j in cols if problem.allowed[i, j]
+        )
+        reasons[i] = f"{problem.label(i)} has no available node: {why}"
+    return dataclasses.replace(
+        problem, allowed=freeze(allowed), current=freeze(current), reasons=reasons
+    ), stranded
+
+
+@dataclasses.dataclass(frozen=True)
+class Stickiness:
+    placement: I64
+    migrations: list[int]  # instances moved off a node they ran on
+    kept_current: bool
+    reason: str
+
+
+def _better(
+    new: Mapping[str, float], old: Mapping[str, float], names: Sequence[str], margin: float
+) -> tuple[bool, str]:
+    """Lexicographic comparison with a relative margin: the first objective that differs by more
+    than ``margin`` (and ABS_TOLERANCE) decides."""
+    for name in names:
+        a, b = new.get(name), old.get(name)
+        if a is None or b is None or not (np.isfinite(a) and np.isfinite(b)):
+            continue
+        diff = b - a
+        if abs(diff) <= max(ABS_TOLERANCE, margin * abs(b)):
+            continue
+        return diff > 0, f"{name} {b:.4g} -> {a:.4g}"
+    return False, "no objective improves by more than the margin"
+
+
+def _loads(problem: Problem, fit: Any, x: I64) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Requested (cpu, memory, gpu) per node and off-board traffic per robot of plan ``x``."""
+    used = np.zeros((problem.n_nodes, 3))
+    up = np.zeros(problem.n_nodes)
+    for i in np.flatnonzero(x >= 0):
+        used[x[i]] += fit.demand[i, x[i]]
+        if problem.home[i] >= 0 and x[i] != problem.home[i]:
+            up[problem.home[i]] += problem.traffic[i]
+    return used, up
+
+
+def _fill(problem: Problem, fixed: I64, prefer: I64) -> I64:
+    """Place the instances that are -1 in ``fixed`` around the fixed ones: the ``prefer`` node
+    if it still has room, else the allowed node with room and the lowest miss probability."""
+    from fogfleet.scheduling.heuristics import Fit
+
+    fit = Fit(problem, problem.limits)
+    x = fixed.copy()
+    used, up = _loads(problem, fit, x)
+    for i in fit.order:
+        if x[i] >= 0 or not problem.allowed[i].any():
+            continue
+        room = np.all(used + fit.demand[i] <= fit.cap + 1e-9, axis=1) & problem.allowed[i]
+        h = int(problem.home[i])
+        if h >= 0 and up[h] + problem.traffic[i] > fit.uplink[h] + 1e-9:
+            room &= np.arange(problem.n_nodes) == h
+        if not room.any():
+            return np.full_like(x, -1)
+        j = (
+            int(prefer[i])
+            if prefer[i] >= 0 and room[prefer[i]]
+            else int(np.argmin(np.where(room, fit.pref[i], np.inf)))
+        )
+        x[i] = j
+        used[j] += fit.demand[i, j]
+        if h >= 0 and j != h:
+            up[h] += problem.traffic[i]
+    return x
+
+
+def _release_overloads(problem: Problem, x: I64, new: I64) -> I64:
+    """Unpin instances from nodes that no longer fit them all (a module grew): first those the
+    new plan moves anyway, largest CPU first, until the node fits."""
+    from fogfleet.scheduling.heuristics import Fit
+
+    x = x.copy()
+    demand = Fit(problem, problem.limits).demand
+    for j in range(problem.n_nodes):
+        on = [int(i) for i in np.flatnonzero(x == j)]
+        load = demand[on, j].sum(axis=0) if on else np.zeros(3)
+        order = sorted(on, key=lambda i: (new[i] == j, -demand[i, j, 0]))
+        for i in order:
+            if np.all(load <= problem.capacity[j] + 1e-9):
+                break
+            load = load - demand[i, j]
+            x[i] = -1
+    return x
+
+
+def _revert(problem: Problem, new: I64, cur: I64, usable: NDArray[np.bool_]) -> I64:
+    """Start from ``new`` and move every instance it would migrate back to its current node
+    wherever that keeps the plan feasible (capacity and uplink): fewest migrations near ``new``."""
+    from fogfleet.scheduling.heuristics import Fit
+
+    fit = Fit(problem, problem.limits)
+    x = new.copy()
+    used, up = _loads(problem, fit, x)
+    for _ in range(2):
+        for i in np.flatnonzero(usable & (x != cur)):
+            a, b, h = int(x[i]), int(cur[i]), int(problem.home[i])
+            if np.any(used[b] + fit.demand[i, b] > fit.cap[b] + 1e-9):
+                continue
+            d_up = (b != h) - (a != h) if h >= 0 else 0
+            if h >= 0 and d_up > 0 and up[h] + problem.traffic[i] > fit.uplink[h] + 1e-9:
+                continue
+            used[a] -= fit.demand[i, a]
+            used[b] += fit.demand[i, b]
+            if h >= 0:
+                up[h] += d_up * problem.traffic[i]
+            x[i] = b
+    return x
+
+
+def keep_running(problem: Problem, new: I64, settings: SchedulerSettings) -> Stickiness:
+    """Prefer the current placement of running instances over ``new`` unless ``new`` is
+    better by the migration margin. Instances without a usable current node are placed
+    around the running ones (``new``'s node when it has room)."""
+    new = np.asarray(new, dtype=np.int64)
+    cur = problem.current
+    rows = np.arange(problem.n_instances)
+    usable = (cur >= 0) & problem.allowed[rows, np.maximum(cur, 0)]
+    moved = [int(i) for i in np.flatnonzero(usable & (new != cur))]
+    if not moved:
+        return Stickiness(new, [], bool(usable.any()), "nothing that runs moves")
+    pinned = _release_overloads(problem, np.where(usable, cur, -1).astype(np.int64), new)
+    sticky = _fill(problem, pinned, new)
+    if (sticky < 0).any() or not feasible(problem, sticky):
+        sticky = _revert(problem, new, cur, usable)
+    kept = [int(i) for i in np.flatnonzero(usable & (sticky != cur))]
+    names = [settings.objectives[0].value]  # only the first objective justifies a move
+    if (sticky >= 0).sum() == (new >= 0).sum() and feasible(problem, sticky):
+        a = objective_values(problem, new, True, names)
+        b = objective_values(problem, sticky, True, names)
+        better, why = _better(a, b, names, settings.migration_margin_percent / 100.0)
+        if not better:
+            note = f"; {len(kept)} had to move to make room" if kept else ""
+            return Stickiness(sticky, kept, True, f"kept running modules in place ({why}){note}")
+        return Stickiness(new, moved, False, f"moved {len(moved)} running module(s): {why}")
+    return Stickiness(
+        new,
+        moved,
+        False,
+        f"moved {len(moved)} running module(s): the current placement no longer fits",
+    )
+
+
+def placement_array(values: Any) -> I64:
+    return np.asarray(values, dtype=np.int64)
