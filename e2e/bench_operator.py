@@ -131,7 +131,7 @@ class FleetSpec:
         return cat
 
     def problem(self, ns: str) -> Any:
-        from fogfleet.domain.problem import build_problem
+        from fogfleet.domain.build import build_problem
 
         cat = self.catalog(ns)
         return build_problem(cat.fleets[0], cat), cat

@@ -365,7 +365,7 @@ def test_the_k8s_default_fleet_records_kube_schedulers_real_placement(
     import numpy as np
 
     from fogfleet.api.loader import load_paths
-    from fogfleet.domain.problem import build_problem
+    from fogfleet.domain.build import build_problem
     from fogfleet.scheduling.solver import plan
     from fogfleet.sim.simulator import simulate
 

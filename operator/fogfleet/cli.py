@@ -77,7 +77,7 @@ def _progress(enabled: bool) -> tuple[Callable[[int, int], None] | None, Callabl
 
 
 def _plan(fleet: Any, catalog: Any, settings: Any, show_progress: bool) -> tuple[Any, Any]:
-    from fogfleet.domain.problem import build_problem
+    from fogfleet.domain.build import build_problem
     from fogfleet.scheduling.solver import plan
 
     problem = build_problem(fleet, catalog)
@@ -173,7 +173,7 @@ def _print_plan(doc: dict[str, Any]) -> None:
 
 
 def cmd_simulate(args: argparse.Namespace) -> int:
-    from fogfleet.domain.problem import build_problem
+    from fogfleet.domain.build import build_problem
     from fogfleet.scheduling.solver import plan
     from fogfleet.sim import simulate
 

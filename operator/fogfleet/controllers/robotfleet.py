@@ -22,7 +22,8 @@ from fogfleet.api.labels import ANNOTATION_SPEC_HASH, LABEL_FLEET
 from fogfleet.api.loader import parse_object
 from fogfleet.api.v1alpha1.robotfleet import RobotFleet, SchedulerName
 from fogfleet.controllers.ros import apply_ros_wiring, is_ros_object
-from fogfleet.domain.problem import Problem, build_problem
+from fogfleet.domain.build import build_problem
+from fogfleet.domain.problem import Problem
 from fogfleet.errors import Infeasible, InvalidSpec
 from fogfleet.render.deployments import Owner, identity_of, label_value, render_fleet
 from fogfleet.scheduling import stickiness

@@ -14,7 +14,8 @@ from typing import Any
 
 from fogfleet.api.v1alpha1.base import FogModel
 from fogfleet.api.v1alpha1.podtemplate import Probe, SecurityContext, Sidecar
-from fogfleet.api.v1alpha1.softwaremodule import ContainerTemplate, SoftwareModule
+from fogfleet.api.v1alpha1.softwaremodule import SoftwareModule
+from fogfleet.api.v1alpha1.template import ContainerTemplate
 from fogfleet.render.ros import pod_security
 
 __all__ = ["TMP_VOLUME", "module_pod_spec", "scrape_port"]

@@ -22,7 +22,8 @@ import numpy as np
 from fogfleet.api.loader import Catalog, load_paths
 from fogfleet.api.v1alpha1.computenode import ComputeNode
 from fogfleet.api.v1alpha1.robotfleet import RobotFleet, SchedulerSettings
-from fogfleet.domain.problem import Problem, build_problem
+from fogfleet.domain.build import build_problem
+from fogfleet.domain.problem import Problem
 
 from .exact import scalarised, solve_exact
 from .schedule import Schedule

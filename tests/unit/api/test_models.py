@@ -14,7 +14,7 @@ from fogfleet.api.loader import load_paths, parse_object
 from fogfleet.api.v1alpha1.computenode import ComputeNode
 from fogfleet.api.v1alpha1.robotfleet import RobotFleet
 from fogfleet.api.v1alpha1.softwaremodule import SoftwareModule
-from fogfleet.domain.problem import build_problem
+from fogfleet.domain.build import build_problem
 from fogfleet.errors import DanglingReference, InvalidSpec
 
 REPO = Path(__file__).resolve().parents[3]

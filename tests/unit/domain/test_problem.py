@@ -9,8 +9,8 @@ import pytest
 
 from fogfleet.api.loader import load_paths
 from fogfleet.api.v1alpha1.softwaremodule import Taxonomy
+from fogfleet.domain.build import build_problem
 from fogfleet.domain.network import Link, path
-from fogfleet.domain.problem import build_problem
 from fogfleet.domain.taxonomy import Offloadability, classify
 
 ROOT = Path(__file__).resolve().parents[3]
@@ -144,7 +144,7 @@ def test_current_placement_is_read_back(warehouse) -> None:  # type: ignore[no-u
 
 def test_growing_the_edge_pool_keeps_a_serving_cloud_replica_in_the_cloud() -> None:
     from fogfleet.api.v1alpha1.common import Tier
-    from fogfleet.domain.problem import _pool_tiers
+    from fogfleet.domain.build import _pool_tiers
 
     edge, cloud = Tier.EDGE, Tier.CLOUD
     # edge 1 -> 2 while replica 1 serves from the cloud: replica 1 stays there, 2 is the new edge

@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 
 from fogfleet.api.loader import Catalog, load_paths
-from fogfleet.domain.problem import Instance, Problem, build_problem
+from fogfleet.domain.build import build_problem
+from fogfleet.domain.problem import Instance, Problem
 from fogfleet.render.deployments import (
     ANNOTATION_PLAN,
     ANNOTATION_SPEC_HASH,

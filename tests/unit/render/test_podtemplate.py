@@ -12,7 +12,7 @@ from pydantic import ValidationError
 
 from fogfleet.api.loader import load_paths
 from fogfleet.api.v1alpha1.softwaremodule import SoftwareModule
-from fogfleet.domain.problem import build_problem
+from fogfleet.domain.build import build_problem
 from fogfleet.render.deployments import render_fleet
 
 EXAMPLES = Path(__file__).resolve().parents[3] / "manifests" / "examples"
@@ -158,7 +158,10 @@ def test_the_probe_sidecar_is_scraped_when_the_module_serves_no_metrics() -> Non
             {"ports": [{"name": "metrics", "containerPort": 1}], "metricsPort": 2},
             "the name metrics is fogfleet's",
         ),
-        ({"ports": [{"containerPort": 9100}], "metricsPort": 9100}, "9100 appears twice"),
+        (
+            {"ports": [{"containerPort": 9100}], "metricsPort": 9100},
+            "ports: 9100 listed more than once",
+        ),
     ],
 )
 def test_bad_templates_are_refused_naming_the_field(change: dict[str, Any], expected: str) -> None:

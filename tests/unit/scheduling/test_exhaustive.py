@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 
 from fogfleet.api.loader import load_paths
-from fogfleet.domain.problem import build_problem
+from fogfleet.domain.build import build_problem
 from fogfleet.scheduling import plan
 from fogfleet.scheduling.objectives import constraints, evaluate
 

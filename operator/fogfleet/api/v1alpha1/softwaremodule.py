@@ -9,26 +9,15 @@ real-time class and safety class. ``cycleTimeMillis`` and ``activationPercent`` 
 from __future__ import annotations
 
 from enum import StrEnum
-from typing import Annotated, Any, Literal
+from typing import Annotated, Literal
 
 from pydantic import Field, model_validator
 
 from .base import FogModel, NonNegInt, PosInt, Quantity, parse_quantity, refuse_duplicates
-from .common import Condition, Name, ObjectMeta, Tier
+from .common import Condition, ObjectMeta, Tier
 from .computenode import DeviceType
-from .podtemplate import (
-    OWNED_POD_FIELDS,
-    ContainerPort,
-    EnvFromSource,
-    EnvVarSource,
-    Probe,
-    SecurityContext,
-    Sidecar,
-    Toleration,
-    Volume,
-    VolumeMount,
-)
 from .scaling import ScalingSpec
+from .template import ContainerTemplate
 
 __all__ = [
     "ContainerTemplate",
@@ -87,153 +76,6 @@ class Taxonomy(FogModel):
     """hard (runs on its own robot), soft or none."""
     safety: SafetyClass
     """critical (runs on its own robot), relevant or irrelevant."""
-
-
-class EnvVar(FogModel):
-    """An environment variable of the module's container: a value, or valueFrom."""
-
-    name: Annotated[str, Field(min_length=1)]
-    """Variable name; FOGFLEET_*, ROS_*, RMW_*, FASTDDS_* and FASTRTPS_* belong to fogfleet."""
-    value: str = ""
-    """Variable value."""
-    value_from: EnvVarSource | None = None
-    """Take the value from a Secret, a ConfigMap or the pod (instead of value)."""
-
-    @model_validator(mode="after")
-    def _value_or_source(self) -> EnvVar:
-        if self.value and self.value_from is not None:
-            raise ValueError(f"{self.name}: set value or valueFrom, not both")
-        return self
-
-
-class LocalRef(FogModel):
-    """An object of the module's namespace, by name."""
-
-    name: Annotated[str, Field(min_length=1, max_length=253)]
-    """Its name."""
-
-
-# Environment fogfleet owns in every module container (the ROS wiring and FOGFLEET_*).
-RESERVED_ENV_PREFIXES = ("FOGFLEET_", "ROS_", "RMW_", "FASTDDS_", "FASTRTPS_")
-
-
-def _reserved_env(names: list[str], field: str) -> None:
-    for k, name in enumerate(names):
-        if name.startswith(RESERVED_ENV_PREFIXES):
-            raise ValueError(
-                f"{field}[{k}].name: {name} is set by fogfleet (the ROS 2 wiring and "
-                f"FOGFLEET_* variables: {', '.join(RESERVED_ENV_PREFIXES)}); configure it "
-                "in the RobotFleet's spec.ros instead"
-            )
-
-
-class ContainerTemplate(FogModel):
-    """The module's pod: its container and the pod-template subset ROS 2 modules need.
-    fogfleet adds placement (node affinity), CPU, memory, labels and the ROS 2 wiring, and
-    restricted security defaults wherever this template says nothing."""
-
-    image: Annotated[str, Field(min_length=1)]
-    """Container image of the module (e.g. ghcr.io/fogfleet/ros2-module:0.1.0)."""
-    image_pull_policy: Literal["Always", "IfNotPresent", "Never"] | None = None
-    """Kubernetes imagePullPolicy (default: Kubernetes' own, from the image tag)."""
-    command: list[str] = Field(default_factory=list)
-    """Entrypoint override (default: the image's)."""
-    args: list[str] = Field(default_factory=list)
-    """Arguments (default: the image's)."""
-    env: list[EnvVar] = Field(default_factory=list)
-    """Extra environment variables; names fogfleet sets are refused."""
-    env_from: list[EnvFromSource] = Field(default_factory=list)
-    """Every key of a ConfigMap or Secret as variables."""
-    ports: list[ContainerPort] = Field(default_factory=list)
-    """Ports the module listens on (besides metricsPort)."""
-    volumes: list[Volume] = Field(default_factory=list)
-    """Volumes of the pod: parameters and maps (ConfigMap, PVC), devices (hostPath), scratch."""
-    volume_mounts: list[VolumeMount] = Field(default_factory=list)
-    """Where the volumes appear in the module's container (a writable /tmp is always there)."""
-    liveness_probe: Probe | None = None
-    """Restart the container when this fails (default with metricsPort: GET /healthz)."""
-    readiness_probe: Probe | None = None
-    """Count the pod ready when this passes (default with metricsPort: GET /healthz)."""
-    startup_probe: Probe | None = None
-    """Hold the other probes until this passes (slow-starting modules)."""
-    security_context: SecurityContext | None = None
-    """Exceptions to the restricted defaults (non-root, no privilege escalation, no
-    capabilities, seccomp RuntimeDefault, read-only root filesystem)."""
-    extra_resources: dict[str, Quantity] = Field(default_factory=dict)
-    """Device-plugin resources requested and limited, e.g. {"squat.ai/video": 1}; GPUs come
-    from spec.resources.gpu."""
-    tolerations: list[Toleration] = Field(default_factory=list)
-    """Taints the pod tolerates (robot computers are often tainted for their own modules)."""
-    image_pull_secrets: list[LocalRef] = Field(default_factory=list)
-    """Secrets to pull private images with."""
-    service_account_name: Annotated[str, Field(min_length=1, max_length=253)] | None = None
-    """The pod's ServiceAccount (default: the namespace's default)."""
-    automount_service_account_token: bool = False
-    """Mount the ServiceAccount's API token (only modules that call the Kubernetes API)."""
-    sidecars: list[Sidecar] = Field(default_factory=list)
-    """Extra containers in the pod (e.g. fogfleet's cycle-time probe)."""
-    metrics_port: Annotated[int, Field(ge=1, le=65535)] | None = Field(
-        default=None,
-        description=(
-            "Port on which the module serves the metrics contract (/metrics) and /healthz: "
-            "fogfleet then adds the port, liveness and readiness probes and Prometheus "
-            "scrape annotations. The ROS 2 workload image serves 9100."
-        ),
-    )
-
-    def metrics_ports(self) -> list[int]:
-        """Every port serving the metrics contract: the module's and its sidecars'."""
-        ports = [self.metrics_port, *(c.metrics_port for c in self.sidecars)]
-        return [p for p in ports if p]
-
-    @model_validator(mode="before")
-    @classmethod
-    def _owned_fields(cls, data: Any) -> Any:
-        if isinstance(data, dict):
-            for key, why in OWNED_POD_FIELDS.items():
-                if key in data:
-                    raise ValueError(f"{key}: set by fogfleet ({why})")
-        return data
-
-    @model_validator(mode="after")
-    def _consistent(self) -> ContainerTemplate:
-        _reserved_env([e.name for e in self.env], "env")
-        for k, car in enumerate(self.sidecars):
-            _reserved_env([e.name for e in car.env], f"sidecars[{k}].env")
-        volumes = {v.name for v in self.volumes}
-        _unique([v.name for v in self.volumes], "volumes", "name")
-        _unique([c.name for c in self.sidecars], "sidecars", "name")
-        mounts = [("volumeMounts", m) for m in self.volume_mounts] + [
-            (f"sidecars[{k}].volumeMounts", m)
-            for k, car in enumerate(self.sidecars)
-            for m in car.volume_mounts
-        ]
-        for field, mount in mounts:
-            if mount.name not in volumes:
-                raise ValueError(
-                    f"{field}: volume {mount.name} is not in volumes "
-                    f"({', '.join(sorted(volumes)) or 'none'})"
-                )
-            if mount.mount_path == "/tmp":
-                raise ValueError(f"{field}: /tmp is fogfleet's writable scratch; mount elsewhere")
-        ports = [p.container_port for p in self.ports] + [
-            p.container_port for car in self.sidecars for p in car.ports
-        ]
-        ports += [x for x in [self.metrics_port] if x] + [
-            car.metrics_port for car in self.sidecars if car.metrics_port
-        ]
-        _unique([str(p) for p in ports], "ports", "containerPort")
-        if self.metrics_port and any(p.name == "metrics" for p in self.ports):
-            raise ValueError("ports: the name metrics is fogfleet's (metricsPort)")
-        return self
-
-
-def _unique(values: list[str], field: str, key: str) -> None:
-    seen: set[str] = set()
-    for k, value in enumerate(values):
-        if value in seen:
-            raise ValueError(f"{field}[{k}].{key}: {value} appears twice")
-        seen.add(value)
 
 
 class ModuleResources(FogModel):
@@ -424,6 +266,3 @@ class SoftwareModule(FogModel):
     metadata: ObjectMeta
     spec: SoftwareModuleSpec
     status: SoftwareModuleStatus | None = None
-
-
-Name_ = Name  # re-exported for fleets' references
