@@ -1,0 +1,180 @@
+"""``fogfleet plan`` and ``fogfleet simulate``: a fleet's plan from YAML, and the simulated
+missed cycles of plans side by side."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+from typing import Any
+
+from fogfleet.errors import InvalidSpec
+
+from .common import SCHEDULERS, catalog_of, fleets_of, plan_fleet, settings_of, table
+
+__all__ = ["cmd_plan", "cmd_simulate"]
+
+
+def _placement_rows(problem: Any, schedule: Any) -> list[dict[str, Any]]:
+    alloc = problem.allocation(schedule.with_limits)
+    rows = []
+    for i, inst in enumerate(problem.instances):
+        j = int(schedule.placement[i])
+        rows.append(
+            {
+                "robot": inst.robot or "-",
+                "module": inst.module,
+                "replica": inst.replica,
+                "node": problem.nodes[j].name if j >= 0 else None,
+                "tier": problem.nodes[j].tier.value if j >= 0 else None,
+                "cpu": float(alloc.cpu_request[i, j]) if j >= 0 else None,
+            }
+        )
+    return rows
+
+
+def cmd_plan(args: argparse.Namespace) -> int:
+    catalog = catalog_of(args.paths)
+    out: list[dict[str, Any]] = []
+    infeasible = False
+    for fleet in fleets_of(catalog, args.fleet):
+        settings = settings_of(fleet, args.scheduler, args.seed, args)
+        problem, schedule = plan_fleet(
+            fleet, catalog, settings, sys.stderr.isatty() and not args.json
+        )
+        infeasible |= not schedule.feasible
+        rows = _placement_rows(problem, schedule)
+        doc = {
+            "fleet": f"{problem.namespace}/{problem.fleet}",
+            "scheduler": schedule.scheduler,
+            "feasible": schedule.feasible,
+            "withLimits": schedule.with_limits,
+            "placement": rows,
+            "objectives": schedule.objectives,
+            "durationSeconds": round(schedule.duration_seconds, 4),
+            "choiceReason": schedule.choice_reason,
+            "unplaced": {problem.label(i): why for i, why in schedule.reasons.items()},
+        }
+        out.append(doc)
+        if args.plot:
+            from fogfleet.plot import plot_plan
+
+            plot_plan(problem, schedule, Path(args.plot))
+        if not args.json:
+            _print_plan(doc)
+    if args.json:
+        print(json.dumps(out[0] if len(out) == 1 else out, indent=2))
+    return 2 if infeasible else 0
+
+
+def _print_plan(doc: dict[str, Any]) -> None:
+    print(
+        f"Fleet {doc['fleet']}  scheduler={doc['scheduler']}  feasible={doc['feasible']}  "
+        f"({doc['durationSeconds']:.2f} s)"
+    )
+    rows = [
+        [
+            r["robot"],
+            r["module"] + (f"#{r['replica']}" if r["robot"] == "-" else ""),
+            r["node"] or "UNPLACED",
+            r["tier"] or "-",
+            f"{r['cpu']:g}" if r["cpu"] is not None else "-",
+        ]
+        for r in doc["placement"]
+    ]
+    print(table(rows, ["ROBOT", "MODULE", "NODE", "TIER", "CPU"]))
+    print()
+    print("Objectives: " + ", ".join(f"{k}={v:.4g}" for k, v in doc["objectives"].items()))
+    if doc["choiceReason"]:
+        print(f"Choice: {doc['choiceReason']}")
+    for label, why in doc["unplaced"].items():
+        print(f"UNPLACED {label}: {why}", file=sys.stderr)
+
+
+def cmd_simulate(args: argparse.Namespace) -> int:
+    from fogfleet.domain.build import build_problem
+    from fogfleet.scheduling.solver import plan
+    from fogfleet.sim import simulate
+
+    catalog = catalog_of(args.paths)
+    fleet = fleets_of(catalog, args.fleet)[0]
+    problem = build_problem(fleet, catalog)
+    names = (
+        list(SCHEDULERS[:3])
+        if args.scheduler == "all"
+        else [args.scheduler or fleet.spec.scheduler.algorithm]
+    )
+    placements: dict[str, tuple[Any, bool]] = {}
+    if args.placement:
+        placements["recorded"] = _read_placement(problem, Path(args.placement))
+    for name in names:
+        settings = settings_of(fleet, str(name), args.seed, args)
+        schedule = plan(problem, settings)
+        placements[str(name)] = (schedule.placement, schedule.with_limits)
+    result: dict[str, Any] = {}
+    for name, (placement, with_limits) in placements.items():
+        sim = simulate(
+            problem,
+            placement,
+            problem.allocation(with_limits),
+            duration_s=args.duration,
+            seed=args.seed if args.seed is not None else 0,
+            all_active=args.all_active,
+        )
+        result[name] = {
+            "missRate": sim.miss_rate,
+            "modules": dict(sim.module_miss_rate),
+            "nodeUtilisation": {
+                problem.nodes[j].name: u for j, u in enumerate(sim.node_utilisation)
+            },
+        }
+    if args.json:
+        print(json.dumps(result, indent=2))
+        return 0
+    modules = sorted({m for r in result.values() for m in r["modules"]})
+    rows = [
+        [m, *(f"{100 * result[s]['modules'].get(m, 0.0):.2f}%" for s in result)] for m in modules
+    ]
+    rows.append(["OVERALL", *(f"{100 * result[s]['missRate']:.2f}%" for s in result)])
+    print(
+        f"Missed-cycle rate, fleet {problem.namespace}/{problem.fleet}, "
+        f"{args.duration:g} s simulated, seed {args.seed or 0}, "
+        + ("all modules active" if args.all_active else "activation rates of the modules")
+    )
+    print(table(rows, ["MODULE", *result.keys()]))
+    return 0
+
+
+def _read_placement(problem: Any, path: Path) -> tuple[Any, bool]:
+    """A placement saved by ``fogfleet plan --json`` or read back from a fleet's status."""
+    import numpy as np
+    import yaml
+
+    doc = yaml.safe_load(path.read_text())
+    if not isinstance(doc, dict):
+        raise InvalidSpec(str(path), "", "not a saved plan or a RobotFleet with status")
+    body = doc.get("status", doc) if "status" in doc else doc
+    entries = body.get("placement") or []
+    # plain-Deployment schedulers run with nominal requests and no limits
+    nominal = body.get("scheduler") in ("k8s-default", "onboard")
+    with_limits = bool(body.get("withLimits", not nominal))
+    index = {
+        (
+            e.get("robot") if e.get("robot") not in ("-", None) else "",
+            e["module"],
+            int(e.get("replica") or 0),
+        ): e.get("node")
+        for e in entries
+    }
+    placement = np.full(problem.n_instances, -1, dtype=np.int64)
+    for i, inst in enumerate(problem.instances):
+        node = index.get((inst.robot, inst.module, inst.replica))
+        if node is not None:
+            try:
+                placement[i] = problem.node_index(node)
+            except KeyError as exc:
+                raise InvalidSpec(
+                    str(path), "placement", f"node {node!r} is not in the fleet"
+                ) from exc
+    return placement, with_limits

@@ -1,0 +1,95 @@
+"""``fogfleet render`` and ``fogfleet crds``: the Kubernetes objects of a fleet's plan, offline,
+and the CRDs generated from the models."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+from typing import Any
+
+from .common import catalog_of, fleets_of, plan_fleet, settings_of
+
+__all__ = ["cmd_crds", "cmd_render"]
+
+
+def cmd_render(args: argparse.Namespace) -> int:
+    import yaml
+
+    from fogfleet.render.deployments import (
+        LABEL_FLEET,
+        LABEL_MANAGED_BY,
+        MANAGER,
+        _dns,
+        label_value,
+        render_fleet,
+    )
+    from fogfleet.render.ros import (
+        RosWiring,
+        discovery_servers,
+        fleet_network_policy,
+        service_address,
+    )
+
+    catalog = catalog_of(args.paths)
+    docs: list[dict[str, Any]] = []
+    for fleet in fleets_of(catalog, args.fleet):
+        settings = settings_of(fleet, args.scheduler, args.seed, args)
+        problem, schedule = plan_fleet(fleet, catalog, settings, False)
+        ns = problem.namespace
+        modules = {name: m for (mns, name), m in catalog.modules.items() if mns == ns}
+        wiring = None
+        if fleet.spec.ros.enabled:
+            labels = {LABEL_FLEET: label_value(problem.fleet), LABEL_MANAGED_BY: MANAGER}
+            servers = discovery_servers(problem, fleet.spec.ros, labels, [], _dns)
+            # offline: the Services' DNS names (the operator uses their cluster IPs)
+            wiring = RosWiring(fleet.spec.ros, {r: service_address(s) for r, s, _ in servers})
+            for _, service, deployment in servers:
+                docs += [service, deployment]
+            ports = sorted({p for m in modules.values() for p in m.spec.template.metrics_ports()})
+            docs.append(
+                fleet_network_policy(
+                    name=_dns(f"{problem.fleet}-pods")[:63],
+                    namespace=ns,
+                    selector={LABEL_FLEET: label_value(problem.fleet)},
+                    metrics_ports=ports,
+                    owner_refs=[],
+                )
+            )
+        docs.extend(
+            render_fleet(
+                problem,
+                modules,
+                schedule.placement,
+                baseline=schedule.scheduler == "k8s-default",
+                plan_id=f"cli-{schedule.scheduler}-{settings.seed}",
+                wiring=wiring,
+            )
+        )
+
+    class _NoAliases(yaml.SafeDumper):
+        def ignore_aliases(self, data: Any) -> bool:
+            return True
+
+    print(yaml.dump_all(docs, Dumper=_NoAliases, sort_keys=False), end="")
+    return 0
+
+
+def cmd_crds(args: argparse.Namespace) -> int:
+    from fogfleet.api import crdgen
+
+    if args.check:
+        drift = crdgen.check_crds(Path(args.check))
+        for line in drift:
+            print(line, file=sys.stderr)
+        if drift:
+            print(
+                "CRDs drifted from the models: run `make crds` and commit the result.",
+                file=sys.stderr,
+            )
+            return 1
+        print(f"{args.check}: CRDs match the models")
+        return 0
+    for path in crdgen.write_crds(Path(args.out)):
+        print(path)
+    return 0
