@@ -13,7 +13,7 @@ from collections.abc import Mapping, Sequence
 from typing import Any
 
 from fogfleet.api.v1alpha1.base import FogModel
-from fogfleet.api.v1alpha1.podtemplate import Probe, SecurityContext, Sidecar
+from fogfleet.api.v1alpha1.podtemplate import ContainerBase, Probe, SecurityContext, Sidecar
 from fogfleet.api.v1alpha1.softwaremodule import SoftwareModule
 from fogfleet.api.v1alpha1.template import ContainerTemplate
 from fogfleet.render.ros import pod_security
@@ -71,7 +71,8 @@ def _health_probes(port_name: str) -> Obj:
 
 
 def _probes(tpl: ContainerTemplate) -> Obj:
-    out = _health_probes("metrics") if tpl.metrics_port else {}
+    """The probes the user set, over the /healthz ones ``_container`` added."""
+    out: Obj = {}
     mine: dict[str, Probe | None] = {
         "livenessProbe": tpl.liveness_probe,
         "readinessProbe": tpl.readiness_probe,
@@ -81,57 +82,58 @@ def _probes(tpl: ContainerTemplate) -> Obj:
     return out
 
 
+def _container(
+    spec: ContainerBase,
+    name: str,
+    metrics_port_name: str,
+    sc: SecurityContext | None,
+    mounts: Sequence[FogModel],
+    owned_env: Sequence[Mapping[str, str]],
+) -> Obj:
+    """What the module's container and a sidecar render alike: image, entry point, env (the
+    user's, then fogfleet's wiring), security context, /tmp and the other mounts, ports (the
+    metrics port first, named ``metrics_port_name``) and its /healthz probes."""
+    out: Obj = {"name": name, "image": spec.image}
+    if spec.image_pull_policy:
+        out["imagePullPolicy"] = spec.image_pull_policy
+    if spec.command:
+        out["command"] = list(spec.command)
+    if spec.args:
+        out["args"] = list(spec.args)
+    env = _env(spec.env, owned_env)
+    if env:
+        out["env"] = env
+    out["securityContext"] = _security(sc)
+    out["volumeMounts"] = [_TMP_MOUNT, *(m.wire() for m in mounts)]
+    ports = [p.wire() for p in spec.ports]
+    if spec.metrics_port:
+        port = {"name": metrics_port_name, "containerPort": spec.metrics_port, "protocol": "TCP"}
+        ports.insert(0, port)
+        out.update(_health_probes(metrics_port_name))
+    if ports:
+        out["ports"] = ports
+    return out
+
+
 def _module_container(
     tpl: ContainerTemplate, name: str, resources: Obj, owned_env: Sequence[Mapping[str, str]]
 ) -> Obj:
-    container: Obj = {"name": name, "image": tpl.image}
-    if tpl.image_pull_policy:
-        container["imagePullPolicy"] = tpl.image_pull_policy
-    if tpl.command:
-        container["command"] = list(tpl.command)
-    if tpl.args:
-        container["args"] = list(tpl.args)
-    env = _env(tpl.env, owned_env)
-    if env:
-        container["env"] = env
+    out = _container(tpl, name, "metrics", tpl.security_context, tpl.volume_mounts, owned_env)
     if tpl.env_from:
-        container["envFrom"] = [e.wire() for e in tpl.env_from]
-    limits = {**resources.get("limits", {}), **{k: str(v) for k, v in tpl.extra_resources.items()}}
-    requests = {**resources["requests"], **{k: str(v) for k, v in tpl.extra_resources.items()}}
-    container["resources"] = {"requests": requests, **({"limits": limits} if limits else {})}
-    container["securityContext"] = _security(tpl.security_context)
-    container["volumeMounts"] = [_TMP_MOUNT, *(m.wire() for m in tpl.volume_mounts)]
-    ports = [p.wire() for p in tpl.ports]
-    if tpl.metrics_port:
-        ports.insert(0, {"name": "metrics", "containerPort": tpl.metrics_port, "protocol": "TCP"})
-    if ports:
-        container["ports"] = ports
-    container.update(_probes(tpl))
-    return container
+        out["envFrom"] = [e.wire() for e in tpl.env_from]
+    extra = {k: str(v) for k, v in tpl.extra_resources.items()}
+    limits = {**resources.get("limits", {}), **extra}
+    requests = {**resources["requests"], **extra}
+    out["resources"] = {"requests": requests, **({"limits": limits} if limits else {})}
+    out.update(_probes(tpl))
+    return out
 
 
 def _sidecar(car: Sidecar, tpl: ContainerTemplate, owned_env: Sequence[Mapping[str, str]]) -> Obj:
+    port_name = f"m-{car.name}"[:15].rstrip("-")
+    out = _container(car, car.name, port_name, tpl.security_context, car.volume_mounts, owned_env)
     quantities = {"cpu": str(car.cpu), "memory": str(car.memory)}
-    out: Obj = {"name": car.name, "image": car.image}
-    if car.image_pull_policy:
-        out["imagePullPolicy"] = car.image_pull_policy
-    if car.command:
-        out["command"] = list(car.command)
-    if car.args:
-        out["args"] = list(car.args)
-    env = _env(car.env, owned_env)
-    if env:
-        out["env"] = env
     out["resources"] = {"requests": dict(quantities), "limits": dict(quantities)}
-    out["securityContext"] = _security(tpl.security_context)
-    out["volumeMounts"] = [_TMP_MOUNT, *(m.wire() for m in car.volume_mounts)]
-    ports = [p.wire() for p in car.ports]
-    if car.metrics_port:
-        port_name = f"m-{car.name}"[:15].rstrip("-")
-        ports.insert(0, {"name": port_name, "containerPort": car.metrics_port, "protocol": "TCP"})
-        out.update(_health_probes(port_name))
-    if ports:
-        out["ports"] = ports
     return out
 
 

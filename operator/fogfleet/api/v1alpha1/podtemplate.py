@@ -19,8 +19,10 @@ from .base import FogModel, Quantity
 
 __all__ = [
     "OWNED_POD_FIELDS",
+    "ContainerBase",
     "ContainerPort",
     "EnvFromSource",
+    "EnvVar",
     "EnvVarSource",
     "KeyRef",
     "Probe",
@@ -356,39 +358,55 @@ class Toleration(FogModel):
     """How long a NoExecute taint is tolerated."""
 
 
-class SidecarEnv(FogModel):
-    """An environment variable of a sidecar."""
+class EnvVar(FogModel):
+    """An environment variable of a container: a value, or valueFrom."""
 
     name: Annotated[str, Field(min_length=1)]
-    """Variable name."""
+    """Variable name; FOGFLEET_*, ROS_*, RMW_*, FASTDDS_* and FASTRTPS_* belong to fogfleet."""
     value: str = ""
     """Variable value."""
+    value_from: EnvVarSource | None = None
+    """Take the value from a Secret, a ConfigMap or the pod (instead of value)."""
+
+    @model_validator(mode="after")
+    def _value_or_source(self) -> EnvVar:
+        if self.value and self.value_from is not None:
+            raise ValueError(f"{self.name}: set value or valueFrom, not both")
+        return self
 
 
-class Sidecar(FogModel):
+class ContainerBase(FogModel):
+    """What the module's container and its sidecars both say: image, entry point, environment,
+    ports and the metrics contract's port."""
+
+    image: Annotated[str, Field(min_length=1)]
+    """Container image (e.g. ghcr.io/fogfleet/ros2-module:0.1.0)."""
+    image_pull_policy: Literal["Always", "IfNotPresent", "Never"] | None = None
+    """Kubernetes imagePullPolicy (default: Kubernetes' own, from the image tag)."""
+    command: list[str] = Field(default_factory=list)
+    """Entrypoint override (default: the image's)."""
+    args: list[str] = Field(default_factory=list)
+    """Arguments (default: the image's)."""
+    env: list[EnvVar] = Field(default_factory=list)
+    """Extra environment variables; names fogfleet sets are refused."""
+    ports: list[ContainerPort] = Field(default_factory=list)
+    """Ports it listens on (besides metricsPort)."""
+    metrics_port: Port | None = None
+    """Port on which it serves the metrics contract (/metrics) and /healthz: fogfleet then adds
+    the port, liveness and readiness probes and Prometheus scrape annotations. The ROS 2
+    workload image serves 9100."""
+
+
+class Sidecar(ContainerBase):
     """An extra container in every instance's pod (a bridge, a recorder, fogfleet's cycle-time
     probe). It gets the module's ROS 2 wiring, fogfleet's restricted security context and the
     resources it asks for; the plan's CPU is the module container's."""
 
     name: DnsLabel
     """Container name (unique in the pod)."""
-    image: Annotated[str, Field(min_length=1)]
-    """Container image."""
-    image_pull_policy: Literal["Always", "IfNotPresent", "Never"] | None = None
-    """Kubernetes imagePullPolicy."""
-    command: list[str] = Field(default_factory=list)
-    """Entrypoint override."""
-    args: list[str] = Field(default_factory=list)
-    """Arguments."""
-    env: list[SidecarEnv] = Field(default_factory=list)
-    """Extra environment variables."""
-    ports: list[ContainerPort] = Field(default_factory=list)
-    """Ports it listens on."""
     volume_mounts: list[VolumeMount] = Field(default_factory=list)
     """Volumes it mounts (besides /tmp)."""
     cpu: Quantity = "50m"
     """CPU request and limit, in cores."""
     memory: Quantity = "128Mi"
     """Memory request and limit, in bytes."""
-    metrics_port: Port | None = None
-    """Port serving /metrics and /healthz: fogfleet adds probes and Prometheus annotations."""

@@ -3,16 +3,15 @@ may set (``podtemplate``), with what fogfleet owns refused by name."""
 
 from __future__ import annotations
 
-from typing import Annotated, Any, Literal
+from typing import Annotated, Any
 
 from pydantic import Field, model_validator
 
 from .base import FogModel, Quantity, refuse_duplicates
 from .podtemplate import (
     OWNED_POD_FIELDS,
-    ContainerPort,
+    ContainerBase,
     EnvFromSource,
-    EnvVarSource,
     Probe,
     SecurityContext,
     Sidecar,
@@ -21,24 +20,7 @@ from .podtemplate import (
     VolumeMount,
 )
 
-__all__ = ["RESERVED_ENV_PREFIXES", "ContainerTemplate", "EnvVar", "LocalRef"]
-
-
-class EnvVar(FogModel):
-    """An environment variable of the module's container: a value, or valueFrom."""
-
-    name: Annotated[str, Field(min_length=1)]
-    """Variable name; FOGFLEET_*, ROS_*, RMW_*, FASTDDS_* and FASTRTPS_* belong to fogfleet."""
-    value: str = ""
-    """Variable value."""
-    value_from: EnvVarSource | None = None
-    """Take the value from a Secret, a ConfigMap or the pod (instead of value)."""
-
-    @model_validator(mode="after")
-    def _value_or_source(self) -> EnvVar:
-        if self.value and self.value_from is not None:
-            raise ValueError(f"{self.name}: set value or valueFrom, not both")
-        return self
+__all__ = ["RESERVED_ENV_PREFIXES", "ContainerTemplate", "LocalRef"]
 
 
 class LocalRef(FogModel):
@@ -62,25 +44,13 @@ def _reserved_env(names: list[str], field: str) -> None:
             )
 
 
-class ContainerTemplate(FogModel):
+class ContainerTemplate(ContainerBase):
     """The module's pod: its container and the pod-template subset ROS 2 modules need.
     fogfleet adds placement (node affinity), CPU, memory, labels and the ROS 2 wiring, and
     restricted security defaults wherever this template says nothing."""
 
-    image: Annotated[str, Field(min_length=1)]
-    """Container image of the module (e.g. ghcr.io/fogfleet/ros2-module:0.1.0)."""
-    image_pull_policy: Literal["Always", "IfNotPresent", "Never"] | None = None
-    """Kubernetes imagePullPolicy (default: Kubernetes' own, from the image tag)."""
-    command: list[str] = Field(default_factory=list)
-    """Entrypoint override (default: the image's)."""
-    args: list[str] = Field(default_factory=list)
-    """Arguments (default: the image's)."""
-    env: list[EnvVar] = Field(default_factory=list)
-    """Extra environment variables; names fogfleet sets are refused."""
     env_from: list[EnvFromSource] = Field(default_factory=list)
     """Every key of a ConfigMap or Secret as variables."""
-    ports: list[ContainerPort] = Field(default_factory=list)
-    """Ports the module listens on (besides metricsPort)."""
     volumes: list[Volume] = Field(default_factory=list)
     """Volumes of the pod: parameters and maps (ConfigMap, PVC), devices (hostPath), scratch."""
     volume_mounts: list[VolumeMount] = Field(default_factory=list)
@@ -107,14 +77,6 @@ class ContainerTemplate(FogModel):
     """Mount the ServiceAccount's API token (only modules that call the Kubernetes API)."""
     sidecars: list[Sidecar] = Field(default_factory=list)
     """Extra containers in the pod (e.g. fogfleet's cycle-time probe)."""
-    metrics_port: Annotated[int, Field(ge=1, le=65535)] | None = Field(
-        default=None,
-        description=(
-            "Port on which the module serves the metrics contract (/metrics) and /healthz: "
-            "fogfleet then adds the port, liveness and readiness probes and Prometheus "
-            "scrape annotations. The ROS 2 workload image serves 9100."
-        ),
-    )
 
     def metrics_ports(self) -> list[int]:
         """Every port serving the metrics contract: the module's and its sidecars'."""
