@@ -9,7 +9,6 @@ from __future__ import annotations
 
 from fogfleet.api.v1alpha1.base import parse_quantity
 from fogfleet.api.v1alpha1.common import Tier
-from fogfleet.api.v1alpha1.scaling import TierName
 from fogfleet.api.v1alpha1.softwaremodule import SoftwareModule
 from fogfleet.domain.network import DEFAULT_UPLINK, path
 
@@ -19,7 +18,7 @@ __all__ = ["ALL", "DISPATCH_RESERVE", "pools_for", "service_rate"]
 
 DISPATCH_RESERVE = 2  # edge places kept for private requests (the bench's and the twin's)
 ALL = "all"  # the single pool of a module without spec.scaling.pools
-_TIER_ORDER = {TierName.EDGE: 0, TierName.CLOUD: 1}
+_TIER_ORDER = {Tier.EDGE: 0, Tier.CLOUD: 1}
 
 
 def service_rate(module: SoftwareModule) -> float:

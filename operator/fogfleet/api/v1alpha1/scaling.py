@@ -26,6 +26,7 @@ from typing import Annotated, Any, Literal
 from pydantic import Field, ValidationError, model_validator
 
 from fogfleet.api.v1alpha1.base import FogModel, NonNegInt, PosInt
+from fogfleet.api.v1alpha1.common import Tier
 from fogfleet.errors import InvalidSpec
 
 __all__ = [
@@ -40,7 +41,6 @@ __all__ = [
     "SelectPolicy",
     "SloMetric",
     "SloSpec",
-    "TierName",
     "effective_min_replicas",
     "load_scaling_spec",
     "require_safe_minimum",
@@ -60,6 +60,10 @@ class SelectPolicy(StrEnum):
     MAX = "Max"
     MIN = "Min"
     DISABLED = "Disabled"
+
+
+PoolTier = Literal[Tier.EDGE, Tier.CLOUD]
+"""The tiers a shared service's replicas run in (never a robot's own computer)."""
 
 
 class SloMetric(StrEnum):
@@ -92,13 +96,6 @@ class Backend(StrEnum):
     FOGFLEET = "fogfleet"
     HPA = "hpa"
     KEDA = "keda"
-
-
-class TierName(StrEnum):
-    """A tier replicas can run in."""
-
-    EDGE = "edge"
-    CLOUD = "cloud"
 
 
 class ScalingPolicySpec(FogModel):
@@ -158,7 +155,7 @@ class SloSpec(FogModel):
 class PoolSpec(FogModel):
     """The replicas of one tier. Unset fields inherit from the ScalingSpec."""
 
-    tier: TierName
+    tier: PoolTier
     """edge or cloud."""
     max_replicas: PosInt
     """Most replicas in this tier."""
@@ -176,7 +173,7 @@ class PoolSpec(FogModel):
     def private_allowed(self) -> bool:
         """Private traffic goes to the edge only, unless the spec says otherwise."""
         if self.accepts_private is None:
-            return self.tier is TierName.EDGE
+            return self.tier is Tier.EDGE
         return self.accepts_private
 
 
@@ -222,7 +219,7 @@ class ScalingSpec(FogModel):
             raise _FieldError(
                 "targetCpuUtilizationPercent", "set either slo or targetCpuUtilizationPercent"
             )
-        seen: set[TierName] = set()
+        seen: set[Tier] = set()
         for i, pool in enumerate(self.pools or []):
             if pool.tier in seen:
                 raise _FieldError(f"pools[{i}].tier", f"{pool.tier.value} appears twice")
