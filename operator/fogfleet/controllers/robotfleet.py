@@ -37,6 +37,7 @@ from .status import (
     merge_conditions,
     rollout,
     same_status,
+    scaling_status,
 )
 
 __all__ = ["Outcome", "forget", "reconcile"]
@@ -187,15 +188,10 @@ def scaling_pools(modules: Iterable[Mapping[str, Any]]) -> dict[str, dict[str, i
     carry ``status.scaling``. A status this operator did not write in this shape is ignored."""
     pools: dict[str, dict[str, int]] = {}
     for raw in modules:
-        scaling = (raw.get("status") or {}).get("scaling")
-        if not isinstance(scaling, Mapping):
-            continue
-        try:
-            name = str(raw["metadata"]["name"])
-            tiers = {str(p["tier"]): int(p["replicas"]) for p in scaling.get("pools") or []}
-            pools[name] = tiers or {"any": int(scaling["desiredReplicas"])}
-        except (KeyError, TypeError, ValueError):
-            log.warning("Ignored an unreadable status.scaling: %s", scaling)
+        scaling = scaling_status(raw)
+        if scaling is not None:
+            tiers = {p.tier: p.replicas for p in scaling.pools}
+            pools[str(raw["metadata"]["name"])] = tiers or {"any": scaling.desired_replicas}
     return pools
 
 

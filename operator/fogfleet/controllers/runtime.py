@@ -23,6 +23,7 @@ from .deps import Deps, FleetKey
 from .inputs import node_health
 from .queue import ReconcileQueue
 from .robotfleet import Outcome, forget, reconcile
+from .status import scaling_status
 from .usage import reconcile_usage
 
 __all__ = ["Runtime"]
@@ -146,8 +147,8 @@ class Runtime:
         else:
             self.scaled[module_key] = dict(body)
         # the autoscaler's decision (status.scaling.pools) changes what fleets place, too
-        pools = ((body.get("status") or {}).get("scaling") or {}).get("pools") or []
-        extra = tuple(sorted((p.get("tier"), p.get("replicas")) for p in pools))
+        scaling = scaling_status(body)
+        extra = tuple(sorted((p.tier, p.replicas) for p in (scaling.pools if scaling else [])))
         if self._changed("SoftwareModule", body, event_type, extra):
             self.usage_changed()
             meta = body.get("metadata") or {}

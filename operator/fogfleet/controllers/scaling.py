@@ -40,7 +40,7 @@ from fogfleet.api.labels import LABEL_MANAGED_BY, LABEL_MODULE, LABEL_TIER, MANA
 from fogfleet.api.loader import parse_object
 from fogfleet.api.timestamps import parse_timestamp, timestamp
 from fogfleet.api.v1alpha1.scaling import Mode, ScalingSpec
-from fogfleet.api.v1alpha1.softwaremodule import SafetyClass, SoftwareModule
+from fogfleet.api.v1alpha1.softwaremodule import SafetyClass, ScalingStatus, SoftwareModule
 from fogfleet.autoscaling.behavior import (
     resolve_behavior,
 )
@@ -61,7 +61,7 @@ from fogfleet.autoscaling.state import ANNOTATION_STATE, dump_state, load_state
 
 from .deps import ScalingDeps, ScalingKube
 from .scaling_metrics import MetricsRead, read_metrics
-from .status import condition, merge_conditions, pod_ready
+from .status import condition, merge_conditions, pod_ready, scaling_status
 
 __all__ = [
     "ANNOTATION_STATE",
@@ -109,14 +109,13 @@ def _parse_stamp(text: str | None) -> float:
 
 
 def _current(
-    spec: ScalingSpec, module: SoftwareModule, pools: Sequence[Pool], status: Obj
+    module: SoftwareModule, pools: Sequence[Pool], scaling: ScalingStatus | None
 ) -> dict[str, int]:
     """Replicas per pool as last decided (status.scaling), or the starting point."""
-    scaling = status.get("scaling") or {}
-    if scaling:
+    if scaling is not None:
         if pools and pools[0].name == ALL:
-            return {ALL: int(scaling.get("desiredReplicas", 0))}
-        have = {p.get("tier"): int(p.get("replicas", 0)) for p in scaling.get("pools") or []}
+            return {ALL: scaling.desired_replicas}
+        have = {p.tier: p.replicas for p in scaling.pools}
         return {p.name: have.get(p.name, p.min_replicas) for p in pools}
     out = {}
     for k, p in enumerate(pools):
@@ -186,20 +185,20 @@ def reconcile_scaling(module: Mapping[str, Any], deps: ScalingDeps, now: float) 
     if spec.backend.value != "fogfleet":
         return Outcome(skipped=True, reason=f"backend {spec.backend.value} scales this module")
     status: Obj = dict(module.get("status") or {})
-    old_scaling: Obj = status.get("scaling") or {}
+    old = scaling_status(module)
     pools = pools_for(mod)
     safety = mod.spec.taxonomy.safety is SafetyClass.RELEVANT
-    current = _current(spec, mod, pools, status)
+    current = _current(mod, pools, old)
     pods = deps.kube.list_pods(ns, {LABEL_MODULE: name, LABEL_MANAGED_BY: MANAGER})
     ready = _ready_by_pool(pods, pools)
     last = (
         ScaleDecision(
-            _parse_stamp(old_scaling.get("lastDecisionTime")),
+            _parse_stamp(old.last_decision_time),
             dict(current),
-            str(old_scaling.get("reason", "")),
-            not old_scaling.get("metricsAvailable", True),
+            old.reason,
+            not old.metrics_available,
         )
-        if old_scaling
+        if old is not None
         else None
     )
     state = load_state((meta.get("annotations") or {}).get(ANNOTATION_STATE), last)
@@ -271,7 +270,7 @@ def reconcile_scaling(module: Mapping[str, Any], deps: ScalingDeps, now: float) 
         "reason": reason[:1000],
         "metricsAvailable": not read.problem,
         "lastDecisionTime": timestamp(now),
-        "lastScaleTime": timestamp(now) if changed else old_scaling.get("lastScaleTime"),
+        "lastScaleTime": timestamp(now) if changed else (old.last_scale_time if old else None),
         "observedSloMillis": slo_millis,
         **_admission_forecast(read.private_rate, read.normal_rate, pools, replicas),
     }

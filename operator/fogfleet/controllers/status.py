@@ -6,14 +6,16 @@ Pure functions of the plan and of what the cluster shows (Deployments and their 
 
 from __future__ import annotations
 
+import logging
 import math
 from collections.abc import Iterable, Mapping, Sequence
 from typing import Any
 
-from pydantic import BaseModel
+from pydantic import BaseModel, ValidationError
 
 from fogfleet.api.labels import ANNOTATION_SPEC_HASH, LABEL_INSTANCE
 from fogfleet.api.timestamps import timestamp
+from fogfleet.api.v1alpha1.softwaremodule import ScalingStatus
 
 __all__ = [
     "Rollout",
@@ -25,12 +27,27 @@ __all__ = [
     "pod_ready",
     "rollout",
     "same_status",
+    "scaling_status",
     "split_text",
     "typed",
     "wire_keys",
 ]
 
+log = logging.getLogger(__name__)
 Obj = dict[str, Any]
+
+
+def scaling_status(module: Mapping[str, Any]) -> ScalingStatus | None:
+    """The autoscaler's last decision on a SoftwareModule (``status.scaling``), the one way
+    every reader gets it; None when there is none or it is not in the shape we write."""
+    raw = (module.get("status") or {}).get("scaling")
+    if not raw:
+        return None
+    try:
+        return ScalingStatus.model_validate(raw)
+    except ValidationError:
+        log.warning("Ignored an unreadable status.scaling: %s", raw)
+        return None
 
 
 def wire_keys(model: type[BaseModel]) -> tuple[str, ...]:
