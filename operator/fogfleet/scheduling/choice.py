@@ -4,7 +4,8 @@
   level if it is within ``tol = 1e-6 + 1e-3 * |best|`` of the best value left at that level
   (values closer than that are ties); the next objective breaks the ties.
 - ``weighted``: min-max normalise each objective over the front (a constant objective counts
-  0), then minimise sum_k w_k * f_k with ``settings.weights`` (objectives not listed weigh 1).
+  0), then minimise pymoo's augmented scalarisation max_k w_k * f_k (+ a 1e-6 weighted sum
+  against ties) with ``settings.weights`` (objectives not listed weigh 1, 0 leaves one out).
 - ``knee``: in the min-max normalised space, the plan farthest below the hyperplane through
   the front's extreme points (Das 1999); where those points do not span a hyperplane, the
   plan closest (Euclidean) to the ideal point.
@@ -18,6 +19,7 @@ from collections.abc import Mapping, Sequence
 
 import numpy as np
 from numpy.typing import NDArray
+from pymoo.decomposition.asf import ASF
 
 __all__ = ["choose", "dominance", "non_dominated"]
 
@@ -94,13 +96,18 @@ def _lexicographic(F: F64, names: Sequence[str]) -> tuple[int, str]:
 
 
 def _weighted(F: F64, names: Sequence[str], weights: Mapping[str, float]) -> tuple[int, str]:
+    """pymoo's augmented scalarisation (ASF) on the min-max normalised front: the plan whose
+    worst weighted objective is smallest. Unlike a weighted sum it can pick plans in concave
+    parts of the front; a weight of 0 leaves an objective out."""
     w = np.array([float(weights.get(n, 1.0)) for n in names])
-    score = _normalise(F) @ w
+    used = w > 0
+    Z = _normalise(F)[:, used]
+    score = ASF().do(Z, 1.0 / w[used]).reshape(-1) + 1e-6 * (Z @ w[used])  # augmented: ties
     idx = int(np.argmin(score))
     parts = ", ".join(f"{_fmt(wk)}*{n}" for wk, n in zip(w, names, strict=True))
     return idx, (
-        f"lowest weighted sum {_fmt(float(score[idx]))} of min-max normalised objectives ({parts}) "
-        f"among {len(F)} non-dominated plans"
+        f"lowest weighted worst objective {_fmt(float(score[idx]))} (ASF) of min-max normalised "
+        f"objectives ({parts}) among {len(F)} non-dominated plans"
     )
 
 

@@ -23,6 +23,14 @@ def test_weighted_uses_min_max_normalised_objectives() -> None:
     F = np.array([[0.0, 100.0], [1.0, 0.0], [0.4, 40.0]])
     assert choose(F, ["a", "b"], "weighted", {"a": 1.0, "b": 1.0})[0] == 2
     assert choose(F, ["a", "b"], "weighted", {"a": 10.0, "b": 1.0})[0] == 0
+    assert choose(F, ["a", "b"], "weighted", {"a": 0.0, "b": 1.0})[0] == 1  # a left out
+
+
+def test_weighted_reaches_a_plan_in_a_concave_part_of_the_front() -> None:
+    """A weighted sum can only pick the ends of a concave front; the ASF picks the middle."""
+    F = np.array([[0.0, 1.0], [0.6, 0.6], [1.0, 0.0]])
+    idx, reason = choose(F, ["a", "b"], "weighted", {"a": 1.0, "b": 1.0})
+    assert idx == 1 and "ASF" in reason
 
 
 def test_knee_picks_the_bulge_of_a_convex_front() -> None:

@@ -107,9 +107,10 @@ class SchedulerSettings(FogModel):
         "missRate, missedCycles, onboard, reserve, balance.",
     )
     weights: list[ObjectiveWeight] = Field(default_factory=list)
-    """Weights of the weighted choice (unlisted objectives weigh 1)."""
+    """Weights of the weighted choice (unlisted objectives weigh 1, 0 leaves one out)."""
     choice: ChoiceRule = ChoiceRule.LEXICOGRAPHIC
-    """lexicographic (objectives in order), weighted, or knee (the front's knee point)."""
+    """lexicographic (objectives in order), weighted (smallest weighted worst normalised
+    objective, pymoo's ASF), or knee (the front's knee point)."""
     population: Annotated[int, Field(ge=4, le=2000)] = 100
     """NSGA-II population size."""
     generations: Annotated[int, Field(ge=1, le=10000)] = 100
