@@ -11,8 +11,8 @@ import pytest
 import yaml
 
 from fogfleet.api.v1alpha1.robotfleet import SchedulerSettings
+from fogfleet.controllers.planning import CorePlanner
 from fogfleet.domain.problem import Problem
-from fogfleet.scheduling.heuristics import greedy_schedule
 from fogfleet.scheduling.schedule import Schedule
 
 ROOT = Path(__file__).resolve().parents[3]
@@ -209,14 +209,17 @@ class FakeKube:
 
 
 class CountingPlanner:
-    """The greedy best-fit plan (fast, deterministic), counting calls."""
+    """The real planner (NSGA-II and the references, as the operator runs it) on a small
+    budget with a generation limit instead of a clock, so plans are reproducible; counts
+    calls."""
 
     def __init__(self) -> None:
         self.calls = 0
 
     def plan(self, problem: Problem, settings: SchedulerSettings) -> Schedule:
         self.calls += 1
-        return greedy_schedule(problem, settings)
+        small = {"population": 16, "generations": 4, "time_budget_millis": 60_000}
+        return CorePlanner().plan(problem, settings.model_copy(update=small))
 
 
 @pytest.fixture

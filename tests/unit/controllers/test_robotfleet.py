@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import copy
+
 import pytest
 
 from fogfleet.controllers.robotfleet import reconcile
@@ -82,11 +84,22 @@ def test_a_restarted_operator_keeps_running_modules_where_they_are(kube, deps, m
 
 
 def test_a_not_ready_edge_node_moves_only_its_modules(kube, deps):
+    # no move for a better plan alone (the small test budget leaves room to improve on every
+    # re-plan), and a spare edge node so the lost node's modules fit without moving others
+    kube.fleets[KEY]["spec"].setdefault("scheduler", {})["migrationMarginPercent"] = 100
     run(kube, deps)
     kube.run_pods()
     before = placement(kube)
     used = sorted({n for n in before.values() if n.startswith("edge")})
     assert used, "the plan should use an edge node"
+    spare = copy.deepcopy(kube.compute_nodes[used[0]])
+    spare["metadata"] = {"name": "edge-spare", "generation": 1, "uid": "uid-edge-spare"}
+    kube.compute_nodes["edge-spare"] = spare
+    node = copy.deepcopy(kube.nodes[used[0]])
+    node["metadata"]["name"] = "edge-spare"
+    kube.nodes["edge-spare"] = node
+    kube.fleets[KEY]["spec"]["nodes"].append("edge-spare")
+    kube.fleets[KEY]["metadata"]["generation"] += 1
     kube.set_ready(used[0], False)
     out = run(kube, deps)
     after = placement(kube)
