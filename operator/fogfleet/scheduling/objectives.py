@@ -16,6 +16,7 @@ from collections.abc import Callable, Sequence
 import numpy as np
 from numpy.typing import NDArray
 
+from fogfleet.api.v1alpha1.robotfleet import ObjectiveName
 from fogfleet.domain.problem import Allocation, Problem
 
 from .evaluation import NODE_SUMS, UPLINK_SHARE, Evaluation, miss_probability
@@ -110,27 +111,28 @@ def constraint_names(problem: Problem) -> list[str]:
     return [*names, "geneSpace"]
 
 
+# The API's ObjectiveName is the registry; every objective the CRD accepts is evaluated here.
 EVALUATORS: dict[str, Callable[[Evaluation], F64]] = {
-    "onboard": Evaluation.onboard,
-    "reserve": Evaluation.reserve,
-    "balance": Evaluation.balance,
-    "missedCycles": Evaluation.missed_cycles,
-    "missRate": Evaluation.miss_rate,
-    "cost": Evaluation.cost,
-    "energy": Evaluation.energy,
+    ObjectiveName.ONBOARD.value: Evaluation.onboard,
+    ObjectiveName.RESERVE.value: Evaluation.reserve,
+    ObjectiveName.BALANCE.value: Evaluation.balance,
+    ObjectiveName.MISSED_CYCLES.value: Evaluation.missed_cycles,
+    ObjectiveName.MISS_RATE.value: Evaluation.miss_rate,
+    ObjectiveName.COST.value: Evaluation.cost,
+    ObjectiveName.ENERGY.value: Evaluation.energy,
 }
 
 # The per-node objectives: what ``Evaluation.of_node_sums`` supports (from ``NODE_SUMS``).
 NODE_OBJECTIVES = ("onboard", "reserve", "balance", "cost", "energy")
 
 OBJECTIVES: dict[str, Callable[[Problem, NDArray[np.integer], Allocation], F64]] = {
-    "onboard": onboard,
-    "reserve": reserve,
-    "balance": balance,
-    "missedCycles": missedCycles,
-    "missRate": missRate,
-    "cost": cost,
-    "energy": energy,
+    ObjectiveName.ONBOARD.value: onboard,
+    ObjectiveName.RESERVE.value: reserve,
+    ObjectiveName.BALANCE.value: balance,
+    ObjectiveName.MISSED_CYCLES.value: missedCycles,
+    ObjectiveName.MISS_RATE.value: missRate,
+    ObjectiveName.COST.value: cost,
+    ObjectiveName.ENERGY.value: energy,
 }
 
 

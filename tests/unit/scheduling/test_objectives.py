@@ -105,3 +105,12 @@ def test_constraints_flag_capacity_uplink_and_gene_space(tiny: Problem) -> None:
     assert G[1, col["uplink:n0"]] == pytest.approx((50e6 - 40e6) / 40e6)
     assert G[2, col["geneSpace"]] == 1.0  # m0 off its robot
     assert np.all(G[3] <= 0)  # 2 of 2 cores on board, 10 Mbps off board
+
+
+def test_every_objective_the_api_accepts_is_evaluated_both_ways() -> None:
+    from fogfleet.api.v1alpha1.robotfleet import ObjectiveName
+    from fogfleet.scheduling.objectives import EVALUATORS, OBJECTIVES
+
+    names = {o.value for o in ObjectiveName}
+    assert set(EVALUATORS) == names
+    assert set(OBJECTIVES) == names
