@@ -9,8 +9,10 @@ Verbs used (the chart's ClusterRole must grant exactly these):
 
     fogfleet.io  robotfleets                 get list watch patch   (kopf: patch annotations)
     fogfleet.io  robotfleets/status          patch
-    fogfleet.io  softwaremodules             get list watch
+    fogfleet.io  softwaremodules             get list watch patch   (the scaler's annotation)
+    fogfleet.io  softwaremodules/status      patch                  (scaling, usage)
     fogfleet.io  computenodes                get list watch
+    fogfleet.io  computenodes/status         patch                  (usage, readiness)
     ""           nodes                       get list watch
     ""           pods                        list watch
     ""           events                      create
@@ -37,6 +39,9 @@ from kubernetes.config.config_exception import ConfigException
 from fogfleet import GROUP, VERSION
 from fogfleet.api.labels import MANAGER
 from fogfleet.api.timestamps import timestamp
+from fogfleet.api.v1alpha1.computenode import ComputeNode
+from fogfleet.api.v1alpha1.robotfleet import RobotFleet
+from fogfleet.api.v1alpha1.softwaremodule import SoftwareModule
 from fogfleet.errors import DependencyUnavailable, InvalidSpec
 
 __all__ = ["KubeClient", "load_config", "map_errors"]
@@ -172,21 +177,21 @@ class KubeClient:
         with map_errors(f"read RobotFleet {namespace}/{name}"):
             return self._call(
                 "GET",
-                f"/apis/{GROUP}/{VERSION}/namespaces/{namespace}/robotfleets/{name}",
+                f"/apis/{GROUP}/{VERSION}/namespaces/{namespace}/{RobotFleet.PLURAL}/{name}",
                 missing_ok=True,
             )
 
     def list_fleets(self, namespace: str | None = None) -> list[Obj]:
         where = f"/namespaces/{namespace}" if namespace else ""
-        return self._list(f"/apis/{GROUP}/{VERSION}{where}/robotfleets", "list RobotFleets")
+        return self._list(f"/apis/{GROUP}/{VERSION}{where}/{RobotFleet.PLURAL}", "list RobotFleets")
 
     def list_compute_nodes(self) -> list[Obj]:
-        return self._list(f"/apis/{GROUP}/{VERSION}/computenodes", "list ComputeNodes")
+        return self._list(f"/apis/{GROUP}/{VERSION}/{ComputeNode.PLURAL}", "list ComputeNodes")
 
     def list_modules(self, namespace: str | None) -> list[Obj]:
         where = f"/namespaces/{namespace}" if namespace else ""
         return self._list(
-            f"/apis/{GROUP}/{VERSION}{where}/softwaremodules",
+            f"/apis/{GROUP}/{VERSION}{where}/{SoftwareModule.PLURAL}",
             f"list SoftwareModules in {namespace or 'all namespaces'}",
         )
 
@@ -268,14 +273,14 @@ class KubeClient:
     def patch_module_status(self, namespace: str, name: str, status: Mapping[str, Any]) -> None:
         self._merge_patch(
             f"patch the status of SoftwareModule {namespace}/{name}",
-            f"{namespace}/softwaremodules/{name}/status",
+            f"{namespace}/{SoftwareModule.PLURAL}/{name}/status",
             {"status": dict(status)},
         )
 
     def patch_compute_node_status(self, name: str, status: Mapping[str, Any]) -> None:
         self._merge_patch(
             f"patch the status of ComputeNode {name}",
-            f"/computenodes/{name}/status",
+            f"/{ComputeNode.PLURAL}/{name}/status",
             {"status": dict(status)},
         )
 
@@ -284,14 +289,14 @@ class KubeClient:
     ) -> None:
         self._merge_patch(
             f"annotate SoftwareModule {namespace}/{name}",
-            f"{namespace}/softwaremodules/{name}",
+            f"{namespace}/{SoftwareModule.PLURAL}/{name}",
             {"metadata": {"annotations": dict(annotations)}},
         )
 
     def patch_fleet_status(self, namespace: str, name: str, status: Mapping[str, Any]) -> None:
         self._merge_patch(
             f"patch the status of RobotFleet {namespace}/{name}",
-            f"{namespace}/robotfleets/{name}/status",
+            f"{namespace}/{RobotFleet.PLURAL}/{name}/status",
             {"status": dict(status)},
         )
 

@@ -123,7 +123,7 @@ KINDS: tuple[KindInfo, ...] = (
     KindInfo(
         model=ComputeNode,
         kind="ComputeNode",
-        plural="computenodes",
+        plural=ComputeNode.PLURAL,
         singular="computenode",
         scope="Cluster",
         short_names=("cn",),
@@ -148,7 +148,7 @@ KINDS: tuple[KindInfo, ...] = (
     KindInfo(
         model=SoftwareModule,
         kind="SoftwareModule",
-        plural="softwaremodules",
+        plural=SoftwareModule.PLURAL,
         singular="softwaremodule",
         scope="Namespaced",
         short_names=("swm",),
@@ -188,7 +188,7 @@ KINDS: tuple[KindInfo, ...] = (
     KindInfo(
         model=RobotFleet,
         kind="RobotFleet",
-        plural="robotfleets",
+        plural=RobotFleet.PLURAL,
         singular="robotfleet",
         scope="Namespaced",
         short_names=("rf",),

@@ -7,13 +7,16 @@ import kopf
 
 from fogfleet import GROUP, VERSION
 from fogfleet.api.labels import LABEL_MANAGED_BY, MANAGER
+from fogfleet.api.v1alpha1.computenode import ComputeNode
+from fogfleet.api.v1alpha1.robotfleet import RobotFleet
+from fogfleet.api.v1alpha1.softwaremodule import SoftwareModule
 from fogfleet.settings import Settings
 
 from . import lifecycle, related, robotfleet
 
 __all__ = ["register"]
 
-FLEETS = (GROUP, VERSION, "robotfleets")
+FLEETS = (GROUP, VERSION, RobotFleet.PLURAL)
 
 
 def register(registry: kopf.OperatorRegistry, settings: Settings) -> kopf.OperatorRegistry:
@@ -26,8 +29,8 @@ def register(registry: kopf.OperatorRegistry, settings: Settings) -> kopf.Operat
     # the drift re-check and scaling are the runtime's own loops (lifecycle.startup), since
     # kopf timers would put a finalizer on every fleet and scaled module.
     kopf.on.delete(*FLEETS, registry=registry, optional=True)(robotfleet.fleet_deleted)
-    kopf.on.event(GROUP, VERSION, "softwaremodules", registry=registry)(related.module_event)
-    kopf.on.event(GROUP, VERSION, "computenodes", registry=registry)(related.compute_node_event)
+    kopf.on.event(GROUP, VERSION, SoftwareModule.PLURAL, registry=registry)(related.module_event)
+    kopf.on.event(GROUP, VERSION, ComputeNode.PLURAL, registry=registry)(related.compute_node_event)
     kopf.on.event("", "v1", "nodes", registry=registry)(related.node_event)
     kopf.on.event(
         "apps", "v1", "deployments", labels={LABEL_MANAGED_BY: MANAGER}, registry=registry

@@ -9,7 +9,7 @@ tinyKube; power figures follow fog-iot-resource-optimization (battery model).
 from __future__ import annotations
 
 from enum import StrEnum
-from typing import Annotated, Literal
+from typing import Annotated, ClassVar, Literal
 
 from pydantic import Field, model_validator
 
@@ -178,6 +178,9 @@ class ComputeNodeStatus(FogModel):
 
 class ComputeNode(FogModel):
     """A Kubernetes node as fogfleet sees it: tier, hardware type, devices, links, privacy."""
+
+    PLURAL: ClassVar[str] = "computenodes"
+    """The resource name in API paths (``/apis/fogfleet.io/v1alpha1/.../computenodes``)."""
 
     api_version: Literal["fogfleet.io/v1alpha1"] = "fogfleet.io/v1alpha1"
     kind: Literal["ComputeNode"] = "ComputeNode"

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from enum import StrEnum
-from typing import Annotated, Literal
+from typing import Annotated, ClassVar, Literal
 
 from pydantic import Field, model_validator
 
@@ -258,6 +258,9 @@ class RobotFleetStatus(FogModel):
 
 class RobotFleet(FogModel):
     """A robot fleet: its robots, their modules, the nodes they may use, and how to plan."""
+
+    PLURAL: ClassVar[str] = "robotfleets"
+    """The resource name in API paths (``/apis/fogfleet.io/v1alpha1/.../robotfleets``)."""
 
     api_version: Literal["fogfleet.io/v1alpha1"] = "fogfleet.io/v1alpha1"
     kind: Literal["RobotFleet"] = "RobotFleet"

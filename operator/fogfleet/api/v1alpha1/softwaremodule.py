@@ -9,7 +9,7 @@ real-time class and safety class. ``cycleTimeMillis`` and ``activationPercent`` 
 from __future__ import annotations
 
 from enum import StrEnum
-from typing import Annotated, Literal
+from typing import Annotated, ClassVar, Literal
 
 from pydantic import Field, model_validator
 
@@ -260,6 +260,9 @@ class SoftwareModuleStatus(FogModel):
 
 class SoftwareModule(FogModel):
     """One containerised ROS 2 module of the robot software stack."""
+
+    PLURAL: ClassVar[str] = "softwaremodules"
+    """The resource name in API paths (``/apis/fogfleet.io/v1alpha1/.../softwaremodules``)."""
 
     api_version: Literal["fogfleet.io/v1alpha1"] = "fogfleet.io/v1alpha1"
     kind: Literal["SoftwareModule"] = "SoftwareModule"
