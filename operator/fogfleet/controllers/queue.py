@@ -4,7 +4,9 @@
   kopf's retry and backoff apply); a pending debounced run for the key is dropped.
 - ``schedule(key, delay)``: reconcile after ``delay`` seconds of quiet; a new call for the same
   key restarts the wait, so a burst of edits (modules, nodes, Deployments rolling) makes one
-  reconcile. Errors of these background runs are logged, counted and retried later.
+  reconcile. Errors of these background runs are logged, counted and retried with an
+  exponential backoff (``backoff_delay``: the retry delay doubling per failure in a row, up
+  to five minutes); a success resets it. kopf's handler retries use the same schedule.
 
 One lock per fleet: two reconciles of the same fleet never overlap.
 """
@@ -20,10 +22,16 @@ from fogfleet.errors import DependencyUnavailable, InvalidSpec
 from .deps import FleetKey
 from .robotfleet import Outcome
 
-__all__ = ["ReconcileQueue"]
+__all__ = ["MAX_BACKOFF_SECONDS", "ReconcileQueue", "backoff_delay"]
 
 log = logging.getLogger(__name__)
 Runner = Callable[[FleetKey], Awaitable[Outcome | None]]
+MAX_BACKOFF_SECONDS = 300.0
+
+
+def backoff_delay(base: float, attempt: int, cap: float = MAX_BACKOFF_SECONDS) -> float:
+    """Seconds before retry number ``attempt`` (0: the first retry): ``base`` doubling."""
+    return float(min(cap, base * 2 ** max(0, min(attempt, 30))))
 
 
 class ReconcileQueue:
@@ -41,6 +49,7 @@ class ReconcileQueue:
         self.on_error = on_error
         self._locks: dict[FleetKey, asyncio.Lock] = {}
         self._timers: dict[FleetKey, asyncio.Task[None]] = {}
+        self._failures: dict[FleetKey, int] = {}  # failed background runs in a row
 
     def _lock(self, key: FleetKey) -> asyncio.Lock:
         return self._locks.setdefault(key, asyncio.Lock())
@@ -77,18 +86,23 @@ class ReconcileQueue:
             log.info("Left RobotFleet %s/%s as is: %s", *key, exc)
             return
         except DependencyUnavailable as exc:
-            log.warning("Retrying RobotFleet %s/%s in %.0fs: %s", *key, self.retry, exc)
-            self._error(key, exc.reason)
-            self.schedule(key, self.retry)
+            delay = self._failed(key, exc.reason)
+            log.warning("Retrying RobotFleet %s/%s in %.0fs: %s", *key, delay, exc)
             return
         except Exception:
-            log.exception(
-                "Failed to reconcile RobotFleet %s/%s; retrying in %.0fs", *key, 3 * self.retry
-            )
-            self._error(key, "Unexpected")
-            self.schedule(key, 3 * self.retry)
+            delay = self._failed(key, "Unexpected")
+            log.exception("Failed to reconcile RobotFleet %s/%s; retrying in %.0fs", *key, delay)
             return
+        self._failures.pop(key, None)
         self._follow_up(key, outcome)
+
+    def _failed(self, key: FleetKey, reason: str) -> float:
+        attempt = self._failures.get(key, 0)
+        self._failures[key] = attempt + 1
+        delay = backoff_delay(self.retry, attempt)
+        self._error(key, reason)
+        self.schedule(key, delay)
+        return delay
 
     def _follow_up(self, key: FleetKey, outcome: Outcome | None) -> None:
         if outcome is not None and outcome.requeue_after is not None and key not in self._timers:

@@ -9,14 +9,18 @@ from .errors import translated
 __all__ = ["fleet_changed", "fleet_deleted"]
 
 
-async def fleet_changed(namespace: str | None, name: str, memo: Any, **_: Any) -> None:
+async def fleet_changed(
+    namespace: str | None, name: str, memo: Any, retry: int = 0, **_: Any
+) -> None:
     """Create, update and resume: one level-based reconcile."""
-    async with translated(memo.runtime):
+    async with translated(memo.runtime, retry):
         await memo.runtime.reconcile_fleet(namespace or "default", name)
 
 
-async def fleet_deleted(namespace: str | None, name: str, memo: Any, **_: Any) -> None:
+async def fleet_deleted(
+    namespace: str | None, name: str, memo: Any, retry: int = 0, **_: Any
+) -> None:
     """Best effort (no finalizer): forget the fleet and delete its Deployments at once; the
     garbage collector does the same through their owner references when we miss it."""
-    async with translated(memo.runtime):
+    async with translated(memo.runtime, retry):
         await memo.runtime.delete_fleet(namespace or "default", name)

@@ -50,3 +50,30 @@ def test_reconciles_of_one_fleet_never_overlap_and_requeue_until_ready() -> None
 
     asyncio.run(main())
     assert peak == 1 and runs >= 3
+
+
+def test_failing_background_runs_back_off_exponentially_and_a_success_resets() -> None:
+    from fogfleet.controllers.queue import backoff_delay
+    from fogfleet.errors import DependencyUnavailable
+
+    assert [backoff_delay(10, k) for k in range(7)] == [10, 20, 40, 80, 160, 300, 300]
+    stamps: list[float] = []
+
+    async def runner(key: tuple[str, str]) -> Outcome:
+        stamps.append(asyncio.get_running_loop().time())
+        if len(stamps) <= 3:
+            raise DependencyUnavailable("API server", "down", reason="ApiUnavailable")
+        return Outcome(ready=True)
+
+    async def main() -> ReconcileQueue:
+        q = ReconcileQueue(runner, debounce=0.0, retry=0.02)
+        q.schedule(("ns", "f"))
+        await asyncio.sleep(0.4)
+        await q.close()
+        return q
+
+    q = asyncio.run(main())
+    gaps = [b - a for a, b in zip(stamps, stamps[1:], strict=False)]
+    assert len(stamps) == 4, stamps  # three failures, then the success: no more runs
+    assert gaps[0] >= 0.02 and gaps[1] >= 0.04 and gaps[2] >= 0.08, gaps
+    assert q._failures == {}
