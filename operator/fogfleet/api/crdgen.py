@@ -26,10 +26,10 @@ from pydantic import BaseModel
 
 from .labels import LABEL_PART_OF, MANAGER
 from .schema import QUANTITY_PATTERN, CrdGenerationError, convert, deep_update, node_at
-from .v1alpha1.computenode import ComputeNode
+from .v1alpha1.computenode import ComputeNode, ComputeNodeSpec
 from .v1alpha1.podtemplate import OWNED_POD_FIELDS
-from .v1alpha1.robotfleet import ObjectiveName, RobotFleet
-from .v1alpha1.softwaremodule import SoftwareModule
+from .v1alpha1.robotfleet import ObjectiveName, RobotFleet, RobotFleetSpec, SchedulerSettings
+from .v1alpha1.softwaremodule import SoftwareModule, SoftwareModuleSpec
 
 __all__ = [
     "GROUP",
@@ -115,6 +115,11 @@ _OWNED_PROPERTIES, _OWNED_RULES = _owned_pod_fields()
 _SET: Json = {"x-kubernetes-list-type": "set"}
 
 
+def _cel(model: Any) -> tuple[Json, ...]:
+    """The model's cross-field rules (``rules.CrossFieldRule``) as CRD validations."""
+    return tuple(rule.crd() for rule in model.RULES)
+
+
 def _map(*keys: str) -> Json:
     return {"x-kubernetes-list-type": "map", "x-kubernetes-list-map-keys": list(keys)}
 
@@ -136,14 +141,7 @@ KINDS: tuple[KindInfo, ...] = (
             _AGE,
         ),
         extras={"spec.devices": _map("name")},
-        rules={
-            "spec": (
-                {
-                    "rule": "!has(self.power) || self.tier == 'robot'",
-                    "message": "power: only robot nodes have a battery model",
-                },
-            ),
-        },
+        rules={"spec": _cel(ComputeNodeSpec)},
     ),
     KindInfo(
         model=SoftwareModule,
@@ -161,14 +159,7 @@ KINDS: tuple[KindInfo, ...] = (
             _AGE,
         ),
         rules={
-            "spec": (
-                {
-                    "rule": "!has(self.scope) || self.scope != 'shared' || "
-                    "(self.taxonomy.realtime != 'hard' && self.taxonomy.safety != 'critical')",
-                    "message": "scope: a hard real-time or safety-critical module must be "
-                    "perRobot (it runs on board)",
-                },
-            ),
+            "spec": _cel(SoftwareModuleSpec),
             "spec.cycleTimeMillis": (_POSITIVE_QUANTITY_RULE,),
             "spec.template": _OWNED_RULES,
         },
@@ -201,19 +192,8 @@ KINDS: tuple[KindInfo, ...] = (
             _AGE,
         ),
         rules={
-            "spec": (
-                {
-                    "rule": "(has(self.robots) && size(self.robots) > 0) || "
-                    "has(self.robotSelector)",
-                    "message": "robots: list at least one robot or set robotSelector",
-                },
-            ),
-            "spec.scheduler.objectives": (
-                {
-                    "rule": "self.all(o, self.exists_one(p, p == o))",
-                    "message": "objectives: each objective may be listed once",
-                },
-            ),
+            "spec": _cel(RobotFleetSpec),
+            "spec.scheduler.objectives": _cel(SchedulerSettings),
         },
         # CEL's cost estimate needs a bound for the O(n^2) uniqueness rule (without it the API
         # server refuses the CRD). Better in the model: Field(max_length=len(ObjectiveName)).

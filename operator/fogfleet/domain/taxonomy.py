@@ -11,9 +11,9 @@ from enum import StrEnum
 
 from fogfleet.api.v1alpha1.softwaremodule import (
     ExecutionPattern,
-    RealtimeClass,
     SafetyClass,
     Taxonomy,
+    must_run_on_board,
 )
 
 __all__ = ["Offloadability", "classify", "must_stay_onboard"]
@@ -25,9 +25,8 @@ class Offloadability(StrEnum):
     PREFERRED = "preferred"  # green: offload first
 
 
-def must_stay_onboard(tax: Taxonomy) -> bool:
-    """III-B: hard real-time and safety-critical modules must run on the robot."""
-    return tax.realtime is RealtimeClass.HARD or tax.safety is SafetyClass.CRITICAL
+must_stay_onboard = must_run_on_board
+"""III-B: hard real-time and safety-critical modules must run on the robot (the API's rule)."""
 
 
 def classify(tax: Taxonomy) -> Offloadability:

@@ -162,7 +162,7 @@ def test_shared_hard_realtime_module_is_rejected_with_the_scope_field() -> None:
     err = _invalid(doc)
     assert (err.field, err.message) == (
         "spec.scope",
-        "a hard real-time module must be perRobot (it runs on board)",
+        "a hard real-time or safety-critical module must be perRobot (it runs on board)",
     )
 
 
@@ -249,3 +249,28 @@ def test_dangling_robot_reference_names_the_list_entry(tmp_path: Path) -> None:
         build_problem(catalog.fleets[0], catalog)
     assert info.value.field == "spec.robots[0]"
     assert "ghost-robot" in info.value.message
+
+
+def test_every_cross_field_rule_is_stated_once_and_reaches_its_crd() -> None:
+    """The models' RULES are what the CRDs validate with (one statement, two checkers)."""
+    from fogfleet.api.crdgen import render_crds
+    from fogfleet.api.v1alpha1.computenode import ComputeNodeSpec
+    from fogfleet.api.v1alpha1.robotfleet import RobotFleetSpec, SchedulerSettings
+    from fogfleet.api.v1alpha1.softwaremodule import SoftwareModuleSpec
+
+    crds = {c["spec"]["names"]["kind"]: c for c in render_crds().values()}
+
+    def validations(kind: str, *path: str) -> list[dict[str, str]]:
+        node = crds[kind]["spec"]["versions"][0]["schema"]["openAPIV3Schema"]
+        for part in path:
+            node = node["properties"][part]
+        return list(node.get("x-kubernetes-validations", []))
+
+    for kind, path, model in [
+        ("ComputeNode", ("spec",), ComputeNodeSpec),
+        ("SoftwareModule", ("spec",), SoftwareModuleSpec),
+        ("RobotFleet", ("spec",), RobotFleetSpec),
+        ("RobotFleet", ("spec", "scheduler", "objectives"), SchedulerSettings),
+    ]:
+        for rule in model.RULES:
+            assert rule.crd() in validations(kind, *path), (kind, rule.message)

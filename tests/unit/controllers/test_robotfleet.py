@@ -268,13 +268,11 @@ def test_without_ros_wiring_modules_get_only_the_fogfleet_variables(kube, deps):
 
 
 class ShiftingPlanner:
-    """Plans greedily, then moves one running instance to another allowed node: a "new" plan
+    """Plans with ``inner``, then moves one running instance to another allowed node: a "new" plan
     that is never better by a 100% margin, so the running placement must be kept."""
 
-    def __init__(self) -> None:
-        from tests.unit.controllers.conftest import CountingPlanner
-
-        self.inner = CountingPlanner()
+    def __init__(self, inner) -> None:
+        self.inner = inner
         self.calls = 0
         self.shift = False
 
@@ -303,7 +301,7 @@ class ShiftingPlanner:
 def test_status_reports_the_objectives_of_the_placement_actually_deployed(kube, make_deps):
     from fogfleet.controllers.deps import Deps
 
-    planner = ShiftingPlanner()
+    planner = ShiftingPlanner(make_deps().planner)
     deps = Deps(kube=kube, planner=planner)
     kube.fleets[KEY]["spec"].setdefault("scheduler", {})["migrationMarginPercent"] = 100
     run(kube, deps)

@@ -15,6 +15,7 @@ from pydantic import Field, model_validator
 
 from .base import FogModel, NonNegInt, Quantity, refuse_duplicates
 from .common import Condition, Name, ObjectMeta, Tier
+from .rules import CrossFieldRule, enforce
 
 __all__ = [
     "ComputeNode",
@@ -116,6 +117,14 @@ class PowerModel(FogModel):
 class ComputeNodeSpec(FogModel):
     """What fogfleet needs to know about a Kubernetes node to place modules on it."""
 
+    RULES: ClassVar[tuple[CrossFieldRule, ...]] = (
+        CrossFieldRule(
+            "!has(self.power) || self.tier == 'robot'",
+            "power: only robot nodes have a battery model",
+            lambda s: s.power is None or s.tier is Tier.ROBOT,
+        ),
+    )
+
     node_name: Name | None = Field(
         default=None, description="The Kubernetes Node this describes (default: metadata.name)."
     )
@@ -149,8 +158,7 @@ class ComputeNodeSpec(FogModel):
 
     @model_validator(mode="after")
     def _robot_has_uplink(self) -> ComputeNodeSpec:
-        if self.tier is not Tier.ROBOT and self.power is not None:
-            raise ValueError("power: only robot nodes have a battery model")
+        enforce(self, self.RULES)
         refuse_duplicates([d.name for d in self.devices], "devices")
         return self
 

@@ -9,6 +9,7 @@ from pydantic import Field, model_validator
 
 from .base import FogModel, PosInt, Quantity, refuse_duplicates
 from .common import Condition, LabelSelector, Name, ObjectMeta
+from .rules import CrossFieldRule, enforce
 
 __all__ = [
     "ChoiceRule",
@@ -91,6 +92,15 @@ class SchedulerSettings(FogModel):
     """How the fleet is planned: algorithm, objectives, choice rule and NSGA-II's parameters
     (multi-robot-edge-cloud-scheduling III-C/D)."""
 
+    RULES: ClassVar[tuple[CrossFieldRule, ...]] = (
+        CrossFieldRule(
+            "self.all(o, self.exists_one(p, p == o))",
+            "objectives: each objective may be listed once",
+            lambda s: len(set(s)) == len(s),
+        ),
+    )
+    """Rules on ``objectives`` (the list itself is ``self`` in CEL)."""
+
     algorithm: SchedulerName = SchedulerName.NSGA2
     """The planner."""
     objectives: list[ObjectiveName] = Field(
@@ -127,8 +137,7 @@ class SchedulerSettings(FogModel):
 
     @model_validator(mode="after")
     def _unique(self) -> SchedulerSettings:
-        if len(set(self.objectives)) != len(self.objectives):
-            raise ValueError("objectives: each objective may be listed once")
+        enforce(self.objectives, self.RULES)
         refuse_duplicates([w.objective.value for w in self.weights], "weights")
         return self
 
@@ -173,6 +182,14 @@ class RosSettings(FogModel):
 class RobotFleetSpec(FogModel):
     """The robots, the modules each runs, the edge/cloud nodes it may use, and how to plan."""
 
+    RULES: ClassVar[tuple[CrossFieldRule, ...]] = (
+        CrossFieldRule(
+            "(has(self.robots) && size(self.robots) > 0) || has(self.robotSelector)",
+            "robots: list at least one robot or set robotSelector",
+            lambda s: bool(s.robots) or s.robot_selector is not None,
+        ),
+    )
+
     robots: list[Name] = Field(default_factory=list, description="Robot ComputeNode names.")
     robot_selector: LabelSelector | None = None
     """Robot ComputeNodes chosen by label (with or instead of robots)."""
@@ -190,8 +207,7 @@ class RobotFleetSpec(FogModel):
 
     @model_validator(mode="after")
     def _check(self) -> RobotFleetSpec:
-        if not self.robots and self.robot_selector is None:
-            raise ValueError("robots: list at least one robot or set robotSelector")
+        enforce(self, self.RULES)
         refuse_duplicates(self.robots, "robots")
         refuse_duplicates(self.nodes, "nodes")
         refuse_duplicates([m.name for m in self.modules], "modules")

@@ -16,6 +16,7 @@ from pydantic import Field, model_validator
 from .base import FogModel, NonNegInt, PosInt, Quantity, parse_quantity, refuse_duplicates
 from .common import Condition, ObjectMeta, Tier
 from .computenode import DeviceType
+from .rules import CrossFieldRule, enforce
 from .scaling import ScalingSpec
 from .template import ContainerTemplate
 
@@ -65,6 +66,11 @@ class Scope(StrEnum):
 
     PER_ROBOT = "perRobot"
     SHARED = "shared"
+
+
+def must_run_on_board(tax: Taxonomy) -> bool:
+    """III-B: hard real-time and safety-critical modules run on their own robot."""
+    return tax.realtime is RealtimeClass.HARD or tax.safety is SafetyClass.CRITICAL
 
 
 class Taxonomy(FogModel):
@@ -157,6 +163,15 @@ class Requirements(FogModel):
 class SoftwareModuleSpec(FogModel):
     """One containerised ROS 2 module: what it runs, how it behaves, what it needs."""
 
+    RULES: ClassVar[tuple[CrossFieldRule, ...]] = (
+        CrossFieldRule(
+            "!has(self.scope) || self.scope != 'shared' || "
+            "(self.taxonomy.realtime != 'hard' && self.taxonomy.safety != 'critical')",
+            "scope: a hard real-time or safety-critical module must be perRobot (it runs on board)",
+            lambda s: s.scope is not Scope.SHARED or not must_run_on_board(s.taxonomy),
+        ),
+    )
+
     template: ContainerTemplate
     """The container fogfleet deploys for each instance."""
     taxonomy: Taxonomy
@@ -193,14 +208,11 @@ class SoftwareModuleSpec(FogModel):
                 raise ValueError(f"profile[{k}].cpu: must be greater than zero")
             if parse_quantity(row.mean_millis) <= 0:
                 raise ValueError(f"profile[{k}].meanMillis: must be greater than zero")
-        if self.scope is Scope.SHARED and self.taxonomy.realtime is RealtimeClass.HARD:
-            raise ValueError("scope: a hard real-time module must be perRobot (it runs on board)")
+        enforce(self, self.RULES)
         if self.scaling is not None and self.scope is not Scope.SHARED:
             raise ValueError(
                 "scaling: only shared modules scale; per-robot modules run once per robot"
             )
-        if self.scope is Scope.SHARED and self.taxonomy.safety is SafetyClass.CRITICAL:
-            raise ValueError("scope: a safety-critical module must be perRobot (it runs on board)")
         return self
 
 
