@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import asyncio
+import itertools
 
 from fogfleet.controllers.queue import ReconcileQueue
 from fogfleet.controllers.robotfleet import Outcome
@@ -73,7 +74,7 @@ def test_failing_background_runs_back_off_exponentially_and_a_success_resets() -
         return q
 
     q = asyncio.run(main())
-    gaps = [b - a for a, b in zip(stamps, stamps[1:], strict=False)]
+    gaps = [b - a for a, b in itertools.pairwise(stamps)]
     assert len(stamps) == 4, stamps  # three failures, then the success: no more runs
     assert gaps[0] >= 0.02 and gaps[1] >= 0.04 and gaps[2] >= 0.08, gaps
     assert q._failures == {}
