@@ -97,6 +97,11 @@ def _parser() -> argparse.ArgumentParser:
 
     sp = sub.add_parser("render", help="print the Deployments the operator would apply")
     fleet_args(sp, SCHEDULERS)
+    sp.add_argument(
+        "--allow-unplaced",
+        action="store_true",
+        help="render what fits when the fleet cannot run as planned (default: refuse, exit 2)",
+    )
     sp.set_defaults(func=cmd_render)
 
     sp = sub.add_parser("crds", help="write (or check) the CRD YAML generated from the models")

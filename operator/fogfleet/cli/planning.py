@@ -9,7 +9,10 @@ import sys
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from fogfleet.errors import InvalidSpec
+from fogfleet.scheduling.explain import infeasible_message, unplaced_reasons
 
 from .common import SCHEDULERS, catalog_of, fleets_of, plan_fleet, settings_of, table
 
@@ -54,8 +57,10 @@ def cmd_plan(args: argparse.Namespace) -> int:
             "objectives": schedule.objectives,
             "durationSeconds": round(schedule.duration_seconds, 4),
             "choiceReason": schedule.choice_reason,
-            "unplaced": {problem.label(i): why for i, why in schedule.reasons.items()},
+            "unplaced": unplaced_reasons(problem, schedule.reasons),
         }
+        if not schedule.feasible:
+            doc["infeasible"] = infeasible_message(problem, schedule.placement, schedule.reasons)
         out.append(doc)
         if args.plot:
             from fogfleet.plot import plot_plan
@@ -90,6 +95,8 @@ def _print_plan(doc: dict[str, Any]) -> None:
         print(f"Choice: {doc['choiceReason']}")
     for label, why in doc["unplaced"].items():
         print(f"UNPLACED {label}: {why}", file=sys.stderr)
+    if "infeasible" in doc:
+        print(f"INFEASIBLE {doc['fleet']}: {doc['infeasible']}", file=sys.stderr)
 
 
 def cmd_simulate(args: argparse.Namespace) -> int:
@@ -108,10 +115,15 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     placements: dict[str, tuple[Any, bool]] = {}
     if args.placement:
         placements["recorded"] = _read_placement(problem, Path(args.placement))
+    infeasible: list[str] = []
     for name in names:
         settings = settings_of(fleet, str(name), args.seed, args)
         schedule = plan(problem, settings)
         placements[str(name)] = (schedule.placement, schedule.with_limits)
+        if not schedule.feasible:
+            infeasible.append(
+                f"{name}: {infeasible_message(problem, schedule.placement, schedule.reasons)}"
+            )
     result: dict[str, Any] = {}
     for name, (placement, with_limits) in placements.items():
         sim = simulate(
@@ -122,28 +134,47 @@ def cmd_simulate(args: argparse.Namespace) -> int:
             seed=args.seed if args.seed is not None else 0,
             all_active=args.all_active,
         )
+        unplaced = sorted({problem.instances[i].module for i in np.flatnonzero(placement < 0)})
         result[name] = {
             "missRate": sim.miss_rate,
             "modules": dict(sim.module_miss_rate),
+            "unplaced": unplaced,
             "nodeUtilisation": {
                 problem.nodes[j].name: u for j, u in enumerate(sim.node_utilisation)
             },
         }
+    for line in infeasible:
+        print(f"INFEASIBLE {line}", file=sys.stderr)
     if args.json:
         print(json.dumps(result, indent=2))
-        return 0
-    modules = sorted({m for r in result.values() for m in r["modules"]})
-    rows = [
-        [m, *(f"{100 * result[s]['modules'].get(m, 0.0):.2f}%" for s in result)] for m in modules
-    ]
+        return 2 if infeasible else 0
+    modules = sorted({m for r in result.values() for m in [*r["modules"], *r["unplaced"]]})
+
+    def cell(s: str, m: str) -> str:
+        if m in result[s]["unplaced"]:
+            return "UNPLACED"
+        rate = result[s]["modules"].get(m)
+        return "-" if rate is None or rate != rate else f"{100 * rate:.2f}%"  # NaN: no cycles
+
+    def worst(s: str) -> str:
+        rates = {m: r for m, r in result[s]["modules"].items() if r == r}
+        if result[s]["unplaced"]:
+            return f"{result[s]['unplaced'][0]} UNPLACED"
+        if not rates:
+            return "-"
+        m = max(rates, key=lambda k: rates[k])
+        return f"{m} {100 * rates[m]:.2f}%"
+
+    rows = [[m, *(cell(s, m) for s in result)] for m in modules]
     rows.append(["OVERALL", *(f"{100 * result[s]['missRate']:.2f}%" for s in result)])
+    rows.append(["WORST MODULE", *(worst(s) for s in result)])
     print(
         f"Missed-cycle rate, fleet {problem.namespace}/{problem.fleet}, "
         f"{args.duration:g} s simulated, seed {args.seed or 0}, "
         + ("all modules active" if args.all_active else "activation rates of the modules")
     )
     print(table(rows, ["MODULE", *result.keys()]))
-    return 0
+    return 2 if infeasible else 0
 
 
 def _read_placement(problem: Any, path: Path) -> tuple[Any, bool]:

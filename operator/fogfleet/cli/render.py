@@ -8,6 +8,8 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from fogfleet.scheduling.explain import infeasible_message
+
 from .common import catalog_of, fleets_of, plan_fleet, settings_of
 
 __all__ = ["cmd_crds", "cmd_render"]
@@ -36,6 +38,14 @@ def cmd_render(args: argparse.Namespace) -> int:
     for fleet in fleets_of(catalog, args.fleet):
         settings = settings_of(fleet, args.scheduler, args.seed, args)
         problem, schedule = plan_fleet(fleet, catalog, settings, False)
+        if not schedule.feasible and not args.allow_unplaced:
+            why = infeasible_message(problem, schedule.placement, schedule.reasons)
+            print(
+                f"fogfleet render: RobotFleet {problem.namespace}/{problem.fleet} cannot run as "
+                f"planned ({why}); nothing rendered. --allow-unplaced renders what fits.",
+                file=sys.stderr,
+            )
+            return 2
         ns = problem.namespace
         modules = {name: m for (mns, name), m in catalog.modules.items() if mns == ns}
         wiring = None

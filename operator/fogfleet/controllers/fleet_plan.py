@@ -13,8 +13,8 @@ import numpy as np
 from fogfleet.api.v1alpha1.robotfleet import RobotFleet
 from fogfleet.domain.problem import Problem
 from fogfleet.errors import Infeasible
-from fogfleet.render.deployments import format_cpu
 from fogfleet.scheduling import stickiness
+from fogfleet.scheduling.explain import infeasible_message
 
 from .deps import CachedPlan, Deps, FleetKey
 from .status import now
@@ -45,7 +45,7 @@ def plan_fleet(
         err = Infeasible(
             f"RobotFleet/{key[1]}",
             "spec",
-            _infeasible_message(problem, placement, schedule.reasons),
+            infeasible_message(problem, placement, schedule.reasons),
         )
         deps.failures[key] = (fp, err)
         raise err
@@ -78,40 +78,3 @@ def plan_fleet(
         len(moves),
     )
     return cached, True
-
-
-def _infeasible_message(problem: Problem, placement: np.ndarray, reasons: dict[int, str]) -> str:
-    """Say what cannot fit where: single modules larger than every node they may use, then
-    the constraints the best plan found still violates."""
-    from fogfleet.scheduling.objectives import constraint_names, constraints
-
-    parts: list[str] = []
-    need = {"cpu": problem.limits.cpu_request, "memory": problem.memory, "gpu": problem.gpu}
-    for i in range(problem.n_instances):
-        nodes = np.flatnonzero(problem.allowed[i])
-        for r, (name, demand) in enumerate(need.items()):
-            d = demand[i, nodes] if demand.ndim == 2 else np.full(len(nodes), demand[i])
-            if len(nodes) and np.all(d > problem.capacity[nodes, r] + 1e-9):
-                biggest = int(nodes[np.argmax(problem.capacity[nodes, r])])
-                parts.append(
-                    f"{problem.label(i)} needs {_amount(name, float(d.min()))} {name} but "
-                    f"the largest node it may use ({problem.nodes[biggest].name}) has "
-                    f"{_amount(name, float(problem.capacity[biggest, r]))}"
-                )
-    if not parts:
-        g = constraints(problem, placement[None, :], problem.limits)[0]
-        names = constraint_names(problem)
-        parts = [f"{n} over by {v * 100:.0f}%" for n, v in zip(names, g, strict=True) if v > 1e-9][
-            :8
-        ]
-    head = "no placement fits the fleet's nodes"
-    detail = "; ".join(parts[:8]) or "; ".join(reasons.values()) or "constraints violated"
-    return f"{head}: {detail}"
-
-
-def _amount(resource: str, value: float) -> str:
-    if resource == "memory":
-        return f"{value / 2**30:.1f}Gi"
-    if resource == "cpu":
-        return format_cpu(value)
-    return f"{value:g}"

@@ -215,3 +215,53 @@ def test_all_active_reproduces_the_papers_overloaded_robot(
     _, busy, _ = run(capsys, *args, "--all-active")
     # IV-B: every module active at once saturates the 6 on-board cores far more often
     assert json.loads(busy)["onboard"]["missRate"] > 2 * json.loads(rates)["onboard"]["missRate"]
+
+
+def _short_site(tmp_path: Path) -> Path:
+    """The single-robot fleet with a 1-core edge node: nothing fits as planned."""
+    nodes = (
+        (SOLO / "nodes.yaml")
+        .read_text()
+        .replace("capacity: {cpu: 16, memory: 64Gi}", "capacity: {cpu: 1, memory: 64Gi}")
+    )
+    assert "cpu: 1," in nodes
+    (tmp_path / "nodes.yaml").write_text(nodes)
+    (tmp_path / "fleet.yaml").write_text((SOLO / "fleet.yaml").read_text())
+    (tmp_path / "modules.yaml").write_text((WAREHOUSE / "modules.yaml").read_text())
+    return tmp_path
+
+
+def test_render_refuses_a_fleet_that_cannot_run_as_planned(
+    capsys: pytest.CaptureFixture[str], tmp_path: Path
+) -> None:
+    site = _short_site(tmp_path)
+    code, out, err = run(capsys, "render", str(site), "--generations", "5")
+    assert code == 2 and out == ""
+    assert "cannot run as planned" in err and "over by" in err and "--allow-unplaced" in err
+    code, out, _ = run(capsys, "render", str(site), "--generations", "5", "--allow-unplaced")
+    assert code == 0 and "kind: Deployment" in out
+
+
+def test_simulate_says_infeasible_and_names_the_worst_module(
+    capsys: pytest.CaptureFixture[str], tmp_path: Path
+) -> None:
+    site = _short_site(tmp_path)
+    code, out, err = run(capsys, "simulate", str(site), "--duration", "5", "--generations", "5")
+    assert code == 2
+    assert "INFEASIBLE nsga2: no placement fits" in err
+    worst = next(line for line in out.splitlines() if line.startswith("WORST MODULE"))
+    assert "%" in worst or "UNPLACED" in worst
+
+
+def test_the_fleet_level_reason_is_not_pinned_on_an_instance(
+    capsys: pytest.CaptureFixture[str], tmp_path: Path
+) -> None:
+    site = _short_site(tmp_path)
+    code, out, _ = run(capsys, "plan", str(site), "--json", "--generations", "5")
+    doc = json.loads(out)
+    assert code == 2 and doc["feasible"] is False
+    labels = set(doc["unplaced"])
+    assert labels <= {"fleet"} | {f"solo-robot/{r['module']}" for r in doc["placement"]}
+    if "fleet" in labels:  # the solver's fleet-level reason, not the last instance's
+        assert all(r["node"] for r in doc["placement"] if f"solo-robot/{r['module']}" in labels)
+    assert "no placement fits" in doc["infeasible"]

@@ -1,0 +1,57 @@
+"""Why a fleet cannot be placed, in one sentence a person can act on: used by the operator's
+``Ready=False`` condition and Event and by the CLI alike."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from fogfleet.domain.problem import Problem
+
+from .objectives import constraint_names, constraints
+
+__all__ = ["infeasible_message", "unplaced_reasons"]
+
+
+def unplaced_reasons(problem: Problem, reasons: dict[int, str]) -> dict[str, str]:
+    """The solver's reasons by what they are about: an instance's label, or ``fleet`` for the
+    fleet-level reason (index -1, which is no instance)."""
+    return {("fleet" if i < 0 else problem.label(i)): why for i, why in sorted(reasons.items())}
+
+
+def infeasible_message(problem: Problem, placement: np.ndarray, reasons: dict[int, str]) -> str:
+    """Say what cannot fit where: modules that fit no node at all (with the rule that forbids
+    each node: privacy, devices, hard real time, tier), single modules larger than every node
+    they may use, then the constraints the best plan found still violates."""
+
+    parts: list[str] = []
+    need = {"cpu": problem.limits.cpu_request, "memory": problem.memory, "gpu": problem.gpu}
+    for i in range(problem.n_instances):
+        nodes = np.flatnonzero(problem.allowed[i])
+        for r, (name, demand) in enumerate(need.items()):
+            d = demand[i, nodes] if demand.ndim == 2 else np.full(len(nodes), demand[i])
+            if len(nodes) and np.all(d > problem.capacity[nodes, r] + 1e-9):
+                biggest = int(nodes[np.argmax(problem.capacity[nodes, r])])
+                parts.append(
+                    f"{problem.label(i)} needs {_amount(name, float(d.min()))} {name} but "
+                    f"the largest node it may use ({problem.nodes[biggest].name}) has "
+                    f"{_amount(name, float(problem.capacity[biggest, r]))}"
+                )
+    fits_nowhere = [why for i, why in sorted(reasons.items()) if i >= 0 and why]
+    if not parts and not fits_nowhere:
+        g = constraints(problem, placement[None, :], problem.limits)[0]
+        names = constraint_names(problem)
+        parts = [f"{n} over by {v * 100:.0f}%" for n, v in zip(names, g, strict=True) if v > 1e-9][
+            :8
+        ]
+    head = "no placement fits the fleet's nodes"
+    detail = "; ".join([*fits_nowhere[:4], *parts[:8]]) or "constraints violated"
+    return f"{head}: {detail}"
+
+
+def _amount(resource: str, value: float) -> str:
+    if resource == "memory":
+        return f"{value / 2**30:.1f}Gi"
+    if resource == "cpu":
+        millis = round(value * 1000)
+        return f"{millis // 1000}" if millis % 1000 == 0 else f"{millis}m"
+    return f"{value:g}"
