@@ -33,12 +33,25 @@ class Catalog:
     modules: dict[tuple[str, str], SoftwareModule] = field(default_factory=dict)
     fleets: list[RobotFleet] = field(default_factory=list)
     ignored: list[str] = field(default_factory=list)
+    sources: dict[tuple[str, str, str], str] = field(default_factory=dict)
+    """(kind, namespace, name) -> where it was read (a file), to name both places of a
+    duplicate."""
 
-    def add(self, obj: ComputeNode | SoftwareModule | RobotFleet) -> None:
+    def add(self, obj: ComputeNode | SoftwareModule | RobotFleet, source: str = "") -> None:
+        """Add ``obj``; the same kind, namespace and name twice is refused, naming both
+        sources (the API server would keep only the last one applied)."""
+        ns = "" if isinstance(obj, ComputeNode) else (obj.metadata.namespace or "default")
+        key = (obj.kind, ns, obj.metadata.name)
+        if key in self.sources:
+            where = f"{self.sources[key] or 'an earlier document'} and {source or 'a later one'}"
+            raise InvalidSpec(
+                f"{obj.kind}/{obj.metadata.name}", "metadata.name", f"defined twice: in {where}"
+            )
+        self.sources[key] = source
         if isinstance(obj, ComputeNode):
             self.nodes[obj.metadata.name] = obj
         elif isinstance(obj, SoftwareModule):
-            self.modules[(obj.metadata.namespace or "default", obj.metadata.name)] = obj
+            self.modules[(ns, obj.metadata.name)] = obj
         else:
             self.fleets.append(obj)
 
@@ -109,7 +122,10 @@ def _files(paths: Iterable[str | Path]) -> list[Path]:
             out.append(p)
         else:
             raise InvalidSpec(str(p), "", "no such file or directory")
-    return out
+    unique: dict[Path, Path] = {}  # a file named and inside a named folder is read once
+    for q in out:
+        unique.setdefault(q.resolve(), q)
+    return list(unique.values())
 
 
 def load_paths(paths: Iterable[str | Path]) -> Catalog:
@@ -128,5 +144,5 @@ def load_paths(paths: Iterable[str | Path]) -> Catalog:
                     f"{doc.get('kind')}/{(doc.get('metadata') or {}).get('name')}"
                 )
                 continue
-            catalog.add(parse_object(doc))
+            catalog.add(parse_object(doc), str(path))
     return catalog

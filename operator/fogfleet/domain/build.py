@@ -297,8 +297,8 @@ def build_problem(
             if req.realtime_kernel and not ns.realtime_kernel:
                 why.append(f"{name}: no real-time kernel")
                 continue
-            if ns.privacy_level < req.min_privacy:
-                why.append(f"{name}: privacy level {ns.privacy_level} < required {req.min_privacy}")
+            if ns.privacy < req.min_privacy:
+                why.append(f"{name}: privacy level {ns.privacy} < required {req.min_privacy}")
                 continue
             rows = [r for r in _profile_rows(mod, nd) if r.cpu <= caps[j, 0] + 1e-9]
             if not rows:

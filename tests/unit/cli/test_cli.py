@@ -181,7 +181,9 @@ def test_a_module_that_fits_nowhere_is_reported_with_the_reason(
         (WAREHOUSE / "modules.yaml")
         .read_text()
         .replace(
-            "  requirements: {devices: [lidar]}", "  requirements: {devices: [lidar], gpu: true}"
+            '  resources: {cpu: "250m", memory: 512Mi}\n  requirements: {devices: [lidar]}',
+            '  resources: {cpu: "250m", memory: 512Mi, gpu: 1}\n'
+            "  requirements: {devices: [lidar], gpu: true}",
         )
     )
     (tmp_path / "modules.yaml").write_text(modules)
@@ -265,3 +267,49 @@ def test_the_fleet_level_reason_is_not_pinned_on_an_instance(
     if "fleet" in labels:  # the solver's fleet-level reason, not the last instance's
         assert all(r["node"] for r in doc["placement"] if f"solo-robot/{r['module']}" in labels)
     assert "no placement fits" in doc["infeasible"]
+
+
+def test_a_gpu_requirement_without_a_gpu_request_is_refused(
+    capsys: pytest.CaptureFixture[str], tmp_path: Path
+) -> None:
+    modules = (WAREHOUSE / "modules.yaml").read_text()
+    modules = modules.replace(
+        "  requirements: {devices: [lidar]}", "  requirements: {devices: [lidar], gpu: true}"
+    )
+    (tmp_path / "modules.yaml").write_text(modules)
+    code, _, err = run(
+        capsys, "plan", str(WAREHOUSE / "nodes.yaml"), str(tmp_path), str(WAREHOUSE / "fleet.yaml")
+    )
+    assert code == 2
+    assert "spec.resources.gpu: requirements.gpu is true but no GPU is requested" in err
+
+
+def test_an_object_defined_in_two_files_is_refused_naming_both(
+    capsys: pytest.CaptureFixture[str], tmp_path: Path
+) -> None:
+    (tmp_path / "a.yaml").write_text((WAREHOUSE / "nodes.yaml").read_text())
+    (tmp_path / "b.yaml").write_text((WAREHOUSE / "nodes.yaml").read_text())
+    code, _, err = run(
+        capsys,
+        "plan",
+        str(tmp_path),
+        str(WAREHOUSE / "modules.yaml"),
+        str(WAREHOUSE / "fleet.yaml"),
+    )
+    assert code == 2
+    assert "metadata.name: defined twice" in err
+    assert str(tmp_path / "a.yaml") in err and str(tmp_path / "b.yaml") in err
+    # one file named twice (directly and through its folder) is read once
+    code, _, _ = run(
+        capsys, "plan", str(WAREHOUSE), str(WAREHOUSE / "nodes.yaml"), "--generations", "3"
+    )
+    assert code == 0
+
+
+def test_a_robot_trusts_its_own_computer_by_default() -> None:
+    from fogfleet.api.v1alpha1.computenode import ComputeNodeSpec
+
+    robot = {"tier": "robot", "hardwareType": "nuc"}
+    assert ComputeNodeSpec.model_validate(robot).privacy == 3
+    assert ComputeNodeSpec.model_validate({**robot, "privacyLevel": 1}).privacy == 1
+    assert ComputeNodeSpec.model_validate({"tier": "cloud", "hardwareType": "vm"}).privacy == 0

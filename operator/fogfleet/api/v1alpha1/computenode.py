@@ -146,15 +146,23 @@ class ComputeNodeSpec(FogModel):
     """Devices attached to this node (cameras, lidars, arms...)."""
     realtime_kernel: bool = False
     """The node runs a real-time (PREEMPT_RT) kernel; hard real-time modules may need one."""
-    privacy_level: Annotated[int, Field(ge=0, le=3)] = 0
+    privacy_level: Annotated[int, Field(ge=0, le=3)] | None = None
     """How private the data a node may see can be, 0 (public) to 3 (robot only) (tinyKube);
-    a module runs only where privacyLevel >= its requirements.minPrivacy."""
+    a module runs only where privacyLevel >= its requirements.minPrivacy. Default: 3 on a
+    robot (a robot trusts its own computer), 0 elsewhere."""
     cost_per_core_hour: Quantity = 0
     """Price of one core for one hour, in the fleet's currency (the cost objective)."""
     power: PowerModel | None = None
     """Battery and power model of a robot (robot nodes only; the energy objective)."""
     network: list[NetworkLink] = Field(default_factory=list, max_length=8)
     """The node's uplinks; the first is the one the planner uses (at most 8)."""
+
+    @property
+    def privacy(self) -> int:
+        """The privacy level in force (``privacyLevel``, or the tier's default)."""
+        if self.privacy_level is not None:
+            return self.privacy_level
+        return 3 if self.tier is Tier.ROBOT else 0
 
     @model_validator(mode="after")
     def _robot_has_uplink(self) -> ComputeNodeSpec:

@@ -170,6 +170,20 @@ class SoftwareModuleSpec(FogModel):
             "scope: a hard real-time or safety-critical module must be perRobot (it runs on board)",
             lambda s: s.scope is not Scope.SHARED or not must_run_on_board(s.taxonomy),
         ),
+        CrossFieldRule(
+            "!(has(self.requirements) && has(self.requirements.gpu) && self.requirements.gpu)"
+            " || (has(self.resources.gpu) && self.resources.gpu > 0)",
+            "resources.gpu: requirements.gpu is true but no GPU is requested; set "
+            "resources.gpu (e.g. 1) so the pod gets one",
+            lambda s: not s.requirements.gpu or s.resources.gpu > 0,
+        ),
+        CrossFieldRule(
+            "!(has(self.resources.gpu) && self.resources.gpu > 0) || (has(self.requirements) "
+            "&& has(self.requirements.gpu) && self.requirements.gpu)",
+            "requirements.gpu: resources.gpu requests GPUs; set requirements.gpu: true so the "
+            "module is planned on a node that has them",
+            lambda s: s.resources.gpu == 0 or s.requirements.gpu,
+        ),
     )
 
     template: ContainerTemplate
