@@ -162,6 +162,7 @@ def test_the_probe_sidecar_is_scraped_when_the_module_serves_no_metrics() -> Non
             {"ports": [{"containerPort": 9100}], "metricsPort": 9100},
             "ports: 9100 listed more than once",
         ),
+        ({"securityContext": {"runAsUser": 0}}, "runAsUser: 0 is root; set runAsNonRoot: false"),
     ],
 )
 def test_bad_templates_are_refused_naming_the_field(change: dict[str, Any], expected: str) -> None:

@@ -342,6 +342,15 @@ class SecurityContext(FogModel):
     supplemental_groups: list[Annotated[int, Field(ge=0)]] | None = None
     """Extra groups of the pod (video, dialout for devices)."""
 
+    @model_validator(mode="after")
+    def _root_is_explicit(self) -> SecurityContext:
+        if self.run_as_user == 0 and self.run_as_non_root is not False:
+            raise ValueError(
+                "runAsUser: 0 is root; set runAsNonRoot: false as well if the module must run "
+                "as root (the kubelet refuses to start it otherwise)"
+            )
+        return self
+
 
 class Toleration(FogModel):
     """Lets the pod run on a node with a matching taint (robot computers often have one)."""
