@@ -13,6 +13,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+import yaml
 
 from e2e.cluster.harness import Cluster
 from e2e.cluster.kube import Kube
@@ -41,28 +42,9 @@ from fogfleet.controllers.ros import is_ros_object
 
 pytestmark = [pytest.mark.e2e, pytest.mark.timeout(420)]
 
-FULL_TEMPLATE: dict[str, Any] = {
-    "image": "ghcr.io/fogfleet/ros2-module:0.1.0",
-    "metricsPort": 9100,
-    "env": [{"name": "TOKEN", "valueFrom": {"secretKeyRef": {"name": "api", "key": "token"}}}],
-    "envFrom": [{"configMapRef": {"name": "params"}}],
-    "ports": [{"name": "grpc", "containerPort": 50051, "protocol": "TCP"}],
-    "volumes": [
-        {"name": "params", "configMap": {"name": "params"}},
-        {"name": "camera", "hostPath": {"path": "/dev/video0", "type": "CharDevice"}},
-    ],
-    "volumeMounts": [{"name": "params", "mountPath": "/params", "readOnly": True}],
-    "readinessProbe": {"tcpSocket": {"port": "grpc"}, "periodSeconds": 5},
-    "securityContext": {"supplementalGroups": [44], "capabilities": {"add": ["SYS_NICE"]}},
-    "extraResources": {"squat.ai/video": 1},
-    "tolerations": [{"key": "fogfleet.io/robot", "operator": "Exists", "effect": "NoSchedule"}],
-    "imagePullSecrets": [{"name": "ghcr"}],
-    "serviceAccountName": "detector",
-    "sidecars": [
-        {"name": "cycle-probe", "image": "ghcr.io/fogfleet/ros2-module:0.1.0",
-         "args": ["probe"], "metricsPort": 9101},
-    ],
-}  # fmt: skip
+FULL_TEMPLATE: dict[str, Any] = yaml.safe_load(
+    (ROOT / "manifests" / "examples" / "pod-template" / "module.yaml").read_text()
+)["spec"]["template"]
 
 
 @pytest.fixture(scope="module")

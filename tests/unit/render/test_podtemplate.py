@@ -8,6 +8,7 @@ from typing import Any
 
 import numpy as np
 import pytest
+import yaml
 from pydantic import ValidationError
 
 from fogfleet.api.loader import load_paths
@@ -17,40 +18,9 @@ from fogfleet.render.deployments import render_fleet
 
 EXAMPLES = Path(__file__).resolve().parents[3] / "manifests" / "examples"
 
-TEMPLATE: dict[str, Any] = {
-    "image": "ghcr.io/acme/detector:1.2",
-    "metricsPort": 9100,
-    "env": [
-        {"name": "MODEL", "value": "yolo"},
-        {"name": "TOKEN", "valueFrom": {"secretKeyRef": {"name": "api", "key": "token"}}},
-    ],
-    "envFrom": [{"configMapRef": {"name": "detector-params"}}],
-    "ports": [{"name": "grpc", "containerPort": 50051}],
-    "volumes": [
-        {"name": "params", "configMap": {"name": "detector-params"}},
-        {"name": "camera", "hostPath": {"path": "/dev/video0", "type": "CharDevice"}},
-        {"name": "maps", "persistentVolumeClaim": {"claimName": "maps", "readOnly": True}},
-    ],
-    "volumeMounts": [
-        {"name": "params", "mountPath": "/params", "readOnly": True},
-        {"name": "camera", "mountPath": "/dev/video0"},
-        {"name": "maps", "mountPath": "/maps"},
-    ],
-    "readinessProbe": {"tcpSocket": {"port": "grpc"}, "periodSeconds": 5},
-    "securityContext": {"supplementalGroups": [44], "capabilities": {"add": ["SYS_NICE"]}},
-    "extraResources": {"squat.ai/video": 1},
-    "tolerations": [{"key": "fogfleet.io/robot", "operator": "Exists", "effect": "NoSchedule"}],
-    "imagePullSecrets": [{"name": "ghcr"}],
-    "serviceAccountName": "detector",
-    "sidecars": [
-        {
-            "name": "cycle-probe",
-            "image": "ghcr.io/fogfleet/ros2-module:0.1.0",
-            "args": ["probe"],
-            "metricsPort": 9101,
-        }
-    ],
-}
+TEMPLATE: dict[str, Any] = yaml.safe_load((EXAMPLES / "pod-template" / "module.yaml").read_text())[
+    "spec"
+]["template"]
 
 
 def module_with(template: dict[str, Any]) -> SoftwareModule:
@@ -93,9 +63,10 @@ def test_the_users_pod_fields_reach_the_pod_beside_fogfleets(tmp_path: Path) -> 
     }
     assert env["FOGFLEET_MODULE"]["value"] == pod["metadata"]["annotations"]["fogfleet.io/module"]
     assert main["envFrom"] == [{"configMapRef": {"name": "detector-params"}}]
-    assert [p["name"] for p in main["ports"]] == ["metrics", "grpc"]
+    assert [p["name"] for p in main["ports"]] == ["grpc"]  # the module serves no metrics
     assert main["readinessProbe"] == {"tcpSocket": {"port": "grpc"}, "periodSeconds": 5}
-    assert main["livenessProbe"]["httpGet"] == {"path": "/healthz", "port": "metrics"}
+    assert "livenessProbe" not in main
+    assert probe["livenessProbe"]["httpGet"] == {"path": "/healthz", "port": "m-cycle-probe"}
     assert main["resources"]["limits"]["squat.ai/video"] == "1"
     assert main["resources"]["requests"]["squat.ai/video"] == "1"
     assert main["resources"]["limits"]["cpu"] == main["resources"]["requests"]["cpu"]
@@ -107,14 +78,14 @@ def test_the_users_pod_fields_reach_the_pod_beside_fogfleets(tmp_path: Path) -> 
     assert spec["serviceAccountName"] == "detector"
     assert spec["automountServiceAccountToken"] is False
     assert spec["affinity"]["nodeAffinity"]  # placement stays fogfleet's
-    assert probe["name"] == "cycle-probe" and probe["args"] == ["probe"]
+    assert probe["name"] == "cycle-probe" and probe["args"] == ["probe", "--port", "9101"]
     assert probe["ports"][0]["containerPort"] == 9101
     assert probe["resources"]["limits"] == {"cpu": "50m", "memory": "128Mi"}
     assert {e["name"] for e in probe["env"]} >= {e["name"] for e in main["env"]} - {
         "MODEL",
         "TOKEN",
     }
-    assert pod["metadata"]["annotations"]["prometheus.io/port"] == "9100"
+    assert pod["metadata"]["annotations"]["prometheus.io/port"] == "9101"  # the probe
 
 
 def test_a_module_that_says_nothing_gets_the_restricted_defaults() -> None:
