@@ -56,6 +56,9 @@ def cmd_plan(args: argparse.Namespace) -> int:
             "placement": rows,
             "objectives": schedule.objectives,
             "durationSeconds": round(schedule.duration_seconds, 4),
+            "generations": schedule.generations,
+            "timeBudgetReached": schedule.generations < settings.generations
+            and schedule.scheduler == "nsga2",
             "choiceReason": schedule.choice_reason,
             "unplaced": unplaced_reasons(problem, schedule.reasons),
         }

@@ -32,6 +32,7 @@ from .problem import PlacementProblem
 from .schedule import Schedule
 
 ENUMERATE_LIMIT = 20_000  # plans; smaller search spaces are enumerated exactly
+LOCAL_SEARCH_SAFETY = 10.0  # the local search stops at 10x the time budget at the latest
 
 __all__ = ["Progress", "nsga2", "plan", "weights_of"]
 
@@ -87,8 +88,11 @@ def nsga2(
     ``mutation_percent`` % of the offspring (1/G of their genes), duplicate elimination.
     ``paper=True`` is the stand-in for the paper's PyGAD setup: random sampling, no repair,
     single-point crossover, every gene mutated with p = mutation_percent %, constraints
-    only as a penalty on the objectives. Stops after ``generations`` or once
-    ``time_budget_millis`` has passed (``Schedule.generations`` tells how many ran).
+    only as a penalty on the objectives. The evolution stops after ``generations`` or once
+    ``time_budget_millis`` has passed (``Schedule.generations`` tells how many ran); the
+    Pareto local search after it is bounded by work, so the same seed and the same number of
+    generations give the same plan whatever the clock did (rerun with ``generations`` set to
+    the count a budget-cut run reached to reproduce it).
     """
     t0 = time.perf_counter()
     if local_search is None:
@@ -120,7 +124,10 @@ def nsga2(
     n_local = 0
     if feasible.any() and local_search:
         idx = np.flatnonzero(feasible)
-        X, F, n_local = pareto_local_search(clean, X[idx], F[idx], deadline=t0 + budget)
+        # bounded by work, not by the clock, so a rerun with the generations reached
+        # reproduces the plan; the deadline is only a safety net for pathological fleets
+        deadline = t0 + LOCAL_SEARCH_SAFETY * budget
+        X, F, n_local = pareto_local_search(clean, X[idx], F[idx], deadline=deadline)
         cv = np.zeros(len(X))
         feasible = np.ones(len(X), dtype=bool)
     full = pp.full(X)
@@ -149,7 +156,8 @@ def nsga2(
         sched = replace(
             sched,
             choice_reason=sched.choice_reason
-            + f" (time budget reached after {generations} generations)",
+            + f" (time budget reached after {generations} generations; set generations: "
+            f"{generations} to reproduce this plan)",
         )
     return replace(
         sched,

@@ -92,3 +92,19 @@ def test_nsga2_misses_less_than_k8s_default_on_a_tight_warehouse() -> None:
     k8s = plan(p, SchedulerSettings(algorithm="k8s-default", seed=1))
     assert s.feasible
     assert s.objectives["missRate"] < k8s.objectives["missRate"]
+
+
+def test_a_budget_cut_plan_is_reproduced_by_its_generation_count() -> None:
+    """Same seed, same generations reached: same plan, whatever the clock did."""
+    catalog = load_paths([WAREHOUSE])
+    fleet = catalog.fleets[0]
+    problem = build_problem(fleet, catalog)
+    cut = fleet.spec.scheduler.model_copy(update={"time_budget_millis": 100, "generations": 500})
+    first = plan(problem, cut)
+    assert first.generations < 500 and "to reproduce this plan" in first.choice_reason
+    again = fleet.spec.scheduler.model_copy(
+        update={"time_budget_millis": 600_000, "generations": first.generations}
+    )
+    second = plan(problem, again)
+    assert second.generations == first.generations
+    assert np.array_equal(np.asarray(first.placement), np.asarray(second.placement))

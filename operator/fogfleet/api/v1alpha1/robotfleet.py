@@ -130,7 +130,9 @@ class SchedulerSettings(FogModel):
     seed: Annotated[int, Field(ge=0)] = 1
     """Random seed: the same inputs and seed give the same plan."""
     time_budget_millis: Annotated[int, Field(ge=100)] = 20000
-    """Wall-clock budget of one planning run, in milliseconds."""
+    """Wall-clock budget of the evolution, in milliseconds; the local search after it is
+    bounded by work. A plan cut by the budget says after how many generations: set
+    generations to that count to reproduce it."""
     migration_margin_percent: Annotated[int, Field(ge=0, le=100)] = 5
     """A new plan replaces the running one only if it is this many percent better; keeps
     modules from moving for marginal gains."""
