@@ -13,6 +13,7 @@ import numpy as np
 
 from fogfleet.errors import InvalidSpec
 from fogfleet.scheduling.explain import infeasible_message, unplaced_reasons
+from fogfleet.scheduling.objectives import module_miss_rates
 
 from .common import SCHEDULERS, catalog_of, fleets_of, plan_fleet, settings_of, table
 
@@ -61,6 +62,7 @@ def cmd_plan(args: argparse.Namespace) -> int:
             and schedule.scheduler == "nsga2",
             "choiceReason": schedule.choice_reason,
             "unplaced": unplaced_reasons(problem, schedule.reasons),
+            "moduleMissRates": module_miss_rates(problem, schedule.placement, schedule.with_limits),
         }
         if not schedule.feasible:
             doc["infeasible"] = infeasible_message(problem, schedule.placement, schedule.reasons)
@@ -94,6 +96,14 @@ def _print_plan(doc: dict[str, Any]) -> None:
     print(table(rows, ["ROBOT", "MODULE", "NODE", "TIER", "CPU"]))
     print()
     print("Objectives: " + ", ".join(f"{k}={v:.4g}" for k, v in doc["objectives"].items()))
+    rates = doc["moduleMissRates"]
+    if rates:
+        worst = max(rates, key=lambda m: rates[m])
+        print(
+            "Predicted missed cycles per module: "
+            + ", ".join(f"{m} {100 * r:.2f}%" for m, r in sorted(rates.items()))
+            + f" (worst: {worst})"
+        )
     if doc["choiceReason"]:
         print(f"Choice: {doc['choiceReason']}")
     for label, why in doc["unplaced"].items():

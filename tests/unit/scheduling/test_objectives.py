@@ -114,3 +114,26 @@ def test_every_objective_the_api_accepts_is_evaluated_both_ways() -> None:
     names = {o.value for o in ObjectiveName}
     assert set(EVALUATORS) == names
     assert set(OBJECTIVES) == names
+
+
+def test_module_miss_rates_make_up_the_fleets_miss_rate() -> None:
+    """One definition: the fleet's missRate is the per-module predictions weighted by each
+    module's activation (the plan's per-module table cannot disagree with its total)."""
+    from fogfleet.api.loader import load_paths
+    from fogfleet.domain.build import build_problem
+    from fogfleet.scheduling.baselines import onboard_plan
+    from fogfleet.scheduling.bench import WAREHOUSE
+    from fogfleet.scheduling.objectives import module_miss_rates
+
+    catalog = load_paths([WAREHOUSE])
+    problem = build_problem(catalog.fleets[0], catalog)
+    schedule = onboard_plan(problem)  # everything on board: some modules miss
+    rates = module_miss_rates(problem, schedule.placement, schedule.with_limits)
+    assert set(rates) == {inst.module for inst in problem.instances}
+    assert max(rates.values()) > 0.01
+    weight = {m: 0.0 for m in rates}
+    for i, inst in enumerate(problem.instances):
+        if schedule.placement[i] >= 0:
+            weight[inst.module] += float(problem.activation[i])
+    total = sum(weight[m] * rates[m] for m in rates) / sum(weight.values())
+    assert total == pytest.approx(schedule.objectives["missRate"], rel=1e-9, abs=1e-12)
