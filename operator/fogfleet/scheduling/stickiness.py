@@ -146,15 +146,14 @@ def _better(
     return False, "no objective improves by more than the margin"
 
 
-def _loads(problem: Problem, fit: Any, x: I64) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """Requested (cpu, memory, gpu) per node and off-board traffic per robot of plan ``x``."""
-    used = np.zeros((problem.n_nodes, 3))
-    up = np.zeros(problem.n_nodes)
-    for i in np.flatnonzero(x >= 0):
-        used[x[i]] += fit.demand[i, x[i]]
-        if problem.home[i] >= 0 and x[i] != problem.home[i]:
-            up[problem.home[i]] += problem.traffic[i]
-    return used, up
+def _loads(problem: Problem, x: I64) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Requested (cpu, memory, gpu) per node and off-board traffic per robot of plan ``x``,
+    from the one per-node load model (``evaluation.Evaluation``) the objectives use."""
+    from fogfleet.scheduling.evaluation import Evaluation
+
+    ev = Evaluation(problem, np.asarray(x, dtype=np.int64)[None, :], problem.limits)
+    used = np.stack([ev.cpu_requested[0], ev.mem_requested[0], ev.gpu_requested[0]], axis=1)
+    return used, ev.offboard_traffic[0]
 
 
 def _fill(problem: Problem, fixed: I64, prefer: I64) -> I64:
@@ -164,7 +163,7 @@ def _fill(problem: Problem, fixed: I64, prefer: I64) -> I64:
 
     fit = Fit(problem, problem.limits)
     x = fixed.copy()
-    used, up = _loads(problem, fit, x)
+    used, up = _loads(problem, x)
     for i in fit.order:
         if x[i] >= 0 or not problem.allowed[i].any():
             continue
@@ -212,7 +211,7 @@ def _revert(problem: Problem, new: I64, cur: I64, usable: NDArray[np.bool_]) -> 
 
     fit = Fit(problem, problem.limits)
     x = new.copy()
-    used, up = _loads(problem, fit, x)
+    used, up = _loads(problem, x)
     for _ in range(2):
         for i in np.flatnonzero(usable & (x != cur)):
             a, b, h = int(x[i]), int(cur[i]), int(problem.home[i])
