@@ -185,16 +185,22 @@ class Evaluation:
         return np.asarray(self.utilisation().max(axis=(1, 2)), dtype=np.float64)
 
     def balance(self) -> F64:
-        if len(self.remote) < 2:
-            return np.zeros(self.P)
-        cap = self.problem.capacity[self.remote]
-        total = np.std(self.cpu_expected[:, self.remote] / cap[None, :, 0], axis=1)
-        total += np.std(
-            self.mem_requested[:, self.remote] / np.maximum(cap[None, :, 1], 1.0), axis=1
-        )
-        if cap[:, 2].any():
-            g = self.gpu_requested[:, self.remote] / np.maximum(cap[None, :, 2], 1.0)
-            total += np.std(g, axis=1)
+        """F3 within each tier: the edge's spread plus the cloud's. The paper's C_E lumps edge
+        and cloud together, which rewards filling a paid cloud to match a busy edge; balancing
+        inside a tier spreads load without pulling it across the tier boundary."""
+        total = np.zeros(self.P)
+        for code in (1, 2):  # domain.problem.TIER_CODE: edge, cloud
+            nodes = self.remote[self.problem.tier[self.remote] == code]
+            if len(nodes) < 2:
+                continue
+            cap = self.problem.capacity[nodes]
+            total += np.std(self.cpu_expected[:, nodes] / cap[None, :, 0], axis=1)
+            total += np.std(
+                self.mem_requested[:, nodes] / np.maximum(cap[None, :, 1], 1.0), axis=1
+            )
+            if cap[:, 2].any():
+                g = self.gpu_requested[:, nodes] / np.maximum(cap[None, :, 2], 1.0)
+                total += np.std(g, axis=1)
         return np.asarray(total, dtype=np.float64)
 
     def tau(self) -> F64:

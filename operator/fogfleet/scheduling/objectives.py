@@ -62,9 +62,10 @@ def reserve(problem: Problem, X: NDArray[np.integer], allocation: Allocation) ->
 
 
 def balance(problem: Problem, X: NDArray[np.integer], allocation: Allocation) -> F64:
-    """F3 (eq. 3): sum over resources of the standard deviation, across edge/cloud nodes, of
-    the utilisation u_j^r / L_j^r (cpu: expected use as in F1; memory: requested; gpu if any
-    remote node has one). 0 with fewer than two edge/cloud nodes."""
+    """F3 (eq. 3): sum over resources of the standard deviation of the utilisation
+    u_j^r / L_j^r (cpu: expected use as in F1; memory: requested; gpu if any node of the tier
+    has one), taken within each tier (edge, cloud) and summed: the paper's C_E spans edge and
+    cloud, which rewards filling a paid cloud. A tier with fewer than two nodes adds 0."""
     return Evaluation(problem, X, allocation).balance()
 
 

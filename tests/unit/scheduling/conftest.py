@@ -91,6 +91,23 @@ def tiny() -> Problem:
     )
 
 
+@pytest.fixture
+def edge_and_cloud() -> Problem:
+    """Two edge nodes (1, 2) and two cloud nodes (3, 4) of 4 cores; two always-active
+    instances of one core each that may run anywhere but the robot (node 0)."""
+    return make_problem(
+        tiers=[0, 1, 1, 2, 2],
+        cpu=[2.0, 4.0, 4.0, 4.0, 4.0],
+        mem=[4.0, 8.0, 8.0, 8.0, 8.0],
+        home=[0, 0],
+        allowed=[[False, True, True, True, True]] * 2,
+        activation=[1.0, 1.0],
+        cycle=[1.0, 1.0],
+        request=[[1.0] * 5] * 2,
+        exe=[[0.1] * 5] * 2,
+    )
+
+
 @lru_cache(maxsize=1)
 def _warehouse() -> Problem:
     return warehouse_problem()

@@ -137,3 +137,15 @@ def test_module_miss_rates_make_up_the_fleets_miss_rate() -> None:
             weight[inst.module] += float(problem.activation[i])
     total = sum(weight[m] * rates[m] for m in rates) / sum(weight.values())
     assert total == pytest.approx(schedule.objectives["missRate"], rel=1e-9, abs=1e-12)
+
+
+def test_balance_is_taken_within_each_tier_so_an_idle_cloud_is_not_a_debt(
+    edge_and_cloud: Problem,
+) -> None:
+    """Two edge and two cloud nodes, two equal instances: one on each edge node is perfectly
+    balanced (the idle cloud is no debt); one edge + one cloud node leaves both tiers uneven;
+    lumping the tiers together would have rated those two plans alike."""
+    plans = np.array([[1, 2], [1, 3]])
+    edge_even, across = balance(edge_and_cloud, plans, edge_and_cloud.limits)
+    assert edge_even == pytest.approx(0.0)
+    assert across > 0.2  # each tier: one node at 0.25 of its CPU, the other idle
