@@ -195,9 +195,7 @@ class Evaluation:
                 continue
             cap = self.problem.capacity[nodes]
             total += np.std(self.cpu_expected[:, nodes] / cap[None, :, 0], axis=1)
-            total += np.std(
-                self.mem_requested[:, nodes] / np.maximum(cap[None, :, 1], 1.0), axis=1
-            )
+            total += np.std(self.mem_requested[:, nodes] / np.maximum(cap[None, :, 1], 1.0), axis=1)
             if cap[:, 2].any():
                 g = self.gpu_requested[:, nodes] / np.maximum(cap[None, :, 2], 1.0)
                 total += np.std(g, axis=1)
