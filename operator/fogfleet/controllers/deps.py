@@ -20,10 +20,24 @@ from fogfleet.adapters.prometheus import PrometheusPort
 from fogfleet.controllers.planning import CorePlanner
 from fogfleet.scheduling.schedule import Schedule
 
-__all__ = ["CachedPlan", "Deps", "FleetKey", "References", "ScalingDeps", "ScalingKube"]
+__all__ = [
+    "CachedPlan",
+    "Deps",
+    "FleetKey",
+    "References",
+    "ScalingDeps",
+    "ScalingKube",
+    "fleet_key",
+]
 
 FleetKey = tuple[str, str]  # (namespace, name)
 Obj = dict[str, Any]
+
+
+def fleet_key(body: Mapping[str, Any]) -> FleetKey:
+    """(namespace, name) of a RobotFleet as the API server sends it."""
+    meta = body.get("metadata") or {}
+    return meta.get("namespace") or "default", meta["name"]
 
 
 @dataclass(frozen=True)

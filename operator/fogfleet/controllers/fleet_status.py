@@ -17,7 +17,7 @@ from fogfleet.errors import DanglingReference, Infeasible, InvalidSpec
 from fogfleet.render.deployments import format_cpu, identity_of
 from fogfleet.scheduling import stickiness
 
-from .deps import CachedPlan, Deps
+from .deps import CachedPlan, Deps, fleet_key
 from .status import (
     complete,
     condition,
@@ -34,11 +34,6 @@ __all__ = ["FLEET_STATUS_KEYS", "fleet_status", "plan_events", "report_failure"]
 log = logging.getLogger(__name__)
 FLEET_STATUS_KEYS = wire_keys(RobotFleetStatus)
 Obj = dict[str, Any]
-
-
-def _key(body: Obj) -> tuple[str, str]:
-    meta = body.get("metadata") or {}
-    return meta.get("namespace") or "default", meta["name"]
 
 
 def fleet_status(
@@ -200,7 +195,7 @@ def report_failure(
     body: Obj, deps: Deps, old: Obj, generation: int | None, exc: InvalidSpec
 ) -> None:
     """Ready=False with the precise reason, one Event; nothing that runs is touched."""
-    ns, name = _key(body)
+    ns, name = fleet_key(body)
     deps.metrics.count_error(name, exc.reason)
     msg = str(exc)
     if isinstance(exc, DanglingReference):

@@ -28,7 +28,7 @@ from fogfleet.errors import Infeasible, InvalidSpec
 from fogfleet.render.deployments import Owner, identity_of, label_value, render_fleet
 from fogfleet.scheduling import stickiness
 
-from .deps import CachedPlan, Deps, FleetKey
+from .deps import CachedPlan, Deps, FleetKey, fleet_key
 from .fleet_plan import plan_fleet
 from .fleet_status import fleet_status, plan_events, report_failure
 from .inputs import current_placement, gather
@@ -57,11 +57,6 @@ class Outcome:
     message: str = ""
 
 
-def _key(body: Obj) -> FleetKey:
-    meta = body.get("metadata") or {}
-    return meta.get("namespace") or "default", meta["name"]
-
-
 def forget(deps: Deps, key: FleetKey) -> None:
     """The fleet is gone: drop its cache and references (its Deployments go with it)."""
     deps.plans.pop(key, None)
@@ -71,7 +66,7 @@ def forget(deps: Deps, key: FleetKey) -> None:
 
 def reconcile(body: Obj, deps: Deps) -> Outcome:
     """Bring the cluster to the fleet's desired state. See the module docstring."""
-    key = _key(body)
+    key = fleet_key(body)
     old_status: Obj = body.get("status") or {}
     generation = (body.get("metadata") or {}).get("generation")
     try:
@@ -96,7 +91,7 @@ def _record_references(deps: Deps, key: FleetKey, fleet: RobotFleet) -> None:
 def _reconcile(
     body: Obj, fleet: RobotFleet, deps: Deps, old_status: Obj, generation: int | None
 ) -> Outcome:
-    key = _key(body)
+    key = fleet_key(body)
     ns, name = key
     kube = deps.kube
     selector = {LABEL_FLEET: label_value(name)}
@@ -249,7 +244,7 @@ def _apply(
 
 
 def _paused(body: Obj, deps: Deps, old: Obj, generation: int | None) -> Outcome:
-    ns, name = _key(body)
+    ns, name = fleet_key(body)
     status = {
         **old,
         "observedGeneration": generation,
