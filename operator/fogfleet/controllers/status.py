@@ -31,6 +31,7 @@ __all__ = [
     "split_text",
     "typed",
     "wire_keys",
+    "without_transition_times",
 ]
 
 log = logging.getLogger(__name__)
@@ -105,15 +106,17 @@ def merge_conditions(old: Iterable[Mapping[str, Any]], new: Sequence[Obj]) -> li
     return out
 
 
+def without_transition_times(conditions: Any) -> list[Obj]:
+    """Conditions as compared between reconciles: a new stamp alone is no change."""
+    return [{k: v for k, v in c.items() if k != "lastTransitionTime"} for c in conditions or []]
+
+
 def same_status(old: Mapping[str, Any], new: Mapping[str, Any]) -> bool:
     """Equal apart from timestamps (so an idle reconcile patches nothing)."""
 
     def strip(s: Mapping[str, Any]) -> Any:
         out = {k: v for k, v in s.items() if k != "lastPlanTime" and v is not None}
-        out["conditions"] = [
-            {k: v for k, v in c.items() if k != "lastTransitionTime"}
-            for c in s.get("conditions") or []
-        ]
+        out["conditions"] = without_transition_times(s.get("conditions"))
         return out
 
     return bool(strip(old) == strip(new))

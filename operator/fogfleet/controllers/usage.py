@@ -20,14 +20,14 @@ from typing import Any
 
 from pydantic import ValidationError
 
-from fogfleet.api.v1alpha1.base import parse_cpu
+from fogfleet.api.v1alpha1.base import format_cores, parse_cpu
 from fogfleet.api.v1alpha1.computenode import ComputeNodeStatus
 from fogfleet.api.v1alpha1.softwaremodule import SoftwareModuleStatus, Taxonomy
 from fogfleet.domain.taxonomy import classify
 
 from .deps import Deps
 from .inputs import node_health
-from .status import condition, merge_conditions, split_text, typed
+from .status import condition, merge_conditions, split_text, typed, without_transition_times
 
 __all__ = [
     "Usage",
@@ -111,11 +111,6 @@ def module_status(module: Mapping[str, Any], usage: Usage | None) -> Obj:
     return typed(SoftwareModuleStatus, status)
 
 
-def _format_cores(cores: float) -> str:
-    millis = round(cores * 1000)
-    return str(millis // 1000) if millis % 1000 == 0 else f"{millis}m"
-
-
 def compute_node_status(
     compute_node: Mapping[str, Any], usage: Usage | None, node: Mapping[str, Any] | None
 ) -> Obj:
@@ -143,18 +138,16 @@ def compute_node_status(
         "allocatableMemory": str(alloc.get("memory", "")),
         "fleets": sorted(use.fleets),
         "instances": use.instances,
-        "cpuPlanned": _format_cores(use.cpu),
+        "cpuPlanned": format_cores(use.cpu),
     }
     return typed(ComputeNodeStatus, status)
 
 
 def _differs(old: Mapping[str, Any], new: Mapping[str, Any]) -> bool:
-    def strip(conds: Any) -> Any:
-        return [{k: v for k, v in c.items() if k != "lastTransitionTime"} for c in conds or []]
-
+    """Some key this pass owns changed (other writers' keys, and stamps alone, do not count)."""
     for key, value in new.items():
         if key == "conditions":
-            if strip(old.get(key)) != strip(value):
+            if without_transition_times(old.get(key)) != without_transition_times(value):
                 return True
         elif old.get(key) != value:
             return True

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from fogfleet.api.v1alpha1.base import format_cores
 from fogfleet.domain.problem import Problem
 
 from .objectives import constraint_names, constraints
@@ -52,6 +53,5 @@ def _amount(resource: str, value: float) -> str:
     if resource == "memory":
         return f"{value / 2**30:.1f}Gi"
     if resource == "cpu":
-        millis = round(value * 1000)
-        return f"{millis // 1000}" if millis % 1000 == 0 else f"{millis}m"
+        return format_cores(value)
     return f"{value:g}"

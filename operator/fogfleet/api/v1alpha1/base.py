@@ -20,6 +20,7 @@ __all__ = [
     "NonNegInt",
     "PosInt",
     "Quantity",
+    "format_cores",
     "parse_cpu",
     "parse_memory",
     "parse_quantity",
@@ -94,6 +95,12 @@ def parse_quantity(value: str | int) -> float:
 def parse_cpu(value: str | int) -> float:
     """CPU quantity in cores."""
     return parse_quantity(value)
+
+
+def format_cores(cores: float) -> str:
+    """Cores as a short quantity for people: whole cores as "3", else millicores ("2500m")."""
+    millis = round(cores * 1000)
+    return str(millis // 1000) if millis % 1000 == 0 else f"{millis}m"
 
 
 def parse_memory(value: str | int) -> float:
