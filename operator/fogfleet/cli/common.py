@@ -89,7 +89,8 @@ def plan_fleet(fleet: Any, catalog: Any, settings: Any, show_progress: bool) -> 
         schedule = plan(problem, settings, progress=progress)
     finally:
         close()
-    return problem, schedule
+    # a degraded plan's CPU amounts and predictions hold for the degraded problem
+    return problem.with_levels(schedule.levels), schedule
 
 
 def table(rows: list[list[str]], header: list[str]) -> str:

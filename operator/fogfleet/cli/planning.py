@@ -12,7 +12,7 @@ from typing import Any
 import numpy as np
 
 from fogfleet.errors import InvalidSpec
-from fogfleet.scheduling.explain import infeasible_message, unplaced_reasons
+from fogfleet.scheduling.explain import degraded_message, infeasible_message, unplaced_reasons
 from fogfleet.scheduling.objectives import module_miss_rates
 
 from .common import SCHEDULERS, catalog_of, fleets_of, plan_fleet, settings_of, table
@@ -35,6 +35,8 @@ def _placement_rows(problem: Any, schedule: Any) -> list[dict[str, Any]]:
                 "cpu": float(alloc.cpu_request[i, j]) if j >= 0 else None,
             }
         )
+        if schedule.levels is not None and schedule.levels[i] > 0 and problem.ladder is not None:
+            rows[-1]["cpuForDeadline"] = float(problem.ladder.cpu[i, j, 0])
     return rows
 
 
@@ -53,6 +55,7 @@ def cmd_plan(args: argparse.Namespace) -> int:
             "fleet": f"{problem.namespace}/{problem.fleet}",
             "scheduler": schedule.scheduler,
             "feasible": schedule.feasible,
+            "degraded": schedule.degraded,
             "withLimits": schedule.with_limits,
             "placement": rows,
             "objectives": schedule.objectives,
@@ -66,6 +69,10 @@ def cmd_plan(args: argparse.Namespace) -> int:
         }
         if not schedule.feasible:
             doc["infeasible"] = infeasible_message(problem, schedule.placement, schedule.reasons)
+        if schedule.degraded:
+            doc["degradedReason"] = degraded_message(problem, schedule.placement)
+            # a warning people see even with --json on stdout
+            print(f"DEGRADED {doc['fleet']}: {doc['degradedReason']}", file=sys.stderr)
         out.append(doc)
         if args.plot:
             from fogfleet.plot import plot_plan
@@ -81,7 +88,7 @@ def cmd_plan(args: argparse.Namespace) -> int:
 def _print_plan(doc: dict[str, Any]) -> None:
     print(
         f"Fleet {doc['fleet']}  scheduler={doc['scheduler']}  feasible={doc['feasible']}  "
-        f"({doc['durationSeconds']:.2f} s)"
+        f"degraded={doc['degraded']}  ({doc['durationSeconds']:.2f} s)"
     )
     rows = [
         [
@@ -89,7 +96,8 @@ def _print_plan(doc: dict[str, Any]) -> None:
             r["module"] + (f"#{r['replica']}" if r["robot"] == "-" else ""),
             r["node"] or "UNPLACED",
             r["tier"] or "-",
-            f"{r['cpu']:g}" if r["cpu"] is not None else "-",
+            (f"{r['cpu']:g}" if r["cpu"] is not None else "-")
+            + (f" (needs {r['cpuForDeadline']:g})" if "cpuForDeadline" in r else ""),
         ]
         for r in doc["placement"]
     ]
@@ -125,24 +133,25 @@ def cmd_simulate(args: argparse.Namespace) -> int:
         if args.scheduler == "all"
         else [args.scheduler or fleet.spec.scheduler.algorithm]
     )
-    placements: dict[str, tuple[Any, bool]] = {}
+    placements: dict[str, tuple[Any, Any]] = {}  # name -> (placement, allocation)
     if args.placement:
         placements["recorded"] = _read_placement(problem, Path(args.placement))
     infeasible: list[str] = []
     for name in names:
         settings = settings_of(fleet, str(name), args.seed, args)
         schedule = plan(problem, settings)
-        placements[str(name)] = (schedule.placement, schedule.with_limits)
+        planned = problem.with_levels(schedule.levels)
+        placements[str(name)] = (schedule.placement, planned.allocation(schedule.with_limits))
         if not schedule.feasible:
             infeasible.append(
                 f"{name}: {infeasible_message(problem, schedule.placement, schedule.reasons)}"
             )
     result: dict[str, Any] = {}
-    for name, (placement, with_limits) in placements.items():
+    for name, (placement, allocation) in placements.items():
         sim = simulate(
             problem,
             placement,
-            problem.allocation(with_limits),
+            allocation,
             duration_s=args.duration,
             seed=args.seed if args.seed is not None else 0,
             all_active=args.all_active,
@@ -190,8 +199,9 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     return 2 if infeasible else 0
 
 
-def _read_placement(problem: Any, path: Path) -> tuple[Any, bool]:
-    """A placement saved by ``fogfleet plan --json`` or read back from a fleet's status."""
+def _read_placement(problem: Any, path: Path) -> tuple[Any, Any]:
+    """A placement saved by ``fogfleet plan --json`` or read back from a fleet's status, and
+    the allocation it ran with (a degraded plan's smaller CPU amounts read from its ``cpu``)."""
     import numpy as np
     import yaml
 
@@ -211,7 +221,16 @@ def _read_placement(problem: Any, path: Path) -> tuple[Any, bool]:
         ): e.get("node")
         for e in entries
     }
+    cpus = {
+        (
+            e.get("robot") if e.get("robot") not in ("-", None) else "",
+            e["module"],
+            int(e.get("replica") or 0),
+        ): e.get("cpu")
+        for e in entries
+    }
     placement = np.full(problem.n_instances, -1, dtype=np.int64)
+    levels = np.zeros(problem.n_instances, dtype=np.int64)
     for i, inst in enumerate(problem.instances):
         node = index.get((inst.robot, inst.module, inst.replica))
         if node is not None:
@@ -221,4 +240,21 @@ def _read_placement(problem: Any, path: Path) -> tuple[Any, bool]:
                 raise InvalidSpec(
                     str(path), "placement", f"node {node!r} is not in the fleet"
                 ) from exc
-    return placement, with_limits
+            levels[i] = _rung_of(
+                problem, i, int(placement[i]), cpus.get((inst.robot, inst.module, inst.replica))
+            )
+    if not with_limits:
+        return placement, problem.nominal
+    return placement, problem.with_levels(levels).limits
+
+
+def _rung_of(problem: Any, i: int, j: int, cpu: Any) -> int:
+    """The ladder rung whose CPU a recorded plan gave instance ``i`` on node ``j`` (0: the
+    amount its deadline needs, or no record)."""
+    if problem.ladder is None or cpu is None or not problem.allowed[i, j]:
+        return 0
+    from fogfleet.api.v1alpha1.base import parse_cpu
+
+    amount = float(cpu) if isinstance(cpu, float) else parse_cpu(cpu)
+    rungs = np.flatnonzero(np.isclose(problem.ladder.cpu[i, j], amount, atol=1e-6))
+    return int(rungs[0]) if len(rungs) and rungs[0] <= problem.ladder.depth[i, j] else 0

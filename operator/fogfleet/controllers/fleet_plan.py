@@ -41,6 +41,8 @@ def plan_fleet(
     schedule = deps.planner.plan(problem, settings)
     seconds = time.perf_counter() - t0
     placement = np.asarray(schedule.placement, dtype=np.int64)
+    # a degraded plan's CPU amounts, feasibility and figures hold for the degraded problem
+    problem = problem.with_levels(schedule.levels)
     if not schedule.feasible or not stickiness.feasible(problem, placement, True):
         err = Infeasible(
             f"RobotFleet/{key[1]}",

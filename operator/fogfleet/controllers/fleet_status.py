@@ -16,6 +16,7 @@ from fogfleet.domain.problem import Problem
 from fogfleet.errors import DanglingReference, Infeasible, InvalidSpec
 from fogfleet.render.deployments import format_cpu, identity_of
 from fogfleet.scheduling import stickiness
+from fogfleet.scheduling.explain import degraded_message
 
 from .deps import CachedPlan, Deps, fleet_key
 from .status import (
@@ -110,6 +111,14 @@ def fleet_status(
         degraded = condition(
             "Degraded", True, "NodeUnavailable" if stranded else "Migrating", msg, generation
         )
+    elif problem.degraded and cached is not None:
+        degraded = condition(
+            "Degraded",
+            True,
+            "ShortOfCapacity",
+            degraded_message(problem, cached.placement),
+            generation,
+        )
     else:
         degraded = condition(
             "Degraded", False, "AsPlanned", "Every module is where it was planned", generation
@@ -182,6 +191,10 @@ def plan_events(deps: Deps, body: Obj, problem: Problem, cached: CachedPlan) -> 
         f"{cached.schedule.scheduler} in "
         f"{cached.schedule.duration_seconds * 1000:.0f} ms{miss_txt}",
     )
+    if problem.degraded:
+        deps.kube.emit_event(
+            body, "Warning", "ShortOfCapacity", degraded_message(problem, cached.placement)
+        )
     if cached.moves:
         deps.kube.emit_event(
             body,

@@ -132,6 +132,7 @@ def _reconcile(
     planned = False
     if not baseline:
         cached, planned = plan_fleet(deps, key, problem, fleet, before)
+        problem = problem.with_levels(cached.schedule.levels)  # a degraded plan's CPU amounts
     # after planning: an infeasible fleet gets nothing applied, not even its discovery servers
     wiring = apply_ros_wiring(deps.kube, fleet, problem, owner, selector, modules.values())
     if baseline or cached is None:

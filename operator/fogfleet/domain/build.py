@@ -25,11 +25,12 @@ from .problem import (
     TIER_CODE,
     Allocation,
     Instance,
+    Ladder,
     NodeInfo,
     Problem,
     freeze,
 )
-from .taxonomy import must_stay_onboard
+from .taxonomy import may_degrade, module_priority, must_stay_onboard
 
 __all__ = ["build_problem"]
 
@@ -257,6 +258,7 @@ def build_problem(
     nom_exe = np.full((i_count, n), np.inf)
     nom_std = np.zeros((i_count, n))
     reasons: dict[int, str] = {}
+    rungs: dict[tuple[int, int], list[_Row]] = {}  # smaller profiled CPUs below the pick
     # Shared replicas talk to the fleet: use the mean robot uplink.
     mean_robot = Link(
         latency=float(np.mean([links[j].latency for j in range(len(robots))])),
@@ -317,6 +319,11 @@ def build_problem(
             fit = [r for r in rows if r.mean + 2 * r.std <= budget]
             pick = fit[0] if fit else min(rows, key=lambda r: (r.mean, r.cpu))
             lim_req[i, j], lim_exe[i, j], lim_std[i, j] = pick.cpu, pick.mean, pick.std
+            if may_degrade(spec.taxonomy):
+                rungs[i, j] = [
+                    pick,
+                    *sorted((r for r in rows if r.cpu < pick.cpu), key=lambda r: -r.cpu),
+                ]
             # nominal: request as declared, no limit, uses the largest profiled parallelism
             top = rows[-1]
             nom_req[i, j], nom_use[i, j] = nominal_cpu, top.cpu
@@ -358,6 +365,10 @@ def build_problem(
         np.array([float(m.spec.resources.gpu) for m, _, _ in inst_mod]) if inst_mod else np.zeros(0)
     )
     return Problem(
+        priority=freeze(
+            np.array([module_priority(m.spec) for m, _, _ in inst_mod], dtype=np.int64)
+        ),
+        ladder=_ladder(rungs, lim_req, lim_exe, lim_std),
         fleet=fleet.metadata.name,
         namespace=namespace,
         nodes=tuple(
@@ -388,3 +399,25 @@ def build_problem(
         current=freeze(cur),
         reasons=reasons,
     )
+
+
+def _ladder(
+    rungs: Mapping[tuple[int, int], list[_Row]], cpu: F64, mean: F64, std: F64
+) -> Ladder | None:
+    """Rung 0 is the limits pick everywhere; deeper rungs only where a module may degrade and
+    its profile has smaller CPU rows for that node (padded with the smallest)."""
+    depth = np.zeros(cpu.shape, dtype=np.int64)
+    for (i, j), rows in rungs.items():
+        depth[i, j] = len(rows) - 1
+    if not depth.any():
+        return None
+    k = int(depth.max()) + 1
+    lc = np.repeat(cpu[:, :, None], k, axis=2)
+    lm = np.repeat(mean[:, :, None], k, axis=2)
+    ls = np.repeat(std[:, :, None], k, axis=2)
+    for (i, j), rows in rungs.items():
+        padded = rows + [rows[-1]] * (k - len(rows))
+        lc[i, j] = [r.cpu for r in padded]
+        lm[i, j] = [r.mean for r in padded]
+        ls[i, j] = [r.std for r in padded]
+    return Ladder(freeze(lc), freeze(lm), freeze(ls), freeze(depth))

@@ -11,11 +11,15 @@ Two *allocations* give each (instance, node) pair its CPU figures:
   hardware type from the profile (Fig. 3), so modules never contend for CPU on a node.
 - ``nominal`` (what a plain Deployment gets): the module's nominal request, no limit, so while
   active it uses the parallelism its profile shows on that hardware and contends with others.
+
+Where the site is short of CPU, a plan may *degrade* instances: give one a smaller profiled CPU
+than the limits pick (a rung of its ``Ladder``), accepting the misses its profile predicts
+there. ``priority`` orders who degrades first; 0 never degrades (``with_levels``).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any, TypeVar
 
 import numpy as np
@@ -27,6 +31,7 @@ __all__ = [
     "TIER_CODE",
     "Allocation",
     "Instance",
+    "Ladder",
     "NodeInfo",
     "Problem",
     "freeze",
@@ -76,6 +81,22 @@ class Allocation:
 
 
 @dataclass(frozen=True)
+class Ladder:
+    """The profiled CPU amounts at or below the limits pick, per (instance, node): rung 0 is the
+    pick, rung k the k-th next smaller profiled CPU of that hardware type (Fig. 3's rows),
+    padded with the smallest; ``depth[i, j]`` rungs exist below the pick."""
+
+    cpu: F64  # (I, N, K) cores
+    mean: F64  # (I, N, K) seconds
+    std: F64  # (I, N, K) seconds
+    depth: NDArray[np.int64]  # (I, N)
+
+    @property
+    def rungs(self) -> int:
+        return int(self.cpu.shape[2]) if self.cpu.ndim == 3 else 1
+
+
+@dataclass(frozen=True)
 class Problem:
     fleet: str
     namespace: str
@@ -99,6 +120,9 @@ class Problem:
     nominal: Allocation
     current: NDArray[np.int64]  # (I,) current node index, -1 where unknown
     reasons: dict[int, str] = field(default_factory=dict)  # instance -> why nowhere fits
+    priority: NDArray[np.int64] | None = None  # (I,) higher degrades later; 0 never; None: 0
+    ladder: Ladder | None = None  # None: no smaller CPU profiled (nothing can degrade)
+    levels: NDArray[np.int64] | None = None  # (I,) rungs taken below the pick; None: none
 
     @property
     def n_instances(self) -> int:
@@ -110,6 +134,32 @@ class Problem:
 
     def allocation(self, with_limits: bool) -> Allocation:
         return self.limits if with_limits else self.nominal
+
+    @property
+    def degraded(self) -> bool:
+        return self.levels is not None and bool(np.any(self.levels > 0))
+
+    def with_levels(self, levels: NDArray[np.int64] | None) -> Problem:
+        """This problem with instance ``i``'s limits taken ``levels[i]`` rungs down its ladder
+        (clamped per node to the rungs that exist); ``None`` or all zeros: unchanged."""
+        if levels is None or self.ladder is None or not np.any(levels > 0):
+            return (
+                self if self.levels is None else replace(self, limits=self._rung(None), levels=None)
+            )
+        lv = np.asarray(levels, dtype=np.int64)
+        return replace(self, limits=self._rung(lv), levels=freeze(lv.copy()))
+
+    def _rung(self, levels: NDArray[np.int64] | None) -> Allocation:
+        lad = self.ladder
+        assert lad is not None
+        k = np.zeros((self.n_instances, self.n_nodes), dtype=np.int64)
+        if levels is not None:
+            k = np.minimum(levels[:, None], lad.depth)
+        i, j = np.indices(k.shape)
+        cpu = np.where(self.allowed, lad.cpu[i, j, k], 0.0)
+        mean = np.where(self.allowed, lad.mean[i, j, k], np.inf)
+        std = np.where(self.allowed, lad.std[i, j, k], 0.0)
+        return Allocation(freeze(cpu), freeze(cpu.copy()), freeze(mean), freeze(std), True)
 
     def node_index(self, name: str) -> int:
         for j, node in enumerate(self.nodes):

@@ -12,11 +12,19 @@ from enum import StrEnum
 from fogfleet.api.v1alpha1.softwaremodule import (
     ExecutionPattern,
     SafetyClass,
+    SoftwareModuleSpec,
     Taxonomy,
+    default_priority,
     must_run_on_board,
 )
 
-__all__ = ["Offloadability", "classify", "must_stay_onboard"]
+__all__ = [
+    "Offloadability",
+    "classify",
+    "may_degrade",
+    "module_priority",
+    "must_stay_onboard",
+]
 
 
 class Offloadability(StrEnum):
@@ -38,3 +46,14 @@ def classify(tax: Taxonomy) -> Offloadability:
     ):
         return Offloadability.PREFERRED
     return Offloadability.CANDIDATE
+
+
+def may_degrade(tax: Taxonomy) -> bool:
+    """Whether a plan short of CPU may give this module less than its deadline needs: never a
+    hard real-time or safety-critical one (a miss there is a failure, III-A)."""
+    return not must_stay_onboard(tax)
+
+
+def module_priority(spec: SoftwareModuleSpec) -> int:
+    """``spec.priority``, else the taxonomy's default (``default_priority``)."""
+    return spec.priority if spec.priority is not None else default_priority(spec.taxonomy)

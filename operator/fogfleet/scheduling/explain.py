@@ -8,9 +8,9 @@ import numpy as np
 from fogfleet.api.v1alpha1.base import format_cores
 from fogfleet.domain.problem import Problem
 
-from .objectives import constraint_names, constraints
+from .objectives import constraint_names, constraints, module_miss_rates
 
-__all__ = ["infeasible_message", "unplaced_reasons"]
+__all__ = ["degraded_message", "infeasible_message", "unplaced_reasons"]
 
 
 def unplaced_reasons(problem: Problem, reasons: dict[int, str]) -> dict[str, str]:
@@ -55,3 +55,34 @@ def _amount(resource: str, value: float) -> str:
     if resource == "cpu":
         return format_cores(value)
     return f"{value:g}"
+
+
+def degraded_message(problem: Problem, x: np.ndarray) -> str:
+    """Which modules a degraded plan runs below the CPU their deadline needs: how many
+    instances, on which nodes, the CPU they get instead of what they need, their priority and
+    the misses predicted for them (``module_miss_rates``)."""
+    if not problem.degraded or problem.levels is None or problem.ladder is None:
+        return "not degraded"
+    rates = module_miss_rates(problem, x, True)
+    lad = problem.ladder
+    by_module: dict[str, list[int]] = {}
+    for n in np.flatnonzero(problem.levels > 0):
+        by_module.setdefault(problem.instances[int(n)].module, []).append(int(n))
+    parts = []
+    for module, idx in sorted(by_module.items(), key=lambda kv: -rates.get(kv[0], 0.0)):
+        i = idx[0]
+        j = int(x[i])
+        k = min(int(problem.levels[i]), int(lad.depth[i, j]))
+        prio = int(problem.priority[i]) if problem.priority is not None else 0
+        nodes = sorted({problem.nodes[int(x[n])].name for n in idx})
+        parts.append(
+            f"{module} x{len(idx)} on {', '.join(nodes[:3])}{'...' if len(nodes) > 3 else ''} "
+            f"gets {format_cores(float(lad.cpu[i, j, k]))} cpu instead of "
+            f"{format_cores(float(lad.cpu[i, j, 0]))} (priority {prio}, predicted miss "
+            f"{rates.get(module, 0.0):.1%})"
+        )
+    total = sum(len(v) for v in by_module.values())
+    return (
+        f"degraded: the nodes are short of CPU, so {total} instance(s) of the lowest-priority "
+        f"modules run below the CPU their deadline needs: " + "; ".join(parts)
+    )

@@ -17,7 +17,8 @@ class Schedule:
     ``placement[i]`` is a node index (``-1``: instance ``i`` could not be placed, see
     ``reasons``). ``with_limits`` tells which Allocation of the Problem the plan uses: True for
     fogfleet's own plans (requests = limits per hardware type), False for plans that mimic plain
-    Deployments (k8s-default, onboard).
+    Deployments (k8s-default, onboard). A degraded plan's ``levels`` say how far down its
+    ladder each instance's CPU was taken.
     """
 
     scheduler: str
@@ -33,3 +34,10 @@ class Schedule:
     reasons: dict[int, str] = field(default_factory=dict)
     generations: int = 0
     evaluations: int = 0
+    levels: NDArray[np.int64] | None = None  # (I,) rungs each instance was degraded (degrade)
+
+    @property
+    def degraded(self) -> bool:
+        """Some instances run below the CPU their deadline needs (``scheduling.degrade``);
+        ``Problem.with_levels(levels)`` is the problem the plan's figures hold for."""
+        return self.levels is not None and bool(np.any(self.levels > 0))

@@ -17,6 +17,7 @@ from fogfleet.domain.problem import Problem
 
 from .baselines import finish, k8s_default, onboard_plan, random_plan
 from .choice import choose, non_dominated
+from .degrade import degrade
 from .exact import scalarised, solve_exact
 from .local import pareto_local_search
 from .operators import (
@@ -50,10 +51,20 @@ def plan(
     problem: Problem, settings: SchedulerSettings, progress: Progress | None = None
 ) -> Schedule:
     """Plan the fleet with ``settings.algorithm``. Instances with an empty gene space
-    (``problem.reasons``) get -1 and make the schedule infeasible, with their reasons."""
+    (``problem.reasons``) get -1 and make the schedule infeasible, with their reasons. When
+    NSGA-II finds no plan that gives every instance its deadline's CPU and
+    ``settings.allowDegraded`` holds, the lowest-priority instances get less
+    (``scheduling.degrade``; ``Schedule.degraded``)."""
     algo = SchedulerName(settings.algorithm)
     if algo is SchedulerName.NSGA2:
-        return nsga2(problem, settings, progress)
+        sched = nsga2(problem, settings, progress)
+        if not sched.feasible and settings.allow_degraded:
+            t0 = time.perf_counter()
+            degraded = degrade(problem, lambda p: nsga2(p, settings, progress))
+            if degraded is not None:
+                spent = sched.duration_seconds + time.perf_counter() - t0
+                return replace(degraded, duration_seconds=spent)
+        return sched
     if algo is SchedulerName.K8S_DEFAULT:
         return k8s_default(problem, settings.seed)
     if algo is SchedulerName.ONBOARD:

@@ -219,8 +219,9 @@ def test_all_active_reproduces_the_papers_overloaded_robot(
     assert json.loads(busy)["onboard"]["missRate"] > 2 * json.loads(rates)["onboard"]["missRate"]
 
 
-def _short_site(tmp_path: Path) -> Path:
-    """The single-robot fleet with a 1-core edge node: nothing fits as planned."""
+def _short_site(tmp_path: Path, *, allow_degraded: bool = False) -> Path:
+    """The single-robot fleet with a 1-core edge node: nothing fits as planned (and, unless
+    ``allow_degraded``, the fleet forbids running its modules below their deadline's CPU)."""
     nodes = (
         (SOLO / "nodes.yaml")
         .read_text()
@@ -228,7 +229,11 @@ def _short_site(tmp_path: Path) -> Path:
     )
     assert "cpu: 1," in nodes
     (tmp_path / "nodes.yaml").write_text(nodes)
-    (tmp_path / "fleet.yaml").write_text((SOLO / "fleet.yaml").read_text())
+    fleet = (SOLO / "fleet.yaml").read_text()
+    if not allow_degraded:
+        fleet = fleet.replace("  modules:\n", "  scheduler: {allowDegraded: false}\n  modules:\n")
+        assert "allowDegraded" in fleet
+    (tmp_path / "fleet.yaml").write_text(fleet)
     (tmp_path / "modules.yaml").write_text((WAREHOUSE / "modules.yaml").read_text())
     return tmp_path
 
@@ -253,6 +258,35 @@ def test_simulate_says_infeasible_and_names_the_worst_module(
     assert "INFEASIBLE nsga2: no placement fits" in err
     worst = next(line for line in out.splitlines() if line.startswith("WORST MODULE"))
     assert "%" in worst or "UNPLACED" in worst
+
+
+def test_a_short_site_plans_degraded_with_a_warning_and_exit_0(
+    capsys: pytest.CaptureFixture[str], tmp_path: Path
+) -> None:
+    site = _short_site(tmp_path, allow_degraded=True)
+    code, out, err = run(capsys, "plan", str(site), "--json", "--generations", "5")
+    doc = json.loads(out)
+    assert code == 0 and doc["feasible"] is True and doc["degraded"] is True
+    assert err.startswith("DEGRADED warehouse/single-robot: degraded: the nodes are short of CPU")
+    below = [r for r in doc["placement"] if "cpuForDeadline" in r]
+    assert below and all(r["cpu"] < r["cpuForDeadline"] for r in below)
+    assert all(r["module"] != "nav-controller" for r in below), "hard real-time keeps its CPU"
+    assert "predicted miss" in doc["degradedReason"]
+    # the saved degraded plan simulates with the CPU it was given, as nsga2 does
+    saved = tmp_path / "plan.json"
+    saved.write_text(out)
+    args = ("simulate", str(site), "--duration", "10", "--generations", "5", "--json")
+    code, out, _ = run(capsys, *args, "--placement", str(saved))
+    sim = json.loads(out)
+    assert code == 0
+    assert sim["recorded"]["missRate"] == pytest.approx(sim["nsga2"]["missRate"])
+    code, out, _ = run(capsys, "render", str(site), "--generations", "5")
+    cpus = {
+        d["metadata"]["name"]: d["spec"]["template"]["spec"]["containers"][0]["resources"]
+        for d in yaml.safe_load_all(out)
+        if d and d.get("kind") == "Deployment" and "object-pose" in d["metadata"]["name"]
+    }
+    assert code == 0 and cpus
 
 
 def test_the_fleet_level_reason_is_not_pinned_on_an_instance(

@@ -175,6 +175,24 @@ def test_a_fleet_that_cannot_fit_is_reported_and_nothing_is_applied(kube, deps):
     assert deps.planner.calls == calls, "same inputs, same failure: no second GA run"
 
 
+def test_a_fleet_short_of_cpu_runs_degraded_and_says_so(kube, deps):
+    for cn in kube.compute_nodes.values():
+        if cn["spec"]["tier"] == "edge":
+            cn["spec"]["capacity"] = {"cpu": 4, "memory": "64Gi"}
+    out = run(kube, deps)
+    assert out.applied == 40, "a degraded plan runs every module"
+    cond = conditions(kube)
+    assert cond["Degraded"]["status"] == "True" and cond["Degraded"]["reason"] == "ShortOfCapacity"
+    assert "predicted miss" in cond["Degraded"]["message"]
+    assert ("Warning", "ShortOfCapacity") in [e[:2] for e in kube.events]
+    # the Deployments get the smaller CPU the plan gave them, as limits
+    status = {(p["robot"], p["module"]): p["cpu"] for p in kube.fleets[KEY]["status"]["placement"]}
+    for dep in module_deps(kube).values():
+        robot, module, _ = identity_of(dep)
+        res = dep["spec"]["template"]["spec"]["containers"][0]["resources"]
+        assert res["limits"]["cpu"] == res["requests"]["cpu"] == status[(robot, module)]
+
+
 def test_stale_deployments_are_pruned(kube, deps):
     run(kube, deps)
     kube.fleets[KEY]["spec"]["modules"] = kube.fleets[KEY]["spec"]["modules"][:7]

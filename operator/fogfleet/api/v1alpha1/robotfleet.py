@@ -136,6 +136,10 @@ class SchedulerSettings(FogModel):
     migration_margin_percent: Annotated[int, Field(ge=0, le=100)] = 5
     """A new plan replaces the running one only if it is this many percent better; keeps
     modules from moving for marginal gains."""
+    allow_degraded: bool = True
+    """When the nodes are short of CPU, run the lowest-priority modules (SoftwareModule
+    spec.priority) with less CPU than their deadline needs, with their predicted misses in the
+    Degraded condition, instead of refusing the fleet. false: refuse it (Ready=False)."""
 
     @model_validator(mode="after")
     def _unique(self) -> SchedulerSettings:

@@ -34,6 +34,7 @@ __all__ = [
     "Taxonomy",
     "Topic",
     "Topics",
+    "default_priority",
 ]
 
 
@@ -66,6 +67,19 @@ class Scope(StrEnum):
 
     PER_ROBOT = "perRobot"
     SHARED = "shared"
+
+
+def default_priority(tax: Taxonomy) -> int:
+    """A module's priority when ``spec.priority`` is not set, from its taxonomy (III-A):
+    hard real-time or safety-critical 1000 (never degraded anyway), safety-relevant 700,
+    soft real-time 400, the rest 100."""
+    if must_run_on_board(tax):
+        return 1000
+    if tax.safety is SafetyClass.RELEVANT:
+        return 700
+    if tax.realtime is RealtimeClass.SOFT:
+        return 400
+    return 100
 
 
 def must_run_on_board(tax: Taxonomy) -> bool:
@@ -209,6 +223,12 @@ class SoftwareModuleSpec(FogModel):
     scaling: ScalingSpec | None = Field(
         default=None, description="SLO-driven autoscaling of a shared module (tinyKube)."
     )
+    priority: Annotated[int, Field(ge=1, le=1000)] | None = None
+    """How much this module's deadlines matter, 1-1000 (higher matters more). When the site is
+    short of CPU, fogfleet gives the lowest-priority modules a smaller profiled CPU first and
+    reports their predicted misses (a Degraded plan) instead of refusing the fleet. Hard
+    real-time and safety-critical modules are never degraded. Default from the taxonomy:
+    700 for safety-relevant modules, 400 for soft real-time ones, 100 for the rest."""
 
     @model_validator(mode="after")
     def _check(self) -> SoftwareModuleSpec:

@@ -1,0 +1,126 @@
+"""Graceful degradation (scheduling.degrade): a site short of CPU gets a plan whose misses fall
+on its lowest-priority modules, never on hard real-time ones; other shortages stay refused."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from fogfleet.api.loader import load_paths
+from fogfleet.domain.build import build_problem
+from fogfleet.domain.problem import Problem
+from fogfleet.scheduling.degrade import give_back, steps
+from fogfleet.scheduling.objectives import evaluate
+from fogfleet.scheduling.solver import plan
+
+ROOT = Path(__file__).resolve().parents[3]
+WAREHOUSE = ROOT / "manifests" / "examples" / "warehouse"
+SOLO = ROOT / "manifests" / "examples" / "single-robot"
+
+
+def _site(tmp_path: Path, edge_cpu: str, *, memory: str = "64Gi", modules: str = "") -> Problem:
+    """The single-robot fleet with an edge node of ``edge_cpu`` cores (16 in the example)."""
+    nodes = (SOLO / "nodes.yaml").read_text()
+    old = "capacity: {cpu: 16, memory: 64Gi}"
+    assert old in nodes
+    (tmp_path / "nodes.yaml").write_text(
+        nodes.replace(old, f"capacity: {{cpu: {edge_cpu}, memory: {memory}}}")
+    )
+    (tmp_path / "fleet.yaml").write_text((SOLO / "fleet.yaml").read_text())
+    (tmp_path / "modules.yaml").write_text(modules or (WAREHOUSE / "modules.yaml").read_text())
+    catalog = load_paths([tmp_path])
+    return build_problem(catalog.fleets[0], catalog)
+
+
+def _settings(problem: Problem, **extra: object):  # type: ignore[no-untyped-def]
+    from fogfleet.api.v1alpha1.robotfleet import SchedulerSettings
+
+    return SchedulerSettings.model_validate({"generations": 20, "population": 24, **extra})
+
+
+def _degraded_modules(problem: Problem, levels: np.ndarray) -> set[str]:
+    return {problem.instances[i].module for i in np.flatnonzero(levels > 0)}
+
+
+def test_the_taxonomy_gives_default_priorities_and_hard_real_time_has_no_rungs(
+    tmp_path: Path,
+) -> None:
+    p = _site(tmp_path, "2")
+    prio = {inst.module: int(p.priority[i]) for i, inst in enumerate(p.instances)}
+    assert prio["nav-controller"] == 1000  # hard real-time, safety-critical
+    assert prio["nav-localization"] == 700  # safety-relevant
+    assert prio["scene-segmentation"] == 400  # soft real-time, safety-irrelevant
+    assert prio["object-pose-estimation"] == 100
+    assert p.ladder is not None
+    ctrl = [i for i, inst in enumerate(p.instances) if inst.module == "nav-controller"]
+    assert not p.ladder.depth[ctrl].any(), "a hard real-time module is never degraded"
+    order = steps(p)
+    assert [int(p.priority[i]) for i in order] == sorted(int(p.priority[i]) for i in order)
+
+
+def test_a_site_short_of_cpu_runs_degraded_on_its_lowest_priorities(tmp_path: Path) -> None:
+    # 14.75 cores wanted, 6 + 8 allocatable: one core short, which object pose (priority 100,
+    # 2 cores for its deadline, 1 core profiled) can give
+    p = _site(tmp_path, "8500m")
+    sched = plan(p, _settings(p))
+    assert sched.feasible and sched.degraded
+    assert sched.levels is not None
+    degraded = p.with_levels(sched.levels)
+    # the degraded problem's CPU amounts fit the nodes and its figures are the schedule's
+    values = evaluate(degraded, sched.placement[None, :], degraded.limits)
+    assert sched.objectives["missRate"] == pytest.approx(float(values["missRate"][0]))
+    lowest = {
+        inst.module
+        for i, inst in enumerate(p.instances)
+        if p.priority[i] == p.priority[steps(p)].min()
+    }
+    assert _degraded_modules(p, sched.levels) == lowest == {"object-pose-estimation"}
+    assert "priority 100" in sched.choice_reason and "predicted miss" in sched.choice_reason
+
+
+def test_refusing_degradation_keeps_the_fleet_infeasible(tmp_path: Path) -> None:
+    p = _site(tmp_path, "3")
+    sched = plan(p, _settings(p, allowDegraded=False))
+    assert not sched.feasible and not sched.degraded
+
+
+def test_a_memory_shortage_is_not_degraded_away(tmp_path: Path) -> None:
+    modules = (WAREHOUSE / "modules.yaml").read_text()
+    old = 'resources: {cpu: "500m", memory: 1Gi}'
+    assert old in modules
+    # a 20 GiB module fits neither the robot (14 GiB) nor a 2 GiB edge: less CPU cannot help
+    p = _site(
+        tmp_path, "3", memory="2Gi", modules=modules.replace(old, old.replace("1Gi", "20Gi"), 1)
+    )
+    sched = plan(p, _settings(p))
+    assert not sched.feasible and not sched.degraded
+
+
+def test_a_users_priority_decides_who_degrades_first(tmp_path: Path) -> None:
+    modules = (WAREHOUSE / "modules.yaml").read_text()
+    # object pose matters most now; scene segmentation least
+    modules = modules.replace(
+        "  name: object-pose-estimation\n", "  name: object-pose-estimation\n", 1
+    )
+    docs = modules.split("\n---\n")
+    for k, doc in enumerate(docs):
+        if "name: object-pose-estimation\n" in doc:
+            docs[k] = doc.replace("\nspec:\n", "\nspec:\n  priority: 900\n", 1)
+        if "name: scene-segmentation\n" in doc:
+            docs[k] = doc.replace("\nspec:\n", "\nspec:\n  priority: 5\n", 1)
+    p = _site(tmp_path, "8500m", modules="\n---\n".join(docs))
+    sched = plan(p, _settings(p))
+    assert sched.feasible and sched.degraded and sched.levels is not None
+    got = _degraded_modules(p, sched.levels)
+    assert "scene-segmentation" in got and "object-pose-estimation" not in got
+
+
+def test_rungs_the_plan_has_room_for_are_given_back(tmp_path: Path) -> None:
+    p = _site(tmp_path, "16")  # the example: nothing short
+    sched = plan(p, _settings(p))
+    assert sched.feasible and not sched.degraded
+    every = np.ones(p.n_instances, dtype=np.int64)
+    back = give_back(p.with_levels(every), sched.placement)
+    assert not back.any(), "the plan fits at full CPU, so every rung comes back"
