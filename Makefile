@@ -31,7 +31,7 @@ lint: venv ## ruff, mypy (strict on the pure core) and import-linter contracts
 unit: venv ## Unit tests (pure core, CLI, render; no cluster)
 	$(BIN)/pytest tests -q
 
-test: venv lint crds-check unit chart-lint checkov e2e ## Everything CI runs: lint, CRD drift, unit tests, chart lint, checkov, e2e on the local bed (real and kwok nodes)
+test: venv lint crds-check cluster-tools unit chart-lint checkov images e2e ## Everything CI runs: lint, CRD drift, unit tests, chart lint, checkov, e2e on the local bed (real and kwok nodes)
 
 crds: venv ## Write the CRD YAML in crds/ from the pydantic models
 	$(BIN)/fogfleet crds --out crds
@@ -54,7 +54,9 @@ cluster-down: venv ## Stop the local control plane and remove its state
 cluster-status: venv ## Show the local control plane's processes and health
 	$(BIN)/python e2e/cluster/harness.py status
 
-e2e: venv ## End-to-end tests on the local control plane (started if not running)
+# The tools and images are built (or found in ~/.cache/fogfleet) before pytest starts: a fresh
+# machine's first build takes many minutes, more than any test's timeout.
+e2e: venv cluster-tools images ## End-to-end tests on the local control plane (started if not running)
 	$(BIN)/pytest e2e -q --with-e2e
 
 e2e-k3d: venv ## The same e2e suite on a k3d cluster (needs Docker; not run on the dev machines)

@@ -61,8 +61,8 @@ def _module(
         "resources": {"cpu": "100m", "memory": "256Mi"},
         "topics": {"subscribes": topics(subscribes), "publishes": topics(publishes)},
         "profile": [
-            # quoted: fractional quantities are strings in this API version
-            {"hardwareType": hw, "cpu": cpu, "meanMillis": f"{mean:g}", "stdMillis": f"{std:g}"}
+            # plain numbers (type: number), fractions unquoted
+            {"hardwareType": hw, "cpu": cpu, "meanMillis": mean, "stdMillis": std}
             for hw, cpu, mean, std in profile
         ],
     }

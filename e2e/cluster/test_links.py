@@ -9,7 +9,7 @@ from e2e.cluster.base import HarnessError
 
 
 def test_a_computenode_network_entry_becomes_a_link() -> None:
-    entry = {"type": "wifi", "latencyMillis": 4, "jitterMillis": "1.5", "bandwidthMbps": 100}
+    entry = {"type": "wifi", "latencyMillis": 4, "jitterMillis": 1.5, "bandwidthMbps": 100}
     assert links.LinkSpec.from_network(entry) == links.LinkSpec(4.0, 1.5, 100.0, 0.0)
 
 

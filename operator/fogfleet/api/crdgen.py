@@ -53,11 +53,7 @@ HEADER = (
     "operator/fogfleet/api/v1alpha1/.\n# Do not edit: run `make crds` (a drift test guards it).\n"
 )
 
-_POSITIVE_QUANTITY_RULE = {
-    "rule": "type(self) == int ? self > 0 : "
-    "isQuantity(self) && quantity(self).isGreaterThan(quantity('0'))",
-    "message": "must be greater than zero",
-}
+_POSITIVE_NUMBER_RULE = {"rule": "self > 0.0", "message": "must be greater than zero"}
 
 Json = dict[str, Any]
 
@@ -152,7 +148,7 @@ KINDS: tuple[KindInfo, ...] = (
         short_names=("swm",),
         columns=(
             {"name": "Offloadable", "type": "string", "jsonPath": ".status.offloadable"},
-            {"name": "CycleMillis", "type": "string", "jsonPath": ".spec.cycleTimeMillis"},
+            {"name": "CycleMillis", "type": "number", "jsonPath": ".spec.cycleTimeMillis"},
             {"name": "Instances", "type": "integer", "jsonPath": ".status.instances"},
             {"name": "Split", "type": "string", "jsonPath": ".status.split"},
             {"name": "Scope", "type": "string", "jsonPath": ".spec.scope", "priority": 1},
@@ -160,7 +156,7 @@ KINDS: tuple[KindInfo, ...] = (
         ),
         rules={
             "spec": _cel(SoftwareModuleSpec),
-            "spec.cycleTimeMillis": (_POSITIVE_QUANTITY_RULE,),
+            "spec.cycleTimeMillis": (_POSITIVE_NUMBER_RULE,),
             "spec.template": _OWNED_RULES,
         },
         extras={

@@ -33,7 +33,11 @@ from .problem import PlacementProblem
 from .schedule import Schedule
 
 ENUMERATE_LIMIT = 20_000  # plans; smaller search spaces are enumerated exactly
-LOCAL_SEARCH_SAFETY = 10.0  # the local search stops at 10x the time budget at the latest
+# The local search is bounded by work; this deadline is only a safety net for pathological
+# fleets (10x the time budget, at least 60 s). Hitting it would make the plan depend on
+# the clock, so it sits far above what the work bound allows on a loaded machine.
+LOCAL_SEARCH_SAFETY = 10.0
+LOCAL_SEARCH_FLOOR_SECONDS = 60.0
 
 __all__ = ["Progress", "nsga2", "plan", "weights_of"]
 
@@ -137,7 +141,7 @@ def nsga2(
         idx = np.flatnonzero(feasible)
         # bounded by work, not by the clock, so a rerun with the generations reached
         # reproduces the plan; the deadline is only a safety net for pathological fleets
-        deadline = t0 + LOCAL_SEARCH_SAFETY * budget
+        deadline = t0 + max(LOCAL_SEARCH_SAFETY * budget, LOCAL_SEARCH_FLOOR_SECONDS)
         X, F, n_local = pareto_local_search(clean, X[idx], F[idx], deadline=deadline)
         cv = np.zeros(len(X))
         feasible = np.ones(len(X), dtype=bool)

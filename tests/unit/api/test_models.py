@@ -84,6 +84,25 @@ def test_every_example_object_round_trips_through_its_wire_form() -> None:
     assert count >= 23
 
 
+def test_fractional_millis_rates_and_weights_need_no_quotes() -> None:
+    module = _module()
+    module["spec"]["cycleTimeMillis"] = 33.3
+    module["spec"]["profile"][0].update(meanMillis=12.5, stdMillis=0.4)
+    module["spec"]["topics"]["publishes"][0]["rateHz"] = 7.5
+    mod = parse_object(module)
+    assert isinstance(mod, SoftwareModule)
+    assert mod.spec.cycle_time_millis == 33.3 and mod.spec.profile[0].std_millis == 0.4
+    fleet = _fleet()
+    fleet["spec"]["scheduler"] = {
+        "choice": "weighted",
+        "weights": [{"objective": "missRate", "weight": 0.5}],
+    }
+    assert isinstance(parse_object(fleet), RobotFleet)
+    node = _node()
+    node["spec"]["network"][0]["latencyMillis"] = 0.3
+    assert isinstance(parse_object(node), ComputeNode)
+
+
 def test_other_kinds_are_ignored_not_rejected() -> None:
     catalog = load_paths([WAREHOUSE / "00-namespace.yaml"])
     assert catalog.ignored == ["Namespace/warehouse"]
@@ -118,12 +137,12 @@ Mutation = Callable[[dict[str, Any]], object]
         (
             lambda d: d["spec"].update(cycleTimeMillis=-5),
             "spec.cycleTimeMillis",
-            "must not be negative",
+            "zero or more, not -5",
         ),
         (
             lambda d: d["spec"].update(cycleTimeMillis="-5"),
             "spec.cycleTimeMillis",
-            "not a Kubernetes quantity",
+            "written without quotes",
         ),
         (
             lambda d: d["spec"].update(cycleTimeMillis=0),
@@ -274,3 +293,10 @@ def test_every_cross_field_rule_is_stated_once_and_reaches_its_crd() -> None:
     ]:
         for rule in model.RULES:
             assert rule.crd() in validations(kind, *path), (kind, rule.message)
+
+
+def test_cost_is_a_default_objective_after_onboard_use() -> None:
+    from fogfleet.api.v1alpha1.robotfleet import SchedulerSettings
+
+    names = [o.value for o in SchedulerSettings().objectives]
+    assert names == ["missRate", "missedCycles", "onboard", "cost", "reserve", "balance"]

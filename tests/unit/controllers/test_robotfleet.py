@@ -348,7 +348,7 @@ def test_a_quantity_weight_is_accepted_by_the_solver(kube, deps):
     body["spec"]["scheduler"] = {
         "choice": "weighted",
         "weights": [
-            {"objective": "missRate", "weight": "500m"},
+            {"objective": "missRate", "weight": 0.5},
             {"objective": "cost", "weight": 2},
         ],
     }

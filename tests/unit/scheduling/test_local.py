@@ -87,7 +87,8 @@ def test_a_move_must_change_the_node(tiny: Problem) -> None:
 def _archive() -> tuple[PlacementProblem, np.ndarray, np.ndarray]:
     """A feasible non-dominated front of a short NSGA-II run without local search."""
     p = _warehouse()
-    s = nsga2(p, SchedulerSettings(seed=3, population=40, generations=15), local_search=False)
+    settings = SchedulerSettings(seed=3, population=40, generations=15, objectives=list(NAMES))
+    s = nsga2(p, settings, local_search=False)
     assert s.feasible and s.pareto_placements is not None and s.pareto_front is not None
     pp = PlacementProblem(p, NAMES)
     return pp, s.pareto_placements[:, pp.genes], s.pareto_front

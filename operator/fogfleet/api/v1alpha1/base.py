@@ -6,6 +6,7 @@ Conventions (STYLE.md): camelCase on the wire, unknown fields rejected, ints or 
 
 from __future__ import annotations
 
+import math
 import re
 from decimal import Decimal, InvalidOperation
 from typing import Annotated, Any
@@ -18,6 +19,7 @@ __all__ = [
     "FogModel",
     "MemoryQuantity",
     "NonNegInt",
+    "Number",
     "PosInt",
     "Quantity",
     "format_cores",
@@ -71,11 +73,11 @@ _SUFFIX = {
 _QUANTITY = re.compile(r"^([+]?[0-9]+(?:\.[0-9]*)?|[+]?\.[0-9]+)([eE][+-]?[0-9]+)?([a-zA-Z]{0,2})$")
 
 
-def parse_quantity(value: str | int) -> float:
+def parse_quantity(value: str | float) -> float:
     """Parse a Kubernetes quantity ("500m", "2", "1Gi", 3) into a float in base units."""
     if isinstance(value, bool):
         raise ValueError("must be an integer or a quantity string, not a boolean")
-    if isinstance(value, int):
+    if isinstance(value, int | float):
         if value < 0:
             raise ValueError("must not be negative")
         return float(value)
@@ -119,6 +121,21 @@ Quantity = Annotated[
     Field(json_schema_extra={"x-kubernetes-int-or-string": True}),
 ]
 CpuQuantity = Quantity
+
+
+def _check_number(value: Any) -> Any:
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        raise ValueError(
+            f"must be a number such as 12 or 0.4, written without quotes, not {value!r}"
+        )
+    if not math.isfinite(value) or value < 0:
+        raise ValueError(f"must be a finite number, zero or more, not {value!r}")
+    return value
+
+
+Number = Annotated[float, BeforeValidator(_check_number), Field(json_schema_extra={"minimum": 0})]
+"""A plain non-negative number (``type: number`` in the CRD, as the API server accepts it):
+milliseconds, rates, weights, factors. Unlike a quantity it takes no suffix and no quotes."""
 MemoryQuantity = Quantity
 PosInt = Annotated[int, Field(ge=1)]
 NonNegInt = Annotated[int, Field(ge=0)]

@@ -13,7 +13,7 @@ from typing import Annotated, ClassVar, Literal
 
 from pydantic import Field, model_validator
 
-from .base import FogModel, NonNegInt, Quantity, refuse_duplicates
+from .base import FogModel, NonNegInt, Number, Quantity, refuse_duplicates
 from .common import Condition, Name, ObjectMeta, Tier
 from .rules import CrossFieldRule, enforce
 
@@ -91,26 +91,26 @@ class NetworkLink(FogModel):
 
     type: LinkType
     """Link technology; Wi-Fi and cellular links are the robot side of eq. 4's transfer time."""
-    latency_millis: Quantity
+    latency_millis: Number
     """One-way latency of this link in milliseconds (eq. 4's latency term)."""
-    jitter_millis: Quantity = 0
+    jitter_millis: Number = 0
     """Standard deviation of the one-way latency in milliseconds."""
-    bandwidth_mbps: Quantity
+    bandwidth_mbps: Number
     """Usable bandwidth in megabit/s (eq. 4's size/bandwidth term; 80% is the planning cap)."""
-    loss_percent: Quantity = 0
+    loss_percent: Number = 0
     """Packet loss in percent."""
 
 
 class PowerModel(FogModel):
     """Robot energy model (fog-iot-resource-optimization): idle + per busy core + radio."""
 
-    battery_watt_hours: Quantity
+    battery_watt_hours: Number
     """Battery capacity in watt-hours."""
-    idle_watts: Quantity = 0
+    idle_watts: Number = 0
     """Power drawn by the computer when idle, in watts."""
-    per_core_watts: Quantity = 0
+    per_core_watts: Number = 0
     """Extra power per busy core, in watts."""
-    radio_watts_per_mbps: Quantity = 0
+    radio_watts_per_mbps: Number = 0
     """Radio power per megabit/s sent or received, in watts."""
 
 
@@ -138,7 +138,7 @@ class ComputeNodeSpec(FogModel):
     )
     reserved: ReservedResources = Field(default_factory=ReservedResources)
     """Resources kept free on this node (default: none)."""
-    speed_factor: Quantity = Field(
+    speed_factor: Number = Field(
         default=1,
         description="Relative CPU speed, used only when no profile names this hardware type.",
     )
@@ -150,7 +150,7 @@ class ComputeNodeSpec(FogModel):
     """How private the data a node may see can be, 0 (public) to 3 (robot only) (tinyKube);
     a module runs only where privacyLevel >= its requirements.minPrivacy. Default: 3 on a
     robot (a robot trusts its own computer), 0 elsewhere."""
-    cost_per_core_hour: Quantity = 0
+    cost_per_core_hour: Number = 0
     """Price of one core for one hour, in the fleet's currency (the cost objective)."""
     power: PowerModel | None = None
     """Battery and power model of a robot (robot nodes only; the energy objective)."""

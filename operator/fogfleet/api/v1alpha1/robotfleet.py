@@ -7,7 +7,7 @@ from typing import Annotated, ClassVar, Literal
 
 from pydantic import Field, model_validator
 
-from .base import FogModel, PosInt, Quantity, refuse_duplicates
+from .base import FogModel, Number, PosInt, refuse_duplicates
 from .common import Condition, LabelSelector, Name, ObjectMeta
 from .rules import CrossFieldRule, enforce
 
@@ -64,14 +64,14 @@ class ObjectiveWeight(FogModel):
 
     objective: ObjectiveName
     """The objective weighted."""
-    weight: Quantity = 1
+    weight: Number = 1
     """Its weight (a number or quantity; objectives are normalised over the front first)."""
 
 
 class ModuleOverrides(FogModel):
     """Per-fleet changes to a module's spec (unset: the module's own value)."""
 
-    cycle_time_millis: Quantity | None = None
+    cycle_time_millis: Number | None = None
     """Deadline of one cycle in milliseconds, for this fleet."""
     activation_percent: Annotated[int, Field(ge=1, le=100)] | None = None
     """Share of time the module is active (1-100), for this fleet."""
@@ -108,13 +108,16 @@ class SchedulerSettings(FogModel):
             ObjectiveName.MISS_RATE,
             ObjectiveName.MISSED_CYCLES,
             ObjectiveName.ONBOARD,
+            ObjectiveName.COST,
             ObjectiveName.RESERVE,
             ObjectiveName.BALANCE,
         ],
         min_length=1,
         max_length=len(ObjectiveName),
         description="Objectives, in priority order for the lexicographic choice. Default: "
-        "missRate, missedCycles, onboard, reserve, balance.",
+        "missRate, missedCycles, onboard, cost, reserve, balance (cost after on-board use: "
+        "among plans that miss alike and load the robots alike, the cheaper, so a paid cloud "
+        "takes only the overflow).",
     )
     weights: list[ObjectiveWeight] = Field(default_factory=list)
     """Weights of the weighted choice (unlisted objectives weigh 1, 0 leaves one out)."""

@@ -13,7 +13,7 @@ from typing import Annotated, ClassVar, Literal
 
 from pydantic import Field, model_validator
 
-from .base import FogModel, NonNegInt, PosInt, Quantity, parse_quantity, refuse_duplicates
+from .base import FogModel, NonNegInt, Number, PosInt, Quantity, parse_quantity, refuse_duplicates
 from .common import Condition, ObjectMeta, Tier
 from .computenode import DeviceType
 from .rules import CrossFieldRule, enforce
@@ -120,9 +120,9 @@ class ProfileEntry(FogModel):
     """A ComputeNode hardwareType, or default for nodes without rows of their own."""
     cpu: Quantity
     """The CPU limit this row was measured at, in cores ("2", "500m")."""
-    mean_millis: Quantity
+    mean_millis: Number
     """Mean execution time of one cycle at this limit, in milliseconds."""
-    std_millis: Quantity = 0
+    std_millis: Number = 0
     """Standard deviation of the execution time, in milliseconds."""
 
 
@@ -133,7 +133,7 @@ class Topic(FogModel):
     """Absolute topic name (/scan)."""
     size_bytes: Quantity
     """Size of one message in bytes (eq. 4's transfer term)."""
-    rate_hz: Quantity
+    rate_hz: Number
     """Messages per second."""
 
 
@@ -204,7 +204,7 @@ class SoftwareModuleSpec(FogModel):
     """The container fogfleet deploys for each instance."""
     taxonomy: Taxonomy
     """Execution pattern, real-time and safety class (III-A)."""
-    cycle_time_millis: Quantity
+    cycle_time_millis: Number
     """Deadline of one cycle in milliseconds (Table II's max. cycle time); a cycle that ends
     later is missed (F4)."""
     activation_percent: Annotated[int, Field(ge=1, le=100)] = 100
