@@ -20,6 +20,7 @@ there. ``priority`` orders who degrades first; 0 never degrades (``with_levels``
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
+from functools import cached_property
 from typing import Any, TypeVar
 
 import numpy as np
@@ -134,6 +135,17 @@ class Problem:
 
     def allocation(self, with_limits: bool) -> Allocation:
         return self.limits if with_limits else self.nominal
+
+    @cached_property
+    def module_index(self) -> NDArray[np.int64]:
+        """(I,) the position of each instance's module in ``module_names``."""
+        index = {m: k for k, m in enumerate(self.module_names)}
+        return freeze(np.array([index[inst.module] for inst in self.instances], dtype=np.int64))
+
+    @cached_property
+    def module_names(self) -> tuple[str, ...]:
+        """The fleet's modules, in the order of their first instance."""
+        return tuple(dict.fromkeys(inst.module for inst in self.instances))
 
     @property
     def degraded(self) -> bool:

@@ -278,11 +278,24 @@ class Evaluation:
         return np.where(self.valid, q, 0.0)
 
     def miss_rate(self) -> F64:
+        """The fleet's miss rate (P,), one definition for the planner, the simulator, status
+        and the benchmarks: the mean over modules of each module's rate, a module's rate being
+        the activation-weighted mean of its placed instances' miss probabilities (the share
+        of its cycles that miss). Every module counts alike, however many instances it has or
+        however fast its loop, so one module missing badly cannot hide behind fast loops."""
+        mod = self.problem.module_index
+        n_mod = len(self.problem.module_names)
         a = np.where(self.valid, self.problem.activation[None, :], 0.0)
-        total = a.sum(axis=1)
-        s = (a * self.instance_miss()).sum(axis=1)
+        flat = (mod[None, :] + n_mod * np.arange(self.P)[:, None]).ravel()
+        size = self.P * n_mod
+        weight = np.bincount(flat, weights=a.ravel(), minlength=size).reshape(self.P, n_mod)
+        missed = np.bincount(flat, weights=(a * self.instance_miss()).ravel(), minlength=size)
+        missed = missed.reshape(self.P, n_mod)
+        counted = weight > 0
+        rate = np.where(counted, missed / np.where(counted, weight, 1.0), 0.0)
+        n = counted.sum(axis=1)
         return np.asarray(
-            np.where(total > 0, s / np.where(total > 0, total, 1.0), 0.0), dtype=np.float64
+            np.where(n > 0, rate.sum(axis=1) / np.maximum(n, 1), 0.0), dtype=np.float64
         )
 
     def cost(self) -> F64:

@@ -161,7 +161,6 @@ class MoveEvaluator:
 
         # missRate / missedCycles: only i's own term changes where c and j stay uncontended
         a_valid = np.where(fulls >= 0, fleet.activation[None, :], 0.0)
-        total = a_valid.sum(axis=1)[par]
         q_par = a_valid * ev.instance_miss()
         t_par = ev.tau()
         m_par = a_valid * np.where(t_par > 1.0, t_par, 0.0)
@@ -174,8 +173,17 @@ class MoveEvaluator:
         fast &= (load[ar, cur] <= self.cap[cur]) & (load[ar, node] <= self.cap[node])
         fast &= sums["cpu_expected"][ar, cur] <= self.cap[cur]
         fast &= sums["cpu_expected"][ar, node] <= self.cap[node]
-        s_miss = q_par.sum(axis=1)[par] - q_par[par, inst] + self.miss[inst, node]
-        out["missRate"] = np.where(total > 0, s_miss / np.where(total > 0, total, 1.0), 0.0)
+        # the fleet's rate is the mean over modules (Evaluation.miss_rate): a move changes
+        # one term of one module's activation-weighted sum, whose weights stay the same
+        mod = fleet.module_index
+        n_mod = len(fleet.module_names)
+        flat = (mod[None, :] + n_mod * np.arange(len(fulls))[:, None]).ravel()
+        weight = np.bincount(flat, weights=a_valid.ravel(), minlength=len(fulls) * n_mod)
+        weight = weight.reshape(len(fulls), n_mod)
+        counted = (weight > 0).sum(axis=1)
+        w_inst = weight[par, mod[inst]] * counted[par]
+        change = (self.miss[inst, node] - q_par[par, inst]) / np.where(w_inst > 0, w_inst, 1.0)
+        out["missRate"] = ev.miss_rate()[par] + np.where(w_inst > 0, change, 0.0)
         out["missedCycles"] = m_par.sum(axis=1)[par] - m_par[par, inst] + self.missed[inst, node]
         slow = np.flatnonzero(~fast)
         if slow.size:

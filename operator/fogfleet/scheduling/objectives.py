@@ -77,7 +77,9 @@ def missedCycles(problem: Problem, X: NDArray[np.integer], allocation: Allocatio
 
 
 def missRate(problem: Problem, X: NDArray[np.integer], allocation: Allocation) -> F64:
-    """Predicted fraction of active cycles that miss: sum_i a_i P(t_cycle_i > T_i) / sum_i a_i.
+    """Predicted miss rate of the fleet: the mean over modules of each module's predicted
+    share of missed cycles, sum_i a_i P(t_cycle_i > T_i) / sum_i a_i over its instances
+    (``Evaluation.miss_rate``; the simulator's figure is defined the same way).
 
     t_cycle is normal with mean net_mean + exe_mean * k and std sqrt((exe_std k)^2 +
     net_std^2). The slowdown k = max(1, D / cap) is overlap-aware: D, the CPU demand on the
@@ -156,8 +158,8 @@ def module_miss_rates(
     problem: Problem, x: NDArray[np.integer], with_limits: bool
 ) -> dict[str, float]:
     """The predicted miss rate of each module of one plan ``x`` (I,): the activation-weighted
-    mean over its placed instances of ``missRate``'s per-instance prediction, so the fleet's
-    ``missRate`` is these rates weighted by each module's total activation."""
+    mean over its placed instances of ``missRate``'s per-instance prediction; the fleet's
+    ``missRate`` is the mean of these rates."""
     ev = Evaluation(
         problem, np.asarray(x, dtype=np.int64)[None, :], problem.allocation(with_limits)
     )

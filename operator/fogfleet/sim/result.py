@@ -31,7 +31,7 @@ class SimResult:
     seed: int
     cycles: int  # all cycles of all placed instances
     missed: int
-    miss_rate: float  # missed / cycles over all instances (NaN if no cycle ran)
+    miss_rate: float  # the mean over modules of module_miss_rate (NaN if no cycle ran)
     module_miss_rate: dict[str, float]  # per module name, aggregated over robots and replicas
     module_cycles: dict[str, int]
     module_p95_cycle_s: dict[str, float]  # 95th percentile of the cycle durations, seconds

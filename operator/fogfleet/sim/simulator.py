@@ -30,7 +30,7 @@ from .engine import Track, run_independent, run_shared
 from .episodes import Episodes, active_time, sample_episodes
 from .result import SimResult
 
-__all__ = ["simulate"]
+__all__ = ["fleet_miss_rate", "simulate"]
 
 
 def _lognormal(mean: float, std: float, z: NDArray[np.float64]) -> list[float]:
@@ -187,7 +187,7 @@ def _summarise(
         seed=int(seed),
         cycles=total,
         missed=total_missed,
-        miss_rate=_rate(total_missed, total),
+        miss_rate=fleet_miss_rate(mod_rate),
         module_miss_rate=mod_rate,
         module_cycles=mod_cycles,
         module_p95_cycle_s=mod_p95,
@@ -202,3 +202,10 @@ def _summarise(
         node_utilisation=util,
         unplaced=tuple(int(i) for i in np.flatnonzero(placement < 0)),
     )
+
+
+def fleet_miss_rate(module_rates: dict[str, float]) -> float:
+    """The fleet's figure from its modules' rates: their mean over the modules that ran a
+    cycle (NaN if none did), as the planner's ``missRate`` (``Evaluation.miss_rate``)."""
+    rates = [r for r in module_rates.values() if not math.isnan(r)]
+    return float(np.mean(rates)) if rates else math.nan

@@ -65,9 +65,10 @@ def test_missed_cycles_grow_with_overload(tiny: Problem) -> None:
     assert missedCycles(tiny, heavy, al3) == pytest.approx([1.45 + 0.5 * 1.45 + 0.2 * 1.45])
 
 
-def test_miss_rate_is_activation_weighted_probability(tiny: Problem) -> None:
-    # std 0 -> steps: B: only m1 misses (0.25 > 0.2): 0.5 / (1 + 0.5 + 0.2)
-    assert missRate(tiny, X, tiny.limits) == pytest.approx([0.0, 0.5 / 1.7, 0.5 / 1.7])
+def test_miss_rate_is_the_mean_over_modules(tiny: Problem) -> None:
+    # three modules of one instance each; std 0 -> steps: B: only m1 misses (0.25 > 0.2), so
+    # the modules' rates are 0, 1, 0 (activation weighs instances within a module only)
+    assert missRate(tiny, X, tiny.limits) == pytest.approx([0.0, 1 / 3, 1 / 3])
 
 
 def test_miss_rate_of_normal_cycle_is_its_tail(tiny: Problem) -> None:
@@ -77,7 +78,7 @@ def test_miss_rate_of_normal_cycle_is_its_tail(tiny: Problem) -> None:
     sd[2, 0] = 0.5  # m2 on board: mean 0.5, std 0.5, T = 1 -> P = 1 - Phi(1) = 0.158655
     al = replace(tiny.limits, exe_std=sd)
     assert missRate(tiny, np.array([[0, 1, 0]]), al)[0] == pytest.approx(
-        (0.5 * 1 + 0.2 * 0.158655) / 1.7, rel=1e-4
+        (1 + 0.158655) / 3, rel=1e-4
     )
 
 
@@ -117,8 +118,8 @@ def test_every_objective_the_api_accepts_is_evaluated_both_ways() -> None:
 
 
 def test_module_miss_rates_make_up_the_fleets_miss_rate() -> None:
-    """One definition: the fleet's missRate is the per-module predictions weighted by each
-    module's activation (the plan's per-module table cannot disagree with its total)."""
+    """One definition: the fleet's missRate is the mean of the per-module predictions (the
+    plan's per-module table cannot disagree with its total)."""
     from fogfleet.api.loader import load_paths
     from fogfleet.domain.build import build_problem
     from fogfleet.scheduling.baselines import onboard_plan
@@ -131,11 +132,7 @@ def test_module_miss_rates_make_up_the_fleets_miss_rate() -> None:
     rates = module_miss_rates(problem, schedule.placement, schedule.with_limits)
     assert set(rates) == {inst.module for inst in problem.instances}
     assert max(rates.values()) > 0.01
-    weight = {m: 0.0 for m in rates}
-    for i, inst in enumerate(problem.instances):
-        if schedule.placement[i] >= 0:
-            weight[inst.module] += float(problem.activation[i])
-    total = sum(weight[m] * rates[m] for m in rates) / sum(weight.values())
+    total = sum(rates.values()) / len(rates)
     assert total == pytest.approx(schedule.objectives["missRate"], rel=1e-9, abs=1e-12)
 
 

@@ -132,3 +132,13 @@ def test_instances_active_from_the_start_begin_at_a_random_phase() -> None:
     # out of lockstep the two jobs overlap only partly: faster than the aligned 0.125 s
     assert 0.0625 <= r.module_p95_cycle_s["a"] < 0.125
     assert list(r.instance_cycles) in ([40, 40], [39, 40], [40, 39], [39, 39])
+
+
+def test_the_fleet_figure_is_the_mean_over_modules_so_a_slow_module_cannot_hide() -> None:
+    # "fast" runs 16 cycles for each of "slow"'s 1 and never misses; "slow" always misses
+    jobs = [Job("fast", exe=0.0078125, cpu=1, cycle=0.0625), Job("slow", exe=2.0, cpu=1, cycle=1.0)]
+    p = build([16], jobs)
+    r = simulate(p, np.array([0, 0]), p.limits, aligned_start=True, duration_s=10.0)
+    assert r.module_miss_rate == {"fast": 0.0, "slow": 1.0}
+    assert r.missed / r.cycles < 0.05  # weighting every cycle alike would hide "slow"
+    assert r.miss_rate == pytest.approx(0.5)
