@@ -12,9 +12,11 @@ Two *allocations* give each (instance, node) pair its CPU figures:
 - ``nominal`` (what a plain Deployment gets): the module's nominal request, no limit, so while
   active it uses the parallelism its profile shows on that hardware and contends with others.
 
-Where the site is short of CPU, a plan may *degrade* instances: give one a smaller profiled CPU
-than the limits pick (a rung of its ``Ladder``), accepting the misses its profile predicts
-there. ``priority`` orders who degrades first; 0 never degrades (``with_levels``).
+Where the site is short of CPU, a plan may *degrade* instances: guarantee one only a smaller
+profiled CPU than the limits pick (a rung of its ``Ladder``) as its request, keeping the pick as
+its limit, so it runs at full speed while its node has idle CPU and shares what is left when
+the node is busy (the contention model predicts the misses). ``priority`` orders who degrades
+first (``with_levels``).
 """
 
 from __future__ import annotations
@@ -168,10 +170,14 @@ class Problem:
         if levels is not None:
             k = np.minimum(levels[:, None], lad.depth)
         i, j = np.indices(k.shape)
-        cpu = np.where(self.allowed, lad.cpu[i, j, k], 0.0)
-        mean = np.where(self.allowed, lad.mean[i, j, k], np.inf)
-        std = np.where(self.allowed, lad.std[i, j, k], 0.0)
-        return Allocation(freeze(cpu), freeze(cpu.copy()), freeze(mean), freeze(std), True)
+        # a degraded instance is guaranteed (requests) the rung's CPU and may burst to the
+        # pick (limits): alone on its node it runs as fast as its deadline needs; when the
+        # node is busy, it shares what is left (the contention model slows it down)
+        request = np.where(self.allowed, lad.cpu[i, j, k], 0.0)
+        use = np.where(self.allowed, lad.cpu[i, j, 0], 0.0)
+        mean = np.where(self.allowed, lad.mean[i, j, 0], np.inf)
+        std = np.where(self.allowed, lad.std[i, j, 0], 0.0)
+        return Allocation(freeze(request), freeze(use), freeze(mean), freeze(std), True)
 
     def node_index(self, name: str) -> int:
         for j, node in enumerate(self.nodes):

@@ -163,6 +163,9 @@ def render_instance(
     resources: dict[str, Any] = {"requests": requests}
     if not baseline:
         limits = dict(requests)
+        if alloc.cpu_use[i, j] > alloc.cpu_request[i, j]:
+            # degraded (Problem.with_levels): guaranteed less, may burst to what it needs
+            limits["cpu"] = format_cpu(float(alloc.cpu_use[i, j]))
         if problem.gpu[i] > 0:
             limits["nvidia.com/gpu"] = str(int(problem.gpu[i]))
         resources["limits"] = limits

@@ -256,7 +256,12 @@ class Evaluation:
 
     def instance_miss(self) -> F64:
         """Predicted miss probability of each instance's active cycles (P, I): the normal
-        cycle-time tail at slowdown max(1, D / cap), averaged over the demand D."""
+        cycle-time tail at slowdown max(1, D / cap), averaged over the demand D (computed
+        once per evaluation: the miss rate, the local search and the reports share it)."""
+        return self._instance_miss
+
+    @cached_property
+    def _instance_miss(self) -> F64:
         T = np.broadcast_to(self.problem.cycle[None, :], (self.P, self.I))
         q = miss_probability(self.net + self.exe, np.sqrt(self.exe_std**2 + self.net_std**2), T)
         m, sd, peak, hot = self.overlap_demand()

@@ -98,7 +98,13 @@ def solve_exact(
     n_r = max(int((problem.tier == 0).sum()), 1)
     genes = np.flatnonzero(problem.allowed.any(axis=1))
     a = problem.activation
-    a_total = float(a[genes].sum()) or 1.0
+    # missRate is the mean over modules of each module's activation-weighted share
+    # (Evaluation.miss_rate); every instance with a gene space is placed, so each pair's
+    # weight a_i / (W_module(i) * modules) is a constant
+    mod = problem.module_index
+    w_mod = np.bincount(mod[genes], weights=a[genes], minlength=len(problem.module_names))
+    n_mod = max(int((w_mod > 0).sum()), 1)
+    share = a / np.where(w_mod[mod] > 0, w_mod[mod] * n_mod, 1.0)
     q = uncontended_miss(problem, alloc)[pi, pj]
     exe = np.where(problem.allowed, alloc.exe_mean, 0.0)
     tau = ((problem.net_mean + exe) / problem.cycle[:, None])[pi, pj]
@@ -111,7 +117,7 @@ def solve_exact(
         0.0,
     )
     c = (
-        w.get("missRate", 0.0) * a[pi] * q / a_total
+        w.get("missRate", 0.0) * share[pi] * q
         + w.get("missedCycles", 0.0) * a[pi] * np.where(tau > 1.0, tau, 0.0)
         + w.get("onboard", 0.0) * f1 / n_r
     )

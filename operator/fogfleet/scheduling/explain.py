@@ -77,8 +77,8 @@ def degraded_message(problem: Problem, x: np.ndarray) -> str:
         nodes = sorted({problem.nodes[int(x[n])].name for n in idx})
         parts.append(
             f"{module} x{len(idx)} on {', '.join(nodes[:3])}{'...' if len(nodes) > 3 else ''} "
-            f"gets {format_cores(float(lad.cpu[i, j, k]))} cpu instead of "
-            f"{format_cores(float(lad.cpu[i, j, 0]))} (priority {prio}, predicted miss "
+            f"is guaranteed {format_cores(float(lad.cpu[i, j, k]))} cpu instead of "
+            f"{format_cores(float(lad.cpu[i, j, 0]))} (its limit; priority {prio}, predicted miss "
             f"{rates.get(module, 0.0):.1%})"
         )
     total = sum(len(v) for v in by_module.values())

@@ -20,6 +20,7 @@ from .choice import choose, non_dominated
 from .degrade import degrade
 from .exact import scalarised, solve_exact
 from .local import pareto_local_search
+from .objectives import evaluate
 from .operators import (
     CapacityRepair,
     FleetSampling,
@@ -149,12 +150,7 @@ def nsga2(
     if feasible.any():
         idx = np.flatnonzero(feasible)
         front = idx[non_dominated(F[idx])]
-        k, reason = choose(
-            F[front],
-            names,
-            str(settings.choice.value),
-            weights_of(settings),
-        )
+        k, reason = _choose(problem, full[front], F[front], names, settings)
         chosen = int(front[k])
         if exhaustive:
             reason += f" (exact front: all {len(X)} plans enumerated)"
@@ -218,3 +214,28 @@ def _evolve(
             break
     X = np.asarray(algorithm.pop.get("X")).astype(np.int64)
     return X, generations, int(algorithm.evaluator.n_eval)
+
+
+MISS_OBJECTIVES = ("missRate", "missedCycles")
+
+
+def _choose(
+    problem: Problem,
+    plans: I64,
+    F: NDArray[np.float64],
+    names: tuple[str, ...],
+    settings: SchedulerSettings,
+) -> tuple[int, str]:
+    """``choice.choose`` on the front; a lexicographic choice without ``cost`` among its
+    objectives breaks ties on the leading miss objectives by cost first (the cloud is paid
+    overflow: among plans that miss alike, the cheaper). Cost is then a rule of the choice,
+    not an objective of the search, so the front and the planning time stay as they were."""
+    rule = str(settings.choice.value)
+    lead = 0
+    while lead < len(names) and names[lead] in MISS_OBJECTIVES:
+        lead += 1
+    if rule != "lexicographic" or "cost" in names or lead == 0 or not problem.cost.any():
+        return choose(F, names, rule, weights_of(settings))
+    price = evaluate(problem, plans, problem.limits, ("cost",))["cost"]
+    F2 = np.column_stack([F[:, :lead], price, F[:, lead:]])
+    return choose(F2, (*names[:lead], "cost", *names[lead:]), rule, weights_of(settings))

@@ -293,10 +293,3 @@ def test_every_cross_field_rule_is_stated_once_and_reaches_its_crd() -> None:
     ]:
         for rule in model.RULES:
             assert rule.crd() in validations(kind, *path), (kind, rule.message)
-
-
-def test_cost_is_a_default_objective_after_onboard_use() -> None:
-    from fogfleet.api.v1alpha1.robotfleet import SchedulerSettings
-
-    names = [o.value for o in SchedulerSettings().objectives]
-    assert names == ["missRate", "missedCycles", "onboard", "cost", "reserve", "balance"]

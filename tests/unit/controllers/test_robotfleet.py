@@ -185,12 +185,16 @@ def test_a_fleet_short_of_cpu_runs_degraded_and_says_so(kube, deps):
     assert cond["Degraded"]["status"] == "True" and cond["Degraded"]["reason"] == "ShortOfCapacity"
     assert "predicted miss" in cond["Degraded"]["message"]
     assert ("Warning", "ShortOfCapacity") in [e[:2] for e in kube.events]
-    # the Deployments get the smaller CPU the plan gave them, as limits
+    # the Deployments request the smaller CPU the plan guarantees them (status.placement)
+    # and degraded ones may burst to what their deadline needs (a higher limit)
     status = {(p["robot"], p["module"]): p["cpu"] for p in kube.fleets[KEY]["status"]["placement"]}
+    burst = 0
     for dep in module_deps(kube).values():
         robot, module, _ = identity_of(dep)
         res = dep["spec"]["template"]["spec"]["containers"][0]["resources"]
-        assert res["limits"]["cpu"] == res["requests"]["cpu"] == status[(robot, module)]
+        assert res["requests"]["cpu"] == status[(robot, module)]
+        burst += res["limits"]["cpu"] != res["requests"]["cpu"]
+    assert burst > 0
 
 
 def test_stale_deployments_are_pruned(kube, deps):

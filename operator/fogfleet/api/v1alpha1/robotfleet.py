@@ -108,16 +108,15 @@ class SchedulerSettings(FogModel):
             ObjectiveName.MISS_RATE,
             ObjectiveName.MISSED_CYCLES,
             ObjectiveName.ONBOARD,
-            ObjectiveName.COST,
             ObjectiveName.RESERVE,
             ObjectiveName.BALANCE,
         ],
         min_length=1,
         max_length=len(ObjectiveName),
         description="Objectives, in priority order for the lexicographic choice. Default: "
-        "missRate, missedCycles, onboard, cost, reserve, balance (cost after on-board use: "
-        "among plans that miss alike and load the robots alike, the cheaper, so a paid cloud "
-        "takes only the overflow).",
+        "missRate, missedCycles, onboard, reserve, balance. Unless cost is listed, the "
+        "lexicographic choice takes the cheapest of the plans that miss alike before the "
+        "other objectives, so a paid cloud takes only the overflow.",
     )
     weights: list[ObjectiveWeight] = Field(default_factory=list)
     """Weights of the weighted choice (unlisted objectives weigh 1, 0 leaves one out)."""
