@@ -193,6 +193,7 @@ def build_problem(
     robot_index = {nd.metadata.name: j for j, nd in enumerate(robots)}
 
     modules: list[tuple[SoftwareModule, float, float, int]] = []
+    wishes: dict[str, list[Tier]] = {}  # module -> preferred tiers (override, module, fleet)
     for k, ref in enumerate(fleet.spec.modules):
         mod = catalog.module(namespace, ref.name)
         if mod is None:
@@ -217,6 +218,10 @@ def build_problem(
         act = (ov.activation_percent or mod.spec.activation_percent) / 100.0
         replicas = ov.replicas or mod.spec.replicas
         modules.append((mod, cycle, act, replicas))
+        if ov.preferred_tiers is not None:
+            wishes[mod.metadata.name] = ov.preferred_tiers
+        else:
+            wishes[mod.metadata.name] = mod.spec.preferred_tiers or fleet.spec.preferred_tiers
 
     node_tier: dict[str, Tier] = {}
     for nd in nodes:
@@ -364,7 +369,19 @@ def build_problem(
     gpu = (
         np.array([float(m.spec.resources.gpu) for m, _, _ in inst_mod]) if inst_mod else np.zeros(0)
     )
+    preferred = None
+    if any(wishes.values()):
+        tiers = [nd.spec.tier for nd in nodes]
+        preferred = np.array(
+            [
+                [not wishes[inst.module] or t in wishes[inst.module] for t in tiers]
+                for inst in instances
+            ],
+            dtype=bool,
+        ).reshape(i_count, n)
+        preferred = freeze(preferred)
     return Problem(
+        preferred=preferred,
         priority=freeze(
             np.array([module_priority(m.spec) for m, _, _ in inst_mod], dtype=np.int64)
         ),

@@ -126,6 +126,7 @@ class Problem:
     priority: NDArray[np.int64] | None = None  # (I,) higher degrades later; 0 never; None: 0
     ladder: Ladder | None = None  # None: no smaller CPU profiled (nothing can degrade)
     levels: NDArray[np.int64] | None = None  # (I,) rungs taken below the pick; None: none
+    preferred: NDArray[np.bool_] | None = None  # (I, N) node's tier preferred; None: no wishes
 
     @property
     def n_instances(self) -> int:

@@ -20,7 +20,6 @@ from .choice import choose, non_dominated
 from .degrade import degrade
 from .exact import scalarised, solve_exact
 from .local import pareto_local_search
-from .objectives import evaluate
 from .operators import (
     CapacityRepair,
     FleetSampling,
@@ -30,6 +29,7 @@ from .operators import (
     RankAndCrowdingSurvival,
     binary_tournament,
 )
+from .preference import MISS_OBJECTIVES, polish, tie_breakers
 from .problem import PlacementProblem
 from .schedule import Schedule
 
@@ -154,11 +154,19 @@ def nsga2(
         chosen = int(front[k])
         if exhaustive:
             reason += f" (exact front: all {len(X)} plans enumerated)"
+        plan_x = full[chosen]
+        if str(settings.choice.value) == "lexicographic" and not paper:
+            plan_x, moved = polish(problem, plan_x, names)
+            if moved:
+                reason += (
+                    f"; then {moved} instance(s) moved to a preferred or cheaper node at no miss"
+                )
     else:
         front = np.array([int(np.argmin(cv))], dtype=np.int64)
         chosen = int(front[0])
+        plan_x = full[chosen]
         reason = f"no feasible plan found; least constraint violation {cv[chosen]:.4g}"
-    sched = finish(problem, "nsga2", full[chosen], True, t0, reason)
+    sched = finish(problem, "nsga2", plan_x, True, t0, reason)
     if not feasible.any():
         extra = dict(sched.reasons)
         extra[-1] = "no plan satisfies the capacity and uplink constraints"
@@ -216,9 +224,6 @@ def _evolve(
     return X, generations, int(algorithm.evaluator.n_eval)
 
 
-MISS_OBJECTIVES = ("missRate", "missedCycles")
-
-
 def _choose(
     problem: Problem,
     plans: I64,
@@ -226,16 +231,15 @@ def _choose(
     names: tuple[str, ...],
     settings: SchedulerSettings,
 ) -> tuple[int, str]:
-    """``choice.choose`` on the front; a lexicographic choice without ``cost`` among its
-    objectives breaks ties on the leading miss objectives by cost first (the cloud is paid
-    overflow: among plans that miss alike, the cheaper). Cost is then a rule of the choice,
-    not an objective of the search, so the front and the planning time stay as they were."""
+    """``choice.choose`` on the front. A lexicographic choice breaks ties on its leading miss
+    objectives first by the soft rules of ``preference.tie_breakers`` (preferred tiers, then
+    cost), then by the other objectives."""
     rule = str(settings.choice.value)
     lead = 0
     while lead < len(names) and names[lead] in MISS_OBJECTIVES:
         lead += 1
-    if rule != "lexicographic" or "cost" in names or lead == 0 or not problem.cost.any():
+    extra = tie_breakers(problem, plans, names)
+    if rule != "lexicographic" or lead == 0 or not extra:
         return choose(F, names, rule, weights_of(settings))
-    price = evaluate(problem, plans, problem.limits, ("cost",))["cost"]
-    F2 = np.column_stack([F[:, :lead], price, F[:, lead:]])
-    return choose(F2, (*names[:lead], "cost", *names[lead:]), rule, weights_of(settings))
+    F2 = np.column_stack([F[:, :lead], *extra.values(), F[:, lead:]])
+    return choose(F2, (*names[:lead], *extra, *names[lead:]), rule, weights_of(settings))

@@ -8,7 +8,7 @@ from typing import Annotated, ClassVar, Literal
 from pydantic import Field, model_validator
 
 from .base import FogModel, Number, PosInt, refuse_duplicates
-from .common import Condition, LabelSelector, Name, ObjectMeta
+from .common import Condition, LabelSelector, Name, ObjectMeta, Tier
 from .rules import CrossFieldRule, enforce
 
 __all__ = [
@@ -77,6 +77,14 @@ class ModuleOverrides(FogModel):
     """Share of time the module is active (1-100), for this fleet."""
     replicas: PosInt | None = None
     """Replicas of a shared module, for this fleet."""
+    preferred_tiers: list[Tier] | None = None
+    """Tiers the module should run on when it can, for this fleet (overrides the module's
+    preferredTiers and the fleet's)."""
+
+    @model_validator(mode="after")
+    def _unique(self) -> ModuleOverrides:
+        refuse_duplicates([t.value for t in self.preferred_tiers or []], "preferredTiers")
+        return self
 
 
 class ModuleRef(FogModel):
@@ -212,6 +220,9 @@ class RobotFleetSpec(FogModel):
     """ROS 2 wiring: a discovery server per robot, RMW and domain (default: enabled)."""
     paused: bool = False
     """Keep the running placement; plan nothing until unpaused."""
+    preferred_tiers: list[Tier] = Field(default_factory=list)
+    """Tiers the fleet's modules should run on when they can, for modules that name none
+    (e.g. [robot, edge]: the cloud only for overflow). Empty: no preference."""
 
     @model_validator(mode="after")
     def _check(self) -> RobotFleetSpec:
@@ -219,6 +230,7 @@ class RobotFleetSpec(FogModel):
         refuse_duplicates(self.robots, "robots")
         refuse_duplicates(self.nodes, "nodes")
         refuse_duplicates([m.name for m in self.modules], "modules")
+        refuse_duplicates([t.value for t in self.preferred_tiers], "preferredTiers")
         return self
 
 

@@ -223,6 +223,10 @@ class SoftwareModuleSpec(FogModel):
     scaling: ScalingSpec | None = Field(
         default=None, description="SLO-driven autoscaling of a shared module (tinyKube)."
     )
+    preferred_tiers: list[Tier] = Field(default_factory=list)
+    """Tiers this module should run on when it can (a preference; requirements.tiers is the
+    rule): among plans that miss alike, the one with the fewest instances elsewhere wins,
+    before the cheaper. A fleet may override it per module. Empty: no preference."""
     priority: Annotated[int, Field(ge=1, le=1000)] | None = None
     """How much this module's deadlines matter, 1-1000 (higher matters more). When the site is
     short of CPU, fogfleet gives the lowest-priority modules a smaller profiled CPU first and
@@ -243,6 +247,7 @@ class SoftwareModuleSpec(FogModel):
             if parse_quantity(row.mean_millis) <= 0:
                 raise ValueError(f"profile[{k}].meanMillis: must be greater than zero")
         enforce(self, self.RULES)
+        refuse_duplicates([t.value for t in self.preferred_tiers], "preferredTiers")
         if self.scaling is not None and self.scope is not Scope.SHARED:
             raise ValueError(
                 "scaling: only shared modules scale; per-robot modules run once per robot"

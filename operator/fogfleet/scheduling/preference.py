@@ -1,0 +1,91 @@
+"""The lexicographic choice's soft rules: preferred tiers, then cost (the cloud as paid
+overflow), after the miss objectives and before the rest.
+
+They are rules of the choice, not objectives of the search (a sixth objective made the front
+larger and the search slower: 2.6 s instead of 1.8 s and a 1.5-3.7 % optimality gap on the
+warehouse). ``tie_breakers`` scores the plans of the front; ``polish`` then moves single
+instances of the chosen plan out of a non-preferred or pricier node when the move keeps every
+hard constraint and does not raise the miss objectives, which is what the lexicographic order
+asks for and what a front built without these rules may lack.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+from numpy.typing import NDArray
+
+from fogfleet.domain.problem import Problem
+
+from .objectives import constraints, evaluate
+
+__all__ = ["MISS_OBJECTIVES", "polish", "tie_breakers"]
+
+MISS_OBJECTIVES = ("missRate", "missedCycles")
+POLISH_EVALUATIONS = 4000  # the polish is bounded by work (plans evaluated), not the clock
+
+F64 = NDArray[np.float64]
+I64 = NDArray[np.int64]
+
+
+def tie_breakers(problem: Problem, plans: I64, names: Sequence[str]) -> dict[str, F64]:
+    """Per plan (P,): ``offPreferred`` (instances outside their preferred tiers, when any
+    module states a preference) and ``cost`` (unless it is an objective already)."""
+    out: dict[str, F64] = {}
+    if problem.preferred is not None:
+        rows = np.arange(problem.n_instances)[None, :]
+        off = ~problem.preferred[rows, np.maximum(plans, 0)] & (plans >= 0)
+        out["offPreferred"] = off.sum(axis=1).astype(np.float64)
+    if "cost" not in names and problem.cost.any():
+        out["cost"] = evaluate(problem, plans, problem.limits, ("cost",))["cost"]
+    return out
+
+
+def polish(problem: Problem, x: I64, names: Sequence[str]) -> tuple[I64, int]:
+    """Move off-board instances of plan ``x`` one at a time to a preferred, then cheaper
+    edge or cloud node while the plan stays feasible and its miss objectives do not rise;
+    returns the plan and the number of moves."""
+    rules = tie_breakers(problem, x[None, :], names)
+    if not rules:
+        return x, 0
+    misses = [n for n in MISS_OBJECTIVES if n in names] or list(MISS_OBJECTIVES)
+    x = x.copy()
+
+    def score(plan: I64) -> tuple[F64, tuple[float, ...]]:
+        m = evaluate(problem, plan[None, :], problem.limits, misses)
+        rank = tie_breakers(problem, plan[None, :], names)
+        return np.array([float(m[n][0]) for n in misses]), tuple(float(v[0]) for v in rank.values())
+
+    base_miss, base_rank = score(x)
+    limit = base_miss + 1e-6 + 1e-3 * np.abs(base_miss)  # the choice's tolerance, not drifting
+    budget = POLISH_EVALUATIONS
+    moves = 0
+    price = problem.cost
+    remote = problem.tier > 0
+    for i in range(problem.n_instances):
+        j = int(x[i])
+        if j < 0 or not remote[j]:
+            continue  # what runs on board stays: on-board use is F1's business, not a tie-break
+        pref = problem.preferred[i] if problem.preferred is not None else None
+        better = problem.allowed[i] & remote & (np.arange(problem.n_nodes) != j)
+        if pref is not None and not pref[j]:
+            better &= pref | (price < price[j])
+        else:
+            better &= price < price[j]
+            if pref is not None:
+                better &= pref
+        for k in np.flatnonzero(better)[np.argsort(price[better], kind="stable")]:
+            if budget <= 0:
+                return x, moves
+            budget -= 1
+            trial = x.copy()
+            trial[i] = k
+            if np.any(constraints(problem, trial[None, :], problem.limits) > 1e-9):
+                continue
+            miss, rank = score(trial)
+            if np.all(miss <= limit) and rank < base_rank:
+                x, base_rank = trial, rank
+                moves += 1
+                break
+    return x, moves
