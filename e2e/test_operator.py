@@ -7,6 +7,7 @@ Each test runs its own `fogfleet run` process scoped to the test's namespace.
 
 from __future__ import annotations
 
+import copy
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -319,6 +320,54 @@ def test_an_operator_killed_mid_reconcile_converges_after_restart(
     live = [r for r in replicasets if r["spec"]["replicas"] > 0 and not is_ros_object(r)]
     assert len(live) == N_INSTANCES
     print(f"\nkilled after {partial} of {N_INSTANCES} Deployments; converged after restart")
+
+
+def test_a_fleet_short_of_cpu_runs_degraded_on_its_least_important_module(
+    kube: Kube, namespace: str, operator: Operator
+) -> None:
+    """A low-priority edge module whose deadline needs 6 cores per robot cannot get them all
+    (5 x 6 cores beyond what the warehouse uses): the operator runs it degraded, says so, and
+    kube-scheduler binds every pod; the module's limit stays what its deadline needs."""
+    docs = example_docs("warehouse", namespace)
+    apply_warehouse(kube, namespace)
+    wait_ready(kube, namespace)
+    hog = copy.deepcopy(of_kind(docs, "SoftwareModule")[7])  # object-pose-estimation's shape
+    hog["metadata"] = {"name": "bulk-mapper", "namespace": namespace}
+    hog["spec"].update(
+        {
+            "taxonomy": {"executionPattern": "event", "realtime": "none", "safety": "irrelevant"},
+            "cycleTimeMillis": 100,
+            "priority": 5,
+            "requirements": {"tiers": ["edge"]},
+            "resources": {"cpu": "1", "memory": "256Mi"},
+            "profile": [
+                {"hardwareType": "default", "cpu": 6, "meanMillis": 50, "stdMillis": 2},
+                {"hardwareType": "default", "cpu": 1, "meanMillis": 400, "stdMillis": 10.5},
+            ],
+        }
+    )
+    kube.apply(hog)
+    add_module_to_fleet(kube, namespace, "bulk-mapper")
+    kube.wait_for(
+        "Degraded ShortOfCapacity",
+        lambda: condition_is(kube, namespace, "Degraded", "True", reason="ShortOfCapacity"),
+        180,
+        interval=1,
+    )
+    msg = conditions(fleet(kube, namespace))["Degraded"]["message"]
+    assert "bulk-mapper" in msg and "priority 5" in msg and "predicted miss" in msg, msg
+    assert events(kube, namespace, "ShortOfCapacity")
+    wait_ready(kube, namespace)  # every module, degraded ones included, runs where planned
+    assert_pods_where_planned(kube, namespace)
+    burst = 0
+    for dep in deployments(kube, namespace):
+        res = dep["spec"]["template"]["spec"]["containers"][0]["resources"]
+        if dep["metadata"]["annotations"]["fogfleet.io/module"] == "bulk-mapper":
+            burst += res["requests"]["cpu"] != res["limits"]["cpu"]
+            assert res["limits"]["cpu"] in ("6", "6000m"), res
+        else:  # the others keep what their deadline needs: requests = limits
+            assert res["requests"]["cpu"] == res["limits"]["cpu"], res
+    assert burst >= 1
 
 
 def test_the_k8s_default_fleet_records_kube_schedulers_real_placement(

@@ -77,8 +77,9 @@ def degraded_message(problem: Problem, x: np.ndarray) -> str:
         nodes = sorted({problem.nodes[int(x[n])].name for n in idx})
         parts.append(
             f"{module} x{len(idx)} on {', '.join(nodes[:3])}{'...' if len(nodes) > 3 else ''} "
-            f"is guaranteed {format_cores(float(lad.cpu[i, j, k]))} cpu instead of "
-            f"{format_cores(float(lad.cpu[i, j, 0]))} (its limit; priority {prio}, predicted miss "
+            f"requests {format_cores(float(lad.cpu[i, j, k]))} cpu of the "
+            f"{format_cores(float(lad.cpu[i, j, 0]))} its deadline needs (its limit: it bursts "
+            f"when the node has idle CPU; priority {prio}, predicted miss "
             f"{rates.get(module, 0.0):.1%})"
         )
     total = sum(len(v) for v in by_module.values())
