@@ -213,22 +213,16 @@ def _read_placement(problem: Any, path: Path) -> tuple[Any, Any]:
     # plain-Deployment schedulers run with nominal requests and no limits
     nominal = body.get("scheduler") in ("k8s-default", "onboard")
     with_limits = bool(body.get("withLimits", not nominal))
-    index = {
+    by_instance = {
         (
             e.get("robot") if e.get("robot") not in ("-", None) else "",
             e["module"],
             int(e.get("replica") or 0),
-        ): e.get("node")
+        ): e
         for e in entries
     }
-    cpus = {
-        (
-            e.get("robot") if e.get("robot") not in ("-", None) else "",
-            e["module"],
-            int(e.get("replica") or 0),
-        ): e.get("cpu")
-        for e in entries
-    }
+    index = {k: e.get("node") for k, e in by_instance.items()}
+    cpus = {k: e.get("cpu") for k, e in by_instance.items()}
     placement = np.full(problem.n_instances, -1, dtype=np.int64)
     levels = np.zeros(problem.n_instances, dtype=np.int64)
     for i, inst in enumerate(problem.instances):

@@ -101,3 +101,23 @@ def test_a_fleet_override_of_preferred_tiers_wins_over_the_fleet_default(tmp_pat
 def test_a_tier_preferred_twice_is_refused(tmp_path: Path) -> None:
     with pytest.raises(InvalidSpec, match="preferredTiers"):
         _site(tmp_path, price=0, fleet_wish="[edge, edge]")
+
+
+def test_the_lexicographic_choice_takes_the_cheapest_plan_among_those_that_miss_alike(
+    tmp_path: Path,
+) -> None:
+    """The cloud is paid overflow: without cost among the objectives, the choice still
+    prefers the cheapest of the front's plans that tie on the miss objectives."""
+    from fogfleet.scheduling.choice import non_dominated
+
+    p = _site(tmp_path, price=0.2)
+    s = plan(p, SchedulerSettings(seed=2, generations=30, population=40))
+    assert s.feasible and s.pareto_placements is not None and s.pareto_front is not None
+    assert "cost" in s.choice_reason
+    values = evaluate(p, s.pareto_placements, p.limits)
+    tied = non_dominated(s.pareto_front)
+    for name in ("missRate", "missedCycles"):  # the choice's tolerance (choice._lexicographic)
+        col = values[name][tied]
+        tied = tied[col <= col.min() + 1e-6 + 1e-3 * abs(col.min())]
+    chosen = evaluate(p, s.placement[None, :], p.limits)["cost"][0]
+    assert chosen <= values["cost"][tied].min() + 1e-9

@@ -1,7 +1,6 @@
 from __future__ import annotations
 
 from dataclasses import replace
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -109,44 +108,3 @@ def test_a_budget_cut_plan_is_reproduced_by_its_generation_count() -> None:
     second = plan(problem, again)
     assert second.generations == first.generations
     assert np.array_equal(np.asarray(first.placement), np.asarray(second.placement))
-
-
-def test_the_lexicographic_choice_takes_the_cheapest_plan_among_those_that_miss_alike(
-    tmp_path: Path,
-) -> None:
-    """The cloud is paid overflow: without cost among the objectives, the choice still
-    prefers the cheapest of the plans that tie on the miss objectives."""
-    import shutil
-
-    from fogfleet.api.loader import load_paths
-    from fogfleet.domain.build import build_problem
-    from fogfleet.scheduling.choice import non_dominated
-    from fogfleet.scheduling.objectives import evaluate
-
-    root = Path(__file__).resolve().parents[3] / "manifests" / "examples" / "warehouse"
-    for f in root.glob("*.yaml"):
-        shutil.copy(f, tmp_path / f.name)
-    cloud = "\n".join(
-        f"---\napiVersion: fogfleet.io/v1alpha1\nkind: ComputeNode\nmetadata: {{name: cloud-{k}}}\n"
-        "spec:\n  tier: cloud\n  hardwareType: dsv3-16\n  capacity: {cpu: 16, memory: 64Gi}\n"
-        "  privacyLevel: 2\n  costPerCoreHour: 0.2\n"
-        "  network: [{type: wan, latencyMillis: 3, jitterMillis: 0.5, bandwidthMbps: 1000}]"
-        for k in (1, 2)
-    )
-    (tmp_path / "nodes.yaml").write_text((tmp_path / "nodes.yaml").read_text() + "\n" + cloud)
-    fleet = (tmp_path / "fleet.yaml").read_text()
-    old = "edge-5, edge-6]"
-    assert old in fleet
-    (tmp_path / "fleet.yaml").write_text(fleet.replace(old, "edge-5, edge-6, cloud-1, cloud-2]"))
-    catalog = load_paths([tmp_path])
-    p = build_problem(catalog.fleets[0], catalog)
-    s = plan(p, SchedulerSettings(seed=2, generations=30, population=40))
-    assert s.feasible and s.pareto_placements is not None and s.pareto_front is not None
-    assert "cost" in s.choice_reason
-    values = evaluate(p, s.pareto_placements, p.limits)
-    tied = non_dominated(s.pareto_front)
-    for name in ("missRate", "missedCycles"):  # the choice's tolerance (choice._lexicographic)
-        col = values[name][tied]
-        tied = tied[col <= col.min() + 1e-6 + 1e-3 * abs(col.min())]
-    chosen = evaluate(p, s.placement[None, :], p.limits)["cost"][0]
-    assert chosen <= values["cost"][tied].min() + 1e-9
