@@ -184,6 +184,12 @@ KINDS: tuple[KindInfo, ...] = (
             {"name": "Placed", "type": "integer", "jsonPath": ".status.modulesPlaced"},
             {"name": "Split", "type": "string", "jsonPath": ".status.split"},
             {"name": "Miss", "type": "number", "jsonPath": ".status.predictedMissRate"},
+            {
+                "name": "Degraded",
+                "type": "string",
+                "jsonPath": '.status.conditions[?(@.type=="Degraded")].reason',
+                "priority": 1,
+            },
             {"name": "Scheduler", "type": "string", "jsonPath": ".status.scheduler", "priority": 1},
             _AGE,
         ),

@@ -194,6 +194,7 @@ def build_problem(
 
     modules: list[tuple[SoftwareModule, float, float, int]] = []
     wishes: dict[str, list[Tier]] = {}  # module -> preferred tiers (override, module, fleet)
+    priorities: dict[str, int] = {}  # module -> priority (override, module, taxonomy)
     for k, ref in enumerate(fleet.spec.modules):
         mod = catalog.module(namespace, ref.name)
         if mod is None:
@@ -218,6 +219,9 @@ def build_problem(
         act = (ov.activation_percent or mod.spec.activation_percent) / 100.0
         replicas = ov.replicas or mod.spec.replicas
         modules.append((mod, cycle, act, replicas))
+        priorities[mod.metadata.name] = (
+            ov.priority if ov.priority is not None else module_priority(mod.spec)
+        )
         if ov.preferred_tiers is not None:
             wishes[mod.metadata.name] = ov.preferred_tiers
         else:
@@ -382,9 +386,7 @@ def build_problem(
         preferred = freeze(preferred)
     return Problem(
         preferred=preferred,
-        priority=freeze(
-            np.array([module_priority(m.spec) for m, _, _ in inst_mod], dtype=np.int64)
-        ),
+        priority=freeze(np.array([priorities[inst.module] for inst in instances], dtype=np.int64)),
         ladder=_ladder(rungs, lim_req, lim_exe, lim_std),
         fleet=fleet.metadata.name,
         namespace=namespace,

@@ -124,3 +124,21 @@ def test_rungs_the_plan_has_room_for_are_given_back(tmp_path: Path) -> None:
     every = np.ones(p.n_instances, dtype=np.int64)
     back = give_back(p.with_levels(every), sched.placement)
     assert not back.any(), "the plan fits at full CPU, so every rung comes back"
+
+
+def test_a_fleet_may_override_a_modules_priority(tmp_path: Path) -> None:
+    p = _site(tmp_path, "8500m")
+    fleet = (tmp_path / "fleet.yaml").read_text()
+    old = "  - name: object-pose-estimation\n"
+    assert old in fleet
+    (tmp_path / "fleet.yaml").write_text(
+        fleet.replace(old, old + "    overrides: {priority: 900}\n")
+    )
+    catalog = load_paths([tmp_path])
+    q = build_problem(catalog.fleets[0], catalog)
+    for i, inst in enumerate(q.instances):
+        expected = 900 if inst.module == "object-pose-estimation" else int(p.priority[i])
+        assert int(q.priority[i]) == expected
+    sched = plan(q, _settings(q))
+    assert sched.degraded and sched.levels is not None
+    assert "object-pose-estimation" not in _degraded_modules(q, sched.levels)

@@ -80,6 +80,8 @@ class ModuleOverrides(FogModel):
     preferred_tiers: list[Tier] | None = None
     """Tiers the module should run on when it can, for this fleet (overrides the module's
     preferredTiers and the fleet's)."""
+    priority: Annotated[int, Field(ge=1, le=1000)] | None = None
+    """The module's priority in this fleet (1-1000; see SoftwareModule spec.priority)."""
 
     @model_validator(mode="after")
     def _unique(self) -> ModuleOverrides:
