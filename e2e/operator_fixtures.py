@@ -271,14 +271,14 @@ def wait_ready(kube: Kube, namespace: str, name: str = "warehouse", timeout: flo
 
 
 def assert_pods_where_planned(
-    kube: Kube, namespace: str, name: str = "warehouse"
+    kube: Kube, namespace: str, name: str = "warehouse", instances: int = N_INSTANCES
 ) -> dict[str, Any]:
     status = fleet(kube, namespace, name)["status"]
     planned = {(p["robot"], p["module"]): p["node"] for p in status["placement"]}
-    assert len(planned) == N_INSTANCES
+    assert len(planned) == instances
     pods = pods_by_instance(kube, namespace)
     deps = {d["metadata"]["name"]: d for d in deployments(kube, namespace)}
-    assert len(deps) == N_INSTANCES, sorted(deps)
+    assert len(deps) == instances, sorted(deps)
     for dname, dep in deps.items():
         ann = dep["metadata"]["annotations"]
         want = planned[(ann["fogfleet.io/robot"], ann["fogfleet.io/module"])]

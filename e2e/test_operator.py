@@ -358,7 +358,7 @@ def test_a_fleet_short_of_cpu_runs_degraded_on_its_least_important_module(
     assert "bulk-mapper" in msg and "priority 5" in msg and "predicted miss" in msg, msg
     assert events(kube, namespace, "ShortOfCapacity")
     wait_ready(kube, namespace)  # every module, degraded ones included, runs where planned
-    assert_pods_where_planned(kube, namespace)
+    assert_pods_where_planned(kube, namespace, instances=N_INSTANCES + 5)
     burst = 0
     for dep in deployments(kube, namespace):
         res = dep["spec"]["template"]["spec"]["containers"][0]["resources"]
