@@ -357,6 +357,12 @@ def test_a_fleet_short_of_cpu_runs_degraded_on_its_least_important_module(
     msg = conditions(fleet(kube, namespace))["Degraded"]["message"]
     assert "bulk-mapper" in msg and "priority 5" in msg and "predicted miss" in msg, msg
     assert events(kube, namespace, "ShortOfCapacity")
+    gauge = [
+        line
+        for line in operator.metrics().splitlines()
+        if line.startswith('fogfleet_degraded_instances{fleet="warehouse"}')
+    ]
+    assert gauge and float(gauge[0].split()[-1]) >= 1, gauge
     wait_ready(kube, namespace)  # every module, degraded ones included, runs where planned
     assert_pods_where_planned(kube, namespace, instances=N_INSTANCES + 5)
     burst = 0

@@ -3,6 +3,8 @@
 fogfleet_plans_total{fleet,scheduler}              plans made (cache hits are not plans)
 fogfleet_planning_seconds{scheduler}               planning duration histogram
 fogfleet_objective{fleet,objective}                objective values of the last plan
+fogfleet_degraded_instances{fleet}                 instances the last plan runs below their
+                                                   deadline's CPU (0: not degraded)
 fogfleet_migrations_total{fleet}                   running modules moved to another node
 fogfleet_reconcile_errors_total{fleet,reason}      reconciles that failed, by error reason
 fogfleet_deployments_applied_total{fleet}          Deployments applied (server-side)
@@ -41,6 +43,12 @@ class PrometheusMetrics:
             ["fleet", "objective"],
             registry=r,
         )
+        self.degraded = Gauge(
+            "fogfleet_degraded_instances",
+            "Instances the last plan runs below the CPU their deadline needs (0: not degraded).",
+            ["fleet"],
+            registry=r,
+        )
         self.migrations = Counter(
             "fogfleet_migrations", "Running modules moved to another node.", ["fleet"], registry=r
         )
@@ -59,12 +67,18 @@ class PrometheusMetrics:
         return start_http_server(port, addr=addr, registry=self.registry)
 
     def observe_plan(
-        self, fleet: str, scheduler: str, seconds: float, objectives: Mapping[str, float]
+        self,
+        fleet: str,
+        scheduler: str,
+        seconds: float,
+        objectives: Mapping[str, float],
+        degraded: int = 0,
     ) -> None:
         self.plans.labels(fleet, scheduler).inc()
         self.planning.labels(scheduler).observe(seconds)
         for name, value in objectives.items():
             self.objective.labels(fleet, name).set(value)
+        self.degraded.labels(fleet).set(degraded)
 
     def count_migrations(self, fleet: str, n: int) -> None:
         if n:

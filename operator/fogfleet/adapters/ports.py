@@ -89,7 +89,12 @@ class Planner(Protocol):
 
 class MetricsPort(Protocol):
     def observe_plan(
-        self, fleet: str, scheduler: str, seconds: float, objectives: Mapping[str, float]
+        self,
+        fleet: str,
+        scheduler: str,
+        seconds: float,
+        objectives: Mapping[str, float],
+        degraded: int = 0,
     ) -> None: ...
 
     def count_migrations(self, fleet: str, n: int) -> None: ...
@@ -103,7 +108,12 @@ class NullMetrics:
     """Metrics that go nowhere (tests, the CLI)."""
 
     def observe_plan(
-        self, fleet: str, scheduler: str, seconds: float, objectives: Mapping[str, float]
+        self,
+        fleet: str,
+        scheduler: str,
+        seconds: float,
+        objectives: Mapping[str, float],
+        degraded: int = 0,
     ) -> None:
         return None
 

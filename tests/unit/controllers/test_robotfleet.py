@@ -176,6 +176,9 @@ def test_a_fleet_that_cannot_fit_is_reported_and_nothing_is_applied(kube, deps):
 
 
 def test_a_fleet_short_of_cpu_runs_degraded_and_says_so(kube, deps):
+    from fogfleet.adapters.metrics import PrometheusMetrics
+
+    deps.metrics = PrometheusMetrics()
     for cn in kube.compute_nodes.values():
         if cn["spec"]["tier"] == "edge":
             cn["spec"]["capacity"] = {"cpu": 4, "memory": "64Gi"}
@@ -185,6 +188,10 @@ def test_a_fleet_short_of_cpu_runs_degraded_and_says_so(kube, deps):
     assert cond["Degraded"]["status"] == "True" and cond["Degraded"]["reason"] == "ShortOfCapacity"
     assert "predicted miss" in cond["Degraded"]["message"]
     assert ("Warning", "ShortOfCapacity") in [e[:2] for e in kube.events]
+    gauge = deps.metrics.registry.get_sample_value(
+        "fogfleet_degraded_instances", {"fleet": "warehouse"}
+    )
+    assert gauge is not None and gauge >= 1
     # the Deployments request the smaller CPU the plan guarantees them (status.placement)
     # and degraded ones may burst to what their deadline needs (a higher limit)
     status = {(p["robot"], p["module"]): p["cpu"] for p in kube.fleets[KEY]["status"]["placement"]}
