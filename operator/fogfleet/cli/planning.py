@@ -221,12 +221,11 @@ def _read_placement(problem: Any, path: Path) -> tuple[Any, Any]:
         ): e
         for e in entries
     }
-    index = {k: e.get("node") for k, e in by_instance.items()}
-    cpus = {k: e.get("cpu") for k, e in by_instance.items()}
     placement = np.full(problem.n_instances, -1, dtype=np.int64)
     levels = np.zeros(problem.n_instances, dtype=np.int64)
     for i, inst in enumerate(problem.instances):
-        node = index.get((inst.robot, inst.module, inst.replica))
+        entry = by_instance.get((inst.robot, inst.module, inst.replica)) or {}
+        node = entry.get("node")
         if node is not None:
             try:
                 placement[i] = problem.node_index(node)
@@ -234,9 +233,7 @@ def _read_placement(problem: Any, path: Path) -> tuple[Any, Any]:
                 raise InvalidSpec(
                     str(path), "placement", f"node {node!r} is not in the fleet"
                 ) from exc
-            levels[i] = _rung_of(
-                problem, i, int(placement[i]), cpus.get((inst.robot, inst.module, inst.replica))
-            )
+            levels[i] = _rung_of(problem, i, int(placement[i]), entry.get("cpu"))
     if not with_limits:
         return placement, problem.nominal
     return placement, problem.with_levels(levels).limits
@@ -249,6 +246,5 @@ def _rung_of(problem: Any, i: int, j: int, cpu: Any) -> int:
         return 0
     from fogfleet.api.v1alpha1.base import parse_cpu
 
-    amount = float(cpu) if isinstance(cpu, float) else parse_cpu(cpu)
-    rungs = np.flatnonzero(np.isclose(problem.ladder.cpu[i, j], amount, atol=1e-6))
+    rungs = np.flatnonzero(np.isclose(problem.ladder.cpu[i, j], parse_cpu(cpu), atol=1e-6))
     return int(rungs[0]) if len(rungs) and rungs[0] <= problem.ladder.depth[i, j] else 0

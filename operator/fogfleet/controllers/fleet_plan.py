@@ -71,9 +71,9 @@ def plan_fleet(
     )
     cached = CachedPlan(fp, schedule, chosen, plan_id, len(moves), reason, now(), moves, objectives)
     deps.plans[key] = cached
-    levels = schedule.levels
-    degraded = int((levels > 0).sum()) if levels is not None else 0
-    deps.metrics.observe_plan(key[1], schedule.scheduler, seconds, objectives, degraded)
+    deps.metrics.observe_plan(
+        key[1], schedule.scheduler, seconds, objectives, schedule.degraded_instances
+    )
     deps.metrics.count_migrations(key[1], len(moves))
     log.info(
         "Planned RobotFleet %s/%s in %.0f ms (%d migrations)",

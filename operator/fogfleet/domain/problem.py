@@ -94,10 +94,6 @@ class Ladder:
     std: F64  # (I, N, K) seconds
     depth: NDArray[np.int64]  # (I, N)
 
-    @property
-    def rungs(self) -> int:
-        return int(self.cpu.shape[2]) if self.cpu.ndim == 3 else 1
-
 
 @dataclass(frozen=True)
 class Problem:
@@ -123,7 +119,7 @@ class Problem:
     nominal: Allocation
     current: NDArray[np.int64]  # (I,) current node index, -1 where unknown
     reasons: dict[int, str] = field(default_factory=dict)  # instance -> why nowhere fits
-    priority: NDArray[np.int64] | None = None  # (I,) higher degrades later; 0 never; None: 0
+    priority: NDArray[np.int64] | None = None  # (I,) higher degrades later; None: all alike
     ladder: Ladder | None = None  # None: no smaller CPU profiled (nothing can degrade)
     levels: NDArray[np.int64] | None = None  # (I,) rungs taken below the pick; None: none
     preferred: NDArray[np.bool_] | None = None  # (I, N) node's tier preferred; None: no wishes

@@ -254,6 +254,25 @@ class Evaluation:
             out += w * f(np.clip(m + sd * x, lo, hi))
         return out
 
+    @cached_property
+    def placed_activation(self) -> F64:
+        """Each placed instance's activation, 0 where it is not placed (P, I)."""
+        return np.where(self.valid, self.problem.activation[None, :], 0.0)
+
+    def per_module(self, w: F64) -> F64:
+        """Sum of per-instance weights ``w`` (P, I) over each module's instances: (P, M), M in
+        ``Problem.module_names`` order."""
+        mod = self.problem.module_index
+        n_mod = len(self.problem.module_names)
+        flat = (mod[None, :] + n_mod * np.arange(self.P)[:, None]).ravel()
+        out = np.bincount(flat, weights=np.ravel(w), minlength=self.P * n_mod)
+        return np.asarray(out, dtype=np.float64).reshape(self.P, n_mod)
+
+    @cached_property
+    def module_activation(self) -> F64:
+        """Each module's placed activation (P, M): the weights of ``miss_rate``."""
+        return self.per_module(self.placed_activation)
+
     def instance_miss(self) -> F64:
         """Predicted miss probability of each instance's active cycles (P, I): the normal
         cycle-time tail at slowdown max(1, D / cap), averaged over the demand D (computed
@@ -288,14 +307,8 @@ class Evaluation:
         the activation-weighted mean of its placed instances' miss probabilities (the share
         of its cycles that miss). Every module counts alike, however many instances it has or
         however fast its loop, so one module missing badly cannot hide behind fast loops."""
-        mod = self.problem.module_index
-        n_mod = len(self.problem.module_names)
-        a = np.where(self.valid, self.problem.activation[None, :], 0.0)
-        flat = (mod[None, :] + n_mod * np.arange(self.P)[:, None]).ravel()
-        size = self.P * n_mod
-        weight = np.bincount(flat, weights=a.ravel(), minlength=size).reshape(self.P, n_mod)
-        missed = np.bincount(flat, weights=(a * self.instance_miss()).ravel(), minlength=size)
-        missed = missed.reshape(self.P, n_mod)
+        weight = self.module_activation
+        missed = self.per_module(self.placed_activation * self.instance_miss())
         counted = weight > 0
         rate = np.where(counted, missed / np.where(counted, weight, 1.0), 0.0)
         n = counted.sum(axis=1)

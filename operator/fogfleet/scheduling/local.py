@@ -160,7 +160,7 @@ class MoveEvaluator:
         G = np.concatenate([child.node_constraints(), gene[:, None]], axis=1)
 
         # missRate / missedCycles: only i's own term changes where c and j stay uncontended
-        a_valid = np.where(fulls >= 0, fleet.activation[None, :], 0.0)
+        a_valid = ev.placed_activation
         q_par = a_valid * ev.instance_miss()
         t_par = ev.tau()
         m_par = a_valid * np.where(t_par > 1.0, t_par, 0.0)
@@ -175,13 +175,9 @@ class MoveEvaluator:
         fast &= sums["cpu_expected"][ar, node] <= self.cap[node]
         # the fleet's rate is the mean over modules (Evaluation.miss_rate): a move changes
         # one term of one module's activation-weighted sum, whose weights stay the same
-        mod = fleet.module_index
-        n_mod = len(fleet.module_names)
-        flat = (mod[None, :] + n_mod * np.arange(len(fulls))[:, None]).ravel()
-        weight = np.bincount(flat, weights=a_valid.ravel(), minlength=len(fulls) * n_mod)
-        weight = weight.reshape(len(fulls), n_mod)
+        weight = ev.module_activation
         counted = (weight > 0).sum(axis=1)
-        w_inst = weight[par, mod[inst]] * counted[par]
+        w_inst = weight[par, fleet.module_index[inst]] * counted[par]
         change = (self.miss[inst, node] - q_par[par, inst]) / np.where(w_inst > 0, w_inst, 1.0)
         out["missRate"] = ev.miss_rate()[par] + np.where(w_inst > 0, change, 0.0)
         out["missedCycles"] = m_par.sum(axis=1)[par] - m_par[par, inst] + self.missed[inst, node]

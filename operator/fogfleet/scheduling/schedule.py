@@ -37,7 +37,11 @@ class Schedule:
     levels: NDArray[np.int64] | None = None  # (I,) rungs each instance was degraded (degrade)
 
     @property
-    def degraded(self) -> bool:
-        """Some instances run below the CPU their deadline needs (``scheduling.degrade``);
+    def degraded_instances(self) -> int:
+        """How many instances run below the CPU their deadline needs (``scheduling.degrade``);
         ``Problem.with_levels(levels)`` is the problem the plan's figures hold for."""
-        return self.levels is not None and bool(np.any(self.levels > 0))
+        return int((self.levels > 0).sum()) if self.levels is not None else 0
+
+    @property
+    def degraded(self) -> bool:
+        return self.degraded_instances > 0

@@ -94,7 +94,7 @@ def parse_quantity(value: str | float) -> float:
     return float(amount)
 
 
-def parse_cpu(value: str | int) -> float:
+def parse_cpu(value: str | float) -> float:
     """CPU quantity in cores."""
     return parse_quantity(value)
 
@@ -105,7 +105,7 @@ def format_cores(cores: float) -> str:
     return str(millis // 1000) if millis % 1000 == 0 else f"{millis}m"
 
 
-def parse_memory(value: str | int) -> float:
+def parse_memory(value: str | float) -> float:
     """Memory quantity in bytes."""
     return parse_quantity(value)
 
