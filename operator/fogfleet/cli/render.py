@@ -72,6 +72,7 @@ def cmd_render(args: argparse.Namespace) -> int:
                 modules,
                 schedule.placement,
                 baseline=schedule.scheduler == "k8s-default",
+                with_limits=schedule.with_limits,
                 plan_id=f"cli-{schedule.scheduler}-{settings.seed}",
                 wiring=wiring,
             )

@@ -142,6 +142,7 @@ def _reconcile(
             problem,
             modules,
             cached.placement,
+            with_limits=cached.schedule.with_limits,
             owner=owner,
             plan_id=cached.plan_id,
             wiring=wiring,

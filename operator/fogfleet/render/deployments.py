@@ -38,7 +38,7 @@ from fogfleet.api.labels import (
     LABEL_TIER,
     MANAGER,
 )
-from fogfleet.api.v1alpha1.softwaremodule import SoftwareModule
+from fogfleet.api.v1alpha1.softwaremodule import ProfileEntry, SoftwareModule
 from fogfleet.domain.problem import Instance, Problem
 from fogfleet.render.podtemplate import module_pod_spec, scrape_port
 from fogfleet.render.ros import RosWiring, module_env
@@ -141,6 +141,18 @@ def _affinity(node_names: Sequence[str]) -> dict[str, Any]:
     }
 
 
+def _nominal_row(problem: Problem, i: int, j: int) -> ProfileEntry:
+    """The row instance ``i`` runs with on node ``j`` without a limit, as the simulator has it
+    (``Problem.nominal``: the largest profiled parallelism that fits the node, speed-scaled)."""
+    nominal = problem.nominal
+    return ProfileEntry(
+        hardware_type=problem.nodes[j].hardware_type,
+        cpu=format_cpu(float(nominal.cpu_use[i, j])),
+        mean_millis=round(float(nominal.exe_mean[i, j]) * 1e3, 3),
+        std_millis=round(float(nominal.exe_std[i, j]) * 1e3, 3),
+    )
+
+
 def render_instance(
     problem: Problem,
     i: int,
@@ -148,20 +160,27 @@ def render_instance(
     nodes: Sequence[int],
     *,
     baseline: bool = False,
+    with_limits: bool = True,
     owner: Owner | None = None,
     plan_id: str = "",
     wiring: RosWiring | None = None,
 ) -> dict[str, Any]:
-    """The Deployment of instance ``i`` allowed on ``nodes`` (one node unless ``baseline``)."""
+    """The Deployment of instance ``i`` allowed on ``nodes`` (one node unless ``baseline``).
+
+    Without limits (``baseline``, or a plan made for the nominal allocation such as
+    ``onboard``) it requests the module's nominal CPU, has no limit and runs its node's nominal
+    row, as the simulator models such a plan.
+    """
     inst = problem.instances[i]
     name = deployment_name(problem.fleet, inst)
-    alloc = problem.nominal if baseline else problem.limits
+    with_limits = with_limits and not baseline
+    alloc = problem.limits if with_limits else problem.nominal
     j = nodes[0]
     cpu = format_cpu(float(alloc.cpu_request[i, j]))
     memory = str(int(np.ceil(problem.memory[i])))
     requests: dict[str, str] = {"cpu": cpu, "memory": memory}
     resources: dict[str, Any] = {"requests": requests}
-    if not baseline:
+    if with_limits:
         limits = dict(requests)
         if alloc.cpu_use[i, j] > alloc.cpu_request[i, j]:
             # degraded (Problem.with_levels): guaranteed less, may burst to what it needs
@@ -197,7 +216,10 @@ def render_instance(
         tier=tier or "",
         node="" if baseline else node.node_name,
         hardware_type="" if baseline else node.hardware_type,
-        cpu="" if baseline else cpu,
+        cpu=cpu if with_limits else "",
+        node_rows=None
+        if with_limits
+        else {problem.nodes[k].node_name: _nominal_row(problem, i, k) for k in nodes},
     )
     metadata: dict[str, Any] = {
         "name": name,
@@ -252,6 +274,7 @@ def render_fleet(
     placement: Sequence[int] | np.ndarray[Any, Any] | None,
     *,
     baseline: bool = False,
+    with_limits: bool = True,
     owner: Owner | None = None,
     plan_id: str = "",
     wiring: RosWiring | None = None,
@@ -261,6 +284,8 @@ def render_fleet(
     ``placement[i]`` is the chosen node index (``-1``: not placed, no Deployment). With
     ``baseline`` (the ``k8s-default`` scheduler) the placement is ignored: every instance with a
     non-empty gene space gets affinity to all of it and kube-scheduler decides.
+    ``with_limits`` is the plan's (``Schedule.with_limits``): False renders the nominal
+    allocation (see ``render_instance``).
     ``modules`` maps SoftwareModule names to the objects (their container templates).
     """
     out: list[dict[str, Any]] = []
@@ -280,6 +305,7 @@ def render_fleet(
                     module,
                     nodes,
                     baseline=baseline,
+                    with_limits=with_limits,
                     owner=owner,
                     plan_id=plan_id,
                     wiring=wiring,

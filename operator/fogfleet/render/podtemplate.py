@@ -25,7 +25,7 @@ TMP_VOLUME = {"name": "tmp", "emptyDir": {"sizeLimit": "64Mi"}}
 _TMP_MOUNT = {"name": "tmp", "mountPath": "/tmp"}
 
 
-def _env(env: Sequence[FogModel], owned_env: Sequence[Mapping[str, str]]) -> list[Obj]:
+def _env(env: Sequence[FogModel], owned_env: Sequence[Mapping[str, Any]]) -> list[Obj]:
     out = []
     for e in env:
         wire = e.wire()
@@ -88,7 +88,7 @@ def _container(
     metrics_port_name: str,
     sc: SecurityContext | None,
     mounts: Sequence[FogModel],
-    owned_env: Sequence[Mapping[str, str]],
+    owned_env: Sequence[Mapping[str, Any]],
 ) -> Obj:
     """What the module's container and a sidecar render alike: image, entry point, env (the
     user's, then fogfleet's wiring), security context, /tmp and the other mounts, ports (the
@@ -116,7 +116,7 @@ def _container(
 
 
 def _module_container(
-    tpl: ContainerTemplate, name: str, resources: Obj, owned_env: Sequence[Mapping[str, str]]
+    tpl: ContainerTemplate, name: str, resources: Obj, owned_env: Sequence[Mapping[str, Any]]
 ) -> Obj:
     out = _container(tpl, name, "metrics", tpl.security_context, tpl.volume_mounts, owned_env)
     if tpl.env_from:
@@ -129,7 +129,7 @@ def _module_container(
     return out
 
 
-def _sidecar(car: Sidecar, tpl: ContainerTemplate, owned_env: Sequence[Mapping[str, str]]) -> Obj:
+def _sidecar(car: Sidecar, tpl: ContainerTemplate, owned_env: Sequence[Mapping[str, Any]]) -> Obj:
     port_name = f"m-{car.name}"[:15].rstrip("-")
     out = _container(car, car.name, port_name, tpl.security_context, car.volume_mounts, owned_env)
     quantities = {"cpu": str(car.cpu), "memory": str(car.memory)}
@@ -143,7 +143,7 @@ def module_pod_spec(
     container_name: str,
     affinity: Obj,
     resources: Obj,
-    owned_env: Sequence[Mapping[str, str]],
+    owned_env: Sequence[Mapping[str, Any]],
 ) -> Obj:
     """The pod spec of one instance of ``module``: containers, volumes and pod settings."""
     tpl = module.spec.template

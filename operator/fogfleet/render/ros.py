@@ -22,7 +22,7 @@ from typing import Any
 
 from fogfleet.api.labels import LABEL_COMPONENT, LABEL_ROBOT
 from fogfleet.api.v1alpha1.robotfleet import RosSettings
-from fogfleet.api.v1alpha1.softwaremodule import SoftwareModule
+from fogfleet.api.v1alpha1.softwaremodule import ProfileEntry, SoftwareModule
 
 __all__ = [
     "COMPONENT_DISCOVERY",
@@ -86,22 +86,35 @@ def pod_security() -> tuple[dict[str, Any], dict[str, Any]]:
     return pod, container
 
 
-def _env(pairs: Mapping[str, str]) -> list[dict[str, str]]:
+def _env(pairs: Mapping[str, str]) -> list[dict[str, Any]]:
     return [{"name": k, "value": v} for k, v in pairs.items()]
 
 
-def module_spec_json(module: SoftwareModule, hardware_type: str) -> str:
-    """What the workload needs of the module: cycle, activation, topics, its node's profile."""
-    spec = module.spec
-    rows = [r for r in spec.profile if r.hardware_type == hardware_type] or [
-        r for r in spec.profile if r.hardware_type == "default"
+def _rows(module: SoftwareModule, hardware_type: str) -> list[dict[str, Any]]:
+    rows = [r for r in module.spec.profile if r.hardware_type == hardware_type] or [
+        r for r in module.spec.profile if r.hardware_type == "default"
     ]
-    body = {
+    return [r.model_dump(by_alias=True, mode="json") for r in rows]
+
+
+def module_spec_json(
+    module: SoftwareModule, hardware_type: str, node_rows: Mapping[str, ProfileEntry] | None = None
+) -> str:
+    """What the workload needs of the module: cycle, activation, topics, its node's profile.
+
+    ``node_rows`` (node name -> the row it runs with there) is for a Deployment that
+    kube-scheduler places (the k8s-default baseline): it learns its node only when it runs, so
+    it gets the row of every node it may land on (``profileByNode``).
+    """
+    spec = module.spec
+    body: dict[str, Any] = {
         "cycleTimeMillis": spec.cycle_time_millis,
         "activationPercent": spec.activation_percent,
         "topics": spec.topics.model_dump(by_alias=True, mode="json"),
-        "profile": [r.model_dump(by_alias=True, mode="json") for r in rows],
+        "profile": _rows(module, hardware_type),
     }
+    if node_rows:
+        body["profileByNode"] = {n: [row.wire()] for n, row in sorted(node_rows.items())}
     return json.dumps(body, separators=(",", ":"), sort_keys=True)
 
 
@@ -115,8 +128,13 @@ def module_env(
     node: str,
     hardware_type: str,
     cpu: str,
-) -> list[dict[str, str]]:
-    """The environment fogfleet owns in a module container (ROS wiring + FOGFLEET_*)."""
+    node_rows: Mapping[str, ProfileEntry] | None = None,
+) -> list[dict[str, Any]]:
+    """The environment fogfleet owns in a module container (ROS wiring + FOGFLEET_*).
+
+    With ``node_rows`` (kube-scheduler chooses among those nodes) the container reads its node
+    from the downward API and has no FOGFLEET_CPU (no limit: it runs the row of its node).
+    """
     env = {
         "FOGFLEET_FLEET": fleet,
         "FOGFLEET_ROBOT": robot,
@@ -125,8 +143,10 @@ def module_env(
         "FOGFLEET_NODE": node,
         "FOGFLEET_HARDWARE_TYPE": hardware_type,
         "FOGFLEET_CPU": cpu,
-        "FOGFLEET_MODULE_SPEC": module_spec_json(module, hardware_type),
+        "FOGFLEET_MODULE_SPEC": module_spec_json(module, hardware_type, node_rows),
     }
+    if node_rows:
+        del env["FOGFLEET_NODE"], env["FOGFLEET_CPU"], env["FOGFLEET_HARDWARE_TYPE"]
     if wiring is not None and wiring.settings.enabled:
         ros = wiring.settings
         env |= {
@@ -139,7 +159,11 @@ def module_env(
         server = wiring.server_for(robot)
         if server:
             env["ROS_DISCOVERY_SERVER"] = server
-    return _env(env)
+    out: list[dict[str, Any]] = _env(env)
+    if node_rows:
+        node_ref = {"fieldRef": {"apiVersion": "v1", "fieldPath": "spec.nodeName"}}
+        out.insert(4, {"name": "FOGFLEET_NODE", "valueFrom": node_ref})
+    return out
 
 
 def render_discovery(

@@ -49,9 +49,10 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     from .module import run_module
 
+    limit = "no CPU limit" if spec.cpu is None else f"{spec.cpu:g} CPU"
     print(
         f"fogfleet-workload: {spec.robot or 'shared'}/{spec.module} on {spec.node} "
-        f"({spec.tier}, {spec.cpu:g} CPU): cycle {spec.cycle_s * 1e3:g} ms, "
+        f"({spec.tier or 'any tier'}, {limit}): cycle {spec.cycle_s * 1e3:g} ms, "
         f"activation {spec.activation:.0%}, work {spec.row.mean_s * 1e3:g}±"
         f"{spec.row.std_s * 1e3:g} ms at {spec.row.cpu:g} CPU",
         flush=True,

@@ -1,54 +1,89 @@
-"""CPU work that really competes for CPU: busy loops measured in CPU time, in worker processes.
+"""CPU work that really competes for CPU, at the pace a profile row describes.
 
-A profile row says a cycle takes ``mean`` seconds with ``cpu`` cores (Fig. 3). The work is
-therefore ``mean * cpu`` CPU-seconds, split over ceil(cpu) processes; a container throttled to
-fewer cores (its CFS quota, or a busy node) finishes it later in wall time, as the real
-module would. Worker processes are forked before ROS starts (forking an rclpy process is not
-safe) and keep the GIL away from the ROS executor.
+A profile row says a cycle takes ``mean`` seconds with ``cpu`` cores (Fig. 3). The workload
+therefore burns ``mean * cpu`` CPU-seconds **at a rate of ``cpu`` cores**: split over
+``ceil(cpu)`` processes, each spins for its share of every 5 ms slice and sleeps for the rest.
+With its share it finishes in ``mean`` seconds of wall time; on a busy node the spinning takes
+longer and so does the cycle. This is the simulator's model of a job (``sim.engine``: a job
+demands ``cpu_use`` cores for ``work`` seconds and slows down under contention), so reality and
+model differ only where reality has more in it (middleware, kubelet, throttling). Without the
+pacing a 67m module would run at a full core for a fifteenth of its time: its cycles would be
+15 times shorter than its profile says and it would take the CPU in bursts.
+
+Worker processes are forked before ROS starts (forking an rclpy process is not safe) and keep
+the GIL away from the ROS executor.
 """
 
 from __future__ import annotations
 
+import math
 import multiprocessing
 import time
 from multiprocessing.pool import Pool
 
-__all__ = ["Burner", "burn"]
+__all__ = ["SLICE_S", "Burner", "burn"]
+
+SLICE_S = 0.005  # pacing slice: short against every cycle time, long against a wake-up
 
 
-def burn(cpu_seconds: float) -> float:
-    """Spin until this thread has used `cpu_seconds` of CPU; returns the wall time it took."""
+def burn(cpu_seconds: float, rate: float = 1.0) -> float:
+    """Use `cpu_seconds` of this thread's CPU at `rate` cores (<= 1); returns the wall time.
+
+    Each slice of ``SLICE_S`` spins until the thread has used ``rate * SLICE_S`` more and
+    sleeps for the rest of the slice. A slice that overran (the thread waited for CPU) is not
+    made up by running faster later: a module given less CPU than it demands progresses more
+    slowly, as under processor sharing.
+    """
     t0, wall0 = time.thread_time(), time.monotonic()
+    step = max(1e-4, min(rate, 1.0) * SLICE_S)
+    used, slice_end = 0.0, wall0
     x = 0
-    while time.thread_time() - t0 < cpu_seconds:
-        for _ in range(2000):
-            x += 1
+    while used < cpu_seconds:
+        target = min(cpu_seconds, used + step)
+        while used < target:
+            for _ in range(500):
+                x += 1
+            used = time.thread_time() - t0
+        slice_end += SLICE_S
+        now = time.monotonic()
+        if rate < 1.0 and now < slice_end:
+            time.sleep(slice_end - now)
+        else:
+            slice_end = max(slice_end, now)
     return time.monotonic() - wall0
 
 
 class Burner:
-    """One core's worth of work is burnt in the calling thread (time.thread_time counts only
-    its own CPU, so sharing the GIL with the ROS executor does not change the work); more
-    than one core's worth goes to worker processes, recreated if one dies (a container's
-    memory limit can kill a worker, and a lost task would hang the module)."""
+    """Burns a cycle's work at the pace of the module's CPU.
 
-    def __init__(self, workers: int) -> None:
-        self.workers = max(1, workers)
+    Up to one core's worth is burnt in the calling thread (time.thread_time counts only its own
+    CPU, so sharing the GIL with the ROS executor does not change the work); more than one core
+    goes to ``ceil(cpu)`` worker processes, recreated if one dies (a container's memory limit
+    can kill a worker, and a lost task would hang the module).
+    """
+
+    def __init__(self, cpu: float) -> None:
+        if not cpu > 0.0:
+            raise ValueError(f"cpu must be positive, got {cpu}")
+        self.cpu = cpu
+        self.workers = max(1, math.ceil(cpu - 1e-9))
         self._pool: Pool | None = self._new_pool() if self.workers > 1 else None
 
     def _new_pool(self) -> Pool:
         return multiprocessing.get_context("fork").Pool(self.workers)
 
-    def run(self, cpu_seconds: float) -> float:
-        """Burn `cpu_seconds` across the workers; the wall time until all are done."""
+    def run(self, seconds: float) -> float:
+        """Work that takes `seconds` with `cpu` cores (``seconds * cpu`` CPU-seconds at a rate
+        of `cpu` cores); returns the wall time until all of it is done."""
         t0 = time.monotonic()
+        rate = self.cpu / self.workers
+        share = seconds * rate
         if self._pool is None:
-            burn(cpu_seconds)
+            burn(share, rate)
             return time.monotonic() - t0
-        share = cpu_seconds / self.workers
         try:
-            self._pool.map_async(burn, [share] * self.workers, chunksize=1).get(
-                timeout=60 + 100 * cpu_seconds
+            self._pool.starmap_async(burn, [(share, rate)] * self.workers, chunksize=1).get(
+                timeout=60 + 100 * seconds
             )
         except multiprocessing.TimeoutError:
             self._pool.terminate()

@@ -54,9 +54,9 @@ def run_module(
     duration: float | None = None,
 ) -> WorkloadMetrics:
     """Run until SIGTERM (or `duration` seconds, for tests); returns the metrics."""
-    burner = Burner(spec.workers)  # fork before ROS starts
+    burner = Burner(spec.row.cpu)  # fork before ROS starts
     import rclpy
-    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.experimental.events_executor import EventsExecutor
     from rclpy.qos import QoSProfile, ReliabilityPolicy
     from std_msgs.msg import String
 
@@ -99,14 +99,16 @@ def run_module(
 
     def streams() -> None:
         """Outputs faster than one per cycle repeat the latest result at their own rate."""
-        due = {t.name: time.monotonic() for t in spec.publishes}
-        while not stop.is_set():
+        fast = [t for t in spec.publishes if t.rate_hz * spec.cycle_s > 1.0]
+        due = {t.name: time.monotonic() for t in fast}
+        while fast and not stop.is_set():
             now = time.monotonic()
-            for t in spec.publishes:
-                if t.rate_hz * spec.cycle_s > 1.0 and now >= due[t.name]:
+            for t in fast:
+                if now >= due[t.name]:
                     publish(t.name, t.size_bytes, last_origin or time.time_ns())
-                    due[t.name] = now + 1.0 / t.rate_hz
-            stop.wait(0.005)
+                    due[t.name] = max(due[t.name] + 1.0 / t.rate_hz, now)
+            # sleep until the next output is due (no polling: the module's own CPU is work)
+            stop.wait(max(0.0, min(due.values()) - time.monotonic()))
 
     def cycles() -> None:
         nonlocal last_origin
@@ -125,7 +127,7 @@ def run_module(
                 continue
             t_in = max(((recv - h.sent_ns) / 1e9 for h, recv in fresh), default=0.0)
             origin = min((h.sent_ns for h, _ in fresh), default=time.time_ns())
-            burner.run(sample_exec_seconds(spec.row, rng) * spec.row.cpu)
+            burner.run(sample_exec_seconds(spec.row, rng))
             for t in spec.publishes:
                 if t.rate_hz * spec.cycle_s <= 1.0:
                     publish(t.name, t.size_bytes, origin)
@@ -142,7 +144,7 @@ def run_module(
     workers = [threading.Thread(target=f, daemon=True) for f in (cycles, streams)]
     for w in workers:
         w.start()
-    executor = SingleThreadedExecutor()
+    executor = EventsExecutor()
     executor.add_node(node)
     deadline = None if duration is None else time.monotonic() + duration
     try:

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import json
-import math
 import random
 from collections.abc import Mapping
 from dataclasses import dataclass, field
@@ -47,11 +46,15 @@ class ExecRow:
     std_s: float
 
 
-def exec_time(rows: list[ExecRow], cpu: float) -> ExecRow:
+def exec_time(rows: list[ExecRow], cpu: float | None) -> ExecRow:
     """The row the module runs with at CPU limit `cpu`: the largest profiled CPU that fits
-    (the operator sets the limit to a profiled value), else the smallest."""
+    (the operator sets the limit to a profiled value), else the smallest. Without a limit (the
+    k8s-default baseline's plain Deployments) it uses the largest profiled parallelism, as the
+    simulator's nominal allocation does (domain.build)."""
     if not rows:
         raise ValueError("no execution-time profile for this hardware type")
+    if cpu is None:
+        return max(rows, key=lambda r: r.cpu)
     fitting = [r for r in rows if r.cpu <= cpu + 1e-9]
     return max(fitting, key=lambda r: r.cpu) if fitting else min(rows, key=lambda r: r.cpu)
 
@@ -80,7 +83,7 @@ class WorkloadSpec:
     module: str
     tier: str
     node: str
-    cpu: float
+    cpu: float | None  # the CPU limit; None: no limit (a plain Deployment)
     cycle_s: float
     activation: float
     subscribes: list[TopicSpec] = field(default_factory=list)
@@ -90,11 +93,6 @@ class WorkloadSpec:
     @property
     def row(self) -> ExecRow:
         return exec_time(self.profile, self.cpu)
-
-    @property
-    def workers(self) -> int:
-        """Processes that burn CPU in parallel: the profiled CPU, rounded up."""
-        return max(1, math.ceil(self.row.cpu - 1e-9))
 
     @classmethod
     def from_env(cls, env: Mapping[str, str]) -> WorkloadSpec:
@@ -106,13 +104,18 @@ class WorkloadSpec:
             raise ValueError(f"{ENV_SPEC}: not JSON ({exc})") from exc
         try:
             topics = raw.get("topics") or {}
+            node = env.get("FOGFLEET_NODE", "")
+            # a plain Deployment learns its node only when it runs (the downward API), so its
+            # spec carries the rows of every node it may land on
+            rows = (raw.get("profileByNode") or {}).get(node, raw.get("profile", []))
+            cpu = env.get("FOGFLEET_CPU", "")
             return cls(
                 fleet=env.get("FOGFLEET_FLEET", ""),
                 robot=env.get("FOGFLEET_ROBOT", ""),
                 module=env.get("FOGFLEET_MODULE", raw.get("module", "module")),
                 tier=env.get("FOGFLEET_TIER", "robot"),
-                node=env.get("FOGFLEET_NODE", ""),
-                cpu=_quantity(env.get("FOGFLEET_CPU", "1")),
+                node=node,
+                cpu=_quantity(cpu) if cpu else None,
                 cycle_s=_quantity(raw["cycleTimeMillis"]) / 1e3,
                 activation=_quantity(raw.get("activationPercent", 100)) / 100.0,
                 subscribes=[_topic(t) for t in topics.get("subscribes", [])],
@@ -124,7 +127,7 @@ class WorkloadSpec:
                             _quantity(r["meanMillis"]) / 1e3,
                             _quantity(r.get("stdMillis", 0)) / 1e3,
                         )
-                        for r in raw.get("profile", [])
+                        for r in rows
                     ),
                     key=lambda r: r.cpu,
                 ),

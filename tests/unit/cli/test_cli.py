@@ -110,12 +110,15 @@ def test_render_binds_each_deployment_to_its_node(capsys: pytest.CaptureFixture[
         ]["nodeSelectorTerms"]
         values = terms[0]["matchExpressions"][0]["values"]
         assert values == [d["metadata"]["labels"]["fogfleet.io/robot"]]
+        # onboard is planned for the nominal allocation, and so it runs: no limits (as the
+        # simulator has it); a pinned pod still learns its node from the downward API
+        assert "limits" not in d["spec"]["template"]["spec"]["containers"][0]["resources"]
     # the ROS wiring is visible: one discovery server (Service + Deployment) per robot
     others = [d for d in docs if d not in modules]
     kinds = sorted(d["kind"] for d in others)
     assert kinds == ["Deployment"] * 5 + ["NetworkPolicy"] + ["Service"] * 5
     env = {
-        e["name"]: e["value"]
+        e["name"]: e.get("value", "")
         for e in modules[0]["spec"]["template"]["spec"]["containers"][0]["env"]
     }
     robot = modules[0]["metadata"]["labels"]["fogfleet.io/robot"]

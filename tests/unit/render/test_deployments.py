@@ -22,6 +22,7 @@ from fogfleet.render.deployments import (
     render_fleet,
     spec_hash,
 )
+from fogfleet.workload.spec import WorkloadSpec
 
 EXAMPLES = Path(__file__).resolve().parents[3] / "manifests" / "examples"
 DNS_LABEL = re.compile(r"^[a-z0-9]([-a-z0-9]*[a-z0-9])?$")
@@ -88,6 +89,23 @@ def test_baseline_allows_the_whole_gene_space_with_nominal_requests_and_no_limit
         assert "limits" not in res
         j = int(np.flatnonzero(problem.allowed[i])[0])
         assert res["requests"]["cpu"] == format_cpu(problem.nominal.cpu_request[i, j])
+
+
+def test_a_baseline_pod_learns_its_node_when_it_runs_and_plays_that_nodes_rows(catalog, problem):
+    """kube-scheduler picks the node, so the pod reads it from the downward API and its spec
+    carries the rows of every allowed node; without a limit it runs the largest parallelism."""
+    deps = render_fleet(problem, modules(catalog), None, baseline=True)
+    for i, dep in enumerate(deps):
+        env = dep["spec"]["template"]["spec"]["containers"][0]["env"]
+        by_name = {e["name"]: e for e in env}
+        assert by_name["FOGFLEET_NODE"]["valueFrom"]["fieldRef"]["fieldPath"] == "spec.nodeName"
+        assert "FOGFLEET_CPU" not in by_name
+        allowed = np.flatnonzero(problem.allowed[i])
+        for j in allowed:  # wherever it lands, it plays what the simulator's nominal assumes
+            pairs = {e["name"]: e.get("value", "") for e in env}
+            spec = WorkloadSpec.from_env({**pairs, "FOGFLEET_NODE": problem.nodes[j].node_name})
+            assert spec.cpu is None
+            assert spec.row.cpu == pytest.approx(problem.nominal.cpu_use[i, j])
 
 
 def test_labels_owner_and_plan_annotation(catalog, problem):

@@ -41,7 +41,7 @@ def test_the_operators_environment_becomes_a_spec() -> None:
     assert spec.cycle_s == pytest.approx(0.033) and spec.activation == pytest.approx(0.7)
     assert spec.subscribes[0].size_bytes == 8192 and spec.publishes[0].rate_hz == 30
     # the row for the CPU it was given: 38 ms with 0.25 cores
-    assert spec.row == ExecRow(0.25, 0.038, 0.004) and spec.workers == 1
+    assert spec.row == ExecRow(0.25, 0.038, 0.004)
 
 
 def test_a_missing_or_broken_spec_names_the_variable() -> None:
@@ -97,3 +97,24 @@ def test_the_workload_imports_with_only_what_its_image_installs() -> None:
     )
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
     assert proc.returncode == 0, proc.stderr
+
+
+def test_a_plain_deployment_without_a_limit_plays_its_nodes_rows_at_full_parallelism() -> None:
+    """The k8s-default baseline: no FOGFLEET_CPU, the node from the downward API, the rows of
+    whichever node kube-scheduler chose, the largest parallelism (the simulator's nominal)."""
+    body = {
+        "cycleTimeMillis": 100,
+        "profile": [{"hardwareType": "default", "cpu": 1, "meanMillis": 50}],
+        "profileByNode": {
+            "robot-1": [{"hardwareType": "nuc", "cpu": "250m", "meanMillis": 80},
+                        {"hardwareType": "nuc", "cpu": "500m", "meanMillis": 45}],
+            "edge-1": [{"hardwareType": "xeon", "cpu": 2, "meanMillis": 20, "stdMillis": 2}],
+        },
+    }  # fmt: skip
+    env = {"FOGFLEET_MODULE_SPEC": json.dumps(body), "FOGFLEET_CPU": ""}
+    on_robot = WorkloadSpec.from_env({**env, "FOGFLEET_NODE": "robot-1"})
+    assert on_robot.cpu is None and on_robot.row == ExecRow(0.5, 0.045, 0.0)
+    on_edge = WorkloadSpec.from_env({**env, "FOGFLEET_NODE": "edge-1"})
+    assert on_edge.row == ExecRow(2.0, 0.02, 0.002)
+    # a node the spec does not know (or no node): the module's own rows
+    assert WorkloadSpec.from_env(env).row == ExecRow(1.0, 0.05, 0.0)

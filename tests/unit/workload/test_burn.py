@@ -1,0 +1,48 @@
+"""The workload's CPU burner plays a profile row at its pace: `cpu` cores for `mean` seconds."""
+
+from __future__ import annotations
+
+import os
+import time
+
+import pytest
+
+from fogfleet.workload.burn import Burner, burn
+
+
+def _cpu_and_wall(fn: object, *args: float) -> tuple[float, float]:
+    t = os.times()
+    wall0 = time.monotonic()
+    fn(*args)  # type: ignore[operator]
+    after = os.times()
+    cpu = (after.user - t.user) + (after.system - t.system)
+    cpu += (after.children_user - t.children_user) + (after.children_system - t.children_system)
+    return cpu, time.monotonic() - wall0
+
+
+def test_a_fractional_core_takes_the_rows_wall_time_and_only_its_share_of_cpu() -> None:
+    # 0.2 s with 0.25 cores: 0.05 CPU-seconds spread over 0.2 s, not a 0.05 s burst
+    cpu, wall = _cpu_and_wall(Burner(0.25).run, 0.2)
+    assert 0.19 <= wall <= 0.3, wall
+    assert 0.04 <= cpu <= 0.08, cpu
+
+
+def test_a_whole_core_burns_without_sleeping() -> None:
+    cpu, wall = _cpu_and_wall(burn, 0.1, 1.0)
+    assert 0.1 <= wall <= 0.15 and cpu >= 0.095, (cpu, wall)
+
+
+@pytest.mark.slow
+def test_more_than_a_core_goes_to_worker_processes() -> None:
+    burner = Burner(1.5)
+    try:
+        assert burner.workers == 2
+        wall = burner.run(0.2)  # 0.3 CPU-seconds, 0.15 in each of two processes at 0.75 cores
+        assert 0.19 <= wall <= 0.45, wall
+    finally:
+        burner.close()
+
+
+def test_a_burner_needs_a_positive_cpu() -> None:
+    with pytest.raises(ValueError, match="cpu must be positive"):
+        Burner(0.0)
