@@ -169,24 +169,21 @@ def test_a_split_ros_fleet_talks_across_nodes_within_each_robot_only(
     # and never the other robot's (the workload's own leak counter)
     leaks = _series(cluster, f"sum by (module, robot) (fogfleet_foreign_messages_total{{{sel}}})")
     assert sum(leaks.values()) == 0, f"cross-robot messages: {leaks}"
-    # measured cycle times are in the range the profiles predict: at least the work itself
-    # (mean x cpu CPU-seconds at full speed), at most that work stretched by the CFS quota
-    # (one 100 ms period of throttling per quota's worth) and never beyond the cycle time
+    # measured cycle times are what the profiles predict: the workload plays a row at its pace
+    # (cpu cores for mean seconds, workload.burn), so an instance with room on its node takes
+    # about the row's mean; at most half as long again plus the link, never the cycle time
     mean = _series(
         cluster,
         f"sum by (module, robot) (fogfleet_cycle_time_seconds_sum{{{sel}}})"
         f" / sum by (module, robot) (fogfleet_cycle_time_seconds_count{{{sel}}})",
     )
-    profile = {"lidar": (0.004, 0.05, 0.1), "localizer": (0.015, 0.1, 0.1),
-               "planner": (0.120, 0.2, 1.0)}  # fmt: skip
+    profile = {"lidar": (0.004, 0.1), "localizer": (0.015, 0.1), "planner": (0.120, 1.0)}
     report = {f"{m}/{r}": f"{v * 1e3:.1f} ms" for (m, r), v in sorted(mean.items())}
     print(f"measured mean cycle times: {report}")
     assert len(mean) == 6, report
     for (module, robot), value in mean.items():
-        exec_s, cpu, cycle_s = profile[module]
-        work = exec_s * cpu
-        throttled = work + (work // (cpu * 0.1)) * (1 - cpu) * 0.1 + 0.02
-        assert 0.8 * work <= value <= min(throttled, cycle_s), f"{module}/{robot} ({report})"
+        exec_s, cycle_s = profile[module]
+        assert 0.8 * exec_s <= value <= min(1.5 * exec_s + 0.02, cycle_s), f"{module}/{robot}"
     missed = _series(cluster, f"sum by (module, robot) (fogfleet_missed_cycles_total{{{sel}}})")
     print(f"missed cycles: {missed}")
 

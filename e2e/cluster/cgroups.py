@@ -21,7 +21,11 @@ from e2e.cluster.base import HarnessError, log
 
 CGROUP_ROOT = Path("/sys/fs/cgroup")
 TOP = "fogfleet"
-CFS_PERIOD_US = 100_000
+# A node's quota is enforced per 10 ms, not the kernel's default 100 ms: a 400m node then runs
+# 4 ms of every 10 ms instead of stalling 60 ms of every 100 ms once it is busy, which is how a
+# small computer (and the simulator's processor sharing) behaves, not a throttled container.
+# A 33 ms cycle would otherwise miss on any stall. The kubelet's pod quotas below keep 100 ms.
+CFS_PERIOD_US = 10_000
 
 
 def hierarchies() -> list[Path]:

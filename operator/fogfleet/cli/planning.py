@@ -17,7 +17,7 @@ from fogfleet.scheduling.objectives import module_miss_rates
 
 from .common import SCHEDULERS, catalog_of, fleets_of, plan_fleet, settings_of, table
 
-__all__ = ["cmd_plan", "cmd_simulate"]
+__all__ = ["cmd_plan", "cmd_simulate", "recorded_placement"]
 
 
 def _placement_rows(problem: Any, schedule: Any) -> list[dict[str, Any]]:
@@ -200,14 +200,19 @@ def cmd_simulate(args: argparse.Namespace) -> int:
 
 
 def _read_placement(problem: Any, path: Path) -> tuple[Any, Any]:
-    """A placement saved by ``fogfleet plan --json`` or read back from a fleet's status, and
-    the allocation it ran with (a degraded plan's smaller CPU amounts read from its ``cpu``)."""
-    import numpy as np
     import yaml
 
-    doc = yaml.safe_load(path.read_text())
+    return recorded_placement(problem, yaml.safe_load(path.read_text()), str(path))
+
+
+def recorded_placement(problem: Any, doc: Any, source: str) -> tuple[Any, Any]:
+    """A placement saved by ``fogfleet plan --json`` or read back from a fleet's status (a
+    RobotFleet object), and the allocation it ran with (a degraded plan's smaller CPU amounts
+    read from its ``cpu``; plain-Deployment schedulers' nominal allocation)."""
+    import numpy as np
+
     if not isinstance(doc, dict):
-        raise InvalidSpec(str(path), "", "not a saved plan or a RobotFleet with status")
+        raise InvalidSpec(source, "", "not a saved plan or a RobotFleet with status")
     body = doc.get("status", doc) if "status" in doc else doc
     entries = body.get("placement") or []
     # plain-Deployment schedulers run with nominal requests and no limits
@@ -231,7 +236,7 @@ def _read_placement(problem: Any, path: Path) -> tuple[Any, Any]:
                 placement[i] = problem.node_index(node)
             except KeyError as exc:
                 raise InvalidSpec(
-                    str(path), "placement", f"node {node!r} is not in the fleet"
+                    source, "placement", f"node {node!r} is not in the fleet"
                 ) from exc
             levels[i] = _rung_of(problem, i, int(placement[i]), entry.get("cpu"))
     if not with_limits:

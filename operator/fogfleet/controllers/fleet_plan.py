@@ -43,7 +43,8 @@ def plan_fleet(
     placement = np.asarray(schedule.placement, dtype=np.int64)
     # a degraded plan's CPU amounts, feasibility and figures hold for the degraded problem
     problem = problem.with_levels(schedule.levels)
-    if not schedule.feasible or not stickiness.feasible(problem, placement, True):
+    with_limits = schedule.with_limits  # False: onboard, planned for the nominal allocation
+    if not schedule.feasible or not stickiness.feasible(problem, placement, with_limits):
         err = Infeasible(
             f"RobotFleet/{key[1]}",
             "spec",
@@ -52,7 +53,7 @@ def plan_fleet(
         deps.failures[key] = (fp, err)
         raise err
     deps.failures.pop(key, None)
-    stick = stickiness.keep_running(problem, placement, settings)
+    stick = stickiness.keep_running(problem, placement, settings, with_limits)
     plan_id = hashlib.sha256(f"{fp}:{stick.placement.tobytes().hex()}".encode()).hexdigest()[:12]
     reason = schedule.choice_reason
     if stick.kept_current or stick.migrations:
@@ -67,7 +68,7 @@ def plan_fleet(
     objectives = (
         dict(schedule.objectives)
         if np.array_equal(chosen, placement)
-        else stickiness.objective_values(problem, chosen, True, list(schedule.objectives))
+        else stickiness.objective_values(problem, chosen, with_limits, list(schedule.objectives))
     )
     cached = CachedPlan(fp, schedule, chosen, plan_id, len(moves), reason, now(), moves, objectives)
     deps.plans[key] = cached

@@ -228,10 +228,13 @@ def _revert(problem: Problem, new: I64, cur: I64, usable: NDArray[np.bool_]) -> 
     return x
 
 
-def keep_running(problem: Problem, new: I64, settings: SchedulerSettings) -> Stickiness:
+def keep_running(
+    problem: Problem, new: I64, settings: SchedulerSettings, with_limits: bool = True
+) -> Stickiness:
     """Prefer the current placement of running instances over ``new`` unless ``new`` is
     better by the migration margin. Instances without a usable current node are placed
-    around the running ones (``new``'s node when it has room)."""
+    around the running ones (``new``'s node when it has room). ``with_limits``: the plan's
+    allocation (False for plans made for the nominal one, such as onboard)."""
     new = np.asarray(new, dtype=np.int64)
     cur = problem.current
     rows = np.arange(problem.n_instances)
@@ -241,13 +244,13 @@ def keep_running(problem: Problem, new: I64, settings: SchedulerSettings) -> Sti
         return Stickiness(new, [], bool(usable.any()), "nothing that runs moves")
     pinned = _release_overloads(problem, np.where(usable, cur, -1).astype(np.int64), new)
     sticky = _fill(problem, pinned, new)
-    if (sticky < 0).any() or not feasible(problem, sticky):
+    if (sticky < 0).any() or not feasible(problem, sticky, with_limits):
         sticky = _revert(problem, new, cur, usable)
     kept = [int(i) for i in np.flatnonzero(usable & (sticky != cur))]
     names = [settings.objectives[0].value]  # only the first objective justifies a move
-    if (sticky >= 0).sum() == (new >= 0).sum() and feasible(problem, sticky):
-        a = objective_values(problem, new, True, names)
-        b = objective_values(problem, sticky, True, names)
+    if (sticky >= 0).sum() == (new >= 0).sum() and feasible(problem, sticky, with_limits):
+        a = objective_values(problem, new, with_limits, names)
+        b = objective_values(problem, sticky, with_limits, names)
         better, why = _better(a, b, names, settings.migration_margin_percent / 100.0)
         if not better:
             note = f"; {len(kept)} had to move to make room" if kept else ""

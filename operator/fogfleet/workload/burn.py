@@ -10,8 +10,14 @@ model differ only where reality has more in it (middleware, kubelet, throttling)
 pacing a 67m module would run at a full core for a fifteenth of its time: its cycles would be
 15 times shorter than its profile says and it would take the CPU in bursts.
 
+The work is counted in the **process's** CPU time, so the middleware's own CPU while a cycle
+runs (DDS threads receiving and sending, the executor's callbacks) is part of it, as it is part
+of a real module's profile measured under its limit. Counting only the spinning thread made
+the workload use its row's CPU *plus* its middleware's (15-30m for a 30 Hz module), which under
+a limit set to the row (a Guaranteed pod) was throttled into missing most of its cycles.
+
 Worker processes are forked before ROS starts (forking an rclpy process is not safe) and keep
-the GIL away from the ROS executor.
+the GIL away from the ROS executor; each counts its own CPU.
 """
 
 from __future__ import annotations
@@ -27,14 +33,14 @@ SLICE_S = 0.005  # pacing slice: short against every cycle time, long against a 
 
 
 def burn(cpu_seconds: float, rate: float = 1.0) -> float:
-    """Use `cpu_seconds` of this thread's CPU at `rate` cores (<= 1); returns the wall time.
+    """Use `cpu_seconds` of this process's CPU at `rate` cores (<= 1); returns the wall time.
 
-    Each slice of ``SLICE_S`` spins until the thread has used ``rate * SLICE_S`` more and
+    Each slice of ``SLICE_S`` spins until the process has used ``rate * SLICE_S`` more and
     sleeps for the rest of the slice. A slice that overran (the thread waited for CPU) is not
     made up by running faster later: a module given less CPU than it demands progresses more
     slowly, as under processor sharing.
     """
-    t0, wall0 = time.thread_time(), time.monotonic()
+    t0, wall0 = time.process_time(), time.monotonic()
     step = max(1e-4, min(rate, 1.0) * SLICE_S)
     used, slice_end = 0.0, wall0
     x = 0
@@ -43,7 +49,7 @@ def burn(cpu_seconds: float, rate: float = 1.0) -> float:
         while used < target:
             for _ in range(500):
                 x += 1
-            used = time.thread_time() - t0
+            used = time.process_time() - t0
         slice_end += SLICE_S
         now = time.monotonic()
         if rate < 1.0 and now < slice_end:
@@ -56,10 +62,9 @@ def burn(cpu_seconds: float, rate: float = 1.0) -> float:
 class Burner:
     """Burns a cycle's work at the pace of the module's CPU.
 
-    Up to one core's worth is burnt in the calling thread (time.thread_time counts only its own
-    CPU, so sharing the GIL with the ROS executor does not change the work); more than one core
-    goes to ``ceil(cpu)`` worker processes, recreated if one dies (a container's memory limit
-    can kill a worker, and a lost task would hang the module).
+    Up to one core's worth is burnt in the calling thread; more than one core goes to
+    ``ceil(cpu)`` worker processes, recreated if one dies (a container's memory limit can kill
+    a worker, and a lost task would hang the module).
     """
 
     def __init__(self, cpu: float) -> None:

@@ -227,6 +227,21 @@ def test_the_k8s_default_fleet_records_kube_schedulers_placement(kube, deps):
     assert conditions(kube)["Scheduled"]["reason"] == "KubeScheduler"
 
 
+def test_an_onboard_fleet_runs_its_nominal_requests_even_where_its_limits_would_not_fit(
+    kube, deps
+):
+    """onboard is the paper's baseline of plain Deployments on the robot (nominal requests, no
+    limits): the robots cannot hold every module's deadline CPU, and they need not."""
+    kube.fleets[KEY]["spec"]["scheduler"] = {"algorithm": "onboard"}
+    out = run(kube, deps)
+    assert out.applied == 40
+    for dep in module_deps(kube).values():
+        robot, _, _ = identity_of(dep)
+        assert placement(kube)[identity_of(dep)] == robot
+        assert "limits" not in dep["spec"]["template"]["spec"]["containers"][0]["resources"]
+    assert conditions(kube)["Scheduled"]["status"] == "True"
+
+
 def test_a_paused_fleet_is_left_alone(kube, deps):
     kube.fleets[KEY]["spec"]["paused"] = True
     run(kube, deps)

@@ -1,0 +1,89 @@
+"""Missed-cycle rates over a window, from the workload's own counters in Prometheus.
+
+Each module instance counts its cycles (``fogfleet_cycle_time_seconds_count``) and the cycles
+that took longer than its cycle time (``fogfleet_missed_cycles_total``). A window's rate is the
+difference of two snapshots, so it needs no range query and no extrapolation: per module,
+missed / cycles over its instances; the fleet's rate is the mean over modules, the figure the
+planner and the simulator report (``fogfleet.sim.simulator.fleet_miss_rate``).
+"""
+
+from __future__ import annotations
+
+import math
+import statistics
+from collections.abc import Callable, Iterable, Mapping
+from dataclasses import dataclass
+from typing import Any
+
+from fogfleet.sim.simulator import fleet_miss_rate
+
+__all__ = ["Counts", "WindowRates", "median_rates", "snapshot", "window_rates"]
+
+CYCLES = "fogfleet_cycle_time_seconds_count"
+MISSED = "fogfleet_missed_cycles_total"
+Query = Callable[[str], list[dict[str, Any]]]
+Key = tuple[str, str]  # (module, robot)
+
+
+@dataclass(frozen=True)
+class Counts:
+    """Cycles and missed cycles per (module, robot) at one moment."""
+
+    cycles: Mapping[Key, float]
+    missed: Mapping[Key, float]
+
+
+def _by_instance(query: Query, promql: str) -> dict[Key, float]:
+    out: dict[Key, float] = {}
+    for r in query(promql):
+        m = r["metric"]
+        out[(m.get("module", ""), m.get("robot", ""))] = float(r["value"][1])
+    return out
+
+
+def snapshot(query: Query, namespace: str) -> Counts:
+    sel = f'{{namespace="{namespace}"}}'
+    return Counts(
+        cycles=_by_instance(query, f"sum by (module, robot) ({CYCLES}{sel})"),
+        missed=_by_instance(query, f"sum by (module, robot) ({MISSED}{sel})"),
+    )
+
+
+@dataclass(frozen=True)
+class WindowRates:
+    """Miss rates over a window: per module, and the fleet's (mean over modules)."""
+
+    modules: dict[str, float]
+    cycles: dict[str, int]
+
+    @property
+    def miss_rate(self) -> float:
+        return fleet_miss_rate(self.modules)
+
+
+def window_rates(before: Counts, after: Counts) -> WindowRates:
+    """Rates between two snapshots; an instance missing from either counts nothing (it was
+    not running through the window; ``run`` checks that every instance is there)."""
+    cycles: dict[str, float] = {}
+    missed: dict[str, float] = {}
+    for key, end in after.cycles.items():
+        if key not in before.cycles:
+            continue
+        module = key[0]
+        cycles[module] = cycles.get(module, 0.0) + end - before.cycles[key]
+        missed[module] = (
+            missed.get(module, 0.0) + after.missed.get(key, 0.0) - before.missed.get(key, 0.0)
+        )
+    rates = {m: (missed[m] / c if c > 0 else math.nan) for m, c in cycles.items()}
+    return WindowRates(rates, {m: int(c) for m, c in cycles.items()})
+
+
+def median_rates(runs: Iterable[Mapping[str, float]]) -> dict[str, float]:
+    """Per key, the median over runs of the finite values (NaN if none)."""
+    values: dict[str, list[float]] = {}
+    for run in runs:
+        for k, v in run.items():
+            values.setdefault(k, [])
+            if not math.isnan(v):
+                values[k].append(v)
+    return {k: statistics.median(v) if v else math.nan for k, v in values.items()}

@@ -1,0 +1,67 @@
+"""The benchmark's fleet: ``manifests/examples/warehouse-lite``, on the cluster and offline.
+
+On the cluster every run gets its own namespace (a run never sees the previous run's pods or
+counters); offline the same objects give the Problem the simulator runs the measured
+placements on.
+"""
+
+from __future__ import annotations
+
+import copy
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from fogfleet.api.loader import load_paths
+from fogfleet.cli.planning import recorded_placement
+from fogfleet.domain.build import build_problem
+from fogfleet.domain.problem import Allocation, Problem
+
+__all__ = ["EXAMPLE", "FLEET", "SCALE", "Scenario"]
+
+ROOT = Path(__file__).resolve().parents[2]
+EXAMPLE = ROOT / "manifests" / "examples" / "warehouse-lite"
+FLEET = "warehouse-lite"
+SCALE = 15  # the factor nodes.yaml and modules.yaml divide the warehouse's CPU figures by
+
+Obj = dict[str, Any]
+
+
+class Scenario:
+    def __init__(self, folder: Path = EXAMPLE) -> None:
+        self.folder = folder
+        self.docs: list[Obj] = [
+            d
+            for path in sorted(folder.glob("*.yaml"))
+            for d in yaml.safe_load_all(path.read_text())
+            if isinstance(d, dict) and d.get("kind") != "Namespace"
+        ]
+        catalog = load_paths([str(folder)])
+        fleet = next(f for f in catalog.fleets if f.metadata.name == FLEET)
+        self.problem: Problem = build_problem(fleet, catalog)
+
+    def of_kind(self, kind: str) -> list[Obj]:
+        return [copy.deepcopy(d) for d in self.docs if d["kind"] == kind]
+
+    def nodes(self) -> list[Obj]:
+        """The ComputeNodes (cluster-scoped; their names are the bed's real Nodes)."""
+        return self.of_kind("ComputeNode")
+
+    def namespaced(self, namespace: str, scheduler: str) -> list[Obj]:
+        """The SoftwareModules and the RobotFleet in ``namespace``, planned by ``scheduler``."""
+        out = self.of_kind("SoftwareModule") + self.of_kind("RobotFleet")
+        for d in out:
+            d["metadata"]["namespace"] = namespace
+            if d["kind"] == "RobotFleet":
+                d["spec"]["scheduler"]["algorithm"] = scheduler
+        return out
+
+    @property
+    def instances(self) -> int:
+        return self.problem.n_instances
+
+    def placement_of(self, fleet_object: Obj) -> tuple[Any, Allocation]:
+        """The placement the cluster ran (the fleet's status) and the allocation it ran with."""
+        placement, allocation = recorded_placement(self.problem, fleet_object, "RobotFleet status")
+        return placement, allocation
