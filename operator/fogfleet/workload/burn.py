@@ -10,11 +10,12 @@ model differ only where reality has more in it (middleware, kubelet, throttling)
 pacing a 67m module would run at a full core for a fifteenth of its time: its cycles would be
 15 times shorter than its profile says and it would take the CPU in bursts.
 
-The work is counted in the **process's** CPU time, so the middleware's own CPU while a cycle
-runs (DDS threads receiving and sending, the executor's callbacks) is part of it, as it is part
-of a real module's profile measured under its limit. Counting only the spinning thread made
-the workload use its row's CPU *plus* its middleware's (15-30m for a 30 Hz module), which under
-a limit set to the row (a Guaranteed pod) was throttled into missing most of its cycles.
+The work is counted in the **process's** CPU time, including what its middleware used since
+the previous cycle ended (DDS threads receiving and sending, the executor's callbacks): a real
+module's profile, measured under its limit, has its middleware in it, so the workload uses its
+row's CPU in all, not the row's CPU *plus* its middleware's (15-30m for a 30 Hz module). That
+surplus, under a limit set to the row (a Guaranteed pod), was throttled into missing most of
+its cycles. The pace is chosen so that the cycle still takes ``mean`` seconds.
 
 Worker processes are forked before ROS starts (forking an rclpy process is not safe) and keep
 the GIL away from the ROS executor; each counts its own CPU.
@@ -73,16 +74,24 @@ class Burner:
         self.cpu = cpu
         self.workers = max(1, math.ceil(cpu - 1e-9))
         self._pool: Pool | None = self._new_pool() if self.workers > 1 else None
+        self._since = time.process_time()  # the process's CPU when the last cycle's work ended
 
     def _new_pool(self) -> Pool:
         return multiprocessing.get_context("fork").Pool(self.workers)
 
     def run(self, seconds: float) -> float:
-        """Work that takes `seconds` with `cpu` cores (``seconds * cpu`` CPU-seconds at a rate
-        of `cpu` cores); returns the wall time until all of it is done."""
+        """Work that takes `seconds` with `cpu` cores: ``seconds * cpu`` CPU-seconds, less what
+        the process used since the last cycle, spread over `seconds` (at most `cpu` cores);
+        returns the wall time until all of it is done."""
         t0 = time.monotonic()
-        rate = self.cpu / self.workers
-        share = seconds * rate
+        between = time.process_time() - self._since
+        try:
+            return self._run(seconds, max(0.0, seconds * self.cpu - between) / self.workers, t0)
+        finally:
+            self._since = time.process_time()
+
+    def _run(self, seconds: float, share: float, t0: float) -> float:
+        rate = share / seconds if seconds > 0 else 1.0
         if self._pool is None:
             burn(share, rate)
             return time.monotonic() - t0

@@ -227,9 +227,7 @@ def test_the_k8s_default_fleet_records_kube_schedulers_placement(kube, deps):
     assert conditions(kube)["Scheduled"]["reason"] == "KubeScheduler"
 
 
-def test_an_onboard_fleet_runs_its_nominal_requests_even_where_its_limits_would_not_fit(
-    kube, deps
-):
+def test_an_onboard_fleet_runs_its_nominal_requests_even_where_its_limits_would_not_fit(kube, deps):
     """onboard is the paper's baseline of plain Deployments on the robot (nominal requests, no
     limits): the robots cannot hold every module's deadline CPU, and they need not."""
     kube.fleets[KEY]["spec"]["scheduler"] = {"algorithm": "onboard"}

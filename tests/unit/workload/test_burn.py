@@ -46,3 +46,14 @@ def test_more_than_a_core_goes_to_worker_processes() -> None:
 def test_a_burner_needs_a_positive_cpu() -> None:
     with pytest.raises(ValueError, match="cpu must be positive"):
         Burner(0.0)
+
+
+def test_cpu_the_process_used_since_the_last_cycle_is_part_of_the_next_cycles_work() -> None:
+    """A module's middleware (DDS threads, callbacks) runs between cycles; its CPU is part of
+    the row's, so the burner spins only for the rest, still over the row's wall time."""
+    burner = Burner(0.5)
+    burner.run(0.01)
+    burn(0.03)  # the middleware's CPU between two cycles
+    cpu, wall = _cpu_and_wall(burner.run, 0.1)  # 0.05 CPU-seconds in all, 0.03 already used
+    assert 0.095 <= wall <= 0.15, wall
+    assert 0.01 <= cpu <= 0.035, cpu
