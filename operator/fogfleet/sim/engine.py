@@ -9,10 +9,14 @@ the start of the next on-episode if the instance is inactive then. Only cycles t
 before the horizon are run; they are run to completion (at most one per instance runs past it).
 
 CPU sharing: a running job demands ``cpu_use`` cores. While the demands on the node fit its
-capacity every job gets its demand. Otherwise the capacity is water-filled (max-min fair: each
-job gets min(demand, level) with the level chosen so that the shares sum to the capacity) and a
-job with share ``a`` progresses at rate ``a / cpu_use``. Between two events (an execution start
-or end) the shares are constant, so completion times are exact (processor sharing, no time step).
+capacity every job gets its demand. Otherwise the capacity is water-filled in proportion to the
+jobs' weights, as Linux's CFS shares a busy CPU by ``cpu.shares`` (which the kubelet sets from
+the pod's CPU request): each job gets min(demand, level x weight), the level chosen so that the
+shares sum to the capacity. A job with share ``a`` progresses at rate ``a / cpu_use``. Between
+two events (an execution start or end) the shares are constant, so completion times are exact
+(processor sharing, no time step). Equal weights give max-min fairness; measured on the bed's
+real nodes (``make bench-real``), an unweighted model put plain Deployments' small-request
+modules far ahead of where CFS puts them.
 """
 
 from __future__ import annotations
@@ -44,6 +48,7 @@ class Track:
     n: int = -1  # index of the cycle in flight
     start: float = 0.0  # its start time
     _ep: int = 0  # first on-episode that may still contain a future start
+    weight: float = 1.0  # CFS weight under contention: the CPU request
 
     def _next_start(self, t: float) -> float:
         """Earliest time >= t at which the instance is active (inf: never again)."""
@@ -96,23 +101,27 @@ def run_independent(track: Track) -> float:
     return busy
 
 
-def water_fill(demands: list[float], capacity: float) -> list[float]:
-    """Max-min fair shares of ``capacity`` cores; a share never exceeds its demand."""
+def water_fill(
+    demands: list[float], capacity: float, weights: list[float] | None = None
+) -> list[float]:
+    """Shares of ``capacity`` cores, each ``min(demand, level x weight)`` (weighted max-min
+    fair; equal weights without ``weights``); a share never exceeds its demand."""
     if sum(demands) <= capacity:
         return list(demands)
+    w = weights if weights is not None else [1.0] * len(demands)
+    w = [max(x, _EPS) for x in w]
     shares = [0.0] * len(demands)
-    left = len(demands)
-    rest = capacity
-    order = sorted(range(len(demands)), key=demands.__getitem__)
+    rest, weight_left = capacity, sum(w)
+    order = sorted(range(len(demands)), key=lambda k: demands[k] / w[k])
     for pos, k in enumerate(order):
-        if demands[k] * left <= rest:
+        if demands[k] * weight_left <= rest * w[k]:  # capped by its demand at this level
             shares[k] = demands[k]
             rest -= demands[k]
-            left -= 1
+            weight_left -= w[k]
         else:
-            level = rest / left
+            level = rest / weight_left
             for k2 in order[pos:]:
-                shares[k2] = level
+                shares[k2] = level * w[k2]
             break
     return shares
 
@@ -128,6 +137,7 @@ def run_shared(tracks: list[Track], capacity: float, horizon: float) -> float:
     heapq.heapify(heap)
     jobs: list[int] = []  # running track indices
     dem: list[float] = []  # their demands, cores
+    wts: list[float] = []  # their weights
     rem: list[float] = []  # remaining work, seconds at full share
     rate: list[float] = []  # progress per second (share / demand)
     load = 0.0  # sum of shares, cores
@@ -159,17 +169,19 @@ def run_shared(tracks: list[Track], capacity: float, horizon: float) -> float:
             keep = [idx for idx, r in enumerate(rem) if r > _EPS]
             jobs = [jobs[idx] for idx in keep]
             dem = [dem[idx] for idx in keep]
+            wts = [wts[idx] for idx in keep]
             rem = [rem[idx] for idx in keep]
         else:
             _, k = heapq.heappop(heap)
             jobs.append(k)
             dem.append(tracks[k].demand)
+            wts.append(tracks[k].weight)
             rem.append(tracks[k].work[tracks[k].n])
         if sum(dem) <= capacity:
             rate = [1.0] * len(dem)
             load = sum(dem)
         else:
-            shares = water_fill(dem, capacity)
+            shares = water_fill(dem, capacity, wts)
             rate = [a / d for a, d in zip(shares, dem, strict=True)]
             load = capacity
     return busy

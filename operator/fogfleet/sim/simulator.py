@@ -4,7 +4,8 @@ Reference implementation of the shared execution model (team brief; multi-robot-
 scheduling III-D eq. 4-6 and IV): an instance is active in on/off episodes (``episodes``); while
 active it runs cycles t_cycle = t_in + t_exe + t_out (eq. 4) and misses when t_cycle exceeds its
 expected cycle time (the tau > 1 of eq. 5, counted like IV: any excess is a miss); executions on
-a node share its CPU by processor sharing with cpu_use as the cap (``engine``).
+a node share its CPU by processor sharing with cpu_use as the cap, weighted by the CPU
+requests as CFS weighs pods (``engine``).
 
 Random draws (numpy Generators derived from the seed only): each instance has its own streams
 (episodes; execution and transfer noise), drawn independently of the placement, so plans
@@ -129,6 +130,7 @@ def simulate(
             d_out=half,
             episodes=episodes,
             horizon=duration_s,
+            weight=float(allocation.cpu_request[i, j]),
         )
 
     busy = np.zeros(n_n)

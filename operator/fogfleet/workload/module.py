@@ -125,7 +125,10 @@ def run_module(
                 start += spec.cycle_s
                 stop.wait(max(0.0, start - time.monotonic()))
                 continue
-            t_in = max(((recv - h.sent_ns) / 1e9 for h, recv in fresh), default=0.0)
+            # eq. 4's t_in: the transfer of the freshest input (what the cycle works on); an
+            # older input's transfer was counted by the cycle it arrived for
+            newest, received = max(fresh, key=lambda hr: hr[0].sent_ns, default=(None, 0))
+            t_in = 0.0 if newest is None else (received - newest.sent_ns) / 1e9
             origin = min((h.sent_ns for h, _ in fresh), default=time.time_ns())
             burner.run(sample_exec_seconds(spec.row, rng))
             for t in spec.publishes:

@@ -72,13 +72,13 @@ def test_a_limited_job_is_not_sped_up_by_idle_cores() -> None:
     assert r.node_utilisation[0] == pytest.approx(5 * 0.3 * 1 / (8 * 5.0))
 
 
-def test_a_small_job_keeps_its_share_next_to_a_big_one() -> None:
-    # demands 1 + 4 on 4 cores: water-filling gives 1 and 3, so only the big job slows down
+def test_a_busy_node_shares_its_cpu_by_the_jobs_requests() -> None:
+    # demands 1 + 4 on 4 cores, requests (CFS weights) 1 and 4: shares 0.8 and 3.2, both slow
     jobs = [Job("small", exe=0.25, cpu=1, cycle=1.0), Job("big", exe=0.375, cpu=4, cycle=1.0)]
     p = build([4], jobs)
     r = simulate(p, np.array([0, 0]), p.limits, aligned_start=True, duration_s=1.0)
-    assert r.module_p95_cycle_s["small"] == pytest.approx(0.25)
-    # big: 0.25 s at 3/4 speed (0.1875 done), then the remaining 0.1875 alone
+    assert r.module_p95_cycle_s["small"] == pytest.approx(0.25 / 0.8)  # 0.3125
+    # big: 0.3125 s at 0.8 speed (0.25 done), then the remaining 0.125 alone
     assert r.module_p95_cycle_s["big"] == pytest.approx(0.4375)
 
 

@@ -71,6 +71,14 @@ def test_water_filling_caps_each_share_at_its_demand() -> None:
     assert water_fill([8.0], 6.0) == [6.0]
 
 
+def test_weighted_water_filling_follows_the_weights_until_a_demand_caps_a_share() -> None:
+    # CFS: a busy node's CPU goes by cpu.shares (the requests), never beyond what a job demands
+    assert water_fill([1.0, 1.0], 1.0, [1.0, 3.0]) == pytest.approx([0.25, 0.75])
+    assert water_fill([0.1, 1.0, 1.0], 1.0, [2.0, 1.0, 1.0]) == pytest.approx([0.1, 0.45, 0.45])
+    assert water_fill([2.0, 2.0], 1.0, [1.0, 1.0]) == water_fill([2.0, 2.0], 1.0)
+    assert water_fill([0.5, 0.5], 4.0, [1.0, 9.0]) == [0.5, 0.5]  # it fits: no sharing
+
+
 def _track(rng: np.random.Generator, demand: float) -> Track:
     n = 400
     return Track(

@@ -23,13 +23,15 @@ def _cpu_and_wall(fn: object, *args: float) -> tuple[float, float]:
 def test_a_fractional_core_takes_the_rows_wall_time_and_only_its_share_of_cpu() -> None:
     # 0.2 s with 0.25 cores: 0.05 CPU-seconds spread over 0.2 s, not a 0.05 s burst
     cpu, wall = _cpu_and_wall(Burner(0.25).run, 0.2)
-    assert 0.19 <= wall <= 0.3, wall
+    assert 0.19 <= wall <= 2.0, wall  # never sooner; later only on a busy machine
     assert 0.04 <= cpu <= 0.08, cpu
 
 
-def test_a_whole_core_burns_without_sleeping() -> None:
+def test_a_whole_core_burns_without_sleeping(monkeypatch: pytest.MonkeyPatch) -> None:
+    naps: list[float] = []
+    monkeypatch.setattr(time, "sleep", naps.append)
     cpu, wall = _cpu_and_wall(burn, 0.1, 1.0)
-    assert 0.1 <= wall <= 0.15 and cpu >= 0.095, (cpu, wall)
+    assert naps == [] and cpu >= 0.095 and wall >= 0.1, (naps, cpu, wall)
 
 
 @pytest.mark.slow
@@ -38,7 +40,7 @@ def test_more_than_a_core_goes_to_worker_processes() -> None:
     try:
         assert burner.workers == 2
         wall = burner.run(0.2)  # 0.3 CPU-seconds, 0.15 in each of two processes at 0.75 cores
-        assert 0.19 <= wall <= 0.45, wall
+        assert 0.19 <= wall <= 3.0, wall
     finally:
         burner.close()
 
@@ -55,5 +57,5 @@ def test_cpu_the_process_used_since_the_last_cycle_is_part_of_the_next_cycles_wo
     burner.run(0.01)
     burn(0.03)  # the middleware's CPU between two cycles
     cpu, wall = _cpu_and_wall(burner.run, 0.1)  # 0.05 CPU-seconds in all, 0.03 already used
-    assert 0.095 <= wall <= 0.15, wall
+    assert 0.095 <= wall <= 2.0, wall
     assert 0.01 <= cpu <= 0.035, cpu
