@@ -321,7 +321,10 @@ def table(doc: dict[str, Any]) -> str:
     if "nsga2" in s and "k8s-default" in s:
         a, b = s["nsga2"]["measured"]["missRate"], s["k8s-default"]["measured"]["missRate"]
         if b > 0:
-            out.append(f"nsga2 vs k8s-default (measured): {1 - a / b:.1%} fewer missed cycles")
+            change = "fewer" if a <= b else "more"
+            out.append(
+                f"nsga2 vs k8s-default (measured): {abs(1 - a / b):.1%} {change} missed cycles"
+            )
     for name, d in s.items():
         m, x = d["measured"]["missRate"], d["simulated"]["missRate"]
         verdict = "within" if sim_error_ok(m, x) else "OUTSIDE"
