@@ -91,17 +91,21 @@ class Burner:
             self._since = time.process_time()
 
     def _run(self, seconds: float, share: float, t0: float) -> float:
-        rate = share / seconds if seconds > 0 else 1.0
+        rate = min(1.0, share / seconds) if seconds > 0 else 1.0
         if self._pool is None:
             burn(share, rate)
-            return time.monotonic() - t0
-        try:
-            self._pool.starmap_async(burn, [(share, rate)] * self.workers, chunksize=1).get(
-                timeout=60 + 100 * seconds
-            )
-        except multiprocessing.TimeoutError:
-            self._pool.terminate()
-            self._pool = self._new_pool()
+        else:
+            try:
+                self._pool.starmap_async(burn, [(share, rate)] * self.workers, chunksize=1).get(
+                    timeout=60 + 100 * seconds
+                )
+            except multiprocessing.TimeoutError:
+                self._pool.terminate()
+                self._pool = self._new_pool()
+        # the row's time even when the middleware already used the row's CPU (nothing to spin)
+        left = t0 + seconds - time.monotonic()
+        if left > 0:
+            time.sleep(left)
         return time.monotonic() - t0
 
     def close(self) -> None:

@@ -59,3 +59,10 @@ def test_cpu_the_process_used_since_the_last_cycle_is_part_of_the_next_cycles_wo
     cpu, wall = _cpu_and_wall(burner.run, 0.1)  # 0.05 CPU-seconds in all, 0.03 already used
     assert 0.095 <= wall <= 2.0, wall
     assert 0.01 <= cpu <= 0.035, cpu
+
+
+def test_a_cycle_lasts_the_rows_time_even_when_the_middleware_used_all_its_cpu() -> None:
+    burner = Burner(0.05)
+    burn(0.02)  # more than the next cycle's 0.05 s x 0.05 cores
+    cpu, wall = _cpu_and_wall(burner.run, 0.05)
+    assert wall >= 0.049 and cpu < 0.01, (cpu, wall)
