@@ -29,8 +29,8 @@ def test_each_scheduler_runs_on_real_nodes_and_is_measured_beside_the_simulator(
     cfg = BenchConfig(window_s=30, warmup_s=5, repetitions=1)
     results = run_bench(kube, cluster, cfg, tmp_path)
     assert [r.scheduler for r in results] == list(SCHEDULERS)
-    modules = set(Scenario().problem.module_names)
-    instances = Scenario().instances
+    scenario = Scenario()
+    modules, instances = set(scenario.problem.module_names), scenario.instances
     for r in results:
         assert set(r.measured.modules) == modules, r.scheduler
         assert all(c > 0 for c in r.measured.cycles.values()), (r.scheduler, r.measured.cycles)

@@ -31,7 +31,7 @@ import sys
 import tempfile
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -74,7 +74,6 @@ class RunResult:
     simulated: dict[str, float]  # per module
     placement: dict[str, str]  # robot/module -> node
     ready_s: float  # apply -> fleet Ready
-    notes: list[str] = field(default_factory=list)
 
     @property
     def simulated_rate(self) -> float:
@@ -118,7 +117,7 @@ def one_run(
         ready_s = time.monotonic() - t0
         _wait_counted(kube, cluster, namespace, scenario.instances)
         if previous:
-            kube.wait_for(f"namespace {previous} gone", lambda: _gone(kube, previous), 180, 1)
+            _wait_gone(kube, previous)
         time.sleep(cfg.warmup_s)
         before = snapshot(cluster.prometheus_query, namespace)
         time.sleep(cfg.window_s)
@@ -144,8 +143,13 @@ def one_run(
     return result
 
 
-def _gone(kube: Kube, namespace: str) -> bool:
-    return kube.kubectl("get", "namespace", namespace, check=False).returncode != 0
+def _wait_gone(kube: Kube, namespace: str) -> None:
+    """Until a deleted run namespace (and so every pod of it) is gone."""
+
+    def gone() -> bool:
+        return kube.kubectl("get", "namespace", namespace, check=False).returncode != 0
+
+    kube.wait_for(f"namespace {namespace} gone", gone, 180, interval=1)
 
 
 def _connect() -> tuple[Kube, harness.Cluster]:
@@ -219,7 +223,7 @@ def run_bench(
                 results.append(one_run(kube, cluster, scenario, scheduler, rep, ns, cfg, previous))
                 previous = ns
             if previous:
-                kube.wait_for(f"namespace {previous} gone", lambda: _gone(kube, previous), 180, 1)
+                _wait_gone(kube, previous)
         finally:
             op.stop()
     return results

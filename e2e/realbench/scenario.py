@@ -63,5 +63,4 @@ class Scenario:
 
     def placement_of(self, fleet_object: Obj) -> tuple[Any, Allocation]:
         """The placement the cluster ran (the fleet's status) and the allocation it ran with."""
-        placement, allocation = recorded_placement(self.problem, fleet_object, "RobotFleet status")
-        return placement, allocation
+        return recorded_placement(self.problem, fleet_object, "RobotFleet status")
