@@ -39,6 +39,7 @@ from e2e.operator_fixtures import (
     pods_by_instance,
     wait_ready,
 )
+from fogfleet.api.v1alpha1.base import parse_cpu
 from fogfleet.controllers.ros import is_ros_object
 
 pytestmark = [pytest.mark.e2e, pytest.mark.timeout(420)]
@@ -370,9 +371,10 @@ def test_a_fleet_short_of_cpu_runs_degraded_on_its_least_important_module(
         res = dep["spec"]["template"]["spec"]["containers"][0]["resources"]
         if dep["metadata"]["annotations"]["fogfleet.io/module"] == "bulk-mapper":
             burst += res["requests"]["cpu"] != res["limits"]["cpu"]
-            assert res["limits"]["cpu"] in ("6", "6000m"), res
-        else:  # the others keep what their deadline needs: requests = limits
-            assert res["requests"]["cpu"] == res["limits"]["cpu"], res
+            assert res["limits"]["cpu"] in ("12", "12000m"), res  # deadline's 6 cores x 200 %
+        else:  # the others keep what their deadline needs, x 200 % (cpuLimitPercent)
+            limit, request = parse_cpu(res["limits"]["cpu"]), parse_cpu(res["requests"]["cpu"])
+            assert limit == pytest.approx(2 * request), res
     assert burst >= 1
 
 

@@ -6,8 +6,11 @@ They use the bed's powers (a node's cgroups, its emulated link), so they need th
 
 from __future__ import annotations
 
+import os
 import re
 import statistics
+import subprocess
+import sys
 import time
 from collections.abc import Iterator
 from typing import Any
@@ -120,6 +123,32 @@ def test_a_node_never_uses_more_than_its_share(
     assert share * 0.7 < used < share * 1.1, f"{node.name} (share {share}) used {used:.3f} CPU"
     alloc = kube.kubectl_json("get", "node", node.name)["status"]["allocatable"]
     assert alloc["cpu"] == f"{node.cpu_millis}m", alloc
+
+
+def test_a_node_gets_its_share_while_the_host_is_busy(
+    kube: Kube, namespace: str, bed_nodes: dict[str, realnodes.RealNode]
+) -> None:
+    """A node is another computer: a busy control plane (here: one spinning host process per
+    core, plus two) does not take its CPU. Without ``/fogfleet``'s weight the node's group
+    competes like one of those processes and gets about 2/(cores+3) of the host."""
+    node = bed_nodes["bed-robot-2"]
+    share = node.cpu_millis / 1000
+    for i in range(2):
+        kube.apply(_pod(f"hog-{i}", node.name, "while :; do :; done"), namespace)
+    for i in range(2):
+        _running(kube, namespace, f"hog-{i}")
+    spinners = [
+        subprocess.Popen([sys.executable, "-c", "while True: pass"])
+        for _ in range((os.cpu_count() or 1) + 2)
+    ]
+    try:
+        time.sleep(1)
+        used = _cpu_over(node.cgroup, 6)
+    finally:
+        for proc in spinners:  # by pid
+            proc.kill()
+            proc.wait()
+    assert used > share * 0.8, f"{node.name} (share {share}) got {used:.3f} CPU on a busy host"
 
 
 def _ping_ms(kube: Kube, namespace: str, pod: str, ip: str, count: int = 20) -> list[float]:

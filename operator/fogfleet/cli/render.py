@@ -73,6 +73,7 @@ def cmd_render(args: argparse.Namespace) -> int:
                 schedule.placement,
                 baseline=schedule.scheduler == "k8s-default",
                 with_limits=schedule.with_limits,
+                cpu_limit_percent=fleet.spec.scheduler.cpu_limit_percent,
                 plan_id=f"cli-{schedule.scheduler}-{settings.seed}",
                 wiring=wiring,
             )

@@ -143,6 +143,7 @@ def _reconcile(
             modules,
             cached.placement,
             with_limits=cached.schedule.with_limits,
+            cpu_limit_percent=fleet.spec.scheduler.cpu_limit_percent,
             owner=owner,
             plan_id=cached.plan_id,
             wiring=wiring,

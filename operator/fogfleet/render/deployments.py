@@ -1,10 +1,12 @@
 """Render a fleet's plan into apps/v1 Deployments (pure: dicts in, dicts out, no kubernetes import).
 
 One Deployment per placed (robot, module) instance, bound to its node by a **required node
-affinity** with requests = limits at the CPU the plan chose for that node's hardware type
-(multi-robot-edge-cloud-scheduling IV-B, "GA-based with limits"). The ``k8s-default`` baseline
-renders the same Deployments with the taxonomy's whole allowed node set as affinity and the
-module's nominal requests (no limits), so the real kube-scheduler makes the choice.
+affinity**, requesting the CPU the plan chose for that node's hardware type
+(multi-robot-edge-cloud-scheduling IV-B, "GA-based with limits") with a limit at the fleet's
+``cpuLimitPercent`` of it (100: requests = limits, the paper's Guaranteed pods). The
+``k8s-default`` baseline renders the same Deployments with the taxonomy's whole allowed node
+set as affinity and the module's nominal requests (no limits), so the real kube-scheduler
+makes the choice.
 
 Names are deterministic and collision-free: ``<fleet>-<robot>-<module>-<hash8>`` (the hash is of
 the exact identity), shortened to 63 characters; the full identity is in the annotations.
@@ -38,6 +40,7 @@ from fogfleet.api.labels import (
     LABEL_TIER,
     MANAGER,
 )
+from fogfleet.api.v1alpha1.robotfleet import DEFAULT_CPU_LIMIT_PERCENT
 from fogfleet.api.v1alpha1.softwaremodule import ProfileEntry, SoftwareModule
 from fogfleet.domain.problem import Instance, Problem
 from fogfleet.render.podtemplate import module_pod_spec, scrape_port
@@ -161,6 +164,7 @@ def render_instance(
     *,
     baseline: bool = False,
     with_limits: bool = True,
+    cpu_limit_percent: int = DEFAULT_CPU_LIMIT_PERCENT,
     owner: Owner | None = None,
     plan_id: str = "",
     wiring: RosWiring | None = None,
@@ -182,9 +186,11 @@ def render_instance(
     resources: dict[str, Any] = {"requests": requests}
     if with_limits:
         limits = dict(requests)
-        if alloc.cpu_use[i, j] > alloc.cpu_request[i, j]:
-            # degraded (Problem.with_levels): guaranteed less, may burst to what it needs
-            limits["cpu"] = format_cpu(float(alloc.cpu_use[i, j]))
+        # what its row needs (a degraded instance, Problem.with_levels: more than it is
+        # guaranteed), with the fleet's headroom for bursts (SchedulerSettings.cpu_limit_percent)
+        limit = float(alloc.cpu_use[i, j]) * cpu_limit_percent / 100
+        if limit > alloc.cpu_request[i, j]:
+            limits["cpu"] = format_cpu(limit)
         if problem.gpu[i] > 0:
             limits["nvidia.com/gpu"] = str(int(problem.gpu[i]))
         resources["limits"] = limits
@@ -275,6 +281,7 @@ def render_fleet(
     *,
     baseline: bool = False,
     with_limits: bool = True,
+    cpu_limit_percent: int = DEFAULT_CPU_LIMIT_PERCENT,
     owner: Owner | None = None,
     plan_id: str = "",
     wiring: RosWiring | None = None,
@@ -285,7 +292,8 @@ def render_fleet(
     ``baseline`` (the ``k8s-default`` scheduler) the placement is ignored: every instance with a
     non-empty gene space gets affinity to all of it and kube-scheduler decides.
     ``with_limits`` is the plan's (``Schedule.with_limits``): False renders the nominal
-    allocation (see ``render_instance``).
+    allocation (see ``render_instance``). ``cpu_limit_percent`` is the fleet's
+    ``spec.scheduler.cpuLimitPercent``.
     ``modules`` maps SoftwareModule names to the objects (their container templates).
     """
     out: list[dict[str, Any]] = []
@@ -306,6 +314,7 @@ def render_fleet(
                     nodes,
                     baseline=baseline,
                     with_limits=with_limits,
+                    cpu_limit_percent=cpu_limit_percent,
                     owner=owner,
                     plan_id=plan_id,
                     wiring=wiring,

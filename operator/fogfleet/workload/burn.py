@@ -2,23 +2,28 @@
 
 A profile row says a cycle takes ``mean`` seconds with ``cpu`` cores (Fig. 3). The workload
 therefore burns ``mean * cpu`` CPU-seconds **at a rate of ``cpu`` cores**: split over
-``ceil(cpu)`` processes, each spins for its share of every 5 ms slice and sleeps for the rest.
-With its share it finishes in ``mean`` seconds of wall time; on a busy node the spinning takes
-longer and so does the cycle. This is the simulator's model of a job (``sim.engine``: a job
-demands ``cpu_use`` cores for ``work`` seconds and slows down under contention), so reality and
-model differ only where reality has more in it (middleware, kubelet, throttling). Without the
-pacing a 67m module would run at a full core for a fifteenth of its time: its cycles would be
-15 times shorter than its profile says and it would take the CPU in bursts.
+``ceil(cpu)`` processes, each spins for its share of every 5 ms slice and sleeps for the
+rest. With its share it finishes in ``mean`` seconds of wall time; on a busy node the
+spinning takes longer and so does the cycle. This is the simulator's model of a job
+(``sim.engine``: a job demands ``cpu_use`` cores for ``work`` seconds and slows down under
+contention), so reality and model differ only where reality has more in it (middleware,
+kubelet, throttling). Without the pacing a 67m module would run at a full core for a
+fifteenth of its time: its cycles would be 15 times shorter than its profile says and it
+would take the CPU in bursts.
+
+Progress lost to a late wake-up is made up in the next slices (``burn``): a program that gets
+its CPU late computes on; only a node too busy to give the CPU back makes the cycle longer.
 
 The work is counted in the **process's** CPU time, including what its middleware used since
 the previous cycle ended (DDS threads receiving and sending, the executor's callbacks): a real
 module's profile, measured under its limit, has its middleware in it, so the workload uses its
-row's CPU in all, not the row's CPU *plus* its middleware's (15-30m for a 30 Hz module). That
-surplus, under a limit set to the row (a Guaranteed pod), was throttled into missing most of
-its cycles. The pace is chosen so that the cycle still takes ``mean`` seconds.
+row's CPU in all, not the row's CPU *plus* its middleware's (15-30m for a 30 Hz module). The
+pace is chosen so that the cycle still takes ``mean`` seconds.
 
 Worker processes are forked before ROS starts (forking an rclpy process is not safe) and keep
-the GIL away from the ROS executor; each counts its own CPU.
+the GIL away from the ROS executor; each counts its own CPU. (Burning a fractional core in a
+worker too was tried: the pool's own threads and pipes cost the module process more CPU than
+the GIL it freed, and the time a cycle spent outside its work did not shrink.)
 """
 
 from __future__ import annotations
@@ -36,27 +41,28 @@ SLICE_S = 0.005  # pacing slice: short against every cycle time, long against a 
 def burn(cpu_seconds: float, rate: float = 1.0) -> float:
     """Use `cpu_seconds` of this process's CPU at `rate` cores (<= 1); returns the wall time.
 
-    Each slice of ``SLICE_S`` spins until the process has used ``rate * SLICE_S`` more and
-    sleeps for the rest of the slice. A slice that overran (the thread waited for CPU) is not
-    made up by running faster later: a module given less CPU than it demands progresses more
-    slowly, as under processor sharing.
+    By the end of the k-th slice of ``SLICE_S`` the process has used ``k * rate * SLICE_S``:
+    each slice spins up to that mark and sleeps for the rest. A slice that starts late (the
+    thread woke up late) spins longer, so a wake-up delay of a few milliseconds costs the cycle
+    nothing while the CPU is there to make it up, as a program computes on when it gets its
+    CPU late. On a node too busy to give it, the spinning cannot catch up and the cycle takes
+    longer (processor sharing, the simulator's job model).
     """
     t0, wall0 = time.process_time(), time.monotonic()
-    step = max(1e-4, min(rate, 1.0) * SLICE_S)
-    used, slice_end = 0.0, wall0
-    x = 0
+    rate = min(rate, 1.0)
+    used, slices, x = 0.0, 0, 0
     while used < cpu_seconds:
-        target = min(cpu_seconds, used + step)
+        # the slice we are in (a late wake-up skips the slices it slept through)
+        slices = max(slices + 1, math.ceil((time.monotonic() - wall0) / SLICE_S + 1e-9))
+        target = min(cpu_seconds, max(used + 1e-4, slices * rate * SLICE_S))
         while used < target:
             for _ in range(500):
                 x += 1
             used = time.process_time() - t0
-        slice_end += SLICE_S
-        now = time.monotonic()
-        if rate < 1.0 and now < slice_end:
-            time.sleep(slice_end - now)
-        else:
-            slice_end = max(slice_end, now)
+        if rate < 1.0:
+            left = wall0 + slices * SLICE_S - time.monotonic()
+            if left > 0 and used < cpu_seconds:
+                time.sleep(left)
     return time.monotonic() - wall0
 
 

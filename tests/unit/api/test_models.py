@@ -203,6 +203,17 @@ def test_fleet_with_a_bad_scheduler_enum_names_the_field() -> None:
     assert "'nsga2'" in err.message
 
 
+def test_a_cpu_limit_below_the_planned_cpu_names_the_field() -> None:
+    doc = _fleet()
+    doc["spec"]["scheduler"] = {"cpuLimitPercent": 50}
+    err = _invalid(doc)
+    assert err.field == "spec.scheduler.cpuLimitPercent"
+    assert "greater than or equal to 100" in err.message
+    doc["spec"]["scheduler"] = {"cpuLimitPercent": 100}
+    fleet = parse_object(doc)
+    assert isinstance(fleet, RobotFleet) and fleet.spec.scheduler.cpu_limit_percent == 100
+
+
 def test_node_with_a_bad_tier_names_the_field() -> None:
     doc = _node()
     doc["spec"]["tier"] = "fog"

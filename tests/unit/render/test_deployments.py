@@ -62,12 +62,16 @@ def test_every_placed_instance_gets_one_deployment_bound_to_its_node(catalog, pr
         }
 
 
-def test_limits_equal_requests_at_the_planned_cpu(catalog, problem):
+def test_requests_are_the_planned_cpu_and_limits_leave_the_fleets_headroom(catalog, problem):
     placement = first_allowed(problem)
+    planned = float(problem.limits.cpu_request[0, placement[0]])
     dep = render_fleet(problem, modules(catalog), placement)[0]
     res = dep["spec"]["template"]["spec"]["containers"][0]["resources"]
-    assert res["requests"] == res["limits"]
-    assert res["requests"]["cpu"] == format_cpu(problem.limits.cpu_request[0, placement[0]])
+    assert res["requests"]["cpu"] == format_cpu(planned)
+    assert res["limits"] == res["requests"] | {"cpu": format_cpu(2 * planned)}  # default 200 %
+    exact = render_fleet(problem, modules(catalog), placement, cpu_limit_percent=100)[0]
+    res = exact["spec"]["template"]["spec"]["containers"][0]["resources"]
+    assert res["requests"] == res["limits"]  # Guaranteed, as in the paper
 
 
 def test_unplaced_instances_get_no_deployment(catalog, problem):

@@ -12,6 +12,7 @@ import yaml
 from pydantic import ValidationError
 
 from fogfleet.api.loader import load_paths
+from fogfleet.api.v1alpha1.base import parse_cpu
 from fogfleet.api.v1alpha1.softwaremodule import SoftwareModule
 from fogfleet.domain.build import build_problem
 from fogfleet.render.deployments import render_fleet
@@ -69,7 +70,8 @@ def test_the_users_pod_fields_reach_the_pod_beside_fogfleets(tmp_path: Path) -> 
     assert probe["livenessProbe"]["httpGet"] == {"path": "/healthz", "port": "m-cycle-probe"}
     assert main["resources"]["limits"]["squat.ai/video"] == "1"
     assert main["resources"]["requests"]["squat.ai/video"] == "1"
-    assert main["resources"]["limits"]["cpu"] == main["resources"]["requests"]["cpu"]
+    cpu = main["resources"]["requests"]["cpu"], main["resources"]["limits"]["cpu"]
+    assert 2 * parse_cpu(cpu[0]) == pytest.approx(parse_cpu(cpu[1])), cpu  # default headroom
     assert main["securityContext"]["capabilities"] == {"drop": ["ALL"], "add": ["SYS_NICE"]}
     assert main["securityContext"]["allowPrivilegeEscalation"] is False
     assert spec["securityContext"]["supplementalGroups"] == [44]

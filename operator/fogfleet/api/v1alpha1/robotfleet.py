@@ -98,6 +98,9 @@ class ModuleRef(FogModel):
     """Per-fleet changes to the module's spec (default: none)."""
 
 
+DEFAULT_CPU_LIMIT_PERCENT = 200
+
+
 class SchedulerSettings(FogModel):
     """How the fleet is planned: algorithm, objectives, choice rule and NSGA-II's parameters
     (multi-robot-edge-cloud-scheduling III-C/D)."""
@@ -148,6 +151,12 @@ class SchedulerSettings(FogModel):
     migration_margin_percent: Annotated[int, Field(ge=0, le=100)] = 5
     """A new plan replaces the running one only if it is this many percent better; keeps
     modules from moving for marginal gains."""
+    cpu_limit_percent: Annotated[int, Field(ge=100, le=1000)] = DEFAULT_CPU_LIMIT_PERCENT
+    """CPU limit of a planned module, in percent of the CPU its profile row needs (its
+    request, or a degraded module's deadline CPU). The kernel enforces a limit per 100 ms: a
+    30 Hz loop whose middleware bursts past an exact limit is stopped for the rest of the
+    period and misses its next cycles. 100 gives Guaranteed pods (the paper's "with limits");
+    the default 200 keeps requests (what the plan reserves) and leaves room for bursts."""
     allow_degraded: bool = True
     """When the nodes are short of CPU, run the lowest-priority modules (SoftwareModule
     spec.priority) with less CPU than their deadline needs, with their predicted misses in the
