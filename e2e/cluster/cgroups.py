@@ -28,8 +28,9 @@ TOP = "fogfleet"
 # A 33 ms cycle would otherwise miss on any stall. The kubelet's pod quotas below keep 100 ms.
 CFS_PERIOD_US = 10_000
 # The nodes are other computers: their CPU must not depend on how busy the control plane is.
-# In cgroup v1 the whole /fogfleet group competes at the root like ONE nice-0 thread (1024)
-# against every thread of the apiserver, etcd, Prometheus and the operator: measured with
+# At the root the whole /fogfleet group weighs 1024, as much as ONE session of the host (the
+# kernel's autogroups weigh each session alike), and the apiserver, etcd, Prometheus and the
+# operator each run in their own session, so each weighed as much as all nodes: measured with
 # warehouse-lite (k8s-default) on the 2-core VM, its 30 Hz modules then waited 140-190 ms per
 # second for a CPU (schedstat run_delay) and missed 2-3 % of their cycles, human-pose
 # estimation 7-11 %. With the group at the kernel's maximum weight it runs first, up to its
