@@ -82,6 +82,16 @@ def create(node: str, cpu_millis: int, memory_bytes: int) -> None:
     (mem / "memory.limit_in_bytes").write_text(str(memory_bytes))
 
 
+def join_links(pid: int) -> None:
+    """Move a link's delay line into ``/fogfleet/links``, weighted like the whole bed: the
+    emulated network is not the control plane, and a delay line that waits for a CPU behind
+    the nodes adds its wait to every packet's delay."""
+    for h in hierarchies():
+        _mkdir(h, f"/{TOP}/links")
+    (CGROUP_ROOT / "cpu" / TOP / "links" / "cpu.shares").write_text(str(TOP_CPU_SHARES))
+    join(pid, f"/{TOP}/links")
+
+
 def set_cpu_quota(node: str, cpu_millis: int | None) -> None:
     """The node's CFS quota (None: unlimited), e.g. lifted while images are preloaded."""
     cpu = CGROUP_ROOT / "cpu" / node_path(node).lstrip("/")

@@ -32,6 +32,7 @@ import sys
 from dataclasses import asdict, dataclass, replace
 from typing import Any
 
+from e2e.cluster import cgroups
 from e2e.cluster.base import HERE, STATE_DIR, HarnessError, run
 from e2e.cluster.processes import _alive, _start, _stop
 
@@ -149,8 +150,9 @@ def _delay_line(netns: str, spec: LinkSpec) -> None:
     if pid is not None:
         os.kill(pid, signal.SIGHUP)  # re-read the settings file; held packets keep their time
         return
-    _start(name, _in(netns, sys.executable, str(HERE / "delayline.py"), "--queue", str(QUEUE),
-                     "--settings", str(settings)))  # fmt: skip
+    pid = _start(name, _in(netns, sys.executable, str(HERE / "delayline.py"), "--queue",
+                           str(QUEUE), "--settings", str(settings)))  # fmt: skip
+    cgroups.join_links(pid)
 
 
 def apply_link(netns: str, dev: str, host_dev: str, spec: LinkSpec) -> LinkSpec:
