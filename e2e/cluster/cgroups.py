@@ -86,10 +86,8 @@ def join_links(pid: int) -> None:
     """Move a link's delay line into ``/fogfleet/links``, weighted like the whole bed: the
     emulated network is not the control plane, and a delay line that waits for a CPU behind
     the nodes adds its wait to every packet's delay."""
-    for h in hierarchies():
-        _mkdir(h, f"/{TOP}/links")
+    join(pid, f"/{TOP}/links")  # makes the group in every hierarchy
     (CGROUP_ROOT / "cpu" / TOP / "links" / "cpu.shares").write_text(str(TOP_CPU_SHARES))
-    join(pid, f"/{TOP}/links")
 
 
 def set_cpu_quota(node: str, cpu_millis: int | None) -> None:
