@@ -31,8 +31,8 @@ UPLINK_SHARE = 0.8
 
 # Gauss-Hermite nodes/weights for E[f(Z)], Z ~ N(0, 1) (probabilists' form).
 _GH_NODES, _GH_WEIGHTS = np.polynomial.hermite_e.hermegauss(9)
-_GH_X: list[float] = [float(v) for v in _GH_NODES]
-_GH_W: list[float] = [float(v) for v in _GH_WEIGHTS / np.sqrt(2.0 * np.pi)]
+_GH_X: F64 = np.asarray(_GH_NODES, dtype=np.float64)[:, None]  # (9, 1): one row per node
+_GH_W: F64 = np.asarray(_GH_WEIGHTS / np.sqrt(2.0 * np.pi), dtype=np.float64)[:, None]
 
 
 def _phi(z: F64) -> F64:
@@ -248,11 +248,10 @@ class Evaluation:
 
     @staticmethod
     def _expect(f: Callable[[F64], F64], m: F64, sd: F64, lo: F64, hi: F64) -> F64:
-        """E[f(D)] for D ~ N(m, sd) clipped to [lo, hi], by Gauss-Hermite quadrature."""
-        out = np.zeros_like(m)
-        for x, w in zip(_GH_X, _GH_W, strict=True):
-            out += w * f(np.clip(m + sd * x, lo, hi))
-        return out
+        """E[f(D)] for D ~ N(m, sd) clipped to [lo, hi], by Gauss-Hermite quadrature: ``f``
+        sees the nine nodes at once as a (9, n) array (it broadcasts over the first axis)."""
+        d = np.clip(m[None, :] + sd[None, :] * _GH_X, lo[None, :], hi[None, :])
+        return np.asarray((_GH_W * f(d)).sum(axis=0), dtype=np.float64)
 
     @cached_property
     def placed_activation(self) -> F64:

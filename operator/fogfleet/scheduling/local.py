@@ -29,8 +29,11 @@ __all__ = ["MoveEvaluator", "dominated_by", "pareto_local_search"]
 
 I64 = NDArray[np.int64]
 F64 = NDArray[np.float64]
-# moves scored per call of the vectorised evaluation (bounds the memory used)
-CHUNK = 4096
+# moves x nodes scored per call of the vectorised evaluation: bounds the memory a call uses
+# (a few dozen float arrays of this many cells, ~1.6 MB each) while keeping the calls few
+# enough that numpy's per-call overhead does not dominate (warehouse fleet, 11 nodes: 18k
+# moves a call, local search 0.28 s instead of 0.43 s at 4096)
+CHUNK_CELLS = 200_000
 
 
 def dominated_by(F: F64, A: F64) -> NDArray[np.bool_]:
@@ -218,8 +221,8 @@ def pareto_local_search(
     """Improve the archive (X genes, F quantised objectives; feasible plans) by one-gene moves.
 
     The feasible moves of the archive members to explore are scored incrementally
-    (``MoveEvaluator``), in batches of about ``CHUNK`` moves. A move costs about one pass
-    over the nodes, so at most ``max_cells`` (moves x nodes) of work are done, unless
+    (``MoveEvaluator``), in batches of about ``CHUNK_CELLS`` moves x nodes. A move costs
+    about one pass over the nodes, so at most ``max_cells`` (moves x nodes) of work are done, unless
     ``max_moves`` is given: ~180k moves on the warehouse fleet (it needs ~100k), ~14k on
     100 robots x 40 edges. The result depends only on the inputs unless ``deadline`` (a
     ``time.perf_counter`` value, checked between batches) cuts it short.
@@ -234,7 +237,8 @@ def pareto_local_search(
     X, F = _filter_front(np.asarray(X, dtype=np.int64), np.asarray(F, dtype=np.float64))
     todo = np.ones(len(X), dtype=bool)
     n_eval = 0
-    step = max(1, CHUNK // max(len(me.pair_inst), 1))
+    moves_per_call = CHUNK_CELLS // max(pp.fleet.n_nodes, 1)
+    step = max(1, moves_per_call // max(len(me.pair_inst), 1))
     for _ in range(rounds):
         if not todo.any():
             break

@@ -1,4 +1,5 @@
-"""pymoo operators over gene spaces: seeded sampling, capacity repair, mutation, crossover.
+"""pymoo operators over gene spaces: seeded sampling, capacity repair, mutation, crossover
+(the bookkeeping around them, on arrays: ``bookkeeping``, ``mating``).
 
 Each implements only ``_do`` and draws only from the ``random_state`` pymoo injects, so a run
 is a function of its seed. Every operator keeps each gene inside its allowed set.
@@ -11,30 +12,24 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 from pymoo.core.crossover import Crossover
-from pymoo.core.duplicate import DuplicateElimination
 from pymoo.core.mutation import Mutation
-from pymoo.core.population import Population
 from pymoo.core.repair import Repair
 from pymoo.core.sampling import Sampling
-from pymoo.operators.survival.rank_and_crowding import RankAndCrowding
 
 from .heuristics import greedy
-from .problem import PlacementProblem
+from .problem import FIT_TOLERANCE, PlacementProblem
 
 __all__ = [
     "CapacityRepair",
     "FleetSampling",
     "GeneCrossover",
-    "GeneDuplicates",
     "GeneMutation",
-    "RankAndCrowdingSurvival",
-    "binary_tournament",
     "repair_plans",
     "seed_plans",
 ]
 
 I64 = NDArray[np.int64]
-_EPS = 1e-9
+_EPS = FIT_TOLERANCE
 # weight of the target node's peak utilisation after a move, next to its miss probability and
 # 0.01 * cycle ratio (``Fit.pref``): spreads repaired instances over the emptier nodes
 REPAIR_SPREAD = 0.02
@@ -116,8 +111,7 @@ def repair_plans(pp: PlacementProblem, x: I64) -> I64:
     if not over_node.any() and not over_up.any():
         return x
     n_i = fleet.n_instances
-    cand_of = np.zeros((n_i, pp.table.shape[1]), dtype=np.int64)
-    cand_of[pp.genes] = pp.table
+    c = pp.candidates
     h_of = np.where(home >= 0, home, 0)
     # Moves only go to nodes with room and only lower uplink use, so an instance that is not
     # on an overloaded node (or a robot with its uplink over) now never will be. A second
@@ -158,12 +152,12 @@ def repair_plans(pp: PlacementProblem, x: I64) -> I64:
             cur = x[active, i]
             # candidate targets: i's allowed nodes, ascending (padded with the first), so
             # argmin breaks ties towards the lowest node index as over all nodes
-            cand = cand_of[i]  # (A, W)
-            d = f.demand[i[:, None], cand]  # (A, W, 3)
+            cand = c.node[i]  # (A, W)
+            d = c.demand[i]  # (A, W, 3)
             after = used[active[:, None], cand] + d
             at_cur = cand == cur[:, None]
             after = np.where(at_cur[:, :, None], after - d, after)
-            room = np.all(after <= f.cap[cand] + _EPS, axis=2)
+            room = np.all(after <= c.room[i], axis=2)
             h = home[i]
             hc = h_of[i]
             tr = fleet.traffic[i]
@@ -172,8 +166,8 @@ def repair_plans(pp: PlacementProblem, x: I64) -> I64:
                 up_base = up[active, hc] - tr * (cur != h)
                 off_ok = up_base + tr <= lim[hc] + _EPS
                 room &= ~limited[:, None] | off_ok[:, None] | (cand == h[:, None])
-            util = np.max(after / np.maximum(f.cap[cand], _EPS), axis=2)
-            score = np.where(room, f.pref[i[:, None], cand] + REPAIR_SPREAD * util, np.inf)
+            util = np.max(after / c.scale[i], axis=2)
+            score = np.where(room, c.pref[i] + REPAIR_SPREAD * util, np.inf)
             jj = np.argmin(score, axis=1)
             j = cand[ar, jj]
             ok = np.isfinite(score[ar, jj]) & (j != cur)
@@ -271,120 +265,3 @@ class GeneCrossover(Crossover):  # type: ignore[misc]
             cut = np.asarray(rng.integers(1, g, size=m), dtype=np.int64)
             mask = np.arange(g)[None, :] < cut[:, None]
         return np.stack([np.where(mask, a, b), np.where(mask, b, a)])
-
-
-def _genes(pop: Any) -> I64:
-    """The integer genes of a pymoo population (P, G), read off the individuals directly
-    (``Population.get`` goes through several attribute look-ups per individual)."""
-    return np.array([ind.X for ind in pop], dtype=np.int64).reshape(len(pop), -1)
-
-
-class GeneDuplicates(DuplicateElimination):  # type: ignore[misc]
-    """Exact duplicate elimination by hashing gene rows: the same decisions as pymoo's
-    default (pairwise distances <= 1e-16, the first of equal rows kept) for integer genes,
-    in O(P) instead of O(P^2) distances."""
-
-    def _do(self, pop: Any, other: Any, is_duplicate: NDArray[np.bool_]) -> NDArray[np.bool_]:
-        X = _genes(pop)
-        if other is None:
-            seen: set[bytes] = set()
-            for k, row in enumerate(X):
-                key = row.tobytes()
-                if key in seen:
-                    is_duplicate[k] = True
-                else:
-                    seen.add(key)
-        else:
-            known = {row.tobytes() for row in _genes(other)}
-            for k, row in enumerate(X):
-                if row.tobytes() in known:
-                    is_duplicate[k] = True
-        return is_duplicate
-
-
-class RankAndCrowdingSurvival(RankAndCrowding):  # type: ignore[misc]
-    """pymoo's NSGA-II survival with a cheaper feasible/infeasible split: one pass over the
-    individuals' cached CV instead of ``split_by_feasibility``'s ``Population.get`` of F,
-    CV and FEAS (which evaluates each property twice per individual). The same survivors
-    in the same order: feasible ones ranked and crowded, then infeasible ones by CV."""
-
-    def do(
-        self,
-        problem: Any,
-        pop: Any,
-        *args: Any,
-        n_survive: int | None = None,
-        random_state: Any = None,
-        return_indices: bool = False,
-        **kwargs: Any,
-    ) -> Any:
-        if len(pop) == 0 or not (self.filter_infeasible and problem.has_constraints()):
-            return super().do(
-                problem,
-                pop,
-                *args,
-                n_survive=n_survive,
-                random_state=random_state,
-                return_indices=return_indices,
-                **kwargs,
-            )
-        if random_state is None:
-            random_state = np.random.default_rng()
-        n = len(pop) if n_survive is None else min(n_survive, len(pop))
-        cv = np.array([ind.CV[0] for ind in pop], dtype=np.float64)
-        ok = cv <= pop[0].config.get("cv_eps", 0.0)
-        feas = np.where(ok)[0]
-        infeas = np.where(~ok)[0]
-        infeas = infeas[np.argsort(cv[infeas])]
-        if len(feas) == 0:
-            survivors = Population()
-        else:
-            survivors = self._do(
-                problem,
-                pop[feas],
-                *args,
-                n_survive=min(len(feas), n),
-                random_state=random_state,
-                **kwargs,
-            )
-        if n - len(survivors) > 0:
-            survivors = Population.merge(survivors, pop[infeas[: n - len(survivors)]])
-        if return_indices:
-            where = {ind: k for k, ind in enumerate(pop)}
-            return [where[ind] for ind in survivors]
-        return survivors
-
-
-def binary_tournament(pop: Any, P: NDArray[Any], algorithm: Any, **kwargs: Any) -> I64:
-    """pymoo's NSGA-II binary tournament (``comp_by_dom_and_crowding``), vectorised: the
-    lower CV wins if either is infeasible, else the dominating plan, else the larger
-    crowding distance; ties are drawn with ``algorithm.random_state.choice([a, b])`` in
-    tournament order, exactly as pymoo draws them, so runs are unchanged."""
-    if P.shape[1] != 2:
-        raise ValueError("Only implemented for binary tournament!")
-    a, b = P[:, 0], P[:, 1]
-    cv = np.array([ind.CV[0] for ind in pop], dtype=np.float64)
-    F = np.array([ind.F for ind in pop], dtype=np.float64)
-    cd = np.array(
-        [np.nan if (c := ind.data.get("crowding")) is None else c for ind in pop],
-        dtype=np.float64,
-    )
-    S = np.full(len(P), -1, dtype=np.int64)
-    tie = np.zeros(len(P), dtype=bool)
-    infeasible = (cv[a] > 0.0) | (cv[b] > 0.0)
-    lt, gt = cv[a] < cv[b], cv[a] > cv[b]
-    S = np.where(infeasible & lt, a, np.where(infeasible & gt, b, S))
-    tie |= infeasible & ~lt & ~gt
-    a_better = np.any(F[a] < F[b], axis=1)
-    b_better = np.any(F[b] < F[a], axis=1)
-    feas = ~infeasible
-    S = np.where(feas & a_better & ~b_better, a, S)
-    S = np.where(feas & b_better & ~a_better, b, S)
-    crowd = feas & ~(a_better ^ b_better)
-    gt, lt = cd[a] > cd[b], cd[a] < cd[b]
-    S = np.where(crowd & gt, a, np.where(crowd & lt, b, S))
-    tie |= crowd & ~gt & ~lt
-    rng = algorithm.random_state
-    for k in np.flatnonzero(tie):
-        S[k] = rng.choice([a[k], b[k]])
-    return S[:, None]

@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 from collections.abc import Sequence
+from dataclasses import dataclass
+from functools import cached_property
 from typing import Any
 
 import numpy as np
@@ -14,7 +16,7 @@ from fogfleet.domain.problem import Problem
 from .heuristics import Fit
 from .objectives import EVALUATORS, Evaluation, constraint_names
 
-__all__ = ["RESOLUTION", "PlacementProblem"]
+__all__ = ["FIT_TOLERANCE", "RESOLUTION", "Candidates", "PlacementProblem"]
 
 # Differences below these are noise to the search: a plan 1e-11 lower in missRate must not
 # stay on the front for that alone (it would crowd out plans that differ in what matters).
@@ -30,6 +32,20 @@ RESOLUTION: dict[str, float] = {
 
 I64 = NDArray[np.int64]
 F64 = NDArray[np.float64]
+FIT_TOLERANCE = 1e-9  # a node "fits" up to this much over its capacity (repair, greedy)
+
+
+@dataclass(frozen=True)
+class Candidates:
+    """Each instance's allowed nodes and what the repair reads of them, gathered once per
+    problem (I, W[, 3]); W is the widest gene space, shorter rows padded with their first
+    node. Instances outside the search keep node 0 (never looked at)."""
+
+    node: I64  # (I, W) the allowed nodes, ascending
+    demand: F64  # (I, W, 3) the instance's cpu request, memory, gpus on each
+    room: F64  # (I, W, 3) each node's capacity plus the tolerance a fit allows
+    scale: F64  # (I, W, 3) each node's capacity, at least the tolerance (utilisation)
+    pref: F64  # (I, W) the repair's preference (``Fit.pref``): low miss, low latency
 
 
 class PlacementProblem(PymooProblem):  # type: ignore[misc]
@@ -75,6 +91,22 @@ class PlacementProblem(PymooProblem):  # type: ignore[misc]
             xl=0,
             xu=max(problem.n_nodes - 1, 0),
             vtype=int,
+        )
+
+    @cached_property
+    def candidates(self) -> Candidates:
+        """The repair's per-instance view of its allowed nodes (``Candidates``)."""
+        f = self.fit
+        node = np.zeros((self.fleet.n_instances, self.table.shape[1]), dtype=np.int64)
+        node[self.genes] = self.table
+        inst = np.arange(self.fleet.n_instances)[:, None]
+        cap = f.cap[node]
+        return Candidates(
+            node=node,
+            demand=f.demand[inst, node],
+            room=cap + FIT_TOLERANCE,
+            scale=np.maximum(cap, FIT_TOLERANCE),
+            pref=f.pref[inst, node],
         )
 
     def full(self, X: NDArray[Any]) -> I64:

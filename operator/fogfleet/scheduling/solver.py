@@ -8,7 +8,6 @@ from dataclasses import replace
 
 import numpy as np
 from numpy.typing import NDArray
-from pymoo.algorithms.moo.nsga2 import NSGA2
 from pymoo.operators.selection.tournament import TournamentSelection
 
 from fogfleet.api.v1alpha1.base import parse_quantity
@@ -16,18 +15,23 @@ from fogfleet.api.v1alpha1.robotfleet import SchedulerName, SchedulerSettings
 from fogfleet.domain.problem import Problem
 
 from .baselines import finish, k8s_default, onboard_plan, random_plan
+from .bookkeeping import (
+    ArrayEvaluator,
+    FleetNSGA2,
+    GeneDuplicates,
+    RankAndCrowdingSurvival,
+    binary_tournament,
+)
 from .choice import choose, non_dominated
 from .degrade import degrade
 from .exact import scalarised, solve_exact
 from .local import pareto_local_search
+from .mating import ArrayMating
 from .operators import (
     CapacityRepair,
     FleetSampling,
     GeneCrossover,
-    GeneDuplicates,
     GeneMutation,
-    RankAndCrowdingSurvival,
-    binary_tournament,
 )
 from .preference import MISS_OBJECTIVES, polish, tie_breakers
 from .problem import PlacementProblem
@@ -199,15 +203,21 @@ def _evolve(
 ) -> tuple[NDArray[np.int64], int, int]:
     """Run NSGA-II; the final population's genes, generations run and evaluations."""
     mut = settings.mutation_percent / 100.0
-    algorithm = NSGA2(
+    crossover = GeneCrossover("single_point" if paper else "uniform")
+    mutation = GeneMutation(prob=1.0, per_gene=mut) if paper else GeneMutation(prob=mut)
+    repair = None if paper else CapacityRepair()
+    algorithm = FleetNSGA2(
         pop_size=settings.population,
         sampling=FleetSampling(heuristics=not paper),
-        crossover=GeneCrossover("single_point" if paper else "uniform"),
-        mutation=GeneMutation(prob=1.0, per_gene=mut) if paper else GeneMutation(prob=mut),
-        repair=None if paper else CapacityRepair(),
+        crossover=crossover,
+        mutation=mutation,
+        repair=repair,
         eliminate_duplicates=GeneDuplicates(),
         survival=RankAndCrowdingSurvival(),
         selection=TournamentSelection(func_comp=binary_tournament),
+        # the paper's stand-in keeps pymoo's own mating; fogfleet mates on gene arrays
+        mating=None if paper else ArrayMating(crossover, mutation, repair),
+        evaluator=ArrayEvaluator(),
     )
     algorithm.setup(
         pp, termination=("n_gen", settings.generations), seed=settings.seed, verbose=False

@@ -7,19 +7,13 @@ from dataclasses import replace
 import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
-from pymoo.algorithms.moo.nsga2 import NSGA2
-from pymoo.operators.selection.tournament import TournamentSelection
 
 from fogfleet.domain.problem import Problem
 from fogfleet.scheduling.objectives import UPLINK_SHARE, Evaluation, constraints
 from fogfleet.scheduling.operators import (
-    CapacityRepair,
     FleetSampling,
     GeneCrossover,
-    GeneDuplicates,
     GeneMutation,
-    RankAndCrowdingSurvival,
-    binary_tournament,
     repair_plans,
     seed_plans,
 )
@@ -160,36 +154,3 @@ def test_sampling_starts_with_current_placement(warehouse: Problem) -> None:
     assert np.array_equal(X[0], current[pp.genes])
     assert _inside(pp, X)
     assert len(seed_plans(pp)) >= 3
-
-
-def test_cheaper_pymoo_bookkeeping_gives_the_same_run() -> None:
-    """GeneDuplicates, RankAndCrowdingSurvival and the vectorised binary_tournament replace
-    pymoo's defaults only to save time: the same seed must give the same populations."""
-
-    def run(fast: bool) -> tuple[np.ndarray, np.ndarray]:
-        pp = PlacementProblem(_warehouse(), ("missRate", "onboard", "reserve"))
-        extra = (
-            {
-                "eliminate_duplicates": GeneDuplicates(),
-                "survival": RankAndCrowdingSurvival(),
-                "selection": TournamentSelection(func_comp=binary_tournament),
-            }
-            if fast
-            else {"eliminate_duplicates": True}
-        )
-        algo = NSGA2(
-            pop_size=30,
-            sampling=FleetSampling(),
-            crossover=GeneCrossover("uniform"),
-            mutation=GeneMutation(prob=0.3),
-            repair=CapacityRepair(),
-            **extra,
-        )
-        algo.setup(pp, termination=("n_gen", 12), seed=5, verbose=False)
-        while algo.has_next():
-            algo.next()
-        return algo.pop.get("X"), algo.pop.get("F")
-
-    (xa, fa), (xb, fb) = run(False), run(True)
-    assert np.array_equal(xa, xb)
-    assert np.array_equal(fa, fb)
