@@ -62,13 +62,15 @@ class ArrayEvaluator(Evaluator):  # type: ignore[misc]
         no_g = G is None or G.shape[1] == 0
         cv = np.zeros(len(pop)) if no_g else np.maximum(0.0, G).sum(axis=1)
         keys = [k for k, v in out.items() if v is not None]
+        # rows of the population's arrays: views, not copies (pymoo copies to let the big
+        # array go early; these are a few hundred floats that live as long as the plans)
         for k, ind in enumerate(pop):
-            ind.F = F[k].copy()
+            ind.F = F[k]
             if G is not None:
-                ind.G = G[k].copy()
+                ind.G = G[k]
             if H is not None:
-                ind.H = H[k].copy()
-            ind.CV = np.array([cv[k]])
+                ind.H = H[k]
+            ind.CV = cv[k : k + 1]
             ind.evaluated.update(keys)
 
 
