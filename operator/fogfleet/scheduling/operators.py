@@ -190,18 +190,27 @@ def repair_plans(pp: PlacementProblem, x: I64) -> I64:
             used[rows, cur] -= f.demand[i, cur]
             used[rows, j] += f.demand[i, j]
             robot = h >= 0
+            changed = np.zeros(rows.size, dtype=bool)
             if robot.any():
                 rr = rows[robot]
                 up[rr, hc[robot]] += tr[robot] * (
                     (j[robot] != h[robot]).astype(float) - (cur[robot] != h[robot]).astype(float)
                 )
+                was = over_up[rr, hc[robot]]
                 over_up[rr] = up[rr] > lim[None, :] + _EPS
+                changed[robot] = was != over_up[rr, hc[robot]]
             x[rows, i] = j
             x_ord[rows, k] = j
-            # only the two nodes of a move change
+            # only the two nodes of a move change (j had room: it stays within capacity)
+            was = over_node[rows, cur]
             over_node[rows, cur] = _any3(used[rows, cur] > f.cap[cur] + _EPS)
             over_node[rows, j] = _any3(used[rows, j] > f.cap[j] + _EPS)
-            bad_all[rows] = bad_of(rows)
+            changed |= was != over_node[rows, cur]
+            # the moved instance now sits on a node with room and within its robot's uplink;
+            # the others' rows only change where a node or an uplink stopped being over
+            bad_all[rows, k] = False
+            if changed.any():
+                bad_all[rows[changed]] = bad_of(rows[changed])
     return x
 
 
