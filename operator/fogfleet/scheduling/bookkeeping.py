@@ -40,6 +40,7 @@ __all__ = [
     "binary_tournament",
     "genes_of",
     "tournament",
+    "tournament_inputs",
 ]
 
 I64 = NDArray[np.int64]
@@ -213,13 +214,21 @@ def binary_tournament(pop: Any, P: NDArray[Any], algorithm: Any, **kwargs: Any) 
     for pymoo's ``TournamentSelection`` (``tournament``)."""
     if P.shape[1] != 2:
         raise ValueError("Only implemented for binary tournament!")
+    return tournament(*tournament_inputs(pop), P, algorithm.random_state)[:, None]
+
+
+def tournament_inputs(
+    pop: Any,
+) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+    """Each individual's constraint violation, objectives and crowding distance (NaN where
+    survival has not set one): what ``tournament`` compares."""
     cv = np.array([ind.CV[0] for ind in pop], dtype=np.float64)
     F = np.array([ind.F for ind in pop], dtype=np.float64)
-    cd = np.array(
+    crowding = np.array(
         [np.nan if (c := ind.data.get("crowding")) is None else c for ind in pop],
         dtype=np.float64,
     )
-    return tournament(cv, F, cd, P, algorithm.random_state)[:, None]
+    return cv, F, crowding
 
 
 def tournament(

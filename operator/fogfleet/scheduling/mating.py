@@ -29,7 +29,7 @@ from pymoo.core.population import Population
 from pymoo.core.variable import get
 from pymoo.util.misc import random_permutations
 
-from .bookkeeping import genes_of, tournament
+from .bookkeeping import genes_of, tournament, tournament_inputs
 from .operators import CapacityRepair, GeneCrossover, GeneMutation
 from .problem import PlacementProblem
 
@@ -78,7 +78,7 @@ class ArrayMating(InfillCriterion):  # type: ignore[misc]
         rng: np.random.Generator = random_state
         rounds_max = self.n_max_iterations if n_max_iterations is None else n_max_iterations
         genes = genes_of(pop)
-        cv, F, crowding = _tournament_inputs(pop)
+        cv, F, crowding = tournament_inputs(pop)  # read once per generation
         seen = {row.tobytes() for row in genes}
         made: list[I64] = []
         rounds = 0
@@ -129,17 +129,3 @@ class ArrayMating(InfillCriterion):  # type: ignore[misc]
         if self.capacity_repair is not None:
             children = self.capacity_repair._do(problem, children)
         return np.asarray(children, dtype=np.int64)
-
-
-def _tournament_inputs(
-    pop: Any,
-) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
-    """Each individual's constraint violation, objectives and crowding distance (NaN where
-    survival has not set one), read once per generation."""
-    cv = np.array([ind.CV[0] for ind in pop], dtype=np.float64)
-    F = np.array([ind.F for ind in pop], dtype=np.float64)
-    crowding = np.array(
-        [np.nan if (c := ind.data.get("crowding")) is None else c for ind in pop],
-        dtype=np.float64,
-    )
-    return cv, F, crowding
