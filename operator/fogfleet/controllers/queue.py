@@ -2,11 +2,17 @@
 
 - ``run_now(key)``: reconcile at once (kopf's create/update/resume/timer handlers await it, so
   kopf's retry and backoff apply); a pending debounced run for the key is dropped.
-- ``schedule(key, delay)``: reconcile after ``delay`` seconds of quiet; a new call for the same
-  key restarts the wait, so a burst of edits (modules, nodes, Deployments rolling) makes one
-  reconcile. Errors of these background runs are logged, counted and retried with an
-  exponential backoff (``backoff_delay``: the retry delay doubling per failure in a row, up
-  to five minutes); a success resets it. kopf's handler retries use the same schedule.
+- ``schedule(key, delay)``: reconcile after ``delay`` seconds; a new call for the same key
+  replaces the pending one.
+- ``schedule_debounced(key, quiet)``: for watch events. A burst of them (modules, nodes,
+  Deployments rolling) makes one reconcile, ``quiet`` seconds after the last, but never more
+  than ``max_wait`` seconds after the burst's first: a steady stream (hundreds of Deployments
+  whose status the controller-manager updates one after another) would otherwise hold the
+  fleet's status back until the stream ends.
+
+Errors of background runs are logged, counted and retried with an exponential backoff
+(``backoff_delay``: the retry delay doubling per failure in a row, up to five minutes); a
+success resets it. kopf's handler retries use the same schedule.
 
 One lock per fleet: two reconciles of the same fleet never overlap.
 """
@@ -22,11 +28,13 @@ from fogfleet.errors import DependencyUnavailable, InvalidSpec
 from .deps import FleetKey
 from .robotfleet import Outcome
 
-__all__ = ["MAX_BACKOFF_SECONDS", "ReconcileQueue", "backoff_delay"]
+__all__ = ["DEFAULT_MAX_WAIT_SECONDS", "MAX_BACKOFF_SECONDS", "ReconcileQueue", "backoff_delay"]
 
 log = logging.getLogger(__name__)
 Runner = Callable[[FleetKey], Awaitable[Outcome | None]]
 MAX_BACKOFF_SECONDS = 300.0
+# a stream of watch events delays a fleet's reconcile by at most this much (schedule_debounced)
+DEFAULT_MAX_WAIT_SECONDS = 2.0
 
 
 def backoff_delay(base: float, attempt: int, cap: float = MAX_BACKOFF_SECONDS) -> float:
@@ -40,16 +48,19 @@ class ReconcileQueue:
         runner: Runner,
         *,
         debounce: float = 1.0,
+        max_wait: float | None = None,
         retry: float = 10.0,
         on_error: Callable[[FleetKey, str], None] | None = None,
     ) -> None:
         self.runner = runner
         self.debounce = debounce
+        self.max_wait = max(debounce, DEFAULT_MAX_WAIT_SECONDS) if max_wait is None else max_wait
         self.retry = retry
         self.on_error = on_error
         self._locks: dict[FleetKey, asyncio.Lock] = {}
         self._timers: dict[FleetKey, asyncio.Task[None]] = {}
         self._failures: dict[FleetKey, int] = {}  # failed background runs in a row
+        self._burst: dict[FleetKey, float] = {}  # when the pending debounced burst began
 
     def _lock(self, key: FleetKey) -> asyncio.Lock:
         return self._locks.setdefault(key, asyncio.Lock())
@@ -66,7 +77,16 @@ class ReconcileQueue:
         wait = self.debounce if delay is None else delay
         self._timers[key] = asyncio.get_running_loop().create_task(self._later(key, wait))
 
+    def schedule_debounced(self, key: FleetKey, quiet: float | None = None) -> None:
+        loop = asyncio.get_running_loop()
+        now = loop.time()
+        first = self._burst.get(key, now) if key in self._timers else now
+        wait = self.debounce if quiet is None else quiet
+        self.schedule(key, max(0.0, min(wait, first + self.max_wait - now)))
+        self._burst[key] = first
+
     def cancel(self, key: FleetKey) -> None:
+        self._burst.pop(key, None)
         task = self._timers.pop(key, None)
         if task is not None and task is not asyncio.current_task():
             task.cancel()

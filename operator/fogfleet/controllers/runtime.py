@@ -67,7 +67,7 @@ class Runtime:
         while True:
             await asyncio.sleep(seconds)
             for key in sorted(self.deps.refs.fleets()):
-                self.queue.schedule(key)
+                self.queue.schedule_debounced(key)
             self.usage_changed()
 
     def usage_changed(self) -> None:
@@ -155,7 +155,7 @@ class Runtime:
             for key in self.deps.refs.using_module(
                 meta.get("namespace") or "default", meta.get("name", "")
             ):
-                self.queue.schedule(key)
+                self.queue.schedule_debounced(key)
 
     def compute_node_event(self, body: Mapping[str, Any], event_type: str | None) -> None:
         if self._changed("ComputeNode", body, event_type):
@@ -163,7 +163,7 @@ class Runtime:
             for key in self.deps.refs.using_compute_node(
                 (body.get("metadata") or {}).get("name", "")
             ):
-                self.queue.schedule(key)
+                self.queue.schedule_debounced(key)
 
     def node_event(self, body: Mapping[str, Any], event_type: str | None) -> None:
         name = (body.get("metadata") or {}).get("name", "")
@@ -184,7 +184,7 @@ class Runtime:
                 return
         self.usage_changed()
         for key in self.deps.refs.using_node(name):
-            self.queue.schedule(key)
+            self.queue.schedule_debounced(key)
 
     def deployment_event(self, body: Mapping[str, Any]) -> None:
         """A fleet's Deployment changed (rolled out, deleted by hand): re-check that fleet."""
@@ -193,7 +193,7 @@ class Runtime:
         if fleet:
             key = (meta.get("namespace") or "default", fleet)
             if key in self.deps.refs.fleets():
-                self.queue.schedule(key, min(self.queue.debounce, 1.0))
+                self.queue.schedule_debounced(key, min(self.queue.debounce, 1.0))
 
     async def close(self) -> None:
         for task in self._loops:

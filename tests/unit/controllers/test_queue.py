@@ -78,3 +78,54 @@ def test_failing_background_runs_back_off_exponentially_and_a_success_resets() -
     assert len(stamps) == 4, stamps  # three failures, then the success: no more runs
     assert gaps[0] >= 0.02 and gaps[1] >= 0.04 and gaps[2] >= 0.08, gaps
     assert q._failures == {}
+
+
+def test_a_stream_of_events_still_reconciles_every_max_wait() -> None:
+    """Events every 20 ms for 0.6 s with a 0.1 s quiet period: plain debouncing would run
+    once, after the stream; ``schedule_debounced`` runs at most ``max_wait`` (0.15 s) after a
+    burst began, so the fleet is reconciled several times while the stream lasts."""
+    runs: list[float] = []
+
+    async def runner(key: tuple[str, str]) -> Outcome:
+        runs.append(asyncio.get_running_loop().time())
+        return Outcome(ready=True)
+
+    async def main() -> float:
+        q = ReconcileQueue(runner, debounce=0.1, max_wait=0.15)
+        start = asyncio.get_running_loop().time()
+        while asyncio.get_running_loop().time() - start < 0.6:
+            q.schedule_debounced(("ns", "fleet"))
+            await asyncio.sleep(0.02)
+        end = asyncio.get_running_loop().time()
+        await asyncio.sleep(0.3)
+        await q.close()
+        return end - start
+
+    stream = asyncio.run(main())
+    during = [t for t in runs if t - runs[0] < stream]
+    assert len(during) >= 3, runs
+    gaps = [b - a for a, b in itertools.pairwise(runs)]
+    assert max(gaps[: len(during) - 1], default=0.0) < 0.15 + 0.1, gaps
+
+
+def test_a_quiet_burst_still_makes_one_reconcile_after_the_quiet_period() -> None:
+    """A short burst (5 events within 40 ms) inside max_wait: one run, the quiet period after
+    the last event (the debounce still coalesces)."""
+    runs: list[float] = []
+
+    async def runner(key: tuple[str, str]) -> Outcome:
+        runs.append(asyncio.get_running_loop().time())
+        return Outcome(ready=True)
+
+    async def main() -> float:
+        q = ReconcileQueue(runner, debounce=0.1, max_wait=1.0)
+        for _ in range(5):
+            q.schedule_debounced(("ns", "fleet"))
+            last = asyncio.get_running_loop().time()
+            await asyncio.sleep(0.01)
+        await asyncio.sleep(0.3)
+        await q.close()
+        return last
+
+    last = asyncio.run(main())
+    assert len(runs) == 1 and runs[0] - last >= 0.09, (runs, last)
