@@ -46,6 +46,12 @@ PREFERRED_PORTS = {
 # controller marks a node whose Lease is older than the grace period Ready=Unknown and taints it.
 NODE_LEASE_SECONDS = 10
 NODE_MONITOR_PERIOD = "1s"
+# Client rate limits of kube-controller-manager and kube-scheduler. The defaults (20/30 and
+# 50/100 requests per second) make the cluster, not fogfleet, the bottleneck at hundreds of
+# pods: 400 Deployments' status updates trail their pods by ~25 s at 20/s, and a fleet cannot
+# be Ready before its Deployments say so (issue 15). Production control planes raise them too.
+CONTROLLER_API_QPS = 200
+CONTROLLER_API_BURST = 400
 NODE_MONITOR_GRACE_PERIOD = "10s"
 # Pods get NoExecute tolerations of this many seconds for not-ready/unreachable nodes (the
 # upstream default is 300 s), so evictions from a failed node happen within a test's timeout.

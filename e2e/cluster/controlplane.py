@@ -27,6 +27,8 @@ from e2e.cluster.base import (
 from e2e.cluster.bednet import SERVICE_CIDR
 from e2e.cluster.cluster import (
     COMPONENTS,
+    CONTROLLER_API_BURST,
+    CONTROLLER_API_QPS,
     HEARTBEAT_LABEL,
     NODE_LEASE_SECONDS,
     NODE_MONITOR_GRACE_PERIOD,
@@ -177,6 +179,8 @@ def _argv(ports: Mapping[str, int]) -> dict[str, tuple[list[str], dict[str, str]
                 f"--cluster-signing-key-file={pki / 'ca.key'}",
                 f"--node-monitor-period={NODE_MONITOR_PERIOD}",
                 f"--node-monitor-grace-period={NODE_MONITOR_GRACE_PERIOD}",
+                f"--kube-api-qps={CONTROLLER_API_QPS}",
+                f"--kube-api-burst={CONTROLLER_API_BURST}",
                 f"--cert-dir={s / 'certs' / 'kcm'}",
             ],
             None,
@@ -250,7 +254,11 @@ def _write_configs(ports: Mapping[str, int]) -> None:
             {
                 "apiVersion": "kubescheduler.config.k8s.io/v1",
                 "kind": "KubeSchedulerConfiguration",
-                "clientConnection": {"kubeconfig": str(KUBECONFIG)},
+                "clientConnection": {
+                    "kubeconfig": str(KUBECONFIG),
+                    "qps": CONTROLLER_API_QPS,
+                    "burst": CONTROLLER_API_BURST,
+                },
                 "leaderElection": {"leaderElect": False},
             },
             indent=1,
