@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import asyncio
 import itertools
+from collections.abc import Awaitable, Callable
 
 from fogfleet.controllers.queue import ReconcileQueue
 from fogfleet.controllers.robotfleet import Outcome
@@ -80,15 +81,22 @@ def test_failing_background_runs_back_off_exponentially_and_a_success_resets() -
     assert q._failures == {}
 
 
+def _timing_runner(runs: list[float]) -> Callable[[tuple[str, str]], Awaitable[Outcome]]:
+    """A runner that records the loop time of every reconcile."""
+
+    async def runner(key: tuple[str, str]) -> Outcome:
+        runs.append(asyncio.get_running_loop().time())
+        return Outcome(ready=True)
+
+    return runner
+
+
 def test_a_stream_of_events_still_reconciles_every_max_wait() -> None:
     """Events every 20 ms for 0.6 s with a 0.1 s quiet period: plain debouncing would run
     once, after the stream; ``schedule_debounced`` runs at most ``max_wait`` (0.15 s) after a
     burst began, so the fleet is reconciled several times while the stream lasts."""
     runs: list[float] = []
-
-    async def runner(key: tuple[str, str]) -> Outcome:
-        runs.append(asyncio.get_running_loop().time())
-        return Outcome(ready=True)
+    runner = _timing_runner(runs)
 
     async def main() -> float:
         q = ReconcileQueue(runner, debounce=0.1, max_wait=0.15)
@@ -105,17 +113,15 @@ def test_a_stream_of_events_still_reconciles_every_max_wait() -> None:
     during = [t for t in runs if t - runs[0] < stream]
     assert len(during) >= 3, runs
     gaps = [b - a for a, b in itertools.pairwise(runs)]
-    assert max(gaps[: len(during) - 1], default=0.0) < 0.15 + 0.1, gaps
+    # max_wait plus room for a slow event loop; plain debouncing fails the count above
+    assert max(gaps[: len(during) - 1], default=0.0) < 0.15 + 0.2, gaps
 
 
 def test_a_quiet_burst_still_makes_one_reconcile_after_the_quiet_period() -> None:
     """A short burst (5 events within 40 ms) inside max_wait: one run, the quiet period after
     the last event (the debounce still coalesces)."""
     runs: list[float] = []
-
-    async def runner(key: tuple[str, str]) -> Outcome:
-        runs.append(asyncio.get_running_loop().time())
-        return Outcome(ready=True)
+    runner = _timing_runner(runs)
 
     async def main() -> float:
         q = ReconcileQueue(runner, debounce=0.1, max_wait=1.0)
