@@ -88,6 +88,9 @@ bench: venv ## Benchmarks of the pure core: scheduling (misses, MILP gap, decisi
 bench-cluster: venv ## Operator benchmarks on the local control plane: apply-to-Running latency (40 and 400 pods), nsga2 vs kube-scheduler's real placement (~25 min)
 	$(BIN)/python e2e/bench_operator.py --runs 5
 
+bench-scale: venv cluster-tools ## The operator at 100, 300 and 1000 robots x 8 modules on kwok nodes: apply-to-Running vs plain, Ready lag, peak RSS, a robot joining; writes bench-scale.json
+	$(BIN)/python -m e2e.bench_scale --sizes $(or $(SIZES),100,300,1000)
+
 bench-real: venv cluster-tools images ## nsga2 vs kube-scheduler vs on-board on the bed's real nodes, measured and simulated (3 x 3 runs of 3 min; needs `make cluster-up`; ~32 min)
 	$(BIN)/python -m e2e.realbench --window 180 --reps 3
 
@@ -104,4 +107,4 @@ clean: ## Remove the virtualenv and caches in the repo
 	rm -rf $(VENV) .pytest_cache .mypy_cache .ruff_cache
 
 
-.PHONY: help venv lint unit test checkov images crds crds-check demo-offline bench-cluster bench-real cluster-tools cluster-up cluster-down cluster-status e2e e2e-k3d chart-lint bench demo clean
+.PHONY: help venv lint unit test checkov images crds crds-check demo-offline bench-cluster bench-scale bench-real cluster-tools cluster-up cluster-down cluster-status e2e e2e-k3d chart-lint bench demo clean

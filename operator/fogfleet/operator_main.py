@@ -18,6 +18,7 @@ from fogfleet.adapters.kube import KubeClient, load_config
 from fogfleet.adapters.leases import LeaseLock, LeaseSettings
 from fogfleet.adapters.metrics import PrometheusMetrics
 from fogfleet.adapters.prometheus import PrometheusClient
+from fogfleet.adapters.watched import WatchedKube
 from fogfleet.controllers.deps import Deps
 from fogfleet.controllers.runtime import Runtime
 from fogfleet.controllers.scaling import ScalingDeps
@@ -32,11 +33,19 @@ FORMATS = {"plain": kopf.LogFormat.PLAIN, "full": kopf.LogFormat.FULL, "json": k
 
 def build_runtime(settings: Settings, *, serve_metrics: bool = True) -> Runtime:
     """Adapters and the controller runtime, from settings (no kopf here)."""
-    kube = KubeClient(load_config(settings.kubeconfig))
+    api = load_config(settings.kubeconfig)
+    watched = WatchedKube(api, namespaces=settings.namespaces) if settings.watch_cache else None
+    kube = watched or KubeClient(api)
     metrics = PrometheusMetrics()
     if serve_metrics and settings.metrics_port:
         metrics.serve(settings.metrics_port, settings.metrics_host)
-    deps = Deps(kube=kube, metrics=metrics, scheduler_defaults=settings.scheduler_defaults())
+    deps = Deps(
+        kube=kube,
+        metrics=metrics,
+        scheduler_defaults=settings.scheduler_defaults(),
+        api_concurrency=settings.api_concurrency,
+        watches=watched,
+    )
     return Runtime(deps, workers=settings.workers, debounce=settings.debounce_seconds)
 
 

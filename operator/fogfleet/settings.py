@@ -11,6 +11,8 @@ FOGFLEET_METRICS_PORT             Prometheus /metrics port; 0 turns it off (defa
 FOGFLEET_DRIFT_INTERVAL_SECONDS   how often each fleet is re-checked (default 60)
 FOGFLEET_DEBOUNCE_SECONDS         quiet time before a re-plan after related edits (default 2)
 FOGFLEET_WORKERS                  worker threads for reconciles and planning (default 4)
+FOGFLEET_API_CONCURRENCY          a reconcile's writes (Deployments, Services) in flight (default 8)
+FOGFLEET_WATCH_CACHE              true (default): reads come from watch-fed caches, not re-lists
 FOGFLEET_STANDALONE               true (default): no kopf peering objects
 FOGFLEET_SCHEDULER_POPULATION     defaults for fleets whose spec.scheduler leaves these out
 FOGFLEET_SCHEDULER_GENERATIONS    (population, generations, timeBudgetMillis); unset: the
@@ -51,6 +53,8 @@ class Settings(BaseSettings):
     drift_interval_seconds: Annotated[float, Field(gt=0)] = 60.0
     debounce_seconds: Annotated[float, Field(ge=0)] = 2.0
     workers: Annotated[int, Field(ge=1, le=64)] = 4
+    api_concurrency: Annotated[int, Field(ge=1, le=64)] = 8
+    watch_cache: bool = True
     standalone: bool = True
     peering_name: str = "fogfleet"
     scheduler_population: Annotated[int, Field(ge=4, le=2000)] | None = None

@@ -37,6 +37,7 @@ from kubernetes.client.exceptions import ApiException, OpenApiException
 from kubernetes.config.config_exception import ConfigException
 
 from fogfleet import GROUP, VERSION
+from fogfleet.adapters.informer import WatchExpired
 from fogfleet.api.labels import MANAGER
 from fogfleet.api.timestamps import timestamp
 from fogfleet.api.v1alpha1.computenode import ComputeNode
@@ -51,6 +52,7 @@ Obj = dict[str, Any]
 APPLY = "application/apply-patch+yaml"
 MERGE = "application/merge-patch+json"
 TIMEOUT = (5, 30)  # connect, read seconds
+POOL_SIZE = 32  # HTTP connections kept: parallel applies, informers' watches, kopf's own
 
 
 def load_config(kubeconfig: str | None = None) -> client.ApiClient:
@@ -63,6 +65,7 @@ def load_config(kubeconfig: str | None = None) -> client.ApiClient:
             if kubeconfig:
                 raise
             config.load_incluster_config(client_configuration=cfg)  # type: ignore[no-untyped-call]
+        cfg.connection_pool_maxsize = max(cfg.connection_pool_maxsize or 0, POOL_SIZE)
         return client.ApiClient(cfg)
 
 
@@ -139,6 +142,26 @@ class KubeClient:
         content_type: str | None = None,
         missing_ok: bool = False,
     ) -> Obj | None:
+        resp = self._request(method, path, query=query, body=body, content_type=content_type)
+        data = resp.read()
+        if resp.status == 404 and missing_ok:
+            return None
+        if not 200 <= resp.status < 300:
+            raise ApiException(http_resp=resp)
+        parsed: Obj = json.loads(data) if data else {}
+        return parsed
+
+    def _request(
+        self,
+        method: str,
+        path: str,
+        *,
+        query: Mapping[str, Any] | None = None,
+        body: Any = None,
+        content_type: str | None = None,
+        timeout: tuple[float, float] = TIMEOUT,
+    ) -> Any:
+        """The response, its body not read yet (a watch streams it)."""
         headers = {"Accept": "application/json"}
         if content_type:
             headers["Content-Type"] = content_type
@@ -156,14 +179,7 @@ class KubeClient:
             body=body,
             auth_settings=["BearerToken"],
         )
-        resp = self.api.call_api(m, url, header_params=hdrs, body=payload, _request_timeout=TIMEOUT)
-        data = resp.read()  # type: ignore[no-untyped-call]
-        if resp.status == 404 and missing_ok:
-            return None
-        if not 200 <= resp.status < 300:
-            raise ApiException(http_resp=resp)
-        parsed: Obj = json.loads(data) if data else {}
-        return parsed
+        return self.api.call_api(m, url, header_params=hdrs, body=payload, _request_timeout=timeout)
 
     def _list(self, path: str, what: str, selector: Mapping[str, str] | None = None) -> list[Obj]:
         query = {"labelSelector": _selector(selector)} if selector else None
@@ -171,6 +187,46 @@ class KubeClient:
             body = self._call("GET", path, query=query) or {}
         items: list[Obj] = body.get("items") or []
         return items
+
+    # ---------------------------------------------------------------- list + watch (informers)
+    def list_versioned(
+        self, path: str, selector: Mapping[str, str] | None
+    ) -> tuple[list[Obj], str]:
+        """Every object under ``path`` and the list's resourceVersion (to watch from)."""
+        query = {"labelSelector": _selector(selector)} if selector else None
+        with map_errors(f"list {path}"):
+            body = self._call("GET", path, query=query) or {}
+        version = str((body.get("metadata") or {}).get("resourceVersion") or "")
+        return list(body.get("items") or []), version
+
+    def watch(
+        self, path: str, selector: Mapping[str, str] | None, version: str, seconds: int
+    ) -> Iterator[Obj]:
+        """Watch events from ``version`` for up to ``seconds`` (with bookmarks)."""
+        query = {
+            "watch": "true",
+            "resourceVersion": version,
+            "timeoutSeconds": seconds,
+            "allowWatchBookmarks": "true",
+            "labelSelector": _selector(selector) if selector else None,
+        }
+        with map_errors(f"watch {path}"):
+            resp = self._request("GET", path, query=query, timeout=(5, seconds + 30))
+            try:
+                if resp.status == 410:
+                    raise WatchExpired(path)
+                if not 200 <= resp.status < 300:
+                    resp.read()
+                    raise ApiException(http_resp=resp)
+                pending = b""
+                for chunk in resp.response.stream(amt=None, decode_content=True):
+                    pending += chunk
+                    *lines, pending = pending.split(b"\n")
+                    for line in lines:
+                        if line.strip():
+                            yield json.loads(line)
+            finally:
+                resp.response.close()  # a watch ended early leaves unread bytes: no reuse
 
     # ---------------------------------------------------------------- reads
     def get_fleet(self, namespace: str, name: str) -> Obj | None:

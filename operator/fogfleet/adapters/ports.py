@@ -9,14 +9,14 @@ server rejects what we sent).
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from typing import Any, Protocol
 
 from fogfleet.api.v1alpha1.robotfleet import SchedulerSettings
 from fogfleet.domain.problem import Problem
 from fogfleet.scheduling.schedule import Schedule
 
-__all__ = ["KubePort", "MetricsPort", "NullMetrics", "Planner"]
+__all__ = ["KubePort", "Listener", "MetricsPort", "NullMetrics", "Planner", "Watches"]
 
 Obj = dict[str, Any]
 
@@ -79,6 +79,21 @@ class KubePort(Protocol):
     ) -> None:
         """A core/v1 Event about ``involved`` (a fleet body); failures are logged, not raised."""
         ...
+
+
+Listener = Callable[[str, Obj, Obj | None], None]
+"""(event type, the object (its last state when DELETED), its previous state or None)."""
+
+
+class Watches(Protocol):
+    """Watch-fed caches behind a KubePort (``adapters.watched.WatchedKube``)."""
+
+    def start(self, on_pod: Listener | None = None, on_deployment: Listener | None = None) -> None:
+        """Start watching fogfleet's Pods and Deployments (and what else the KubePort reads);
+        the listeners are called on a watch thread, not the event loop."""
+        ...
+
+    def stop(self) -> None: ...
 
 
 class Planner(Protocol):

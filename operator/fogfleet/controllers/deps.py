@@ -15,9 +15,10 @@ from typing import Any, Protocol
 import numpy as np
 from numpy.typing import NDArray
 
-from fogfleet.adapters.ports import KubePort, MetricsPort, NullMetrics, Planner
+from fogfleet.adapters.ports import KubePort, MetricsPort, NullMetrics, Planner, Watches
 from fogfleet.adapters.prometheus import PrometheusPort
 from fogfleet.controllers.planning import CorePlanner
+from fogfleet.domain.problem import Problem
 from fogfleet.scheduling.schedule import Schedule
 
 __all__ = [
@@ -25,6 +26,7 @@ __all__ = [
     "Deps",
     "FleetKey",
     "References",
+    "Rendered",
     "ScalingDeps",
     "ScalingKube",
     "fleet_key",
@@ -52,6 +54,19 @@ class CachedPlan:
     moves: tuple[str, ...] = ()  # "robot-1/module edge-1->edge-2" for the Migrated Event
     objectives: dict[str, float] = field(default_factory=dict)
     """The objectives of ``placement`` (the plan deployed), not of the solver's proposal."""
+
+
+@dataclass(frozen=True)
+class Rendered:
+    """A full reconcile's result, kept for status refreshes."""
+
+    stamp: tuple[Any, ...]
+    at: float  # time.monotonic() of the full reconcile
+    problem: Problem
+    desired: list[Obj]
+    stranded: frozenset[int]
+    plan: CachedPlan | None
+    baseline: bool
 
 
 @dataclass
@@ -110,12 +125,16 @@ class Deps:
     planner: Planner = field(default_factory=CorePlanner)
     metrics: MetricsPort = field(default_factory=NullMetrics)
     plans: dict[FleetKey, CachedPlan] = field(default_factory=dict)
+    rendered: dict[FleetKey, Rendered] = field(default_factory=dict)  # for status refreshes
     refs: References = field(default_factory=References)
     failures: dict[FleetKey, tuple[str, Exception]] = field(default_factory=dict)  # fp -> error
     # operator-wide defaults for scheduler fields a fleet leaves out (FOGFLEET_SCHEDULER_*)
     scheduler_defaults: dict[str, int] = field(default_factory=dict)
     requeue_seconds: float = 2.0  # while pods are on their way
     retry_seconds: float = 10.0  # after DependencyUnavailable
+    api_concurrency: int = 8  # a reconcile's independent writes (Deployments) in flight at once
+    watches: Watches | None = None  # the caches behind ``kube``, when it reads from watches
+    full_reconcile_seconds: float = 60.0  # a status refresh never reuses an older render
 
 
 class ScalingKube(Protocol):

@@ -1,7 +1,9 @@
 """The RobotFleet controller: one level-based ``reconcile(fleet, deps) -> Outcome``.
 
 Create, update, resume, the drift timer and every debounced trigger (a module, ComputeNode or
-Node changed; a Deployment moved) call the same function. It reads everything fresh, plans
+Node changed; a Deployment or Pod moved) call the same function. When nothing it reads but the
+rollout's progress changed since the last full pass (``stamp.input_stamp``), it only refreshes
+the status from the rendered Deployments it kept. Otherwise it plans
 only when the planning inputs changed (fingerprint cache), keeps running modules in place
 unless the new plan is better by the migration margin, applies with server-side apply, prunes
 stale Deployments, and writes the status in one patch. Invalid input (bad spec, dangling
@@ -13,9 +15,11 @@ Blocking (API calls, the GA): run it in a worker thread (``asyncio.to_thread``).
 
 from __future__ import annotations
 
+import functools
 import logging
+import time
 from collections.abc import Iterable, Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 from fogfleet.api.labels import ANNOTATION_SPEC_HASH, LABEL_FLEET
@@ -28,10 +32,12 @@ from fogfleet.errors import Infeasible, InvalidSpec
 from fogfleet.render.deployments import Owner, identity_of, label_value, render_fleet
 from fogfleet.scheduling import stickiness
 
-from .deps import CachedPlan, Deps, FleetKey, fleet_key
+from .deps import CachedPlan, Deps, FleetKey, Rendered, fleet_key
 from .fleet_plan import plan_fleet
 from .fleet_status import fleet_status, plan_events, report_failure
 from .inputs import current_placement, gather
+from .parallel import run_all
+from .stamp import input_stamp
 from .status import (
     condition,
     merge_conditions,
@@ -60,6 +66,7 @@ class Outcome:
 def forget(deps: Deps, key: FleetKey) -> None:
     """The fleet is gone: drop its cache and references (its Deployments go with it)."""
     deps.plans.pop(key, None)
+    deps.rendered.pop(key, None)
     deps.failures.pop(key, None)
     deps.refs.forget(key)
 
@@ -95,11 +102,21 @@ def _reconcile(
     ns, name = key
     kube = deps.kube
     selector = {LABEL_FLEET: label_value(name)}
-    deployments = [
-        d for d in kube.list_deployments(ns, selector) if _owned(d, body) and not is_ros_object(d)
-    ]
+    listed = [d for d in kube.list_deployments(ns, selector) if _owned(d, body)]
+    deployments = [d for d in listed if not is_ros_object(d)]
     raw_modules = kube.list_modules(ns)
-    inputs = gather(fleet, kube.list_compute_nodes(), raw_modules, kube.list_nodes())
+    compute_nodes, nodes = kube.list_compute_nodes(), kube.list_nodes()
+    stamp = input_stamp(body, raw_modules, compute_nodes, nodes, listed)
+    last = deps.rendered.pop(key, None)
+    if (
+        last is not None
+        and last.stamp == stamp
+        and time.monotonic() - last.at < deps.full_reconcile_seconds
+    ):
+        deps.rendered[key] = last
+        return _finish(body, fleet, deps, last, deployments, False, old_status, generation)
+    log.debug("RobotFleet %s/%s: inputs changed, full reconcile", ns, name)
+    inputs = gather(fleet, compute_nodes, raw_modules, nodes)
     _raise_broken_references(fleet, inputs.broken)
     problem = build_problem(
         fleet, inputs.catalog, current_placement(deployments), scaling_pools(raw_modules)
@@ -134,7 +151,9 @@ def _reconcile(
         cached, planned = plan_fleet(deps, key, problem, fleet, before)
         problem = problem.with_levels(cached.schedule.levels)  # a degraded plan's CPU amounts
     # after planning: an infeasible fleet gets nothing applied, not even its discovery servers
-    wiring = apply_ros_wiring(deps.kube, fleet, problem, owner, selector, modules.values())
+    wiring = apply_ros_wiring(
+        deps.kube, fleet, problem, owner, selector, modules.values(), deps.api_concurrency
+    )
     if baseline or cached is None:
         desired = render_fleet(problem, modules, None, baseline=True, owner=owner, wiring=wiring)
     else:
@@ -150,28 +169,71 @@ def _reconcile(
         )
     applied, pruned = _apply(deps, ns, desired, deployments, problem, stranded)
     if applied or pruned:
-        deployments = [
-            d
-            for d in kube.list_deployments(ns, selector)
-            if _owned(d, body) and not is_ros_object(d)
-        ]
-    pods = kube.list_pods(ns, selector)
-    roll = rollout(desired, deployments, pods)
-    status = fleet_status(
-        fleet, problem, desired, roll, stranded, cached, planned, baseline, generation, old_status
+        deps.metrics.count_apply(name, applied, pruned)
+    # what we wrote (modules' and discovery servers' Deployments) is what the next stamp sees
+    listed = [d for d in kube.list_deployments(ns, selector) if _owned(d, body)]
+    deployments = [d for d in listed if not is_ros_object(d)]
+    rendered = Rendered(
+        input_stamp(body, raw_modules, compute_nodes, nodes, listed),
+        time.monotonic(),
+        problem,
+        desired,
+        frozenset(stranded),
+        cached,
+        baseline,
     )
-    if not same_status(old_status, status):
-        kube.patch_fleet_status(ns, name, status)
+    deps.rendered[key] = rendered
+    outcome = _finish(body, fleet, deps, rendered, deployments, planned, old_status, generation)
     if planned and cached is not None:
         plan_events(deps, body, problem, cached)
-    if applied or pruned:
-        deps.metrics.count_apply(name, applied, pruned)
-    ready = not roll.waiting and not roll.moving and not stranded
-    return Outcome(
-        planned=planned,
+    return replace(
+        outcome,
         applied=applied,
         pruned=pruned,
         migrations=cached.migrations if (cached and planned) else 0,
+    )
+
+
+def _finish(
+    body: Obj,
+    fleet: RobotFleet,
+    deps: Deps,
+    rendered: Rendered,
+    deployments: list[Obj],
+    planned: bool,
+    old_status: Obj,
+    generation: int | None,
+) -> Outcome:
+    """The status from where the rendered Deployments stand (one patch, only if it changed)."""
+    ns, name = fleet_key(body)
+    pods = deps.kube.list_pods(ns, {LABEL_FLEET: label_value(name)})
+    roll = rollout(rendered.desired, deployments, pods)
+    stranded = set(rendered.stranded)
+    status = fleet_status(
+        fleet,
+        rendered.problem,
+        rendered.desired,
+        roll,
+        stranded,
+        rendered.plan,
+        planned,
+        rendered.baseline,
+        generation,
+        old_status,
+    )
+    ready = not roll.waiting and not roll.moving and not stranded
+    if not same_status(old_status, status):
+        deps.kube.patch_fleet_status(ns, name, status)
+        if ready != _is_ready(old_status):
+            log.info(
+                "RobotFleet %s/%s is %sReady: %s",
+                ns,
+                name,
+                "" if ready else "not ",
+                _ready_message(status),
+            )
+    return Outcome(
+        planned=planned,
         ready=ready,
         requeue_after=None if ready else deps.requeue_seconds,
         message=status["conditions"][0]["message"],
@@ -221,29 +283,36 @@ def _apply(
     stranded: set[int],
 ) -> tuple[int, int]:
     have = {d["metadata"]["name"]: d for d in deployments}
-    applied = 0
-    for dep in desired:
-        old = have.get(dep["metadata"]["name"])
-        want = dep["metadata"]["annotations"][ANNOTATION_SPEC_HASH]
-        if (
-            old is not None
-            and (old["metadata"].get("annotations") or {}).get(ANNOTATION_SPEC_HASH) == want
-        ):
-            continue
-        deps.kube.apply_deployment(dep)
-        applied += 1
+    changed = [d for d in desired if _spec_hash(have.get(d["metadata"]["name"])) != _spec_hash(d)]
     keep = {d["metadata"]["name"] for d in desired}
     idents = {
         (problem.instances[i].robot, problem.instances[i].module, problem.instances[i].replica)
         for i in stranded
     }
-    pruned = 0
-    for name, dep in have.items():
-        if name in keep or identity_of(dep) in idents:
-            continue  # stranded instances keep their Deployment until their node returns
-        deps.kube.delete_deployment(ns, name)
-        pruned += 1
-    return applied, pruned
+    # stranded instances keep their Deployment until their node returns
+    stale = [n for n, d in have.items() if n not in keep and identity_of(d) not in idents]
+    kube = deps.kube
+    run_all([functools.partial(kube.apply_deployment, d) for d in changed], deps.api_concurrency)
+    run_all([functools.partial(kube.delete_deployment, ns, n) for n in stale], deps.api_concurrency)
+    return len(changed), len(stale)
+
+
+def _is_ready(status: Obj) -> bool:
+    return any(
+        c.get("type") == "Ready" and c.get("status") == "True"
+        for c in status.get("conditions") or []
+    )
+
+
+def _ready_message(status: Obj) -> str:
+    return next(
+        (str(c.get("message")) for c in status.get("conditions") or [] if c.get("type") == "Ready"),
+        "",
+    )
+
+
+def _spec_hash(obj: Obj | None) -> str | None:
+    return (((obj or {}).get("metadata") or {}).get("annotations") or {}).get(ANNOTATION_SPEC_HASH)
 
 
 def _paused(body: Obj, deps: Deps, old: Obj, generation: int | None) -> Outcome:

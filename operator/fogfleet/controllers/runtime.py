@@ -23,13 +23,15 @@ from .deps import Deps, FleetKey
 from .inputs import node_health
 from .queue import ReconcileQueue
 from .robotfleet import Outcome, forget, reconcile
-from .status import scaling_status
+from .status import pod_ready, scaling_status
 from .usage import reconcile_usage
 
 __all__ = ["Runtime"]
 
 log = logging.getLogger(__name__)
 T = TypeVar("T")
+# a rollout event's reconcile is a cheap status refresh (controllers/stamp.py): no need to wait
+ROLLOUT_QUIET_SECONDS = 0.5
 Obj = dict[str, Any]
 
 
@@ -56,7 +58,18 @@ class Runtime:
     # references already clean up what fleets create, so fogfleet needs no finalizer at all.
 
     def start_periodic(self, drift_seconds: float, scaling: Any = None) -> None:
-        """Re-check every known fleet each `drift_seconds`; decide scaling each period."""
+        """Re-check every known fleet each `drift_seconds`; decide scaling each period; start
+        the watch caches (their Pod events re-check fleets, see :meth:`pod_event`)."""
+        if self.deps.watches is not None:
+            loop = asyncio.get_running_loop()
+
+            def on_pod(kind: str, pod: Obj, old: Obj | None) -> None:
+                loop.call_soon_threadsafe(self.pod_event, kind, pod, old)
+
+            def on_deployment(kind: str, dep: Obj, old: Obj | None) -> None:
+                loop.call_soon_threadsafe(self.deployment_event, dep)
+
+            self.deps.watches.start(on_pod, on_deployment)
         self._loops.append(asyncio.create_task(self._drift(drift_seconds), name="fogfleet-drift"))
         self._loops.append(asyncio.create_task(self._usage(), name="fogfleet-usage"))
         self.usage_changed()
@@ -107,7 +120,15 @@ class Runtime:
             self.queue.cancel(key)
             self.usage_changed()
             return None
+        t0 = time.perf_counter()
         outcome = await self.call(reconcile, body, self.deps)
+        log.debug(
+            "Reconciled RobotFleet %s/%s in %.0f ms (%s): %s",
+            *key,
+            (time.perf_counter() - t0) * 1e3,
+            "ready" if outcome.ready else "not ready",
+            outcome.message,
+        )
         self.usage_changed()
         return outcome
 
@@ -188,15 +209,34 @@ class Runtime:
 
     def deployment_event(self, body: Mapping[str, Any]) -> None:
         """A fleet's Deployment changed (rolled out, deleted by hand): re-check that fleet."""
-        meta = body.get("metadata") or {}
+        self._rollout_moved(body)
+
+    def pod_event(self, kind: str, pod: Mapping[str, Any], old: Mapping[str, Any] | None) -> None:
+        """A fleet's Pod became ready or stopped being ready, or went: re-check the fleet soon,
+        so its Ready condition follows its last pod by the short debounce, not by a timer."""
+        if kind != "DELETED" and old is not None and _pod_state(pod) == _pod_state(old):
+            return
+        self._rollout_moved(pod)
+
+    def _rollout_moved(self, obj: Mapping[str, Any]) -> None:
+        """Re-check the fleet of a Deployment or Pod: a status refresh, ROLLOUT_QUIET_SECONDS
+        after the last such event (at most the queue's max_wait into a stream of them)."""
+        meta = obj.get("metadata") or {}
         fleet = (meta.get("labels") or {}).get(LABEL_FLEET)
         if fleet:
             key = (meta.get("namespace") or "default", fleet)
             if key in self.deps.refs.fleets():
-                self.queue.schedule_debounced(key, min(self.queue.debounce, 1.0))
+                self.queue.schedule_debounced(key, min(self.queue.debounce, ROLLOUT_QUIET_SECONDS))
 
     async def close(self) -> None:
+        if self.deps.watches is not None:
+            self.deps.watches.stop()
         for task in self._loops:
             task.cancel()
         await self.queue.close()
         self.executor.shutdown(wait=False, cancel_futures=True)
+
+
+def _pod_state(pod: Mapping[str, Any]) -> tuple[bool, Any]:
+    """What of a Pod the fleet's status reads: ready or not, and on which node."""
+    return pod_ready(pod), (pod.get("spec") or {}).get("nodeName")

@@ -166,14 +166,23 @@ def _deployment_done(dep: Mapping[str, Any], want_hash: str | None) -> bool:
 
 
 def rollout(desired: Sequence[Obj], deployments: Sequence[Obj], pods: Sequence[Obj]) -> Rollout:
-    """Compare the desired Deployments with the cluster's Deployments and running pods."""
+    """Compare the desired Deployments with the cluster's Deployments and running pods.
+
+    A module is settled when it runs only on its planned nodes and either a ready pod carries
+    the desired spec hash (rendered into the pod template) or its Deployment reports the
+    desired spec rolled out (pods from before the hash was on pods)."""
     by_name = {d["metadata"]["name"]: d for d in deployments}
     running: dict[str, list[str]] = {}
+    current: dict[str, set[str]] = {}  # instance -> nodes of ready pods of the desired spec
+    wanted = {w["metadata"]["name"]: _hash_of(w) for w in desired}
     for pod in pods:
-        inst = ((pod.get("metadata") or {}).get("labels") or {}).get(LABEL_INSTANCE)
+        meta = pod.get("metadata") or {}
+        inst = (meta.get("labels") or {}).get(LABEL_INSTANCE)
         node = (pod.get("spec") or {}).get("nodeName")
         if inst and node and pod_ready(pod):
             running.setdefault(inst, []).append(node)
+            if wanted.get(inst) is not None and _hash_of(pod) == wanted[inst]:
+                current.setdefault(inst, set()).add(node)
     out = Rollout()
     for want in desired:
         name = want["metadata"]["name"]
@@ -183,19 +192,20 @@ def rollout(desired: Sequence[Obj], deployments: Sequence[Obj], pods: Sequence[O
         good = [n for n in nodes if n in allowed]
         if good:
             out.bound[name] = good[0]
-        want_hash = (want["metadata"].get("annotations") or {}).get(ANNOTATION_SPEC_HASH)
-        if (
-            have is not None
-            and _deployment_done(have, want_hash)
-            and nodes
-            and set(nodes) <= allowed
-        ):
+        rolled_out = bool(current.get(name, set()) & allowed) or (
+            have is not None and _deployment_done(have, wanted[name])
+        )
+        if rolled_out and nodes and set(nodes) <= allowed:
             out.settled.append(name)
         elif nodes and not set(nodes) <= allowed:
             out.moving.append(name)
         else:
             out.waiting.append(name)
     return out
+
+
+def _hash_of(obj: Mapping[str, Any]) -> str | None:
+    return ((obj.get("metadata") or {}).get("annotations") or {}).get(ANNOTATION_SPEC_HASH)
 
 
 def finite(x: float | None) -> float | None:

@@ -7,6 +7,7 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -268,6 +269,9 @@ def build_problem(
     nom_std = np.zeros((i_count, n))
     reasons: dict[int, str] = {}
     rungs: dict[tuple[int, int], list[_Row]] = {}  # smaller profiled CPUs below the pick
+    # the same module on the same hardware / over the same link: computed once per build
+    profiles: dict[tuple[int, str, Any], list[_Row]] = {}
+    transfers: dict[tuple[int, Link], tuple[float, float, float]] = {}
     # Shared replicas talk to the fleet: use the mean robot uplink.
     mean_robot = Link(
         latency=float(np.mean([links[j].latency for j in range(len(robots))])),
@@ -311,7 +315,10 @@ def build_problem(
             if ns.privacy < req.min_privacy:
                 why.append(f"{name}: privacy level {ns.privacy} < required {req.min_privacy}")
                 continue
-            rows = [r for r in _profile_rows(mod, nd) if r.cpu <= caps[j, 0] + 1e-9]
+            key = (id(mod), ns.hardware_type, ns.speed_factor)
+            if key not in profiles:
+                profiles[key] = _profile_rows(mod, nd)
+            rows = [r for r in profiles[key] if r.cpu <= caps[j, 0] + 1e-9]
             if not rows:
                 why.append(
                     f"{name}: no execution-time profile for hardware type "
@@ -319,7 +326,9 @@ def build_problem(
                 )
                 continue
             link = LOCAL if j == h else path(links[h] if h >= 0 else mean_robot, links[j])
-            t, s, bits = _transfer(mod, link)
+            if (id(mod), link) not in transfers:
+                transfers[id(mod), link] = _transfer(mod, link)
+            t, s, bits = transfers[id(mod), link]
             net_mean[i, j], net_std[i, j] = t, s
             if j != h:
                 traffic[i] = bits

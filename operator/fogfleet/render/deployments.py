@@ -113,11 +113,14 @@ def format_cpu(cores: float) -> str:
 
 
 def spec_hash(deployment: Mapping[str, Any]) -> str:
-    """Hash of what the Deployment asks for, without the plan id and the hash itself."""
+    """Hash of what the Deployment asks for, without the plan id and the hash itself (on the
+    Deployment and on its pod template)."""
     body = json.loads(json.dumps(deployment))
     annotations = body.get("metadata", {}).get("annotations", {})
     annotations.pop(ANNOTATION_PLAN, None)
     annotations.pop(ANNOTATION_SPEC_HASH, None)
+    template = (body.get("spec") or {}).get("template") or {}
+    ((template.get("metadata") or {}).get("annotations") or {}).pop(ANNOTATION_SPEC_HASH, None)
     return _digest(body, n=16)
 
 
@@ -269,6 +272,9 @@ def render_instance(
         },
     }
     annotations[ANNOTATION_SPEC_HASH] = spec_hash(dep)
+    # the pods carry it too: a running pod of the current spec is then known from the pod
+    # alone, without waiting for the Deployment's status (the fleet's Ready condition)
+    pod_annotations[ANNOTATION_SPEC_HASH] = annotations[ANNOTATION_SPEC_HASH]
     if plan_id:
         annotations[ANNOTATION_PLAN] = plan_id
     return dep

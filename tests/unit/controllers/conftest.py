@@ -52,6 +52,7 @@ class FakeKube:
         self.network_policies: dict[tuple[str, str], Obj] = {}
         self.pods: dict[tuple[str, str], Obj] = {}
         self.applied: list[str] = []
+        self.applied_services: list[str] = []
         self.deleted: list[str] = []
         self.status_patches: list[Obj] = []
         self.module_patches: list[tuple[str, str]] = []
@@ -166,6 +167,7 @@ class FakeKube:
         ip = old["spec"]["clusterIP"] if old else f"198.19.0.{10 + len(self.services)}"
         new["spec"]["clusterIP"] = ip
         self.services[key] = new
+        self.applied_services.append(key[1])
         return copy.deepcopy(new)
 
     def apply_network_policy(self, body: Obj) -> Obj:

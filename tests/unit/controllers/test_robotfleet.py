@@ -291,6 +291,22 @@ def test_every_robot_gets_a_discovery_server_on_its_own_node_and_its_modules_use
     assert {k[1]: s["spec"]["clusterIP"] for k, s in kube.services.items()} == ips
 
 
+def test_an_unchanged_fleet_writes_nothing_again_and_a_changed_server_is_reapplied(kube, deps):
+    run(kube, deps)
+    assert len(kube.applied_services) == 5 and len(kube.applied) == 45  # 40 modules + 5 servers
+    ips = {k[1]: s["spec"]["clusterIP"] for k, s in kube.services.items()}
+    kube.run_pods()
+    run(kube, deps)
+    assert len(kube.applied_services) == 5 and len(kube.applied) == 45
+    kube.fleets[KEY]["spec"]["ros"] = {"discoveryServerPort": 11911}
+    kube.fleets[KEY]["metadata"]["generation"] = 2
+    run(kube, deps)
+    assert len(kube.applied_services) == 10  # every Service again, with the new port
+    assert {k[1]: s["spec"]["clusterIP"] for k, s in kube.services.items()} == ips
+    env = _env(next(iter(module_deps(kube).values())))
+    assert env["ROS_DISCOVERY_SERVER"].endswith(":11911")
+
+
 def test_a_robot_leaving_the_fleet_takes_its_discovery_server_along(kube, deps):
     run(kube, deps)
     kube.fleets[KEY]["spec"]["robots"] = kube.fleets[KEY]["spec"]["robots"][:4]

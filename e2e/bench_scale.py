@@ -1,0 +1,318 @@
+"""``make bench-scale``: the operator at fleet scale on the local control plane (kwok nodes).
+
+    .venv/bin/python -m e2e.bench_scale [--sizes 100,300,1000] [--out bench-scale.json]
+
+For each size n: n robots x 8 modules (the warehouse modules) on ceil(0.4 n) edge nodes - the
+stand-in benchmark's fleet shape (``synthetic_fleet``: 12 edge cores per robot on average) -
+every Node a kwok node, every ComputeNode a real object validated by the real API server:
+
+1. **plain**: the same pods as plain Deployments (``render_fleet(..., baseline=True)``), one
+   ``kubectl apply --server-side``, kube-scheduler alone: seconds from apply to all Running.
+2. **operator**: a fresh ``fogfleet run`` (so its peak RSS is this size's) serves a fresh
+   namespace; the RobotFleet is applied: seconds to all Running, ``status.planningMillis``
+   (the first plan), and the **Ready lag**: when a poll of the fleet (every 0.2 s, started
+   before the apply) first saw ``Ready=True`` for all modules, minus when the pod watch saw the
+   last pod Running.
+3. **one robot joins**: a new kwok Node and ComputeNode, then the fleet's ``spec.robots`` gains
+   it: the re-plan's ``status.planningMillis``, the wall seconds from the patch until the fleet
+   is Ready with the robot's modules placed, and ``status.migrations`` (instances moved).
+4. **operator peak RSS**: ``VmHWM`` of the operator process at the end of the size.
+
+Prints one table and writes ``bench-scale.json`` at the repository root (git-ignored):
+``{"sizes": [{"robots", "pods", "plainSeconds", "operatorSeconds", "planningSeconds",
+"readyLagSeconds", "operatorPeakRssMiB", "firstPlanSeconds", "incrementalReplanSeconds",
+"incrementalMoved", ...}]}``. The cluster's client rate limits are the harness's (raised for
+both paths, e2e/cluster/cluster.py). Everything talks to 127.0.0.1 only.
+"""
+
+from __future__ import annotations
+
+import argparse
+import copy
+import json
+import math
+import secrets
+import sys
+import tempfile
+import threading
+import time
+from pathlib import Path
+from typing import Any
+
+ROOT = Path(__file__).resolve().parents[1]
+for p in (ROOT, ROOT / "operator"):
+    if str(p) not in sys.path:
+        sys.path.insert(0, str(p))
+
+from e2e.bench_operator import (  # noqa: E402
+    BENCH_LABEL,
+    FleetSpec,
+    Watcher,
+    connect,
+    create_namespace,
+    delete_namespace,
+    large_spec,
+    leftover_namespaces,
+    loadavg,
+    log,
+    run_plain,
+    server_side_apply,
+    setup_cluster,
+    table,
+    teardown_cluster,
+)
+from e2e.cluster import harness  # noqa: E402
+from e2e.cluster.kube import Kube  # noqa: E402
+from e2e.operator_fixtures import Operator  # noqa: E402
+
+Obj = dict[str, Any]
+EDGES_PER_ROBOT = 0.4
+POLL_SECONDS = 0.2
+MANAGER = "fogfleet-bench-scale"
+
+
+def edges_for(robots: int) -> int:
+    return max(2, math.ceil(EDGES_PER_ROBOT * robots))
+
+
+def timeout_for(pods: int) -> float:
+    return 180.0 + 0.5 * pods
+
+
+class FleetPoller:
+    """Reads the RobotFleet every POLL_SECONDS from before the apply; records when Ready=True
+    (with ``pods`` modules placed) was first seen."""
+
+    def __init__(self, kube: Kube, ns: str, name: str, pods: int) -> None:
+        from kubernetes import client
+
+        self.api = kube.api_client()
+        self.custom = client.CustomObjectsApi(self.api)
+        self.ns, self.name, self.pods = ns, name, pods
+        self.ready_at: float | None = None
+        self.status: Obj = {}
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        from kubernetes.client.exceptions import ApiException
+
+        while not self._stop.is_set():
+            try:
+                obj = self.custom.get_namespaced_custom_object(
+                    "fogfleet.io", "v1alpha1", self.ns, "robotfleets", self.name
+                )
+            except ApiException:
+                obj = {}
+            status = obj.get("status") or {}
+            self.status = status
+            if self.ready_at is None and is_ready(status, self.pods):
+                self.ready_at = time.monotonic()
+            self._stop.wait(POLL_SECONDS)
+
+    def wait_ready(self, timeout: float) -> float:
+        deadline = time.monotonic() + timeout
+        while self.ready_at is None:
+            if time.monotonic() > deadline:
+                raise TimeoutError(f"{self.ns}/{self.name} not Ready after {timeout:.0f}s")
+            time.sleep(POLL_SECONDS)
+        return self.ready_at
+
+    def close(self) -> None:
+        self._stop.set()
+        self._thread.join(timeout=5)
+        self.api.close()
+
+
+def is_ready(status: Obj, pods: int) -> bool:
+    conds = {c["type"]: c["status"] for c in status.get("conditions") or []}
+    return conds.get("Ready") == "True" and status.get("modulesPlaced") == pods
+
+
+def peak_rss_mib(pid: int) -> float:
+    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+        if line.startswith("VmHWM:"):
+            return int(line.split()[1]) / 1024
+    return float("nan")
+
+
+def joining_robot(spec: FleetSpec) -> tuple[Obj, Obj, str]:
+    """A new robot like the fleet's first: (its kwok Node, its ComputeNode, its name)."""
+    robots = spec.fleet["spec"]["robots"]
+    name = f"bench-robot-{len(robots) + 1}"
+    template = next(c for c in spec.compute_nodes if c["metadata"]["name"] == robots[0])
+    cn = copy.deepcopy(template)
+    cn["metadata"] = {"name": name, "labels": {BENCH_LABEL: "true"}}
+    cap = cn["spec"]["capacity"]
+    node = harness.node_object(
+        name,
+        "robot",
+        cn["spec"]["hardwareType"],
+        int(cap["cpu"]),
+        int(str(cap["memory"]).removesuffix("Gi")),
+        robot=name,
+    )
+    node["metadata"]["labels"][BENCH_LABEL] = "true"
+    return node, cn, name
+
+
+def run_operator_size(
+    kube: Kube, spec: FleetSpec, ns: str, logdir: Path, env: dict[str, str]
+) -> Obj:
+    op = Operator(kube.kubeconfig, [ns], logdir / f"operator-{spec.fleet_name}.log", env)
+    timeout = timeout_for(spec.pods)
+    create_namespace(kube, ns)
+    server_side_apply(kube, spec.modules_in(ns), MANAGER)
+    op.start().wait_live()
+    assert op.proc is not None
+    try:
+        watcher = Watcher(kube, ns, spec.pods)
+        poller = FleetPoller(kube, ns, spec.fleet_name, spec.pods)
+        try:
+            t0 = time.monotonic()
+            server_side_apply(kube, [spec.fleet_in(ns)], MANAGER, timeout=timeout)
+            watcher.wait(timeout)
+            ready_at = poller.wait_ready(timeout)
+        finally:
+            watcher.close()
+        assert watcher.all_running is not None
+        first = dict(poller.status)
+        row: Obj = {
+            "operatorSeconds": watcher.all_running - t0,
+            "planningSeconds": (first.get("planningMillis") or 0) / 1e3,
+            "firstPlanSeconds": (first.get("planningMillis") or 0) / 1e3,
+            "readyLagSeconds": ready_at - watcher.all_running,
+            "lastDeploymentSeconds": (watcher.last_dep or math.nan) - t0,
+        }
+        log(
+            f"{spec.key} operator: all Running {row['operatorSeconds']:.1f}s, planning "
+            f"{row['planningSeconds']:.1f}s, Ready lag {row['readyLagSeconds']:.2f}s"
+        )
+        row |= robot_joins(kube, spec, ns, poller, first, timeout)
+        poller.close()
+        row["operatorPeakRssMiB"] = peak_rss_mib(op.proc.pid)
+        return row
+    finally:
+        delete_namespace(kube, ns, timeout=timeout)
+        op.stop()
+
+
+def robot_joins(
+    kube: Kube, spec: FleetSpec, ns: str, poller: FleetPoller, before: Obj, timeout: float
+) -> Obj:
+    node, cn, name = joining_robot(spec)
+    kube.apply([node])
+    server_side_apply(kube, [cn], MANAGER)
+    kube.wait_for(
+        f"Node {name} Ready",
+        lambda: any(
+            c["type"] == "Ready" and c["status"] == "True"
+            for c in kube.kubectl_json("get", "node", name).get("status", {}).get("conditions", [])
+        ),
+        timeout=120,
+    )
+    pods = spec.pods + len(spec.fleet["spec"]["modules"])
+    poller.pods, poller.ready_at = pods, None
+    robots = [*spec.fleet["spec"]["robots"], name]
+    t0 = time.monotonic()
+    kube.kubectl(
+        "patch", "robotfleet", spec.fleet_name, "-n", ns, "--type=merge",
+        "-p", json.dumps({"spec": {"robots": robots}}),
+    )  # fmt: skip
+    ready_at = poller.wait_ready(timeout)
+    after = dict(poller.status)
+    if after.get("lastPlanTime") == before.get("lastPlanTime"):
+        raise RuntimeError("the fleet became Ready without a new plan")
+    row = {
+        "incrementalReplanSeconds": (after.get("planningMillis") or 0) / 1e3,
+        "joinToReadySeconds": ready_at - t0,
+        "incrementalMoved": int(after.get("migrations") or 0),
+    }
+    log(
+        f"{spec.key} robot joins: re-plan {row['incrementalReplanSeconds']:.1f}s, Ready after "
+        f"{row['joinToReadySeconds']:.1f}s, {row['incrementalMoved']} moved"
+    )
+    return row
+
+
+def bench_size(kube: Kube, robots: int, token: str, logdir: Path, env: dict[str, str]) -> Obj:
+    spec = large_spec(robots, edges_for(robots))
+    log(f"{spec.key}: {spec.pods} pods on {edges_for(robots)} edge nodes; load {loadavg()}")
+    plain_ns = f"bench-{token}-scale-plain-{robots}"
+    op_ns = f"bench-{token}-scale-op-{robots}"
+    row: Obj = {"robots": robots, "pods": spec.pods, "edges": edges_for(robots)}
+    try:
+        setup_cluster(kube, [spec])
+        plain = run_plain(kube, spec, plain_ns, timeout_for(spec.pods))
+        row["plainSeconds"] = plain["total_s"]
+        log(f"{spec.key} plain: all Running {plain['total_s']:.1f}s")
+        delete_namespace(kube, plain_ns, timeout=timeout_for(spec.pods))
+        row |= run_operator_size(kube, spec, op_ns, logdir, env)
+        row["ratio"] = (row["operatorSeconds"] - row["planningSeconds"]) / row["plainSeconds"]
+    except Exception as exc:  # keep the other sizes; the row says what failed
+        log(f"{spec.key}: FAILED: {exc!r}")
+        row["error"] = repr(exc)
+    finally:
+        teardown_cluster(kube, [plain_ns, op_ns])
+    return row
+
+
+def format_rows(rows: list[Obj]) -> str:
+    def f(row: Obj, key: str, fmt: str = "{:.1f}") -> str:
+        v = row.get(key)
+        return fmt.format(v) if isinstance(v, int | float) and v == v else "-"
+
+    header = [
+        "robots", "pods", "plain s", "operator s", "first plan s", "(op-plan)/plain",
+        "Ready lag s", "join re-plan s", "join->Ready s", "moved", "peak RSS MiB",
+    ]  # fmt: skip
+    columns = [
+        ("plainSeconds", "{:.1f}"),
+        ("operatorSeconds", "{:.1f}"),
+        ("firstPlanSeconds", "{:.1f}"),
+        ("ratio", "{:.2f}"),
+        ("readyLagSeconds", "{:.2f}"),
+        ("incrementalReplanSeconds", "{:.1f}"),
+        ("joinToReadySeconds", "{:.1f}"),
+        ("incrementalMoved", "{:d}"),
+        ("operatorPeakRssMiB", "{:.0f}"),
+    ]
+    lines = [[str(r["robots"]), str(r["pods"]), *(f(r, k, fm) for k, fm in columns)] for r in rows]
+    errors = [f"{r['robots']} robots: {r['error']}" for r in rows if "error" in r]
+    return "\n".join([table(lines, header), *errors])
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--sizes", default="100,300,1000", help="robot counts, comma-separated")
+    ap.add_argument("--out", default=str(ROOT / "bench-scale.json"))
+    ap.add_argument("--operator-log-level", default="INFO", help="FOGFLEET_LOG_LEVEL")
+    args = ap.parse_args(argv)
+    sizes = [int(s) for s in args.sizes.split(",") if s]
+    kube = connect()
+    stale = leftover_namespaces(kube)
+    if stale:
+        log(f"removing {len(stale)} namespaces left by an earlier benchmark")
+        teardown_cluster(kube, stale, operator_running=False)
+    token = secrets.token_hex(2)
+    logdir = Path(tempfile.mkdtemp(prefix="fogfleet-bench-scale-"))
+    started = time.strftime("%Y-%m-%dT%H:%M:%S%z")
+    env = {"FOGFLEET_LOG_LEVEL": args.operator_log_level}
+    rows = [bench_size(kube, n, token, logdir, env) for n in sizes]
+    report = {
+        "started": started,
+        "command": " ".join([Path(sys.executable).name, "-m", "e2e.bench_scale", *sys.argv[1:]]),
+        "edgesPerRobot": EDGES_PER_ROBOT,
+        "sizes": rows,
+        "operatorLogs": str(logdir),
+    }
+    Path(args.out).write_text(json.dumps(report, indent=2) + "\n")
+    print(f"fogfleet fleet-scale benchmark ({started}; load after: {loadavg()})")
+    print(format_rows(rows))
+    print(f"written: {args.out}; operator logs: {logdir}")
+    return 1 if any("error" in r for r in rows) else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

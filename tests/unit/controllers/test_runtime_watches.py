@@ -1,0 +1,91 @@
+"""The runtime's watch-cache hook: Pod changes that matter re-check their fleet, others do not;
+the caches start with the runtime's loops and stop with it."""
+
+from __future__ import annotations
+
+import asyncio
+import threading
+
+import pytest
+
+from fogfleet.controllers.deps import Deps
+from fogfleet.controllers.runtime import Runtime
+
+KEY = ("wh", "fleet")
+
+
+def pod(ready: bool, node: str = "edge-1", fleet: str = "fleet") -> dict:
+    return {
+        "metadata": {"name": "p", "namespace": "wh", "labels": {"fogfleet.io/fleet": fleet}},
+        "spec": {"nodeName": node},
+        "status": {
+            "phase": "Running",
+            "conditions": [{"type": "Ready", "status": "True" if ready else "False"}],
+        },
+    }
+
+
+class FakeWatches:
+    def __init__(self) -> None:
+        self.listener = None
+        self.deployments = None
+        self.stopped = False
+
+    def start(self, on_pod=None, on_deployment=None) -> None:
+        self.listener = on_pod
+        self.deployments = on_deployment
+
+    def stop(self) -> None:
+        self.stopped = True
+
+
+def scheduled_after(events: list[tuple[str, dict, dict | None]], known: bool = True) -> bool:
+    async def main() -> bool:
+        runtime = Runtime(Deps(kube=object()), debounce=5.0)
+        if known:
+            runtime.deps.refs.record(KEY, set(), set(), {"m"}, False)
+        for kind, new, old in events:
+            runtime.pod_event(kind, new, old)
+        pending = KEY in runtime.queue.pending()
+        await runtime.close()
+        return pending
+
+    return asyncio.run(main())
+
+
+def test_a_pod_turning_ready_moving_or_going_rechecks_its_fleet():
+    assert scheduled_after([("MODIFIED", pod(True), pod(False))])
+    assert scheduled_after([("MODIFIED", pod(True, "edge-2"), pod(True))])
+    assert scheduled_after([("DELETED", pod(True), pod(True))])
+    assert scheduled_after([("ADDED", pod(False), None)])
+
+
+def test_other_pod_changes_and_unknown_fleets_do_not():
+    assert not scheduled_after([("MODIFIED", pod(True), pod(True))])
+    assert not scheduled_after([("MODIFIED", pod(True), pod(False))], known=False)
+    assert not scheduled_after([("MODIFIED", pod(True, fleet="other"), pod(False))])
+
+
+@pytest.mark.parametrize("listener", ["listener", "deployments"])
+def test_the_caches_start_with_the_loops_and_their_events_reach_the_loop(listener):
+    watches = FakeWatches()
+
+    async def main() -> bool:
+        runtime = Runtime(Deps(kube=object(), watches=watches), debounce=5.0)
+        runtime.deps.refs.record(KEY, set(), set(), {"m"}, False)
+        runtime.start_periodic(3600)
+        call = getattr(watches, listener)
+        assert call is not None
+        # the informer calls from its own thread; the fleet is scheduled on the loop
+        t = threading.Thread(target=call, args=("ADDED", pod(True), None))
+        t.start()
+        t.join()
+        for _ in range(100):
+            if KEY in runtime.queue.pending():
+                break
+            await asyncio.sleep(0.01)
+        pending = KEY in runtime.queue.pending()
+        await runtime.close()
+        return pending
+
+    assert asyncio.run(main()) and watches.stopped

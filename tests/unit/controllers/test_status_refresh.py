@@ -1,0 +1,93 @@
+"""The status refresh: while only the rollout moves, a reconcile reuses the rendered
+Deployments; any input the full pass reads sends it down the full pass again."""
+
+from __future__ import annotations
+
+import pytest
+
+import fogfleet.controllers.robotfleet as robotfleet
+from fogfleet.controllers.robotfleet import reconcile
+from fogfleet.controllers.ros import is_ros_object
+
+KEY = ("warehouse", "warehouse")
+
+
+@pytest.fixture
+def builds(monkeypatch):
+    """How many times the full pass built the problem."""
+    count = [0]
+    real = robotfleet.build_problem
+
+    def counting(*args, **kwargs):
+        count[0] += 1
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(robotfleet, "build_problem", counting)
+    return count
+
+
+def run(kube, deps):
+    return reconcile(kube.get_fleet(*KEY), deps)
+
+
+def ready(kube) -> str:
+    conds = {c["type"]: c for c in kube.fleets[KEY]["status"]["conditions"]}
+    return conds["Ready"]["status"]
+
+
+def test_pods_starting_only_refresh_the_status(kube, deps, builds):
+    run(kube, deps)
+    assert builds[0] == 1 and ready(kube) == "False"
+    run(kube, deps)  # nothing changed, nothing runs yet
+    kube.run_pods()
+    out = run(kube, deps)
+    assert builds[0] == 1, "the rollout's progress alone must not rebuild and re-render"
+    assert out.ready and ready(kube) == "True" and out.applied == 0
+
+
+def test_a_module_edit_runs_the_full_pass(kube, deps, builds):
+    run(kube, deps)
+    module = kube.modules[("warehouse", "nav-localization")]
+    module["metadata"]["generation"] += 1
+    run(kube, deps)
+    assert builds[0] == 2
+
+
+def test_a_node_going_not_ready_runs_the_full_pass(kube, deps, builds):
+    run(kube, deps)
+    kube.run_pods()
+    run(kube, deps)
+    kube.set_ready("edge-1", False)
+    run(kube, deps)
+    assert builds[0] == 2
+    kube.nodes["edge-1"]["status"]["conditions"][0]["lastHeartbeatTime"] = "now"
+    run(kube, deps)  # a heartbeat is not an input
+    assert builds[0] == 2
+
+
+def test_a_deployment_deleted_by_hand_is_put_back(kube, deps, builds):
+    run(kube, deps)
+    kube.run_pods()
+    run(kube, deps)
+    name = next(k for k, d in kube.deployments.items() if not is_ros_object(d))
+    del kube.deployments[name]
+    out = run(kube, deps)
+    assert builds[0] == 2 and out.applied == 1 and name in kube.deployments
+
+
+def test_a_render_older_than_the_full_reconcile_period_is_not_reused(kube, deps, builds):
+    deps.full_reconcile_seconds = 0.0
+    run(kube, deps)
+    kube.run_pods()
+    run(kube, deps)
+    assert builds[0] == 2
+
+
+def test_a_failed_full_pass_leaves_nothing_to_reuse(kube, deps, builds):
+    run(kube, deps)
+    assert KEY in deps.rendered
+    kube.fleets[KEY]["spec"]["modules"].append({"name": "no-such-module"})
+    kube.fleets[KEY]["metadata"]["generation"] = 2
+    with pytest.raises(Exception, match="no-such-module"):
+        run(kube, deps)
+    assert KEY not in deps.rendered
