@@ -83,38 +83,25 @@ class WatchedKube(KubeClient):
         scopes: tuple[str | None, ...] = self.namespaces or (None,)
         managed = {LABEL_MANAGED_BY: MANAGER}
 
-        def at(ns: str | None, collection: str, prefix: str) -> str:
-            return f"{prefix}/namespaces/{ns}/{collection}" if ns else f"{prefix}/{collection}"
+        def per_scope(collection: str, prefix: str, kind: str, **kw: Any) -> dict[Any, Informer]:
+            return {
+                ns: Informer(
+                    self,
+                    f"{prefix}/namespaces/{ns}/{collection}" if ns else f"{prefix}/{collection}",
+                    name=f"{kind} {ns or '*'}",
+                    **kw,
+                )
+                for ns in scopes
+            }
 
         crds = f"/apis/{GROUP}/{VERSION}"
         self.nodes = Informer(self, "/api/v1/nodes", trim=trim_node, name="Nodes")
         self.compute_nodes = Informer(self, f"{crds}/{ComputeNode.PLURAL}", name="ComputeNodes")
-        self.modules = {
-            ns: Informer(
-                self, at(ns, SoftwareModule.PLURAL, crds), name=f"SoftwareModules {ns or '*'}"
-            )
-            for ns in scopes
-        }
-        self.deployments = {
-            ns: Informer(
-                self,
-                at(ns, "deployments", "/apis/apps/v1"),
-                selector=managed,
-                trim=trim_deployment,
-                name=f"Deployments {ns or '*'}",
-            )
-            for ns in scopes
-        }
-        self.pods = {
-            ns: Informer(
-                self,
-                at(ns, "pods", "/api/v1"),
-                selector=managed,
-                trim=trim_pod,
-                name=f"Pods {ns or '*'}",
-            )
-            for ns in scopes
-        }
+        self.modules = per_scope(SoftwareModule.PLURAL, crds, "SoftwareModules")
+        self.deployments = per_scope(
+            "deployments", "/apis/apps/v1", "Deployments", selector=managed, trim=trim_deployment
+        )
+        self.pods = per_scope("pods", "/api/v1", "Pods", selector=managed, trim=trim_pod)
 
     def informers(self) -> list[Informer]:
         return [

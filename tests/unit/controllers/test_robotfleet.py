@@ -292,6 +292,7 @@ def test_every_robot_gets_a_discovery_server_on_its_own_node_and_its_modules_use
 
 
 def test_an_unchanged_fleet_writes_nothing_again_and_a_changed_server_is_reapplied(kube, deps):
+    deps.full_reconcile_seconds = 0.0  # the full pass every time, not a status refresh
     run(kube, deps)
     assert len(kube.applied_services) == 5 and len(kube.applied) == 45  # 40 modules + 5 servers
     ips = {k[1]: s["spec"]["clusterIP"] for k, s in kube.services.items()}
