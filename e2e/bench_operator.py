@@ -416,7 +416,7 @@ def run_plain(kube: Kube, spec: FleetSpec, ns: str, timeout: float) -> Obj:
     watcher = Watcher(kube, ns, spec.pods)
     try:
         t0 = time.monotonic()
-        server_side_apply(kube, deps, "fogfleet-bench-plain")
+        server_side_apply(kube, deps, "fogfleet-bench-plain", timeout=timeout)
         t_applied = time.monotonic()
         watcher.wait(timeout)
     finally:

@@ -16,7 +16,8 @@ every Node a kwok node, every ComputeNode a real object validated by the real AP
 3. **one robot joins**: a new kwok Node and ComputeNode, then the fleet's ``spec.robots`` gains
    it: the re-plan's ``status.planningMillis``, the wall seconds from the patch until the fleet
    is Ready with the robot's modules placed, and ``status.migrations`` (instances moved).
-4. **operator peak RSS**: ``VmHWM`` of the operator process at the end of the size.
+4. **operator RSS**: ``VmHWM`` (peak, planning included) and ``VmRSS`` (what it holds once the
+   fleet is Ready again: caches, plans) of the operator process at the end of the size.
 
 Prints one table and writes ``bench-scale.json`` at the repository root (git-ignored):
 ``{"sizes": [{"robots", "pods", "plainSeconds", "operatorSeconds", "planningSeconds",
@@ -130,9 +131,10 @@ def is_ready(status: Obj, pods: int) -> bool:
     return conds.get("Ready") == "True" and status.get("modulesPlaced") == pods
 
 
-def peak_rss_mib(pid: int) -> float:
+def rss_mib(pid: int, field: str = "VmHWM") -> float:
+    """The process's peak (VmHWM) or current (VmRSS) resident memory."""
     for line in Path(f"/proc/{pid}/status").read_text().splitlines():
-        if line.startswith("VmHWM:"):
+        if line.startswith(f"{field}:"):
             return int(line.split()[1]) / 1024
     return float("nan")
 
@@ -191,7 +193,8 @@ def run_operator_size(
         )
         row |= robot_joins(kube, spec, ns, poller, first, timeout)
         poller.close()
-        row["operatorPeakRssMiB"] = peak_rss_mib(op.proc.pid)
+        row["operatorPeakRssMiB"] = rss_mib(op.proc.pid)
+        row["operatorRssAfterMiB"] = rss_mib(op.proc.pid, "VmRSS")
         return row
     finally:
         delete_namespace(kube, ns, timeout=timeout)
@@ -265,7 +268,7 @@ def format_rows(rows: list[Obj]) -> str:
 
     header = [
         "robots", "pods", "plain s", "operator s", "first plan s", "(op-plan)/plain",
-        "Ready lag s", "join re-plan s", "join->Ready s", "moved", "peak RSS MiB",
+        "Ready lag s", "join re-plan s", "join->Ready s", "moved", "peak RSS MiB", "RSS after MiB",
     ]  # fmt: skip
     columns = [
         ("plainSeconds", "{:.1f}"),
@@ -277,6 +280,7 @@ def format_rows(rows: list[Obj]) -> str:
         ("joinToReadySeconds", "{:.1f}"),
         ("incrementalMoved", "{:d}"),
         ("operatorPeakRssMiB", "{:.0f}"),
+        ("operatorRssAfterMiB", "{:.0f}"),
     ]
     lines = [[str(r["robots"]), str(r["pods"]), *(f(r, k, fm) for k, fm in columns)] for r in rows]
     errors = [f"{r['robots']} robots: {r['error']}" for r in rows if "error" in r]
