@@ -22,14 +22,20 @@ from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, replace
 from typing import Any
 
-from fogfleet.api.labels import ANNOTATION_SPEC_HASH, LABEL_FLEET
+from fogfleet.api.labels import LABEL_FLEET
 from fogfleet.api.loader import parse_object
 from fogfleet.api.v1alpha1.robotfleet import RobotFleet, SchedulerName
 from fogfleet.controllers.ros import apply_ros_wiring, is_ros_object
 from fogfleet.domain.build import build_problem
 from fogfleet.domain.problem import Problem
 from fogfleet.errors import Infeasible, InvalidSpec
-from fogfleet.render.deployments import Owner, identity_of, label_value, render_fleet
+from fogfleet.render.deployments import (
+    Owner,
+    hash_annotation,
+    identity_of,
+    label_value,
+    render_fleet,
+)
 from fogfleet.scheduling import stickiness
 
 from .deps import CachedPlan, Deps, FleetKey, Rendered, fleet_key
@@ -283,7 +289,9 @@ def _apply(
     stranded: set[int],
 ) -> tuple[int, int]:
     have = {d["metadata"]["name"]: d for d in deployments}
-    changed = [d for d in desired if _spec_hash(have.get(d["metadata"]["name"])) != _spec_hash(d)]
+    changed = [
+        d for d in desired if hash_annotation(have.get(d["metadata"]["name"])) != hash_annotation(d)
+    ]
     keep = {d["metadata"]["name"] for d in desired}
     idents = {
         (problem.instances[i].robot, problem.instances[i].module, problem.instances[i].replica)
@@ -309,10 +317,6 @@ def _ready_message(status: Obj) -> str:
         (str(c.get("message")) for c in status.get("conditions") or [] if c.get("type") == "Ready"),
         "",
     )
-
-
-def _spec_hash(obj: Obj | None) -> str | None:
-    return (((obj or {}).get("metadata") or {}).get("annotations") or {}).get(ANNOTATION_SPEC_HASH)
 
 
 def _paused(body: Obj, deps: Deps, old: Obj, generation: int | None) -> Outcome:

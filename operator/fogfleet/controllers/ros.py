@@ -21,7 +21,7 @@ from fogfleet.api.v1alpha1.robotfleet import RobotFleet
 from fogfleet.api.v1alpha1.softwaremodule import SoftwareModule
 from fogfleet.controllers.parallel import run_all
 from fogfleet.domain.problem import Problem
-from fogfleet.render.deployments import Owner, _dns, spec_hash
+from fogfleet.render.deployments import Owner, _dns, hash_annotation, spec_hash
 from fogfleet.render.ros import (
     COMPONENT_DISCOVERY,
     RosWiring,
@@ -45,10 +45,6 @@ def _hashed(obj: Obj) -> Obj:
     meta = obj["metadata"]
     annotations = {**(meta.get("annotations") or {}), ANNOTATION_SPEC_HASH: spec_hash(obj)}
     return {**obj, "metadata": {**meta, "annotations": annotations}}
-
-
-def _hash(obj: Obj | None) -> str | None:
-    return (((obj or {}).get("metadata") or {}).get("annotations") or {}).get(ANNOTATION_SPEC_HASH)
 
 
 def _owner_refs(owner: Owner | None) -> list[Obj]:
@@ -101,14 +97,14 @@ def apply_ros_wiring(
         old = services.get(name)
         if (
             old is not None
-            and _hash(old) == _hash(service)
+            and hash_annotation(old) == hash_annotation(service)
             and (old.get("spec") or {}).get("clusterIP")
         ):
             stored[name] = old  # unchanged, its cluster IP allocated: nothing to write
         else:
             to_apply.append(service)
         names[robot] = name
-        if _hash(have.get(deployment["metadata"]["name"])) != _hash(deployment):
+        if hash_annotation(have.get(deployment["metadata"]["name"])) != hash_annotation(deployment):
             deployments.append(deployment)
 
     def apply_service(body: Obj) -> None:

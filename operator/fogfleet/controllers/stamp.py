@@ -18,7 +18,7 @@ from __future__ import annotations
 from collections.abc import Iterable, Mapping
 from typing import Any
 
-from fogfleet.api.labels import ANNOTATION_SPEC_HASH
+from fogfleet.render.deployments import hash_annotation
 
 from .inputs import bound_nodes, node_health
 from .status import scaling_status
@@ -52,7 +52,7 @@ def _deployment(dep: Mapping[str, Any]) -> tuple[Any, ...]:
     meta = _meta(dep)
     return (
         meta.get("name"),
-        (meta.get("annotations") or {}).get(ANNOTATION_SPEC_HASH),
+        hash_annotation(dep),
         tuple(bound_nodes(dep)),
         bool(meta.get("deletionTimestamp")),
     )

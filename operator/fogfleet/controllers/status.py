@@ -13,9 +13,10 @@ from typing import Any
 
 from pydantic import BaseModel, ValidationError
 
-from fogfleet.api.labels import ANNOTATION_SPEC_HASH, LABEL_INSTANCE
+from fogfleet.api.labels import LABEL_INSTANCE
 from fogfleet.api.timestamps import timestamp
 from fogfleet.api.v1alpha1.softwaremodule import ScalingStatus
+from fogfleet.render.deployments import hash_annotation
 
 __all__ = [
     "Rollout",
@@ -153,7 +154,7 @@ def affinity_nodes(dep: Mapping[str, Any]) -> list[str]:
 
 def _deployment_done(dep: Mapping[str, Any], want_hash: str | None) -> bool:
     meta = dep.get("metadata") or {}
-    if want_hash and (meta.get("annotations") or {}).get(ANNOTATION_SPEC_HASH) != want_hash:
+    if want_hash and hash_annotation(dep) != want_hash:
         return False
     st = dep.get("status") or {}
     replicas = (dep.get("spec") or {}).get("replicas", 1)
@@ -174,14 +175,14 @@ def rollout(desired: Sequence[Obj], deployments: Sequence[Obj], pods: Sequence[O
     by_name = {d["metadata"]["name"]: d for d in deployments}
     running: dict[str, list[str]] = {}
     current: dict[str, set[str]] = {}  # instance -> nodes of ready pods of the desired spec
-    wanted = {w["metadata"]["name"]: _hash_of(w) for w in desired}
+    wanted = {w["metadata"]["name"]: hash_annotation(w) for w in desired}
     for pod in pods:
         meta = pod.get("metadata") or {}
         inst = (meta.get("labels") or {}).get(LABEL_INSTANCE)
         node = (pod.get("spec") or {}).get("nodeName")
         if inst and node and pod_ready(pod):
             running.setdefault(inst, []).append(node)
-            if wanted.get(inst) is not None and _hash_of(pod) == wanted[inst]:
+            if wanted.get(inst) is not None and hash_annotation(pod) == wanted[inst]:
                 current.setdefault(inst, set()).add(node)
     out = Rollout()
     for want in desired:
@@ -202,10 +203,6 @@ def rollout(desired: Sequence[Obj], deployments: Sequence[Obj], pods: Sequence[O
         else:
             out.waiting.append(name)
     return out
-
-
-def _hash_of(obj: Mapping[str, Any]) -> str | None:
-    return ((obj.get("metadata") or {}).get("annotations") or {}).get(ANNOTATION_SPEC_HASH)
 
 
 def finite(x: float | None) -> float | None:

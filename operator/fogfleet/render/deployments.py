@@ -62,6 +62,7 @@ __all__ = [
     "Owner",
     "deployment_name",
     "format_cpu",
+    "hash_annotation",
     "identity_of",
     "label_value",
     "render_fleet",
@@ -122,6 +123,11 @@ def spec_hash(deployment: Mapping[str, Any]) -> str:
     template = (body.get("spec") or {}).get("template") or {}
     ((template.get("metadata") or {}).get("annotations") or {}).pop(ANNOTATION_SPEC_HASH, None)
     return _digest(body, n=16)
+
+
+def hash_annotation(obj: Mapping[str, Any] | None) -> str | None:
+    """The spec hash an object (Deployment, its pod, a Service) was written with, if any."""
+    return (((obj or {}).get("metadata") or {}).get("annotations") or {}).get(ANNOTATION_SPEC_HASH)
 
 
 def identity_of(deployment: Mapping[str, Any]) -> tuple[str, str, int] | None:
