@@ -20,10 +20,10 @@ from fogfleet.api.labels import LABEL_FLEET
 from fogfleet.errors import FogfleetError
 
 from .deps import Deps, FleetKey
-from .inputs import node_health
 from .queue import ReconcileQueue
 from .robotfleet import Outcome, forget, reconcile
-from .status import pod_ready, scaling_status
+from .stamp import node_signature, pools_signature
+from .status import pod_ready
 from .usage import reconcile_usage
 
 __all__ = ["Runtime"]
@@ -168,9 +168,7 @@ class Runtime:
         else:
             self.scaled[module_key] = dict(body)
         # the autoscaler's decision (status.scaling.pools) changes what fleets place, too
-        scaling = scaling_status(body)
-        extra = tuple(sorted((p.tier, p.replicas) for p in (scaling.pools if scaling else [])))
-        if self._changed("SoftwareModule", body, event_type, extra):
+        if self._changed("SoftwareModule", body, event_type, pools_signature(body)):
             self.usage_changed()
             meta = body.get("metadata") or {}
             for key in self.deps.refs.using_module(
@@ -192,13 +190,7 @@ class Runtime:
             sig: tuple[Any, ...] | None = None
             self._nodes.pop(name, None)
         else:
-            alloc = (body.get("status") or {}).get("allocatable") or {}
-            sig = (
-                node_health(body),
-                alloc.get("cpu"),
-                alloc.get("memory"),
-                alloc.get("nvidia.com/gpu"),
-            )
+            sig = node_signature(body)
             before = self._nodes.get(name)
             self._nodes[name] = sig
             if before == sig or (event_type is None and before is None):

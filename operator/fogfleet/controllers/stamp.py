@@ -23,7 +23,7 @@ from fogfleet.render.deployments import hash_annotation
 from .inputs import bound_nodes, node_health
 from .status import scaling_status
 
-__all__ = ["input_stamp"]
+__all__ = ["input_stamp", "node_signature", "pools_signature"]
 
 Obj = dict[str, Any]
 
@@ -32,15 +32,17 @@ def _meta(obj: Mapping[str, Any]) -> Mapping[str, Any]:
     return obj.get("metadata") or {}
 
 
-def _pools(module: Mapping[str, Any]) -> tuple[Any, ...]:
+def pools_signature(module: Mapping[str, Any]) -> tuple[Any, ...]:
+    """The autoscaler's decision for a module (status.scaling.pools): it changes what fleets
+    place, though not the module's generation."""
     scaling = scaling_status(module)
     return tuple(sorted((p.tier, p.replicas) for p in (scaling.pools if scaling else [])))
 
 
-def _node(node: Mapping[str, Any]) -> tuple[Any, ...]:
+def node_signature(node: Mapping[str, Any]) -> tuple[Any, ...]:
+    """What of a Node planning reads: its health and allocatable CPU, memory and GPUs."""
     alloc = (node.get("status") or {}).get("allocatable") or {}
     return (
-        _meta(node).get("name"),
         node_health(node),
         alloc.get("cpu"),
         alloc.get("memory"),
@@ -72,7 +74,12 @@ def input_stamp(
         meta.get("generation"),
         tuple(
             sorted(
-                (_meta(m).get("name"), _meta(m).get("uid"), _meta(m).get("generation"), _pools(m))
+                (
+                    _meta(m).get("name"),
+                    _meta(m).get("uid"),
+                    _meta(m).get("generation"),
+                    pools_signature(m),
+                )
                 for m in modules
             )
         ),
@@ -82,6 +89,6 @@ def input_stamp(
                 for c in compute_nodes
             )
         ),
-        tuple(sorted(_node(n) for n in nodes)),
+        tuple(sorted((_meta(n).get("name"), *node_signature(n)) for n in nodes)),
         tuple(sorted(_deployment(d) for d in deployments)),
     )
