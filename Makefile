@@ -85,6 +85,9 @@ bench: venv ## Benchmarks of the pure core: scheduling (misses, MILP gap, decisi
 	$(BIN)/fogfleet bench scheduling
 	$(BIN)/fogfleet bench autoscaling --runs 7
 
+bench-replan: venv ## A robot joining and an edge failing at 100, 300 and 1000 robots: whole-fleet vs incremental re-plan (seconds, moves, miss rate; ~10 min)
+	$(BIN)/fogfleet bench replan --robots $(or $(SIZES),100,300,1000) --runs 3
+
 bench-cluster: venv ## Operator benchmarks on the local control plane: apply-to-Running latency (40 and 400 pods), nsga2 vs kube-scheduler's real placement (~25 min)
 	$(BIN)/python e2e/bench_operator.py --runs 5
 
@@ -107,4 +110,4 @@ clean: ## Remove the virtualenv and caches in the repo
 	rm -rf $(VENV) .pytest_cache .mypy_cache .ruff_cache
 
 
-.PHONY: help venv lint unit test checkov images crds crds-check demo-offline bench-cluster bench-scale bench-real cluster-tools cluster-up cluster-down cluster-status e2e e2e-k3d chart-lint bench demo clean
+.PHONY: help venv lint unit test checkov images crds crds-check demo-offline bench-replan bench-cluster bench-scale bench-real cluster-tools cluster-up cluster-down cluster-status e2e e2e-k3d chart-lint bench demo clean

@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import argparse
 import copy
+import datetime
 import json
 import math
 import secrets
@@ -131,6 +132,12 @@ def is_ready(status: Obj, pods: int) -> bool:
     return conds.get("Ready") == "True" and status.get("modulesPlaced") == pods
 
 
+def wall_clock(monotonic: float) -> str:
+    """A time.monotonic() value as UTC wall-clock time with milliseconds (as the logs print)."""
+    at = time.time() - (time.monotonic() - monotonic)
+    return datetime.datetime.fromtimestamp(at, datetime.UTC).strftime("%H:%M:%S.%f")[:-3]
+
+
 def rss_mib(pid: int, field: str = "VmHWM") -> float:
     """The process's peak (VmHWM) or current (VmRSS) resident memory."""
     for line in Path(f"/proc/{pid}/status").read_text().splitlines():
@@ -189,7 +196,9 @@ def run_operator_size(
         }
         log(
             f"{spec.key} operator: all Running {row['operatorSeconds']:.1f}s, planning "
-            f"{row['planningSeconds']:.1f}s, Ready lag {row['readyLagSeconds']:.2f}s"
+            f"{row['planningSeconds']:.1f}s, Ready lag {row['readyLagSeconds']:.2f}s (last pod "
+            f"Running at {wall_clock(watcher.all_running)}, Ready seen at "
+            f"{wall_clock(ready_at)}: compare with the operator's log)"
         )
         row |= robot_joins(kube, spec, ns, poller, first, timeout)
         poller.close()

@@ -9,11 +9,12 @@ server rejects what we sent).
 
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Collection, Mapping
 from typing import Any, Protocol
 
 from fogfleet.api.v1alpha1.robotfleet import SchedulerSettings
 from fogfleet.domain.problem import Problem
+from fogfleet.scheduling.incremental import Replan
 from fogfleet.scheduling.schedule import Schedule
 
 __all__ = ["KubePort", "Listener", "MetricsPort", "NullMetrics", "Planner", "Watches"]
@@ -100,6 +101,17 @@ class Planner(Protocol):
     """The scheduling core, as the controller sees it."""
 
     def plan(self, problem: Problem, settings: SchedulerSettings) -> Schedule: ...
+
+    def replan(
+        self,
+        problem: Problem,
+        settings: SchedulerSettings,
+        changed: Collection[int],
+        reference: float | None,
+    ) -> Replan:
+        """Re-plan only what a small change affected (``scheduling.incremental.replan``); a
+        Replan without a schedule asks for ``plan``."""
+        ...
 
 
 class MetricsPort(Protocol):

@@ -49,6 +49,14 @@ def cmd_bench(args: argparse.Namespace) -> int:
         else:
             print(abench.format_table(results))
         return 0
+    if args.suite == "replan":
+        from fogfleet.scheduling.bench import format_table
+        from fogfleet.scheduling.bench_replan import replan_rows
+
+        sizes = tuple(int(n) for n in args.robots.split(","))
+        rows = replan_rows(sizes, runs=args.runs, seed=args.seed or 1)
+        print(json.dumps(rows, indent=2) if args.json else format_table(rows))
+        return 0
     from fogfleet import benchmarks
 
     report = benchmarks.run_scheduling(runs=args.runs, quick=args.quick)
@@ -123,10 +131,11 @@ def _parser() -> argparse.ArgumentParser:
     sp.set_defaults(func=cmd_twin)
 
     sp = sub.add_parser("bench", help="run a benchmark and print a table")
-    sp.add_argument("suite", choices=("scheduling", "autoscaling"))
+    sp.add_argument("suite", choices=("scheduling", "autoscaling", "replan"))
     sp.add_argument("--seed", type=int)
     sp.add_argument("--runs", type=int, default=5, help="seeds / repetitions (default 5)")
     sp.add_argument("--quick", action="store_true", help="smaller instances, for a smoke run")
+    sp.add_argument("--robots", default="100,300,1000", help="replan: fleet sizes, comma-separated")
     sp.add_argument("--json", action="store_true")
     sp.set_defaults(func=cmd_bench)
     return p

@@ -1,5 +1,6 @@
-"""Plan a fleet: run the planner when the planning inputs changed (fingerprint cache), apply
-the migration-margin rule to what runs, and explain an infeasible fleet by node and resource.
+"""Plan a fleet: run the planner when the planning inputs changed (fingerprint cache), first
+incrementally (only what the change affected) when the fleet was planned before, apply the
+migration-margin rule to what runs, and explain an infeasible fleet by node and resource.
 """
 
 from __future__ import annotations
@@ -10,11 +11,13 @@ import time
 
 import numpy as np
 
-from fogfleet.api.v1alpha1.robotfleet import RobotFleet
+from fogfleet.api.v1alpha1.robotfleet import RobotFleet, SchedulerName, SchedulerSettings
 from fogfleet.domain.problem import Problem
 from fogfleet.errors import Infeasible
 from fogfleet.scheduling import stickiness
 from fogfleet.scheduling.explain import infeasible_message
+from fogfleet.scheduling.incremental import changed_instances
+from fogfleet.scheduling.schedule import Schedule
 
 from .deps import CachedPlan, Deps, FleetKey
 from .status import now
@@ -38,7 +41,12 @@ def plan_fleet(
     if failed is not None and failed[0] == fp:
         raise failed[1]  # same inputs, same failure: do not run the GA again
     t0 = time.perf_counter()
-    schedule = deps.planner.plan(problem, settings)
+    schedule, why_full = _incremental(deps, problem, settings, cached)
+    incremental = schedule is not None
+    if schedule is None:
+        if why_full:
+            log.info("RobotFleet %s/%s: planning the whole fleet: %s", *key, why_full)
+        schedule = deps.planner.plan(problem, settings)
     seconds = time.perf_counter() - t0
     placement = np.asarray(schedule.placement, dtype=np.int64)
     # a degraded plan's CPU amounts, feasibility and figures hold for the degraded problem
@@ -70,16 +78,51 @@ def plan_fleet(
         if np.array_equal(chosen, placement)
         else stickiness.objective_values(problem, chosen, with_limits, list(schedule.objectives))
     )
-    cached = CachedPlan(fp, schedule, chosen, plan_id, len(moves), reason, now(), moves, objectives)
+    cached = CachedPlan(
+        fp,
+        schedule,
+        chosen,
+        plan_id,
+        len(moves),
+        reason,
+        now(),
+        moves,
+        objectives,
+        problem=problem,
+        incremental=incremental,
+    )
     deps.plans[key] = cached
     deps.metrics.observe_plan(
         key[1], schedule.scheduler, seconds, objectives, schedule.degraded_instances
     )
     deps.metrics.count_migrations(key[1], len(moves))
     log.info(
-        "Planned RobotFleet %s/%s in %.0f ms (%d migrations)",
+        "Planned RobotFleet %s/%s%s in %.0f ms (%d migrations)",
         *key,
+        " incrementally" if incremental else "",
         seconds * 1e3,
         len(moves),
     )
     return cached, True
+
+
+def _incremental(
+    deps: Deps, problem: Problem, settings: SchedulerSettings, cached: CachedPlan | None
+) -> tuple[Schedule | None, str]:
+    """The incremental re-plan of a fleet planned before by NSGA-II (not degraded: a degraded
+    plan's CPU amounts are chosen for the whole fleet), or None and why the whole fleet is
+    planned instead ("" for a first plan)."""
+    if cached is None or cached.problem is None:
+        return None, ""
+    if not settings.incremental or SchedulerName(settings.algorithm) is not SchedulerName.NSGA2:
+        return None, ""
+    if cached.schedule.degraded:
+        return None, "the deployed plan is degraded"
+    first = str(settings.objectives[0])
+    result = deps.planner.replan(
+        problem,
+        settings,
+        changed_instances(cached.problem, problem),
+        cached.objectives.get(first),
+    )
+    return result.schedule, result.reason

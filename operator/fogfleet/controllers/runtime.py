@@ -208,6 +208,15 @@ class Runtime:
         so its Ready condition follows its last pod by the short debounce, not by a timer."""
         if kind != "DELETED" and old is not None and _pod_state(pod) == _pod_state(old):
             return
+        if log.isEnabledFor(logging.DEBUG):
+            meta = pod.get("metadata") or {}
+            log.debug(
+                "Pod %s/%s %s: ready=%s",
+                meta.get("namespace"),
+                meta.get("name"),
+                kind,
+                pod_ready(pod),
+            )
         self._rollout_moved(pod)
 
     def _rollout_moved(self, obj: Mapping[str, Any]) -> None:

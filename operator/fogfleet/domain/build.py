@@ -4,10 +4,7 @@ allocations of IV-B, eq. 4's transfer times per instance and node)."""
 
 from __future__ import annotations
 
-import math
 from collections.abc import Mapping
-from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -20,9 +17,9 @@ from fogfleet.api.v1alpha1.robotfleet import RobotFleet
 from fogfleet.api.v1alpha1.softwaremodule import Scope, SoftwareModule
 from fogfleet.errors import DanglingReference, InvalidSpec
 
-from .network import LOCAL, Link, path, uplink
+from .network import Link, uplink
+from .pairs import Block, Pair, PairTable, ProfileRow, pad_rungs
 from .problem import (
-    EXEC_SHARE_OF_CYCLE,
     TIER_CODE,
     Allocation,
     Instance,
@@ -31,7 +28,7 @@ from .problem import (
     Problem,
     freeze,
 )
-from .taxonomy import may_degrade, module_priority, must_stay_onboard
+from .taxonomy import module_priority
 
 __all__ = ["build_problem"]
 
@@ -98,51 +95,6 @@ def _capacity(node: ComputeNode) -> tuple[float, float, float]:
             "reserves all of the node's CPU",
         )
     return cpu, max(mem, 0.0), float(cap.gpu)
-
-
-@dataclass(frozen=True)
-class _Row:
-    cpu: float
-    mean: float
-    std: float
-
-
-def _profile_rows(module: SoftwareModule, node: ComputeNode) -> list[_Row]:
-    """Fig. 3 rows for this node's hardware type; 'default' rows scaled by speedFactor."""
-    own = [r for r in module.spec.profile if r.hardware_type == node.spec.hardware_type]
-    scale = 1.0
-    if not own:
-        own = [r for r in module.spec.profile if r.hardware_type == "default"]
-        scale = 1.0 / max(parse_quantity(node.spec.speed_factor), 1e-6)
-    rows = [
-        _Row(
-            parse_cpu(r.cpu),
-            parse_quantity(r.mean_millis) / 1e3 * scale,
-            parse_quantity(r.std_millis) / 1e3 * scale,
-        )
-        for r in own
-    ]
-    return sorted(rows, key=lambda r: r.cpu)
-
-
-def _transfer(module: SoftwareModule, link: Link) -> tuple[float, float, float]:
-    """t_in + t_out for one cycle over ``link`` (mean, std) and the traffic in bit/s (eq. 4)."""
-    topics = module.spec.topics
-    t = 0.0
-    traffic = 0.0
-    for group in (topics.subscribes, topics.publishes):
-        if not group:
-            continue
-        bits = sum(parse_quantity(tp.size_bytes) * 8 for tp in group)
-        t += link.latency + bits / link.bandwidth
-        traffic += sum(
-            parse_quantity(tp.size_bytes) * 8 * parse_quantity(tp.rate_hz) for tp in group
-        )
-    n_dirs = int(bool(topics.subscribes)) + int(bool(topics.publishes))
-    std = link.jitter * math.sqrt(n_dirs)
-    # lost packets are resent after roughly one round trip
-    t += link.loss * 2 * link.latency * n_dirs
-    return t, std, traffic
 
 
 def _pool_tiers(
@@ -260,18 +212,15 @@ def build_problem(
     net_mean = np.zeros((i_count, n))
     net_std = np.zeros((i_count, n))
     traffic = np.zeros(i_count)
-    lim_req = np.zeros((i_count, n))
-    lim_exe = np.full((i_count, n), np.inf)
-    lim_std = np.zeros((i_count, n))
-    nom_req = np.zeros((i_count, n))
-    nom_use = np.zeros((i_count, n))
-    nom_exe = np.full((i_count, n), np.inf)
-    nom_std = np.zeros((i_count, n))
+    # the limits pick's cpu, mean, std; the nominal allocation's request, use, mean, std
+    lim = (np.zeros((i_count, n)), np.full((i_count, n), np.inf), np.zeros((i_count, n)))
+    nom = (
+        np.zeros((i_count, n)),
+        np.zeros((i_count, n)),
+        np.full((i_count, n), np.inf),
+        np.zeros((i_count, n)),
+    )
     reasons: dict[int, str] = {}
-    rungs: dict[tuple[int, int], list[_Row]] = {}  # smaller profiled CPUs below the pick
-    # the same module on the same hardware / over the same link: computed once per build
-    profiles: dict[tuple[int, str, Any], list[_Row]] = {}
-    transfers: dict[tuple[int, Link], tuple[float, float, float]] = {}
     # Shared replicas talk to the fleet: use the mean robot uplink.
     mean_robot = Link(
         latency=float(np.mean([links[j].latency for j in range(len(robots))])),
@@ -279,88 +228,59 @@ def build_problem(
         bandwidth=float(np.mean([links[j].bandwidth for j in range(len(robots))])),
         loss=float(np.mean([links[j].loss for j in range(len(robots))])),
     )
-
+    table = PairTable(nodes, caps, links)
+    remote = range(len(robots), n)  # edge and cloud nodes: one block per module and link
+    blocks: list[Block] = []
+    home_rungs: dict[int, tuple[ProfileRow, ...]] = {}
     for i, (inst, (mod, cycle, _act), h) in enumerate(zip(instances, inst_mod, home, strict=True)):
-        spec = mod.spec
-        req = spec.requirements
-        onboard_only = must_stay_onboard(spec.taxonomy)
         why: list[str] = []
-        nominal_cpu = parse_cpu(spec.resources.cpu)
-        for j, nd in enumerate(nodes):
-            ns = nd.spec
-            name = nd.metadata.name
-            if ns.tier is Tier.ROBOT and j != h:
-                continue  # never another robot's computer (III-E); shared replicas never on robots
-            if onboard_only and j != h:
-                why.append(
-                    f"{name}: module is hard real-time or safety-critical, so it stays on its robot"
+        if h >= 0:
+            own = table.pair(mod, cycle, pool_tier[i], h, h, links[h])
+            if isinstance(own, Pair):
+                allowed[i, h] = True
+                net_mean[i, h], net_std[i, h] = own.net_mean, own.net_std
+                for arr, v in zip(lim, (own.pick.cpu, own.pick.mean, own.pick.std), strict=True):
+                    arr[i, h] = v
+                nominal = (
+                    parse_cpu(mod.spec.resources.cpu),
+                    own.top.cpu,
+                    own.top.mean,
+                    own.top.std,
                 )
-                continue
-            if req.tiers and ns.tier not in req.tiers:
-                why.append(f"{name}: tier {ns.tier.value} not in requirements.tiers")
-                continue
-            if pool_tier[i] is not None and ns.tier is not pool_tier[i]:
-                continue  # a replica counted for another tier's pool
-            have = {d.type for d in ns.devices}
-            missing = [d.value for d in req.devices if d not in have]
-            if missing:
-                why.append(f"{name}: lacks device {', '.join(missing)}")
-                continue
-            if req.gpu and caps[j, 2] < 1:
-                why.append(f"{name}: no GPU")
-                continue
-            if req.realtime_kernel and not ns.realtime_kernel:
-                why.append(f"{name}: no real-time kernel")
-                continue
-            if ns.privacy < req.min_privacy:
-                why.append(f"{name}: privacy level {ns.privacy} < required {req.min_privacy}")
-                continue
-            key = (id(mod), ns.hardware_type, ns.speed_factor)
-            if key not in profiles:
-                profiles[key] = _profile_rows(mod, nd)
-            rows = [r for r in profiles[key] if r.cpu <= caps[j, 0] + 1e-9]
-            if not rows:
-                why.append(
-                    f"{name}: no execution-time profile for hardware type "
-                    f"{ns.hardware_type!r} that fits its CPU"
-                )
-                continue
-            link = LOCAL if j == h else path(links[h] if h >= 0 else mean_robot, links[j])
-            if (id(mod), link) not in transfers:
-                transfers[id(mod), link] = _transfer(mod, link)
-            t, s, bits = transfers[id(mod), link]
-            net_mean[i, j], net_std[i, j] = t, s
-            if j != h:
-                traffic[i] = bits
-            # limits: the smallest CPU whose mean + 2 std fits the cycle's share, else the fastest
-            budget = EXEC_SHARE_OF_CYCLE * cycle - t
-            fit = [r for r in rows if r.mean + 2 * r.std <= budget]
-            pick = fit[0] if fit else min(rows, key=lambda r: (r.mean, r.cpu))
-            lim_req[i, j], lim_exe[i, j], lim_std[i, j] = pick.cpu, pick.mean, pick.std
-            if may_degrade(spec.taxonomy):
-                rungs[i, j] = [
-                    pick,
-                    *sorted((r for r in rows if r.cpu < pick.cpu), key=lambda r: -r.cpu),
-                ]
-            # nominal: request as declared, no limit, uses the largest profiled parallelism
-            top = rows[-1]
-            nom_req[i, j], nom_use[i, j] = nominal_cpu, top.cpu
-            nom_exe[i, j], nom_std[i, j] = top.mean, top.std
-            allowed[i, j] = True
+                for arr, v in zip(nom, nominal, strict=True):
+                    arr[i, h] = v
+                if own.rungs:
+                    home_rungs[i] = own.rungs
+            elif own is not None:
+                why.append(own)
+        blk = table.block(mod, cycle, pool_tier[i], remote, links[h] if h >= 0 else mean_robot)
+        blocks.append(blk)
+        allowed[i, remote.start :] = blk.allowed
+        net_mean[i, remote.start :] = blk.net_mean
+        net_std[i, remote.start :] = blk.net_std
+        for arr, row in zip((*lim, *nom), (*blk.lim, *blk.nom), strict=True):
+            arr[i, remote.start :] = row
+        if blk.allowed.any():
+            traffic[i] = blk.bits
+        why += blk.why
         if not allowed[i].any():
             where = "; ".join(why) if why else "no node in the fleet can host it"
             reasons[i] = (
                 f"{inst.robot + '/' if inst.robot else ''}{inst.module} fits nowhere: {where}"
             )
+    lim_req, lim_exe, lim_std = lim
+    nom_req, nom_use, nom_exe, nom_std = nom
 
     cur = np.full(i_count, -1, dtype=np.int64)
     if current:
+        by_name: dict[str, list[int]] = {}
+        for j, nd in enumerate(nodes):
+            for key in dict.fromkeys((nd.metadata.name, nd.node_name)):
+                by_name.setdefault(key, []).append(j)
         for i, inst in enumerate(instances):
             node_name = current.get((inst.robot, inst.module, inst.replica))
-            if node_name is None:
-                continue
-            for j, nd in enumerate(nodes):
-                if node_name in (nd.metadata.name, nd.node_name) and allowed[i, j]:
+            for j in by_name.get(node_name, []) if node_name is not None else []:
+                if allowed[i, j]:
                     cur[i] = j
 
     power = np.zeros((n, 4))
@@ -385,18 +305,17 @@ def build_problem(
     preferred = None
     if any(wishes.values()):
         tiers = [nd.spec.tier for nd in nodes]
-        preferred = np.array(
-            [
-                [not wishes[inst.module] or t in wishes[inst.module] for t in tiers]
-                for inst in instances
-            ],
-            dtype=bool,
-        ).reshape(i_count, n)
-        preferred = freeze(preferred)
+        names = list(dict.fromkeys(inst.module for inst in instances))
+        by_module = np.array(
+            [[not wishes[m] or t in wishes[m] for t in tiers] for m in names], dtype=bool
+        ).reshape(len(names), n)
+        which = {m: k for k, m in enumerate(names)}
+        rows = np.array([which[inst.module] for inst in instances], dtype=np.int64)
+        preferred = freeze(by_module[rows].reshape(i_count, n))
     return Problem(
         preferred=preferred,
         priority=freeze(np.array([priorities[inst.module] for inst in instances], dtype=np.int64)),
-        ladder=_ladder(rungs, lim_req, lim_exe, lim_std),
+        ladder=_ladder(blocks, home, home_rungs, remote, lim),
         fleet=fleet.metadata.name,
         namespace=namespace,
         nodes=tuple(
@@ -430,22 +349,37 @@ def build_problem(
 
 
 def _ladder(
-    rungs: Mapping[tuple[int, int], list[_Row]], cpu: F64, mean: F64, std: F64
+    blocks: list[Block],
+    home: list[int],
+    home_rungs: Mapping[int, tuple[ProfileRow, ...]],
+    remote: range,
+    lim: tuple[F64, F64, F64],
 ) -> Ladder | None:
     """Rung 0 is the limits pick everywhere; deeper rungs only where a module may degrade and
     its profile has smaller CPU rows for that node (padded with the smallest)."""
-    depth = np.zeros(cpu.shape, dtype=np.int64)
-    for (i, j), rows in rungs.items():
-        depth[i, j] = len(rows) - 1
+    depth = np.zeros(lim[0].shape, dtype=np.int64)
+    for i, blk in enumerate(blocks):
+        depth[i, remote.start :] = blk.depth
+    for i, rows in home_rungs.items():
+        depth[i, home[i]] = len(rows) - 1
     if not depth.any():
         return None
     k = int(depth.max()) + 1
-    lc = np.repeat(cpu[:, :, None], k, axis=2)
-    lm = np.repeat(mean[:, :, None], k, axis=2)
-    ls = np.repeat(std[:, :, None], k, axis=2)
-    for (i, j), rows in rungs.items():
-        padded = rows + [rows[-1]] * (k - len(rows))
-        lc[i, j] = [r.cpu for r in padded]
-        lm[i, j] = [r.mean for r in padded]
-        ls[i, j] = [r.std for r in padded]
-    return Ladder(freeze(lc), freeze(lm), freeze(ls), freeze(depth))
+    out = []
+    for c in range(3):
+        lad = np.empty((*lim[c].shape, k))
+        lad[:] = lim[c][:, :, None]  # rung 0 (and every rung where nothing degrades)
+        padded: dict[int, F64] = {}
+        for i, blk in enumerate(blocks):
+            if not blk.depth.any():
+                continue
+            got = padded.get(id(blk))
+            if got is None:
+                r = blk.rungs[c]
+                got = np.concatenate([r, np.repeat(r[:, -1:], k - r.shape[1], axis=1)], axis=1)
+                padded[id(blk)] = got
+            lad[i, remote.start :] = got
+        for i, rows in home_rungs.items():
+            lad[i, home[i]] = [v[c] for v in pad_rungs(rows, k)]
+        out.append(freeze(lad))
+    return Ladder(out[0], out[1], out[2], freeze(depth))

@@ -5,6 +5,8 @@ node with room, so each is feasible whenever a greedy packing exists."""
 from __future__ import annotations
 
 import time
+from functools import cached_property
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -21,38 +23,85 @@ F64 = NDArray[np.float64]
 I64 = NDArray[np.int64]
 
 
-def uncontended_miss(problem: Problem, allocation: Allocation) -> F64:
-    """P(t_cycle > T) of each (instance, node) pair without contention (I, N); 1 where not
+def uncontended_miss(
+    problem: Problem,
+    allocation: Allocation,
+    rows: NDArray[np.int64] | None = None,
+    nodes: NDArray[np.int64] | None = None,
+) -> F64:
+    """P(t_cycle > T) of each (instance, node) pair without contention (I, N), or of the
+    instances ``rows`` only (R, N), or of the pairs (rows[k], nodes[k]) (R,); 1 where not
     allowed. Uses the same normal model as ``objectives.missRate`` at slowdown 1."""
-    exe = np.where(problem.allowed, allocation.exe_mean, 0.0)
-    sd = np.sqrt(np.where(problem.allowed, allocation.exe_std, 0.0) ** 2 + problem.net_std**2)
-    q = miss_probability(
-        problem.net_mean + exe, sd, np.broadcast_to(problem.cycle[:, None], exe.shape)
-    )
-    return np.where(problem.allowed, q, 1.0)
+    r: Any = slice(None) if rows is None else rows
+    at: Any = r if nodes is None else (r, nodes)
+    allowed = problem.allowed[at]
+    exe = np.where(allowed, allocation.exe_mean[at], 0.0)
+    net_mean, net_std = problem.net_mean[at], problem.net_std[at]
+    sd = np.sqrt(np.where(allowed, allocation.exe_std[at], 0.0) ** 2 + net_std**2)
+    cycle = problem.cycle[r] if nodes is not None else problem.cycle[r][:, None]
+    cycle = np.broadcast_to(cycle, exe.shape)
+    q = miss_probability(net_mean + exe, sd, cycle)
+    return np.where(allowed, q, 1.0)
 
 
 class Fit:
-    """Per (instance, node) demands and per node capacities used by greedy and repair."""
+    """Per (instance, node) demands and per node capacities used by greedy and repair.
+
+    The (I, N) tables are computed on first use; the ``*_rows`` methods give the same values
+    for a few instances without them (an incremental re-plan of a 1000-robot fleet looks at
+    a hundred instances, not 11 million pairs)."""
 
     def __init__(self, problem: Problem, allocation: Allocation) -> None:
         self.problem = problem
-        n_i, n_n = problem.n_instances, problem.n_nodes
-        self.demand = np.zeros((n_i, n_n, 3))
-        self.demand[:, :, 0] = allocation.cpu_request
-        self.demand[:, :, 1] = problem.memory[:, None]
-        self.demand[:, :, 2] = problem.gpu[:, None]
+        self.allocation = allocation
         self.cap = np.asarray(problem.capacity, dtype=np.float64)
         self.robots = problem.tier == 0
         self.uplink = UPLINK_SHARE * problem.uplink_bandwidth
-        self.q = uncontended_miss(problem, allocation)
+
+    def demand_rows(self, rows: NDArray[np.int64]) -> F64:
+        """(R, N, 3) cpu request, memory, gpus of the instances ``rows`` on every node."""
+        p = self.problem
+        out = np.empty((len(rows), p.n_nodes, 3))
+        out[:, :, 0] = self.allocation.cpu_request[rows]
+        out[:, :, 1] = p.memory[rows][:, None]
+        out[:, :, 2] = p.gpu[rows][:, None]
+        return out
+
+    def demand_at(self, rows: NDArray[np.int64], nodes: NDArray[np.int64]) -> F64:
+        """(R, 3) what instance ``rows[k]`` needs on node ``nodes[k]``."""
+        p = self.problem
+        cpu = self.allocation.cpu_request[rows, nodes]
+        return np.stack([cpu, p.memory[rows], p.gpu[rows]], axis=1)
+
+    def pref_rows(self, rows: NDArray[np.int64], q: F64 | None = None) -> F64:
+        """(R, N) the preference among allowed nodes: low miss probability, then low cycle
+        ratio (latency); inf where not allowed. ``q``: ``uncontended_miss`` of those rows."""
+        p = self.problem
+        allowed = p.allowed[rows]
+        if q is None:
+            q = uncontended_miss(p, self.allocation, rows)
         t = (
-            problem.net_mean + np.where(problem.allowed, allocation.exe_mean, 0.0)
-        ) / problem.cycle[:, None]
-        # preference among allowed nodes: low miss probability, then low cycle ratio (latency)
-        self.pref = np.where(problem.allowed, self.q + 0.01 * np.minimum(t, 10.0), np.inf)
-        req = np.where(problem.allowed, allocation.cpu_request, 0.0)
-        self.order = np.argsort(-req.max(axis=1), kind="stable").astype(np.int64)
+            p.net_mean[rows] + np.where(allowed, self.allocation.exe_mean[rows], 0.0)
+        ) / p.cycle[rows][:, None]
+        return np.where(allowed, q + 0.01 * np.minimum(t, 10.0), np.inf)
+
+    @cached_property
+    def demand(self) -> F64:
+        return self.demand_rows(np.arange(self.problem.n_instances))
+
+    @cached_property
+    def q(self) -> F64:
+        return uncontended_miss(self.problem, self.allocation)
+
+    @cached_property
+    def pref(self) -> F64:
+        return self.pref_rows(np.arange(self.problem.n_instances), self.q)
+
+    @cached_property
+    def order(self) -> NDArray[np.int64]:
+        """Instances by their largest CPU request on an allowed node, largest first."""
+        req = np.where(self.problem.allowed, self.allocation.cpu_request, 0.0)
+        return np.argsort(-req.max(axis=1), kind="stable").astype(np.int64)
 
 
 def greedy(

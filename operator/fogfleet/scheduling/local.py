@@ -66,22 +66,22 @@ class MoveEvaluator:
     def __init__(self, pp: PlacementProblem) -> None:
         fleet, alloc = pp.fleet, pp.alloc
         self.pp = pp
-        a = fleet.activation
-        al = fleet.allowed
-        self.expected = a[:, None] * alloc.cpu_use  # weight of cpu_expected (I, N)
         self.cap = fleet.capacity[:, 0]
-        # uncontended per-(instance, node) terms, computed as Evaluation does at slowdown 1
-        net = np.where(al, fleet.net_mean, 0.0)
-        exe = np.where(al, alloc.exe_mean, 0.0)
-        sd = np.sqrt(np.where(al, alloc.exe_std, 0.0) ** 2 + np.where(al, fleet.net_std, 0.0) ** 2)
-        T = np.broadcast_to(fleet.cycle[:, None], net.shape)
-        self.miss = a[:, None] * miss_probability(net + exe, sd, T)
-        t = (net + exe) / fleet.cycle[:, None]
-        self.missed = a[:, None] * np.where(t > 1.0, t, 0.0)
         # every (instance, allowed node) pair of the search, gene by gene then node by node
         g = np.repeat(np.arange(pp.n_var), pp.counts)
         self.pair_inst: I64 = pp.genes[g]
         self.pair_node: I64 = pp.table[g, np.concatenate([np.arange(c) for c in pp.counts])]
+        # uncontended per-(instance, node) terms, computed as Evaluation does at slowdown 1,
+        # on the pairs only (moves never leave them): (I, N) tables, zero elsewhere
+        i, j = self.pair_inst, self.pair_node
+        a = fleet.activation[i]
+        both = fleet.net_mean[i, j] + alloc.exe_mean[i, j]
+        sd = np.sqrt(alloc.exe_std[i, j] ** 2 + fleet.net_std[i, j] ** 2)
+        t = both / fleet.cycle[i]
+        self.miss = np.zeros((fleet.n_instances, fleet.n_nodes))
+        self.missed = np.zeros((fleet.n_instances, fleet.n_nodes))
+        self.miss[i, j] = a * miss_probability(both, sd, fleet.cycle[i])
+        self.missed[i, j] = a * np.where(t > 1.0, t, 0.0)
 
     def parents(self, fulls: I64) -> Evaluation:
         """The parents' whole evaluation (their per-node sums are what moves patch)."""
@@ -96,8 +96,9 @@ class MoveEvaluator:
         inst, node = self.pair_inst, self.pair_node
         cur = fulls[:, inst]  # (P, K)
         ok = node[None, :] != cur
+        demand = fit.demand_at(inst, node)
         for r, used in enumerate((ev.cpu_requested, ev.mem_requested, ev.gpu_requested)):
-            ok &= used[:, node] + fit.demand[inst, node, r][None, :] <= fit.cap[node, r] + 1e-9
+            ok &= used[:, node] + demand[:, r][None, :] <= fit.cap[node, r] + 1e-9
         home = fleet.home[inst]
         h = np.where(home >= 0, home, 0)
         delta = fleet.traffic[inst][None, :] * (
@@ -146,7 +147,9 @@ class MoveEvaluator:
             "mem_requested": patch(ev.mem_requested, fleet.memory[inst], fleet.memory[inst]),
             "gpu_requested": patch(ev.gpu_requested, fleet.gpu[inst], fleet.gpu[inst]),
             "cpu_expected": patch(
-                ev.cpu_expected, self.expected[inst, cur], self.expected[inst, node]
+                ev.cpu_expected,
+                fleet.activation[inst] * alloc.cpu_use[inst, cur],
+                fleet.activation[inst] * alloc.cpu_use[inst, node],
             ),
         }
         traffic = ev.offboard_traffic[par]

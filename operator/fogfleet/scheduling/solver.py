@@ -44,7 +44,7 @@ ENUMERATE_LIMIT = 20_000  # plans; smaller search spaces are enumerated exactly
 LOCAL_SEARCH_SAFETY = 10.0
 LOCAL_SEARCH_FLOOR_SECONDS = 60.0
 
-__all__ = ["Progress", "nsga2", "plan", "weights_of"]
+__all__ = ["Progress", "choose_plan", "nsga2", "plan", "weights_of"]
 
 Progress = Callable[[int, int], None]
 I64 = NDArray[np.int64]
@@ -154,7 +154,7 @@ def nsga2(
     if feasible.any():
         idx = np.flatnonzero(feasible)
         front = idx[non_dominated(F[idx])]
-        k, reason = _choose(problem, full[front], F[front], names, settings)
+        k, reason = choose_plan(problem, full[front], F[front], names, settings)
         chosen = int(front[k])
         if exhaustive:
             reason += f" (exact front: all {len(X)} plans enumerated)"
@@ -234,7 +234,7 @@ def _evolve(
     return X, generations, int(algorithm.evaluator.n_eval)
 
 
-def _choose(
+def choose_plan(
     problem: Problem,
     plans: I64,
     F: NDArray[np.float64],

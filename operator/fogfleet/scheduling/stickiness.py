@@ -23,14 +23,18 @@ from numpy.typing import NDArray
 
 from fogfleet.api.v1alpha1.robotfleet import SchedulerSettings
 from fogfleet.domain.problem import Problem, freeze
+from fogfleet.scheduling.heuristics import Fit
 
 __all__ = [
     "Stickiness",
     "feasible",
+    "fill_around",
     "fingerprint",
     "keep_running",
+    "loads",
     "mask_unavailable",
     "objective_values",
+    "release_overloads",
 ]
 
 log = logging.getLogger(__name__)
@@ -146,7 +150,7 @@ def _better(
     return False, "no objective improves by more than the margin"
 
 
-def _loads(problem: Problem, x: I64) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+def loads(problem: Problem, x: I64) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """Requested (cpu, memory, gpu) per node and off-board traffic per robot of plan ``x``,
     from the one per-node load model (``evaluation.Evaluation``) the objectives use."""
     from fogfleet.scheduling.evaluation import Evaluation
@@ -156,18 +160,35 @@ def _loads(problem: Problem, x: I64) -> tuple[NDArray[np.float64], NDArray[np.fl
     return used, ev.offboard_traffic[0]
 
 
-def _fill(problem: Problem, fixed: I64, prefer: I64) -> I64:
+def fill_around(
+    problem: Problem,
+    fixed: I64,
+    prefer: I64,
+    fit: Fit | None = None,
+    first: NDArray[np.bool_] | None = None,
+) -> I64:
     """Place the instances that are -1 in ``fixed`` around the fixed ones: the ``prefer`` node
-    if it still has room, else the allowed node with room and the lowest miss probability."""
-    from fogfleet.scheduling.heuristics import Fit
-
-    fit = Fit(problem, problem.limits)
+    if it still has room, else the allowed node with room and the lowest miss probability.
+    Those with the fewest allowed nodes go first (a module pinned on board must not find its
+    robot filled by one that could have gone elsewhere), then the largest CPU request first;
+    the instances marked ``first`` go before all others. All -1 when one of them fits
+    nowhere."""
+    fit = fit or Fit(problem, problem.limits)
     x = fixed.copy()
-    used, up = _loads(problem, x)
-    for i in fit.order:
-        if x[i] >= 0 or not problem.allowed[i].any():
-            continue
-        room = np.all(used + fit.demand[i] <= fit.cap + 1e-9, axis=1) & problem.allowed[i]
+    used, up = loads(problem, x)
+    todo = np.flatnonzero((x < 0) & problem.allowed.any(axis=1))
+    if todo.size == 0:
+        return x
+    allowed = problem.allowed[todo]
+    options = allowed.sum(axis=1)
+    largest = np.where(allowed, problem.limits.cpu_request[todo], 0.0).max(axis=1)
+    later = np.zeros(len(todo), dtype=bool) if first is None else ~first[todo]
+    order = np.lexsort((todo, -largest, options, later))
+    demand = fit.demand_rows(todo)
+    pref = fit.pref_rows(todo)
+    for k in order:
+        i = int(todo[k])
+        room = np.all(used + demand[k] <= fit.cap + 1e-9, axis=1) & allowed[k]
         h = int(problem.home[i])
         if h >= 0 and up[h] + problem.traffic[i] > fit.uplink[h] + 1e-9:
             room &= np.arange(problem.n_nodes) == h
@@ -176,30 +197,33 @@ def _fill(problem: Problem, fixed: I64, prefer: I64) -> I64:
         j = (
             int(prefer[i])
             if prefer[i] >= 0 and room[prefer[i]]
-            else int(np.argmin(np.where(room, fit.pref[i], np.inf)))
+            else int(np.argmin(np.where(room, pref[k], np.inf)))
         )
         x[i] = j
-        used[j] += fit.demand[i, j]
+        used[j] += demand[k, j]
         if h >= 0 and j != h:
             up[h] += problem.traffic[i]
     return x
 
 
-def _release_overloads(problem: Problem, x: I64, new: I64) -> I64:
+def release_overloads(problem: Problem, x: I64, new: I64, fit: Fit | None = None) -> I64:
     """Unpin instances from nodes that no longer fit them all (a module grew): first those the
     new plan moves anyway, largest CPU first, until the node fits."""
-    from fogfleet.scheduling.heuristics import Fit
-
     x = x.copy()
-    demand = Fit(problem, problem.limits).demand
-    for j in range(problem.n_nodes):
+    fit = fit or Fit(problem, problem.limits)
+    placed = np.flatnonzero(x >= 0)
+    need = np.zeros((problem.n_instances, 3))
+    need[placed] = fit.demand_at(placed, x[placed])
+    total = np.zeros((problem.n_nodes, 3))
+    np.add.at(total, x[placed], need[placed])
+    for j in np.flatnonzero(np.any(total > problem.capacity + 1e-9, axis=1)):
         on = [int(i) for i in np.flatnonzero(x == j)]
-        load = demand[on, j].sum(axis=0) if on else np.zeros(3)
-        order = sorted(on, key=lambda i: (new[i] == j, -demand[i, j, 0]))
+        load = need[on].sum(axis=0)
+        order = sorted(on, key=lambda i: (new[i] == j, -need[i, 0]))
         for i in order:
             if np.all(load <= problem.capacity[j] + 1e-9):
                 break
-            load = load - demand[i, j]
+            load = load - need[i]
             x[i] = -1
     return x
 
@@ -207,21 +231,20 @@ def _release_overloads(problem: Problem, x: I64, new: I64) -> I64:
 def _revert(problem: Problem, new: I64, cur: I64, usable: NDArray[np.bool_]) -> I64:
     """Start from ``new`` and move every instance it would migrate back to its current node
     wherever that keeps the plan feasible (capacity and uplink): fewest migrations near ``new``."""
-    from fogfleet.scheduling.heuristics import Fit
-
     fit = Fit(problem, problem.limits)
     x = new.copy()
-    used, up = _loads(problem, x)
+    used, up = loads(problem, x)
     for _ in range(2):
         for i in np.flatnonzero(usable & (x != cur)):
             a, b, h = int(x[i]), int(cur[i]), int(problem.home[i])
-            if np.any(used[b] + fit.demand[i, b] > fit.cap[b] + 1e-9):
+            d_a, d_b = fit.demand_at(np.array([i, i]), np.array([a, b]))
+            if np.any(used[b] + d_b > fit.cap[b] + 1e-9):
                 continue
             d_up = (b != h) - (a != h) if h >= 0 else 0
             if h >= 0 and d_up > 0 and up[h] + problem.traffic[i] > fit.uplink[h] + 1e-9:
                 continue
-            used[a] -= fit.demand[i, a]
-            used[b] += fit.demand[i, b]
+            used[a] -= d_a
+            used[b] += d_b
             if h >= 0:
                 up[h] += d_up * problem.traffic[i]
             x[i] = b
@@ -242,8 +265,9 @@ def keep_running(
     moved = [int(i) for i in np.flatnonzero(usable & (new != cur))]
     if not moved:
         return Stickiness(new, [], bool(usable.any()), "nothing that runs moves")
-    pinned = _release_overloads(problem, np.where(usable, cur, -1).astype(np.int64), new)
-    sticky = _fill(problem, pinned, new)
+    fit = Fit(problem, problem.limits)
+    pinned = release_overloads(problem, np.where(usable, cur, -1).astype(np.int64), new, fit)
+    sticky = fill_around(problem, pinned, new, fit)
     if (sticky < 0).any() or not feasible(problem, sticky, with_limits):
         sticky = _revert(problem, new, cur, usable)
     kept = [int(i) for i in np.flatnonzero(usable & (sticky != cur))]

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import copy
-from collections.abc import Mapping
+from collections.abc import Collection, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -13,6 +13,7 @@ import yaml
 from fogfleet.api.v1alpha1.robotfleet import SchedulerSettings
 from fogfleet.controllers.planning import CorePlanner
 from fogfleet.domain.problem import Problem
+from fogfleet.scheduling.incremental import Replan
 from fogfleet.scheduling.schedule import Schedule
 
 ROOT = Path(__file__).resolve().parents[3]
@@ -213,15 +214,28 @@ class FakeKube:
 class CountingPlanner:
     """The real planner (NSGA-II and the references, as the operator runs it) on a small
     budget with a generation limit instead of a clock, so plans are reproducible; counts
-    calls."""
+    whole-fleet plans (``calls``) and incremental re-plans that returned a plan
+    (``replans``)."""
 
     def __init__(self) -> None:
         self.calls = 0
+        self.replans = 0
 
     def plan(self, problem: Problem, settings: SchedulerSettings) -> Schedule:
         self.calls += 1
         small = {"population": 16, "generations": 4, "time_budget_millis": 60_000}
         return CorePlanner().plan(problem, settings.model_copy(update=small))
+
+    def replan(
+        self,
+        problem: Problem,
+        settings: SchedulerSettings,
+        changed: Collection[int],
+        reference: float | None,
+    ) -> Replan:
+        out = CorePlanner().replan(problem, settings, changed, reference)
+        self.replans += out.schedule is not None
+        return out
 
 
 @pytest.fixture

@@ -317,6 +317,38 @@ def test_a_robot_leaving_the_fleet_takes_its_discovery_server_along(kube, deps):
     assert len(kube.services) == 4
 
 
+def _drop_a_robot(kube) -> str:
+    robots = kube.fleets[KEY]["spec"]["robots"]
+    kube.fleets[KEY]["spec"]["robots"] = robots[:-1]
+    kube.fleets[KEY]["metadata"]["generation"] += 1
+    return robots[-1]
+
+
+def test_a_robot_leaving_is_replanned_incrementally_and_nothing_else_moves(kube, deps):
+    run(kube, deps)
+    kube.run_pods()
+    before = placement(kube)
+    calls = deps.planner.calls
+    gone = _drop_a_robot(kube)
+    out = run(kube, deps)
+    assert out.planned and out.migrations == 0
+    assert deps.planner.calls == calls, "no whole-fleet plan"
+    assert deps.planner.replans == 1
+    after = placement(kube)
+    assert after == {k: n for k, n in before.items() if k[0] != gone}
+    assert "incremental re-plan" in kube.fleets[KEY]["status"]["choiceReason"]
+
+
+def test_incremental_false_plans_the_whole_fleet_on_every_change(kube, deps):
+    kube.fleets[KEY]["spec"].setdefault("scheduler", {})["incremental"] = False
+    run(kube, deps)
+    kube.run_pods()
+    calls = deps.planner.calls
+    _drop_a_robot(kube)
+    assert run(kube, deps).planned
+    assert (deps.planner.calls, deps.planner.replans) == (calls + 1, 0)
+
+
 def test_without_ros_wiring_modules_get_only_the_fogfleet_variables(kube, deps):
     kube.fleets[KEY]["spec"]["ros"] = {"enabled": False}
     run(kube, deps)

@@ -161,6 +161,12 @@ class SchedulerSettings(FogModel):
     """When the nodes are short of CPU, run the lowest-priority modules (SoftwareModule
     spec.priority) with less CPU than their deadline needs, with their predicted misses in the
     Degraded condition, instead of refusing the fleet. false: refuse it (Ready=False)."""
+    incremental: bool = True
+    """Re-plan a change that touches few modules (a robot joining or leaving, a node failing,
+    one module changing: at most 10% of the instances) from the running placement, with only
+    those instances and 1% of the others free to move; the whole fleet is planned again
+    when that result is worse than the deployed plan by the migration margin. false: plan the
+    whole fleet on every change."""
 
     @model_validator(mode="after")
     def _unique(self) -> SchedulerSettings:

@@ -1,0 +1,232 @@
+"""What one module gets on one node: may it run there (the gene space of
+multi-robot-edge-cloud-scheduling III-E), its transfer time (eq. 4), its CPU and execution
+time under the limits and nominal allocations (IV-B, Fig. 3) and its degradation ladder.
+
+``build_problem`` asks for these per (instance, node). Every robot's copy of a module sees the
+edge and cloud nodes alike when the robots' uplinks are alike, so ``PairTable.block``
+evaluates a module once per (cycle, pool tier, robot uplink) over all edge and cloud nodes and
+the build copies that row into each instance: a thousand robots cost a handful of blocks
+instead of a million Python-level pair evaluations.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from fogfleet.api.v1alpha1.base import parse_cpu, parse_quantity
+from fogfleet.api.v1alpha1.common import Tier
+from fogfleet.api.v1alpha1.computenode import ComputeNode
+from fogfleet.api.v1alpha1.softwaremodule import SoftwareModule
+
+from .network import LOCAL, Link, path
+from .problem import EXEC_SHARE_OF_CYCLE
+from .taxonomy import may_degrade, must_stay_onboard
+
+__all__ = ["Block", "Pair", "PairTable", "ProfileRow", "pad_rungs"]
+
+F64 = NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class ProfileRow:
+    cpu: float
+    mean: float
+    std: float
+
+
+@dataclass(frozen=True)
+class Pair:
+    """One module on one node it may run on."""
+
+    net_mean: float
+    net_std: float
+    bits: float  # traffic with the robot when off board, bit/s
+    pick: ProfileRow  # the limits allocation's CPU and execution time
+    top: ProfileRow  # the nominal allocation's (the largest profiled parallelism)
+    rungs: tuple[ProfileRow, ...]  # pick, then the smaller profiled CPUs (may degrade), or ()
+
+
+@dataclass(frozen=True)
+class Block:
+    """One module on a run of nodes (arrays aligned with them; rungs padded to ``k``)."""
+
+    allowed: NDArray[np.bool_]
+    net_mean: F64
+    net_std: F64
+    lim: tuple[F64, F64, F64]  # cpu, mean, std of the limits pick (m,) each
+    nom: tuple[F64, F64, F64, F64]  # request, use, mean, std of the nominal allocation
+    rungs: tuple[F64, F64, F64]  # (m, k) cpu, mean, std: rung 0 the pick, then smaller
+    depth: NDArray[np.int64]  # (m,) rungs below the pick
+    why: tuple[str, ...]
+    bits: float
+
+
+def profile_rows(module: SoftwareModule, node: ComputeNode) -> list[ProfileRow]:
+    """Fig. 3 rows for this node's hardware type; 'default' rows scaled by speedFactor."""
+    own = [r for r in module.spec.profile if r.hardware_type == node.spec.hardware_type]
+    scale = 1.0
+    if not own:
+        own = [r for r in module.spec.profile if r.hardware_type == "default"]
+        scale = 1.0 / max(parse_quantity(node.spec.speed_factor), 1e-6)
+    rows = [
+        ProfileRow(
+            parse_cpu(r.cpu),
+            parse_quantity(r.mean_millis) / 1e3 * scale,
+            parse_quantity(r.std_millis) / 1e3 * scale,
+        )
+        for r in own
+    ]
+    return sorted(rows, key=lambda r: r.cpu)
+
+
+def transfer(module: SoftwareModule, link: Link) -> tuple[float, float, float]:
+    """t_in + t_out for one cycle over ``link`` (mean, std) and the traffic in bit/s (eq. 4)."""
+    topics = module.spec.topics
+    t = 0.0
+    traffic = 0.0
+    for group in (topics.subscribes, topics.publishes):
+        if not group:
+            continue
+        bits = sum(parse_quantity(tp.size_bytes) * 8 for tp in group)
+        t += link.latency + bits / link.bandwidth
+        traffic += sum(
+            parse_quantity(tp.size_bytes) * 8 * parse_quantity(tp.rate_hz) for tp in group
+        )
+    n_dirs = int(bool(topics.subscribes)) + int(bool(topics.publishes))
+    std = link.jitter * math.sqrt(n_dirs)
+    # lost packets are resent after roughly one round trip
+    t += link.loss * 2 * link.latency * n_dirs
+    return t, std, traffic
+
+
+def pad_rungs(rungs: Sequence[ProfileRow], k: int) -> list[tuple[float, float, float]]:
+    """``rungs`` as (cpu, mean, std), padded to ``k`` with the last (smallest) one."""
+    out = [(r.cpu, r.mean, r.std) for r in rungs]
+    return out + [out[-1]] * (k - len(out))
+
+
+class PairTable:
+    """Pair evaluations of one build (memoised profiles, transfers and blocks)."""
+
+    def __init__(self, nodes: Sequence[ComputeNode], caps: F64, links: Sequence[Link]) -> None:
+        self.nodes = nodes
+        self.caps = caps
+        self.links = links
+        self._profiles: dict[tuple[int, str, Any], list[ProfileRow]] = {}
+        self._transfers: dict[tuple[int, Link], tuple[float, float, float]] = {}
+        self._blocks: dict[tuple[Any, ...], Block] = {}
+
+    def pair(
+        self,
+        mod: SoftwareModule,
+        cycle: float,
+        pool_tier: Tier | None,
+        j: int,
+        home: int,
+        home_link: Link,
+    ) -> Pair | str | None:
+        """Module ``mod`` (instance of robot ``home``, -1 for a shared replica) on node ``j``:
+        a Pair, or why it may not run there (None: not worth saying, such as another robot's
+        computer or a node of another pool's tier)."""
+        nd = self.nodes[j]
+        ns = nd.spec
+        spec = mod.spec
+        req = spec.requirements
+        name = nd.metadata.name
+        if ns.tier is Tier.ROBOT and j != home:
+            return None  # never another robot's computer (III-E); shared replicas never on robots
+        if must_stay_onboard(spec.taxonomy) and j != home:
+            return f"{name}: module is hard real-time or safety-critical, so it stays on its robot"
+        if req.tiers and ns.tier not in req.tiers:
+            return f"{name}: tier {ns.tier.value} not in requirements.tiers"
+        if pool_tier is not None and ns.tier is not pool_tier:
+            return None  # a replica counted for another tier's pool
+        have = {d.type for d in ns.devices}
+        missing = [d.value for d in req.devices if d not in have]
+        if missing:
+            return f"{name}: lacks device {', '.join(missing)}"
+        if req.gpu and self.caps[j, 2] < 1:
+            return f"{name}: no GPU"
+        if req.realtime_kernel and not ns.realtime_kernel:
+            return f"{name}: no real-time kernel"
+        if ns.privacy < req.min_privacy:
+            return f"{name}: privacy level {ns.privacy} < required {req.min_privacy}"
+        key = (id(mod), ns.hardware_type, ns.speed_factor)
+        if key not in self._profiles:
+            self._profiles[key] = profile_rows(mod, nd)
+        rows = [r for r in self._profiles[key] if r.cpu <= self.caps[j, 0] + 1e-9]
+        if not rows:
+            return (
+                f"{name}: no execution-time profile for hardware type "
+                f"{ns.hardware_type!r} that fits its CPU"
+            )
+        link = LOCAL if j == home else path(home_link, self.links[j])
+        if (id(mod), link) not in self._transfers:
+            self._transfers[id(mod), link] = transfer(mod, link)
+        t, s, bits = self._transfers[id(mod), link]
+        # limits: the smallest CPU whose mean + 2 std fits the cycle's share, else the fastest
+        budget = EXEC_SHARE_OF_CYCLE * cycle - t
+        fit = [r for r in rows if r.mean + 2 * r.std <= budget]
+        pick = fit[0] if fit else min(rows, key=lambda r: (r.mean, r.cpu))
+        rungs: tuple[ProfileRow, ...] = ()
+        if may_degrade(spec.taxonomy):
+            smaller = sorted((r for r in rows if r.cpu < pick.cpu), key=lambda r: -r.cpu)
+            rungs = (pick, *smaller)
+        # nominal: request as declared, no limit, uses the largest profiled parallelism
+        return Pair(t, s, bits, pick, rows[-1], rungs)
+
+    def block(
+        self,
+        mod: SoftwareModule,
+        cycle: float,
+        pool_tier: Tier | None,
+        cols: range,
+        home_link: Link,
+    ) -> Block:
+        """``pair`` over the nodes ``cols`` (none of them the instance's own robot), memoised
+        per (module, cycle, pool tier, nodes, the robot's uplink)."""
+        key = (id(mod), cycle, pool_tier, cols.start, cols.stop, home_link)
+        hit = self._blocks.get(key)
+        if hit is not None:
+            return hit
+        m = len(cols)
+        pairs = [self.pair(mod, cycle, pool_tier, j, -2, home_link) for j in cols]
+        ok = [isinstance(p, Pair) for p in pairs]
+        got = [p for p in pairs if isinstance(p, Pair)]
+        k = max((len(p.rungs) for p in got), default=1) or 1
+        lim = np.zeros((m, 3))
+        lim[:, 1] = np.inf
+        nom = np.zeros((m, 4))
+        nom[:, 2] = np.inf
+        net = np.zeros((m, 2))
+        rungs = np.zeros((m, k, 3))
+        rungs[:, :, 1] = np.inf
+        depth = np.zeros(m, dtype=np.int64)
+        nominal_cpu = parse_cpu(mod.spec.resources.cpu)
+        for r, p in enumerate(pairs):
+            if not isinstance(p, Pair):
+                continue
+            net[r] = p.net_mean, p.net_std
+            lim[r] = p.pick.cpu, p.pick.mean, p.pick.std
+            nom[r] = nominal_cpu, p.top.cpu, p.top.mean, p.top.std
+            rungs[r] = pad_rungs(p.rungs or (p.pick,), k)
+            depth[r] = max(len(p.rungs) - 1, 0)
+        blk = Block(
+            allowed=np.array(ok, dtype=bool),
+            net_mean=net[:, 0],
+            net_std=net[:, 1],
+            lim=(lim[:, 0].copy(), lim[:, 1].copy(), lim[:, 2].copy()),
+            nom=tuple(nom[:, c].copy() for c in range(4)),  # type: ignore[arg-type]
+            rungs=tuple(np.ascontiguousarray(rungs[:, :, c]) for c in range(3)),  # type: ignore[arg-type]
+            depth=depth,
+            why=tuple(p for p in pairs if isinstance(p, str)),
+            bits=got[0].bits if got else 0.0,
+        )
+        self._blocks[key] = blk
+        return blk
