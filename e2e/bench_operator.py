@@ -58,6 +58,8 @@ import numpy as np  # noqa: E402
 from e2e.cluster import harness  # noqa: E402
 from e2e.cluster.kube import Kube, guard_kubeconfig  # noqa: E402
 from e2e.operator_fixtures import CRDS, Operator, example_docs, of_kind  # noqa: E402
+from fogfleet.api.labels import LABEL_COMPONENT  # noqa: E402
+from fogfleet.render.ros import COMPONENT_DISCOVERY  # noqa: E402
 
 Obj = dict[str, Any]
 BENCH_LABEL = "fogfleet.io/bench"
@@ -200,9 +202,16 @@ def connect() -> Kube:
     )
 
 
+# The fleet's modules, not the ROS discovery servers the operator adds per robot (a plain
+# fleet has none): counting those made "all Running" fire while up to one module pod per robot
+# was still to come.
+MODULES_ONLY = f"{LABEL_COMPONENT}!={COMPONENT_DISCOVERY}"
+
+
 class Watcher:
-    """Watches a namespace's pods and Deployments from before the apply; records when the
-    first/last Deployment appeared and when ``expected`` pods were Running at once."""
+    """Watches a namespace's module pods and Deployments (``MODULES_ONLY``) from before the
+    apply; records when the first/last Deployment appeared and when ``expected`` pods were
+    Running at once."""
 
     def __init__(self, kube: Kube, ns: str, expected: int) -> None:
         from kubernetes import client
@@ -220,8 +229,9 @@ class Watcher:
         self.done = threading.Event()
         self.error: BaseException | None = None
         self._stop = False
-        rv_pods = str(self.core.list_namespaced_pod(ns).metadata.resource_version)  # type: ignore[union-attr]
-        rv_deps = str(self.apps.list_namespaced_deployment(ns).metadata.resource_version)  # type: ignore[union-attr]
+        only = {"label_selector": MODULES_ONLY}
+        rv_pods = str(self.core.list_namespaced_pod(ns, **only).metadata.resource_version)  # type: ignore[union-attr]
+        rv_deps = str(self.apps.list_namespaced_deployment(ns, **only).metadata.resource_version)  # type: ignore[union-attr]
         self._threads = [
             threading.Thread(target=self._guard(self._pods, rv_pods), daemon=True),
             threading.Thread(target=self._guard(self._deps, rv_deps), daemon=True),
@@ -254,6 +264,7 @@ class Watcher:
                 resource_version=rv,
                 timeout_seconds=60,
                 allow_watch_bookmarks=True,
+                label_selector=MODULES_ONLY,
             ):
                 obj = ev["object"]
                 if ev["type"] == "ERROR" or isinstance(obj, dict):
@@ -268,7 +279,7 @@ class Watcher:
                     w.stop()
                     return
             if relist and not self._stop:
-                listed = list_fn(self.ns)
+                listed = list_fn(self.ns, label_selector=MODULES_ONLY)
                 rv = str(listed.metadata.resource_version)
                 yield "RELIST", None
                 for item in listed.items:

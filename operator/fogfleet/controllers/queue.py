@@ -77,12 +77,17 @@ class ReconcileQueue:
         wait = self.debounce if delay is None else delay
         self._timers[key] = asyncio.get_running_loop().create_task(self._later(key, wait))
 
-    def schedule_debounced(self, key: FleetKey, quiet: float | None = None) -> None:
+    def schedule_debounced(
+        self, key: FleetKey, quiet: float | None = None, max_wait: float | None = None
+    ) -> None:
+        """Run ``quiet`` (default: the debounce) after the last of a burst of calls, at most
+        ``max_wait`` (default: the queue's) after its first."""
         loop = asyncio.get_running_loop()
         now = loop.time()
         first = self._burst.get(key, now) if key in self._timers else now
         wait = self.debounce if quiet is None else quiet
-        self.schedule(key, max(0.0, min(wait, first + self.max_wait - now)))
+        cap = self.max_wait if max_wait is None else max_wait
+        self.schedule(key, max(0.0, min(wait, first + cap - now)))
         self._burst[key] = first
 
     def cancel(self, key: FleetKey) -> None:

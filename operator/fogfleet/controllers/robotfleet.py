@@ -67,6 +67,7 @@ class Outcome:
     ready: bool = False
     requeue_after: float | None = None
     message: str = ""
+    waiting: int = 0  # modules not yet running where planned (rolling out or moving)
 
 
 def forget(deps: Deps, key: FleetKey) -> None:
@@ -243,6 +244,7 @@ def _finish(
         ready=ready,
         requeue_after=None if ready else deps.requeue_seconds,
         message=status["conditions"][0]["message"],
+        waiting=len(roll.waiting) + len(roll.moving),
     )
 
 

@@ -32,6 +32,13 @@ log = logging.getLogger(__name__)
 T = TypeVar("T")
 # a rollout event's reconcile is a cheap status refresh (controllers/stamp.py): no need to wait
 ROLLOUT_QUIET_SECONDS = 0.5
+# While more modules than this are still rolling out, a stream of Pod events refreshes the
+# fleet's status at most every ROLLOUT_BUSY_MAX_WAIT_SECONDS instead of the queue's max_wait:
+# the status then says "waiting for 300" a little later, and the refreshes stop competing with
+# the control plane for CPU; the last modules still get the short wait (Ready follows the
+# last pod within ROLLOUT_QUIET_SECONDS plus one refresh).
+ROLLOUT_BUSY_MODULES = 20
+ROLLOUT_BUSY_MAX_WAIT_SECONDS = 5.0
 Obj = dict[str, Any]
 
 
@@ -47,6 +54,7 @@ class Runtime:
         )
         self._generations: dict[tuple[str, str, str], Any] = {}
         self._nodes: dict[str, tuple[Any, ...]] = {}
+        self._waiting: dict[FleetKey, int] = {}  # modules still rolling out, per fleet
         # shared modules with spec.scaling, by (namespace, name): the scaling loop's work list
         self.scaled: dict[tuple[str, str], Obj] = {}
         self._loops: list[asyncio.Task[None]] = []
@@ -117,11 +125,13 @@ class Runtime:
         body = await self.call(self.deps.kube.get_fleet, *key)
         if body is None or (body.get("metadata") or {}).get("deletionTimestamp"):
             forget(self.deps, key)
+            self._waiting.pop(key, None)
             self.queue.cancel(key)
             self.usage_changed()
             return None
         t0 = time.perf_counter()
         outcome = await self.call(reconcile, body, self.deps)
+        self._waiting[key] = outcome.waiting
         log.debug(
             "Reconciled RobotFleet %s/%s in %.0f ms (%s): %s",
             *key,
@@ -227,7 +237,12 @@ class Runtime:
         if fleet:
             key = (meta.get("namespace") or "default", fleet)
             if key in self.deps.refs.fleets():
-                self.queue.schedule_debounced(key, min(self.queue.debounce, ROLLOUT_QUIET_SECONDS))
+                busy = self._waiting.get(key, 0) > ROLLOUT_BUSY_MODULES
+                self.queue.schedule_debounced(
+                    key,
+                    min(self.queue.debounce, ROLLOUT_QUIET_SECONDS),
+                    max(ROLLOUT_BUSY_MAX_WAIT_SECONDS, self.queue.max_wait) if busy else None,
+                )
 
     async def close(self) -> None:
         if self.deps.watches is not None:

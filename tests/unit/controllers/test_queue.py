@@ -135,3 +135,24 @@ def test_a_quiet_burst_still_makes_one_reconcile_after_the_quiet_period() -> Non
 
     last = asyncio.run(main())
     assert len(runs) == 1 and runs[0] - last >= 0.09, (runs, last)
+
+
+def test_a_longer_max_wait_per_call_holds_a_stream_back() -> None:
+    """The same stream as above with max_wait 1.0 given per call (a fleet with many modules
+    still rolling out): no run while the 0.6 s stream lasts, one after it."""
+    runs: list[float] = []
+    runner = _timing_runner(runs)
+
+    async def main() -> float:
+        q = ReconcileQueue(runner, debounce=0.1, max_wait=0.15)
+        start = asyncio.get_running_loop().time()
+        while asyncio.get_running_loop().time() - start < 0.6:
+            q.schedule_debounced(("ns", "fleet"), max_wait=1.0)
+            await asyncio.sleep(0.02)
+        end = asyncio.get_running_loop().time()
+        await asyncio.sleep(0.3)
+        await q.close()
+        return end
+
+    end = asyncio.run(main())
+    assert len(runs) == 1 and runs[0] >= end, (runs, end)

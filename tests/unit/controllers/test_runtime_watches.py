@@ -89,3 +89,25 @@ def test_the_caches_start_with_the_loops_and_their_events_reach_the_loop(listene
         return pending
 
     assert asyncio.run(main()) and watches.stopped
+
+
+@pytest.mark.parametrize(("waiting", "cap"), [(100, 5.0), (5, None), (0, None)])
+def test_a_large_rollout_refreshes_its_status_less_often(waiting: int, cap: float | None):
+    """Many modules still rolling out: Pod events wait up to ROLLOUT_BUSY_MAX_WAIT_SECONDS;
+    the last few modules get the queue's short cap (Ready follows the last pod quickly)."""
+    from fogfleet.controllers import runtime as rt
+
+    async def main() -> list[tuple]:
+        runtime = Runtime(Deps(kube=object()), debounce=5.0)
+        runtime.deps.refs.record(KEY, set(), set(), {"m"}, False)
+        runtime._waiting[KEY] = waiting
+        calls: list[tuple] = []
+        runtime.queue.schedule_debounced = lambda key, quiet=None, max_wait=None: calls.append(  # type: ignore[method-assign]
+            (key, quiet, max_wait)
+        )
+        runtime.pod_event("MODIFIED", pod(True), pod(False))
+        await runtime.close()
+        return calls
+
+    calls = asyncio.run(main())
+    assert calls == [(KEY, rt.ROLLOUT_QUIET_SECONDS, cap)]
