@@ -54,9 +54,6 @@ class CachedPlan:
     moves: tuple[str, ...] = ()  # "robot-1/module edge-1->edge-2" for the Migrated Event
     objectives: dict[str, float] = field(default_factory=dict)
     """The objectives of ``placement`` (the plan deployed), not of the solver's proposal."""
-    problem: Problem | None = None
-    """What it was planned for (the next change's incremental re-plan compares against it)."""
-    incremental: bool = False  # re-planned incrementally (scheduling.incremental)
 
 
 @dataclass(frozen=True)

@@ -28,8 +28,16 @@ log = logging.getLogger(__name__)
 
 
 def plan_fleet(
-    deps: Deps, key: FleetKey, problem: Problem, fleet: RobotFleet, before: np.ndarray
+    deps: Deps,
+    key: FleetKey,
+    problem: Problem,
+    fleet: RobotFleet,
+    before: np.ndarray,
+    previous: Problem | None = None,
 ) -> tuple[CachedPlan, bool]:
+    """The fleet's plan: the cached one while the planning inputs are unchanged, else an
+    incremental re-plan against ``previous`` (the last full pass's problem, which has the
+    cached plan's inputs: same fingerprint) or a whole-fleet plan."""
     given = fleet.spec.scheduler
     defaults = {k: v for k, v in deps.scheduler_defaults.items() if k not in given.model_fields_set}
     settings = given.model_copy(update=defaults) if defaults else given
@@ -41,7 +49,7 @@ def plan_fleet(
     if failed is not None and failed[0] == fp:
         raise failed[1]  # same inputs, same failure: do not run the GA again
     t0 = time.perf_counter()
-    schedule, why_full = _incremental(deps, problem, settings, cached)
+    schedule, why_full = _incremental(deps, problem, settings, cached, previous)
     incremental = schedule is not None
     if schedule is None:
         if why_full:
@@ -78,19 +86,7 @@ def plan_fleet(
         if np.array_equal(chosen, placement)
         else stickiness.objective_values(problem, chosen, with_limits, list(schedule.objectives))
     )
-    cached = CachedPlan(
-        fp,
-        schedule,
-        chosen,
-        plan_id,
-        len(moves),
-        reason,
-        now(),
-        moves,
-        objectives,
-        problem=problem,
-        incremental=incremental,
-    )
+    cached = CachedPlan(fp, schedule, chosen, plan_id, len(moves), reason, now(), moves, objectives)
     deps.plans[key] = cached
     deps.metrics.observe_plan(
         key[1], schedule.scheduler, seconds, objectives, schedule.degraded_instances
@@ -107,12 +103,16 @@ def plan_fleet(
 
 
 def _incremental(
-    deps: Deps, problem: Problem, settings: SchedulerSettings, cached: CachedPlan | None
+    deps: Deps,
+    problem: Problem,
+    settings: SchedulerSettings,
+    cached: CachedPlan | None,
+    previous: Problem | None,
 ) -> tuple[Schedule | None, str]:
     """The incremental re-plan of a fleet planned before by NSGA-II (not degraded: a degraded
     plan's CPU amounts are chosen for the whole fleet), or None and why the whole fleet is
     planned instead ("" for a first plan)."""
-    if cached is None or cached.problem is None:
+    if cached is None or previous is None:
         return None, ""
     if not settings.incremental or SchedulerName(settings.algorithm) is not SchedulerName.NSGA2:
         return None, ""
@@ -122,7 +122,7 @@ def _incremental(
     result = deps.planner.replan(
         problem,
         settings,
-        changed_instances(cached.problem, problem),
+        changed_instances(previous, problem),
         cached.objectives.get(first),
     )
     return result.schedule, result.reason

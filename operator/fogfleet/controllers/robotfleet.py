@@ -155,7 +155,8 @@ def _reconcile(
     cached: CachedPlan | None = None
     planned = False
     if not baseline:
-        cached, planned = plan_fleet(deps, key, problem, fleet, before)
+        previous = last.problem if last is not None else None
+        cached, planned = plan_fleet(deps, key, problem, fleet, before, previous)
         problem = problem.with_levels(cached.schedule.levels)  # a degraded plan's CPU amounts
     # after planning: an infeasible fleet gets nothing applied, not even its discovery servers
     wiring = apply_ros_wiring(
