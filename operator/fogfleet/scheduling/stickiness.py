@@ -181,7 +181,7 @@ def fill_around(
         return x
     allowed = problem.allowed[todo]
     options = allowed.sum(axis=1)
-    largest = np.where(allowed, problem.limits.cpu_request[todo], 0.0).max(axis=1)
+    largest = np.where(allowed, fit.allocation.cpu_request[todo], 0.0).max(axis=1)
     later = np.zeros(len(todo), dtype=bool) if first is None else ~first[todo]
     order = np.lexsort((todo, -largest, options, later))
     demand = fit.demand_rows(todo)
