@@ -10,7 +10,7 @@ import threading
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from typing import Any
 
-from prometheus_client import CollectorRegistry, Counter, Histogram, generate_latest
+from prometheus_client import CollectorRegistry, Counter, Gauge, Histogram, generate_latest
 from prometheus_client.exposition import CONTENT_TYPE_LATEST
 
 from fogfleet.autoscaling.contract import CYCLE_TIME, HISTOGRAM_BUCKETS_SECONDS, MISSED_CYCLES
@@ -51,6 +51,27 @@ class WorkloadMetrics:
             "fogfleet_messages_published", "Messages published", topic_labels,
             registry=self.registry,
         )  # fmt: skip
+        # the on-board fallback (fallback.py): whether this standby computes the outputs now,
+        # how often it took over, and the answers it held back because the other source's came
+        # first (duplicates that never reached the robot's topic)
+        self.fallback_active = Gauge(
+            "fogfleet_fallback_active",
+            "1 while this standby computes the module's outputs on board",
+            list(ids),
+            registry=self.registry,
+        ).labels(**ids)
+        self.takeovers = Counter(
+            "fogfleet_fallback_takeovers",
+            "Times this standby took over from its silent remote instance",
+            list(ids),
+            registry=self.registry,
+        ).labels(**ids)
+        self._held_back = Counter(
+            "fogfleet_fallback_held_back",
+            "Answers not published because the input was answered already",
+            topic_labels,
+            registry=self.registry,
+        )
         self._ids = ids
         self.healthy = True
 
@@ -62,6 +83,9 @@ class WorkloadMetrics:
 
     def published(self, topic: str) -> None:
         self._published.labels(**self._ids, topic=topic).inc()
+
+    def held_back(self, topic: str) -> None:
+        self._held_back.labels(**self._ids, topic=topic).inc()
 
     def cycle_done(self, seconds: float, limit: float) -> None:
         self.cycle.observe(seconds)

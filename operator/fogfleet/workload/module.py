@@ -17,6 +17,7 @@ import time
 from typing import Any
 
 from .burn import Burner
+from .fallback import FirstResponse, Role, Source, Takeover, remote_topic
 from .messages import Header, decode, encode
 from .metrics import WorkloadMetrics
 from .spec import WorkloadSpec, mean_episode_s, sample_exec_seconds
@@ -86,12 +87,65 @@ def run_module(
 
     for t in spec.subscribes:
         node.create_subscription(String, t.name, on_message(t.name), qos)
-    publishers = {t.name: node.create_publisher(String, t.name, qos) for t in spec.publishes}
+    # a remote instance with a standby publishes on T/remote; the standby alone publishes T
+    out_name = {
+        t.name: remote_topic(t.name) if spec.role is Role.REMOTE else t.name for t in spec.publishes
+    }
+    publishers = {
+        t.name: node.create_publisher(String, out_name[t.name], qos) for t in spec.publishes
+    }
     seq = 0
     last_origin = 0
+    standby = spec.role is Role.STANDBY
+    takeover = Takeover(
+        spec.cycle_s, spec.silent_cycles, spec.step_back_cycles, started=time.monotonic()
+    )
+    first = FirstResponse()
+    counted = 0  # takeovers already in the metric
+
+    def claimed(topic: str, source: Source, origin: int) -> bool:
+        """Only a standby arbitrates; the others always publish."""
+        if not standby:
+            return True
+        with lock:
+            ok = first.claim(topic, source, origin)
+        if not ok:
+            metrics.held_back(topic)
+        return ok
+
+    def relay(topic: str) -> Any:
+        """The standby forwards the remote's answer unless it answered that input itself."""
+
+        def callback(msg: Any) -> None:
+            header = decode(msg.data)
+            with lock:
+                takeover.remote_output(time.monotonic())
+            if header is not None and claimed(topic, Source.REMOTE, header.origin_ns):
+                publishers[topic].publish(msg)
+                metrics.published(topic)
+
+        return callback
+
+    if standby:
+        for t in spec.publishes:
+            node.create_subscription(String, remote_topic(t.name), relay(t.name), qos)
+
+    def on_board(now: float) -> bool:
+        """Whether this process computes the outputs now (a standby only while in charge)."""
+        if not standby:
+            return True
+        nonlocal counted
+        with lock:
+            active = takeover.should_run(now)
+            metrics.fallback_active.set(1.0 if active else 0.0)
+            metrics.takeovers.inc(takeover.takeovers - counted)
+            counted = takeover.takeovers
+        return active
 
     def publish(topic: str, size: int, origin: int) -> None:
         nonlocal seq
+        if not claimed(topic, Source.STANDBY, origin):
+            return
         seq += 1
         header = Header(spec.robot, spec.module, seq, time.time_ns(), origin)
         publishers[topic].publish(String(data=encode(header, size)))
@@ -105,7 +159,8 @@ def run_module(
             now = time.monotonic()
             for t in fast:
                 if now >= due[t.name]:
-                    publish(t.name, t.size_bytes, last_origin or time.time_ns())
+                    if on_board(now):
+                        publish(t.name, t.size_bytes, last_origin or time.time_ns())
                     due[t.name] = max(due[t.name] + 1.0 / t.rate_hz, now)
             # sleep until the next output is due (no polling: the module's own CPU is work)
             stop.wait(max(0.0, min(due.values()) - time.monotonic()))
@@ -115,7 +170,7 @@ def run_module(
         activity = _Activity(spec.activation, rng)
         start = time.monotonic()
         while not stop.is_set():
-            if not activity.is_active(start):
+            if not activity.is_active(start) or not on_board(time.monotonic()):
                 start += spec.cycle_s
                 stop.wait(max(0.0, start - time.monotonic()))
                 continue

@@ -8,7 +8,10 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
+from .fallback import Role
+
 __all__ = [
+    "ENV_ROLE",
     "ENV_SPEC",
     "ExecRow",
     "TopicSpec",
@@ -19,6 +22,7 @@ __all__ = [
 ]
 
 ENV_SPEC = "FOGFLEET_MODULE_SPEC"
+ENV_ROLE = "FOGFLEET_ROLE"  # fallback.Role: primary (default), remote or standby
 # fogfleet.sim.episodes: the same activation episodes the simulator draws (a unit test keeps
 # the two equal; the workload image carries no numpy-based simulator).
 ACTIVE_PERIOD_S, MIN_ACTIVE_S, MAX_ACTIVE_S = 40.0, 10.0, 30.0
@@ -89,6 +93,9 @@ class WorkloadSpec:
     subscribes: list[TopicSpec] = field(default_factory=list)
     publishes: list[TopicSpec] = field(default_factory=list)
     profile: list[ExecRow] = field(default_factory=list)
+    role: Role = Role.PRIMARY
+    silent_cycles: int = 3  # a standby takes over after this many cycles without the remote
+    step_back_cycles: int = 10  # and steps back after the remote has delivered this long
 
     @property
     def row(self) -> ExecRow:
@@ -109,6 +116,10 @@ class WorkloadSpec:
             # spec carries the rows of every node it may land on
             rows = (raw.get("profileByNode") or {}).get(node, raw.get("profile", []))
             cpu = env.get("FOGFLEET_CPU", "")
+            fallback = raw.get("fallback") or {}
+            role = env.get(ENV_ROLE, Role.PRIMARY.value)
+            if role not in {r.value for r in Role}:
+                raise ValueError(f"{ENV_ROLE}={role!r}: one of {', '.join(r.value for r in Role)}")
             return cls(
                 fleet=env.get("FOGFLEET_FLEET", ""),
                 robot=env.get("FOGFLEET_ROBOT", ""),
@@ -131,9 +142,19 @@ class WorkloadSpec:
                     ),
                     key=lambda r: r.cpu,
                 ),
+                role=Role(role),
+                silent_cycles=_positive(fallback, "silentCycles", 3),
+                step_back_cycles=_positive(fallback, "stepBackCycles", 10),
             )
         except (KeyError, TypeError, ValueError) as exc:
             raise ValueError(f"{ENV_SPEC}: {exc!r}") from exc
+
+
+def _positive(raw: Mapping[str, Any], key: str, default: int) -> int:
+    value = int(raw.get(key, default))
+    if value < 1:
+        raise ValueError(f"fallback.{key}: {value} is not a positive number of cycles")
+    return value
 
 
 def _topic(t: Mapping[str, Any]) -> TopicSpec:

@@ -6,9 +6,11 @@ robot's modules from hearing the other robot, which plain multicast discovery do
 
 from __future__ import annotations
 
+import itertools
 import json
 import os
 import re
+import signal
 import socket
 import subprocess
 import sys
@@ -41,6 +43,30 @@ LOCALIZER = {
     "profile": [{"hardwareType": "default", "cpu": 0.2, "meanMillis": 20, "stdMillis": 2}],
 }
 
+DETECTOR = {
+    "cycleTimeMillis": 100,
+    "activationPercent": 100,
+    "topics": {
+        "subscribes": [{"name": "scan", "sizeBytes": 2048, "rateHz": 10}],
+        "publishes": [{"name": "objects", "sizeBytes": 512, "rateHz": 10}],
+    },
+    "profile": [{"hardwareType": "default", "cpu": 0.2, "meanMillis": 10, "stdMillis": 1}],
+    "fallback": {"silentCycles": 3, "stepBackCycles": 10},
+}
+RECORDER = """
+import time, rclpy
+from rclpy.qos import QoSProfile, ReliabilityPolicy
+from std_msgs.msg import String
+rclpy.init()
+node = rclpy.create_node("recorder")
+out = open({out!r}, "w", buffering=1)
+def seen(msg):
+    out.write(f"{{time.time_ns()}} {{msg.data.split('|')[4]}}\\n")
+node.create_subscription(String, {topic!r}, seen, QoSProfile(depth=5,
+    reliability=ReliabilityPolicy.BEST_EFFORT))
+rclpy.spin(node)
+"""
+
 
 def _port() -> int:
     with socket.socket() as s:
@@ -49,7 +75,9 @@ def _port() -> int:
         return port
 
 
-def _env(robot: str, module: str, spec: dict[str, object], server: str | None) -> dict[str, str]:
+def _env(
+    robot: str, module: str, spec: dict[str, object], server: str | None, role: str = "primary"
+) -> dict[str, str]:
     env = {k: v for k, v in os.environ.items() if not k.startswith(("ROS_", "FOGFLEET_"))}
     env.update(
         ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST",
@@ -62,6 +90,7 @@ def _env(robot: str, module: str, spec: dict[str, object], server: str | None) -
         FOGFLEET_NODE="localhost",
         FOGFLEET_CPU="1",
         FOGFLEET_MODULE_SPEC=json.dumps(spec),
+        FOGFLEET_ROLE=role,
     )
     if server:
         env["ROS_DISCOVERY_SERVER"] = server
@@ -80,12 +109,29 @@ class Fleet:
         self._start(argv, env, "server")
         return f"127.0.0.1:{port}"
 
-    def module(self, robot: str, module: str, spec: dict[str, object], server: str | None) -> None:
+    def module(
+        self,
+        robot: str,
+        module: str,
+        spec: dict[str, object],
+        server: str | None,
+        role: str = "primary",
+        name: str | None = None,
+    ) -> subprocess.Popen[bytes]:
+        """Start an instance, served under (robot, name or module)."""
         port = _port()
-        self.ports[(robot, module)] = port
+        self.ports[(robot, name or module)] = port
         argv = [sys.executable, "-m", "fogfleet.workload", "module", "--host", "127.0.0.1",
                 "--port", str(port)]  # fmt: skip
-        self._start(argv, _env(robot, module, spec, server), f"{robot}-{module}")
+        env = _env(robot, module, spec, server, role)
+        return self._start(argv, env, f"{robot}-{name or module}")
+
+    def recorder(self, topic: str, server: str) -> Path:
+        """A plain rclpy subscriber writing "arrival_ns origin_ns" per message on ``topic``."""
+        out = self.tmp / f"record-{topic}.txt"
+        code = RECORDER.format(topic=topic, out=str(out))
+        self._start([sys.executable, "-c", code], _env("robot-1", "recorder", {}, server), "rec")
+        return out
 
     def probe(self, robot: str, module: str, spec: dict[str, object], server: str | None) -> None:
         """The cycle-time sidecar beside (robot, module), served under (robot, module-probe)."""
@@ -95,9 +141,11 @@ class Fleet:
                 "--port", str(port)]  # fmt: skip
         self._start(argv, _env(robot, module, spec, server), f"{robot}-{module}-probe")
 
-    def _start(self, argv: list[str], env: dict[str, str], name: str) -> None:
+    def _start(self, argv: list[str], env: dict[str, str], name: str) -> subprocess.Popen[bytes]:
         log = (self.tmp / f"{name}.log").open("wb")
-        self.procs.append(subprocess.Popen(argv, env=env, stdout=log, stderr=log))
+        proc = subprocess.Popen(argv, env=env, stdout=log, stderr=log)
+        self.procs.append(proc)
+        return proc
 
     def metrics(self, robot: str, module: str) -> dict[str, float]:
         url = f"http://127.0.0.1:{self.ports[(robot, module)]}/metrics"
@@ -112,6 +160,7 @@ class Fleet:
 
     def stop(self) -> None:
         for p in self.procs:
+            p.send_signal(signal.SIGCONT)  # a test may have paused one
             p.terminate()
         for p in self.procs:
             try:
@@ -183,3 +232,64 @@ def test_the_probe_sidecar_measures_what_the_module_measures_itself(fleet: Fleet
     assert probe_mean < own_mean + 0.100 + 0.010, (own_mean, probe_mean)
     assert _total(probed, "fogfleet_foreign_messages_total") == 0
     assert _total(probed, "fogfleet_messages_received_total") > 40  # inputs and outputs
+
+
+def _wait_for(check: object, timeout: float) -> float:
+    """Seconds until ``check()`` holds (polled every 20 ms); fails after ``timeout``."""
+    t0 = time.monotonic()
+    while time.monotonic() - t0 < timeout:
+        if check():  # type: ignore[operator]
+            return time.monotonic() - t0
+        time.sleep(0.02)
+    raise AssertionError(f"not within {timeout} s")
+
+
+def test_the_standby_takes_over_a_silent_remote_and_hands_back_without_duplicates(
+    fleet: Fleet,
+) -> None:
+    """The remote detector (as on the edge) publishes on objects/remote; the robot's standby
+    relays it to objects. Pausing the remote (its outputs go silent, as over a cut link) makes
+    the standby compute objects itself within the silence window; resuming it hands back
+    after the step-back window. The robot's topic never goes quiet for long and never gets
+    two answers to one input (origins never go back)."""
+    server = fleet.server()
+    fleet.module("robot-1", "lidar", SENSOR, server)
+    remote = fleet.module("robot-1", "detector", DETECTOR, server, role="remote")
+    fleet.module("robot-1", "detector", DETECTOR, server, role="standby", name="standby")
+    record = fleet.recorder("objects", server)
+
+    def standby(name: str) -> float:
+        try:
+            return _total(fleet.metrics("robot-1", "standby"), name)
+        except OSError:  # not serving yet
+            return float("nan")
+
+    # the remote comes up and serves: the standby relays, idle
+    _wait_for(lambda: standby("fogfleet_messages_published_total") > 30, 40)
+    _wait_for(lambda: standby("fogfleet_fallback_active") == 0, 10)
+    before = standby("fogfleet_fallback_takeovers_total")
+    cycles_before = standby("fogfleet_cycle_time_seconds_count")
+    remote.send_signal(signal.SIGSTOP)
+    cut = time.time_ns()
+    took = _wait_for(lambda: standby("fogfleet_fallback_active") == 1, 5)
+    time.sleep(3)
+    remote.send_signal(signal.SIGCONT)
+    back = time.time_ns()
+    _wait_for(lambda: standby("fogfleet_fallback_active") == 0, 10)
+    time.sleep(1)
+    assert standby("fogfleet_fallback_takeovers_total") == before + 1
+    assert standby("fogfleet_cycle_time_seconds_count") - cycles_before > 20  # it ran cycles
+
+    rows = [tuple(map(int, line.split())) for line in record.read_text().splitlines() if line]
+    arrivals = [a for a, _ in rows]
+    origins = [o for _, o in rows]
+    assert all(b >= a for a, b in itertools.pairwise(origins)), "an input answered twice"
+    during = [a for a in arrivals if cut <= a <= back]
+    assert len(during) > 20, f"{len(during)} outputs on the robot during the 3 s cut"
+    gaps = [(b - a) / 1e9 for a, b in itertools.pairwise(arrivals) if a >= cut - 1e9]
+    # silence window (3 cycles) + one cycle to notice + one to compute, at most
+    longest = max(gaps)
+    held = standby("fogfleet_fallback_held_back_total")
+    print(f"takeover seen after {took:.2f} s, longest gap {longest:.2f} s, {len(during)} "
+          f"outputs during the cut, {held:.0f} answers held back")  # fmt: skip
+    assert longest < 0.3 + 0.2 + 0.15, f"longest gap {longest:.2f} s (takeover seen {took:.2f} s)"
