@@ -11,6 +11,7 @@ __all__ = [
     "ANNOTATION_PLAN",
     "ANNOTATION_REPLICA",
     "ANNOTATION_ROBOT",
+    "ANNOTATION_ROLE",
     "ANNOTATION_SCALER_STATE",
     "ANNOTATION_SPEC_HASH",
     "HOSTNAME_KEY",
@@ -42,6 +43,9 @@ ANNOTATION_ROBOT = "fogfleet.io/robot"
 ANNOTATION_MODULE = "fogfleet.io/module"
 ANNOTATION_REPLICA = "fogfleet.io/replica"
 ANNOTATION_PLAN = "fogfleet.io/plan-id"
+ANNOTATION_ROLE = "fogfleet.io/role"
+"""On a module's on-board standby (its fallback, issue 13): ``standby``. Its Deployment is not
+the instance's placement, so it has no identity (``render.deployments.identity_of``)."""
 ANNOTATION_SPEC_HASH = "fogfleet.io/spec-hash"
 ANNOTATION_SCALER_STATE = "fogfleet.io/scaler-state"
 

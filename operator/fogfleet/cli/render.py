@@ -18,6 +18,7 @@ __all__ = ["cmd_crds", "cmd_render"]
 def cmd_render(args: argparse.Namespace) -> int:
     import yaml
 
+    from fogfleet.domain.fallback import fleet_fallbacks
     from fogfleet.render.deployments import (
         LABEL_FLEET,
         LABEL_MANAGED_BY,
@@ -74,6 +75,7 @@ def cmd_render(args: argparse.Namespace) -> int:
                 baseline=schedule.scheduler == "k8s-default",
                 with_limits=schedule.with_limits,
                 cpu_limit_percent=fleet.spec.scheduler.cpu_limit_percent,
+                fallbacks=fleet_fallbacks(fleet.spec, modules),
                 plan_id=f"cli-{schedule.scheduler}-{settings.seed}",
                 wiring=wiring,
             )

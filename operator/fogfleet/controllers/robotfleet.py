@@ -22,14 +22,16 @@ from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, replace
 from typing import Any
 
-from fogfleet.api.labels import LABEL_FLEET
+from fogfleet.api.labels import ANNOTATION_ROBOT, ANNOTATION_ROLE, LABEL_FLEET
 from fogfleet.api.loader import parse_object
 from fogfleet.api.v1alpha1.robotfleet import RobotFleet, SchedulerName
 from fogfleet.controllers.ros import apply_ros_wiring, is_ros_object
 from fogfleet.domain.build import build_problem
+from fogfleet.domain.fallback import fleet_fallbacks
 from fogfleet.domain.problem import Problem
 from fogfleet.errors import Infeasible, InvalidSpec
 from fogfleet.render.deployments import (
+    ROLE_STANDBY,
     Owner,
     hash_annotation,
     identity_of,
@@ -171,6 +173,7 @@ def _reconcile(
             cached.placement,
             with_limits=cached.schedule.with_limits,
             cpu_limit_percent=fleet.spec.scheduler.cpu_limit_percent,
+            fallbacks=fleet_fallbacks(fleet.spec, modules),
             owner=owner,
             plan_id=cached.plan_id,
             wiring=wiring,
@@ -283,6 +286,12 @@ def _raise_broken_references(fleet: RobotFleet, broken: dict[str, InvalidSpec]) 
             )
 
 
+def _standby_of(deployment: Obj, robots: set[str]) -> bool:
+    """Whether ``deployment`` is the on-board standby of one of ``robots``."""
+    ann = (deployment.get("metadata") or {}).get("annotations") or {}
+    return ann.get(ANNOTATION_ROLE) == ROLE_STANDBY and ann.get(ANNOTATION_ROBOT) in robots
+
+
 def _apply(
     deps: Deps,
     ns: str,
@@ -300,8 +309,14 @@ def _apply(
         (problem.instances[i].robot, problem.instances[i].module, problem.instances[i].replica)
         for i in stranded
     }
-    # stranded instances keep their Deployment until their node returns
-    stale = [n for n, d in have.items() if n not in keep and identity_of(d) not in idents]
+    # stranded instances keep their Deployment until their node returns, and so do the
+    # on-board standbys of a robot that is down (cut off, they may be serving right now)
+    down = {problem.instances[i].robot for i in stranded} - {""}
+    stale = [
+        n
+        for n, d in have.items()
+        if n not in keep and identity_of(d) not in idents and not _standby_of(d, down)
+    ]
     kube = deps.kube
     run_all([functools.partial(kube.apply_deployment, d) for d in changed], deps.api_concurrency)
     run_all([functools.partial(kube.delete_deployment, ns, n) for n in stale], deps.api_concurrency)

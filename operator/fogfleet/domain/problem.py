@@ -123,6 +123,7 @@ class Problem:
     ladder: Ladder | None = None  # None: no smaller CPU profiled (nothing can degrade)
     levels: NDArray[np.int64] | None = None  # (I,) rungs taken below the pick; None: none
     preferred: NDArray[np.bool_] | None = None  # (I, N) node's tier preferred; None: no wishes
+    fallback: NDArray[np.bool_] | None = None  # (I,) keeps an on-board fallback; None: none
 
     @property
     def n_instances(self) -> int:
@@ -175,6 +176,40 @@ class Problem:
         mean = np.where(self.allowed, lad.mean[i, j, 0], np.inf)
         std = np.where(self.allowed, lad.std[i, j, 0], 0.0)
         return Allocation(freeze(request), freeze(use), freeze(mean), freeze(std), True)
+
+    @cached_property
+    def fallback_rows(self) -> NDArray[np.int64]:
+        """Instances with an on-board fallback (``domain.build`` gives one only to an instance
+        its robot may run: that stays so while the robot is unavailable and masked out)."""
+        if self.fallback is None:
+            return np.zeros(0, dtype=np.int64)
+        return freeze(np.flatnonzero(self.fallback & (self.home >= 0)).astype(np.int64))
+
+    def fallback_reserve(self, allocation: Allocation) -> F64:
+        """(N, 3) cpu, memory, gpus each robot holds for its modules' on-board fallbacks.
+
+        An instance with a fallback needs its on-board share on its robot wherever it runs:
+        on board it runs there, off board its standby must be able to take over there
+        without asking the control plane (issue 13; RoboEC2's local path). So the robot
+        holds that share, ``allocation``'s request at home, at all times, and the
+        instance's demand on its home node counts as zero (``held_at_home``): together the
+        same load as the instance on board, plus the standby's reserve when it is not.
+        """
+        out = np.zeros((self.n_nodes, 3))
+        rows = self.fallback_rows
+        if rows.size:
+            homes = self.home[rows]
+            np.add.at(out[:, 0], homes, allocation.cpu_request[rows, homes])
+            np.add.at(out[:, 1], homes, self.memory[rows])
+            np.add.at(out[:, 2], homes, self.gpu[rows])
+        return out
+
+    @cached_property
+    def held_at_home(self) -> NDArray[np.bool_]:
+        """(I,) instances whose demand on their home node is in ``fallback_reserve``."""
+        held = np.zeros(self.n_instances, dtype=bool)
+        held[self.fallback_rows] = True
+        return freeze(held)
 
     def node_index(self, name: str) -> int:
         for j, node in enumerate(self.nodes):

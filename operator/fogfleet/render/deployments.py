@@ -30,8 +30,10 @@ from fogfleet.api.labels import (
     ANNOTATION_PLAN,
     ANNOTATION_REPLICA,
     ANNOTATION_ROBOT,
+    ANNOTATION_ROLE,
     ANNOTATION_SPEC_HASH,
     HOSTNAME_KEY,
+    LABEL_COMPONENT,
     LABEL_FLEET,
     LABEL_INSTANCE,
     LABEL_MANAGED_BY,
@@ -40,6 +42,7 @@ from fogfleet.api.labels import (
     LABEL_TIER,
     MANAGER,
 )
+from fogfleet.api.v1alpha1.fallback import Fallback
 from fogfleet.api.v1alpha1.robotfleet import DEFAULT_CPU_LIMIT_PERCENT
 from fogfleet.api.v1alpha1.softwaremodule import ProfileEntry, SoftwareModule
 from fogfleet.domain.problem import Instance, Problem
@@ -48,6 +51,10 @@ from fogfleet.render.ros import RosWiring, module_env
 
 __all__ = [
     "ANNOTATION_MODULE",
+    "ANNOTATION_ROLE",
+    "COMPONENT_STANDBY",
+    "ROLE_REMOTE",
+    "ROLE_STANDBY",
     "ANNOTATION_PLAN",
     "ANNOTATION_REPLICA",
     "ANNOTATION_ROBOT",
@@ -71,6 +78,8 @@ __all__ = [
 ]
 
 MAX_NAME = 63
+ROLE_STANDBY, ROLE_REMOTE = "standby", "remote"
+COMPONENT_STANDBY = "fallback-standby"
 _NOT_DNS = re.compile(r"[^a-z0-9-]+")
 
 
@@ -98,12 +107,17 @@ def label_value(text: str) -> str:
     return f"{head}-{_digest(text)}"
 
 
-def deployment_name(fleet: str, inst: Instance) -> str:
-    """``<fleet>-<robot>-<module>-<hash8>`` (shared replicas: ``<fleet>-<module>-r<k>-<hash8>``)."""
+def deployment_name(fleet: str, inst: Instance, role: str = "") -> str:
+    """``<fleet>-<robot>-<module>-<hash8>`` (shared replicas: ``<fleet>-<module>-r<k>-<hash8>``;
+    an on-board standby: ``<fleet>-<robot>-<module>-standby-<hash8>``)."""
     who = (
         [fleet, inst.robot, inst.module] if inst.robot else [fleet, inst.module, f"r{inst.replica}"]
     )
-    suffix = _digest(fleet, inst.robot, inst.module, inst.replica)
+    parts: tuple[object, ...] = (fleet, inst.robot, inst.module, inst.replica)
+    if role == ROLE_STANDBY:
+        who.append(ROLE_STANDBY)
+        parts += (ROLE_STANDBY,)
+    suffix = _digest(*parts)
     base = _dns("-".join(who))[: MAX_NAME - len(suffix) - 1].rstrip("-")
     return f"{base}-{suffix}"
 
@@ -131,9 +145,10 @@ def hash_annotation(obj: Mapping[str, Any] | None) -> str | None:
 
 
 def identity_of(deployment: Mapping[str, Any]) -> tuple[str, str, int] | None:
-    """(robot, module, replica) of a fogfleet Deployment, from its annotations."""
+    """(robot, module, replica) of a fogfleet Deployment, from its annotations; None for an
+    on-board standby (where it runs is not where its instance is placed)."""
     ann = (deployment.get("metadata") or {}).get("annotations") or {}
-    if ANNOTATION_MODULE not in ann:
+    if ANNOTATION_MODULE not in ann or ann.get(ANNOTATION_ROLE) == ROLE_STANDBY:
         return None
     try:
         replica = int(ann.get(ANNOTATION_REPLICA, "0"))
@@ -177,15 +192,19 @@ def render_instance(
     owner: Owner | None = None,
     plan_id: str = "",
     wiring: RosWiring | None = None,
+    role: str = "",
+    fallback: Fallback | None = None,
 ) -> dict[str, Any]:
     """The Deployment of instance ``i`` allowed on ``nodes`` (one node unless ``baseline``).
 
     Without limits (``baseline``, or a plan made for the nominal allocation such as
     ``onboard``) it requests the module's nominal CPU, has no limit and runs its node's nominal
-    row, as the simulator models such a plan.
+    row, as the simulator models such a plan. ``role`` with ``fallback``: the instance
+    offloaded with an on-board fallback (``remote``) or its standby on the robot (``standby``,
+    requesting the share its robot holds for it: ``Problem.fallback_reserve``).
     """
     inst = problem.instances[i]
-    name = deployment_name(problem.fleet, inst)
+    name = deployment_name(problem.fleet, inst, role)
     with_limits = with_limits and not baseline
     alloc = problem.limits if with_limits else problem.nominal
     j = nodes[0]
@@ -218,6 +237,9 @@ def render_instance(
         ANNOTATION_MODULE: inst.module,
         ANNOTATION_REPLICA: str(inst.replica),
     }
+    if role == ROLE_STANDBY:
+        labels[LABEL_COMPONENT] = COMPONENT_STANDBY
+        annotations[ANNOTATION_ROLE] = ROLE_STANDBY
     pod_annotations = dict(annotations)
     port = scrape_port(module.spec.template)
     if port:
@@ -235,6 +257,8 @@ def render_instance(
         node_rows=None
         if with_limits
         else {problem.nodes[k].node_name: _nominal_row(problem, i, k) for k in nodes},
+        role=role,
+        fallback=fallback if role else None,
     )
     metadata: dict[str, Any] = {
         "name": name,
@@ -297,6 +321,7 @@ def render_fleet(
     owner: Owner | None = None,
     plan_id: str = "",
     wiring: RosWiring | None = None,
+    fallbacks: Mapping[str, Fallback] | None = None,
 ) -> list[dict[str, Any]]:
     """Deployments for a fleet, in instance order.
 
@@ -307,29 +332,44 @@ def render_fleet(
     allocation (see ``render_instance``). ``cpu_limit_percent`` is the fleet's
     ``spec.scheduler.cpuLimitPercent``.
     ``modules`` maps SoftwareModule names to the objects (their container templates).
+    ``fallbacks`` (module name -> its effective fallback, ``domain.fallback``): an instance
+    the plan offloads and whose robot holds its reserve gets a standby Deployment on the robot
+    next to its own (``render_instance`` roles).
     """
     out: list[dict[str, Any]] = []
+
+    def one(
+        i: int, nodes: list[int], role: str = "", fallback: Fallback | None = None
+    ) -> dict[str, Any]:
+        return render_instance(
+            problem,
+            i,
+            modules[problem.instances[i].module],
+            nodes,
+            baseline=baseline,
+            with_limits=with_limits,
+            cpu_limit_percent=cpu_limit_percent,
+            owner=owner,
+            plan_id=plan_id,
+            wiring=wiring,
+            role=role,
+            fallback=fallback,
+        )
+
     for i, inst in enumerate(problem.instances):
-        module = modules[inst.module]
         if baseline:
             nodes = [int(j) for j in np.flatnonzero(problem.allowed[i])]
-        else:
-            if placement is None or int(placement[i]) < 0:
-                continue
-            nodes = [int(placement[i])]
-        if nodes:
-            out.append(
-                render_instance(
-                    problem,
-                    i,
-                    module,
-                    nodes,
-                    baseline=baseline,
-                    with_limits=with_limits,
-                    cpu_limit_percent=cpu_limit_percent,
-                    owner=owner,
-                    plan_id=plan_id,
-                    wiring=wiring,
-                )
-            )
+            if nodes:
+                out.append(one(i, nodes))
+            continue
+        if placement is None or int(placement[i]) < 0:
+            continue
+        j, home = int(placement[i]), int(problem.home[i])
+        fallback = (fallbacks or {}).get(inst.module)
+        if fallback is None or not problem.held_at_home[i] or j == home:
+            out.append(one(i, [j]))
+            continue
+        # offloaded with an on-board fallback: the remote instance and its standby
+        out.append(one(i, [j], ROLE_REMOTE, fallback))
+        out.append(one(i, [home], ROLE_STANDBY, fallback))
     return out

@@ -21,6 +21,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from fogfleet.api.labels import LABEL_COMPONENT, LABEL_ROBOT
+from fogfleet.api.v1alpha1.fallback import Fallback
 from fogfleet.api.v1alpha1.robotfleet import RosSettings
 from fogfleet.api.v1alpha1.softwaremodule import ProfileEntry, SoftwareModule
 
@@ -98,7 +99,10 @@ def _rows(module: SoftwareModule, hardware_type: str) -> list[dict[str, Any]]:
 
 
 def module_spec_json(
-    module: SoftwareModule, hardware_type: str, node_rows: Mapping[str, ProfileEntry] | None = None
+    module: SoftwareModule,
+    hardware_type: str,
+    node_rows: Mapping[str, ProfileEntry] | None = None,
+    fallback: Fallback | None = None,
 ) -> str:
     """What the workload needs of the module: cycle, activation, topics, its node's profile.
 
@@ -115,6 +119,11 @@ def module_spec_json(
     }
     if node_rows:
         body["profileByNode"] = {n: [row.wire()] for n, row in sorted(node_rows.items())}
+    if fallback is not None:
+        body["fallback"] = {
+            "silentCycles": fallback.silent_cycles,
+            "stepBackCycles": fallback.step_back_cycles,
+        }
     return json.dumps(body, separators=(",", ":"), sort_keys=True)
 
 
@@ -129,11 +138,15 @@ def module_env(
     hardware_type: str,
     cpu: str,
     node_rows: Mapping[str, ProfileEntry] | None = None,
+    role: str = "",
+    fallback: Fallback | None = None,
 ) -> list[dict[str, Any]]:
     """The environment fogfleet owns in a module container (ROS wiring + FOGFLEET_*).
 
     With ``node_rows`` (kube-scheduler chooses among those nodes) the container reads its node
     from the downward API and has no FOGFLEET_CPU (no limit: it runs the row of its node).
+    ``role`` (``remote`` or ``standby``, with the module's ``fallback``) is an instance with an
+    on-board fallback (``workload.fallback``); unset for every other instance.
     """
     env = {
         "FOGFLEET_FLEET": fleet,
@@ -143,8 +156,10 @@ def module_env(
         "FOGFLEET_NODE": node,
         "FOGFLEET_HARDWARE_TYPE": hardware_type,
         "FOGFLEET_CPU": cpu,
-        "FOGFLEET_MODULE_SPEC": module_spec_json(module, hardware_type, node_rows),
+        "FOGFLEET_MODULE_SPEC": module_spec_json(module, hardware_type, node_rows, fallback),
     }
+    if role:
+        env["FOGFLEET_ROLE"] = role
     if node_rows:
         del env["FOGFLEET_NODE"], env["FOGFLEET_CPU"], env["FOGFLEET_HARDWARE_TYPE"]
     if wiring is not None and wiring.settings.enabled:

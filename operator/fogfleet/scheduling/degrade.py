@@ -29,6 +29,7 @@ from numpy.typing import NDArray
 
 from fogfleet.domain.problem import Problem
 
+from .evaluation import Evaluation
 from .explain import degraded_message
 from .heuristics import greedy
 from .objectives import constraints, evaluate
@@ -76,11 +77,9 @@ def give_back(problem: Problem, x: I64) -> I64:
         return np.zeros(problem.n_instances, dtype=np.int64)
     lad = problem.ladder
     levels = problem.levels.copy()
-    used = np.bincount(
-        x,
-        weights=problem.limits.cpu_request[np.arange(problem.n_instances), x],
-        minlength=problem.n_nodes,
-    )
+    # requests per node as the load model counts them (robots' fallback reserves included)
+    used = Evaluation(problem, x[None, :], problem.limits).cpu_requested[0].copy()
+    held = problem.held_at_home
     prio = problem.priority
     order = sorted((int(i) for i in np.flatnonzero(levels > 0)), key=lambda i: (-prio[i], i))
     changed = True
@@ -96,8 +95,18 @@ def give_back(problem: Problem, x: I64) -> I64:
                 changed = True
                 continue
             more = lad.cpu[i, j, now - 1] - lad.cpu[i, j, now]
+            # an offloaded instance's fallback reserve on its robot grows with its rung too
+            h = int(problem.home[i])
+            at_home = 0.0
+            if held[i] and h != j:
+                k = min(int(levels[i]), int(lad.depth[i, h]))
+                at_home = lad.cpu[i, h, max(k - 1, 0)] - lad.cpu[i, h, k]
+                if used[h] + at_home > problem.capacity[h, 0] + 1e-9:
+                    continue
             if used[j] + more <= problem.capacity[j, 0] + 1e-9:
                 used[j] += more
+                if at_home:
+                    used[h] += at_home
                 levels[i] = now - 1
                 changed = True
     return levels

@@ -108,16 +108,35 @@ class Evaluation:
         return self.gather(self.alloc.cpu_use)
 
     @cached_property
+    def _held(self) -> NDArray[np.bool_] | None:
+        """(P, I) instances on their home node whose demand there is the robot's fallback
+        reserve (``Problem.fallback_reserve``); None when the fleet has no fallbacks."""
+        p = self.problem
+        if not p.fallback_rows.size:
+            return None
+        held = self.valid & p.held_at_home[None, :] & (self.x == p.home[None, :])
+        return np.asarray(held, dtype=bool)
+
+    def _requested(self, w: F64, r: int) -> F64:
+        """Per-node requests of resource ``r`` from per-instance weights ``w`` (P, I), with
+        each robot's fallback reserve in place of its fallback instances' on-board demand."""
+        held = self._held
+        if held is None:
+            return self.per_node(w)
+        reserve = self.problem.fallback_reserve(self.alloc)[:, r]
+        return self.per_node(np.where(held, 0.0, w)) + reserve[None, :]
+
+    @cached_property
     def cpu_requested(self) -> F64:
-        return self.per_node(self.request)
+        return self._requested(self.request, 0)
 
     @cached_property
     def mem_requested(self) -> F64:
-        return self.per_node(np.broadcast_to(self.problem.memory, (self.P, self.I)))
+        return self._requested(np.broadcast_to(self.problem.memory, (self.P, self.I)), 1)
 
     @cached_property
     def gpu_requested(self) -> F64:
-        return self.per_node(np.broadcast_to(self.problem.gpu, (self.P, self.I)))
+        return self._requested(np.broadcast_to(self.problem.gpu, (self.P, self.I)), 2)
 
     @cached_property
     def cpu_expected(self) -> F64:

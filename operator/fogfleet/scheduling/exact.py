@@ -133,6 +133,10 @@ def solve_exact(
     lo.append(np.ones(len(genes)))
     hi.append(np.ones(len(genes)))
     demand = [alloc.cpu_request[pi, pj], problem.memory[pi], problem.gpu[pi]]
+    # a fallback's home share is its robot's reserve, held whatever the plan: a constant
+    held = problem.held_at_home[pi] & (pj == problem.home[pi])
+    demand = [np.where(held, 0.0, d) for d in demand]
+    reserve = problem.fallback_reserve(alloc)
     z = sp.csr_matrix((-np.ones(n_n), (np.arange(n_n), np.full(n_n, n_pairs))), shape=(n_n, nv))
     for r in range(3):
         # rows in units of the node's capacity (memory in bytes would span 1e9 and make
@@ -142,14 +146,15 @@ def solve_exact(
         m = sp.csr_matrix((demand[r] * scale[pj], (pj, cols)), shape=(n_n, nv))
         m.eliminate_zeros()
         rows.append(m)
+        held_r = reserve[:, r] * scale
         lo.append(np.full(n_n, -np.inf))
-        hi.append(np.where(has, 1.0, 0.0))
+        hi.append(np.where(has, 1.0, 0.0) - held_r)
         if r < 2 or has.any():
             # reserve: u_j^r / L_j^r - z <= 0
             mr = (m + z)[np.flatnonzero(has)]
             rows.append(sp.csr_matrix(mr))
             lo.append(np.full(mr.shape[0], -np.inf))
-            hi.append(np.zeros(mr.shape[0]))
+            hi.append(-held_r[np.flatnonzero(has)])
     robots = np.flatnonzero(problem.tier == 0)
     off = (problem.home[pi] >= 0) & (pj != problem.home[pi])
     ridx = np.searchsorted(robots, problem.home[pi])

@@ -58,20 +58,33 @@ class Fit:
         self.robots = problem.tier == 0
         self.uplink = UPLINK_SHARE * problem.uplink_bandwidth
 
+    @cached_property
+    def reserve(self) -> F64:
+        """(N, 3) what each robot holds for on-board fallbacks whatever the plan
+        (``Problem.fallback_reserve``): every load summed from ``demand`` starts from it."""
+        return self.problem.fallback_reserve(self.allocation)
+
     def demand_rows(self, rows: NDArray[np.int64]) -> F64:
-        """(R, N, 3) cpu request, memory, gpus of the instances ``rows`` on every node."""
+        """(R, N, 3) cpu request, memory, gpus of the instances ``rows`` on every node (zero
+        on its home node for an instance with a fallback: that share is in ``reserve``)."""
         p = self.problem
         out = np.empty((len(rows), p.n_nodes, 3))
         out[:, :, 0] = self.allocation.cpu_request[rows]
         out[:, :, 1] = p.memory[rows][:, None]
         out[:, :, 2] = p.gpu[rows][:, None]
+        held = p.held_at_home[rows]
+        if held.any():  # their home share is in ``reserve``
+            out[np.flatnonzero(held), p.home[rows[held]], :] = 0.0
         return out
 
     def demand_at(self, rows: NDArray[np.int64], nodes: NDArray[np.int64]) -> F64:
         """(R, 3) what instance ``rows[k]`` needs on node ``nodes[k]``."""
         p = self.problem
         cpu = self.allocation.cpu_request[rows, nodes]
-        return np.stack([cpu, p.memory[rows], p.gpu[rows]], axis=1)
+        out = np.stack([cpu, p.memory[rows], p.gpu[rows]], axis=1)
+        held = p.held_at_home[rows] & (nodes == p.home[rows])
+        out[held] = 0.0  # in ``reserve``
+        return out
 
     def pref_rows(self, rows: NDArray[np.int64], q: F64 | None = None) -> F64:
         """(R, N) the preference among allowed nodes: low miss probability, then low cycle
@@ -80,9 +93,9 @@ class Fit:
         allowed = p.allowed[rows]
         if q is None:
             q = uncontended_miss(p, self.allocation, rows)
-        t = (
-            p.net_mean[rows] + np.where(allowed, self.allocation.exe_mean[rows], 0.0)
-        ) / p.cycle[rows][:, None]
+        t = (p.net_mean[rows] + np.where(allowed, self.allocation.exe_mean[rows], 0.0)) / p.cycle[
+            rows
+        ][:, None]
         return np.where(allowed, q + 0.01 * np.minimum(t, 10.0), np.inf)
 
     @cached_property
@@ -115,7 +128,7 @@ def greedy(
     with the smallest overload is used (the repair may fix it later)."""
     f = fit or Fit(problem, allocation)
     n_n = problem.n_nodes
-    used = np.zeros((n_n, 3))
+    used = f.reserve.copy()
     up = np.zeros(n_n)
     x = np.full(problem.n_instances, -1, dtype=np.int64)
     for i in f.order:

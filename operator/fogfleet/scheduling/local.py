@@ -140,12 +140,14 @@ class MoveEvaluator:
             out[ar, node] += new
             return out
 
+        # requests as the load model counts them (a fallback's home share is its robot's
+        # reserve, there whatever the move: ``Fit.demand_at`` is zero there)
+        d_old = self.pp.fit.demand_at(inst, cur)
+        d_new = self.pp.fit.demand_at(inst, node)
         sums = {
-            "cpu_requested": patch(
-                ev.cpu_requested, alloc.cpu_request[inst, cur], alloc.cpu_request[inst, node]
-            ),
-            "mem_requested": patch(ev.mem_requested, fleet.memory[inst], fleet.memory[inst]),
-            "gpu_requested": patch(ev.gpu_requested, fleet.gpu[inst], fleet.gpu[inst]),
+            "cpu_requested": patch(ev.cpu_requested, d_old[:, 0], d_new[:, 0]),
+            "mem_requested": patch(ev.mem_requested, d_old[:, 1], d_new[:, 1]),
+            "gpu_requested": patch(ev.gpu_requested, d_old[:, 2], d_new[:, 2]),
             "cpu_expected": patch(
                 ev.cpu_expected,
                 fleet.activation[inst] * alloc.cpu_use[inst, cur],

@@ -96,10 +96,10 @@ def repair_plans(pp: PlacementProblem, x: I64) -> I64:
     xc = np.where(valid, x, 0)
     rows_i = np.arange(fleet.n_instances)[None, :]
     flat = (xc + N * np.arange(P)[:, None]).ravel()
-    used = np.zeros((P, N, 3))
+    used = np.repeat(f.reserve[None], P, axis=0)  # robots' fallback reserves first
     for r in range(3):
         w = np.where(valid, f.demand[rows_i, xc, r], 0.0).ravel()
-        used[:, :, r] = np.bincount(flat, weights=w, minlength=P * N).reshape(P, N)
+        used[:, :, r] += np.bincount(flat, weights=w, minlength=P * N).reshape(P, N)
     home = fleet.home
     off = valid & (home[None, :] >= 0) & (xc != home[None, :])
     hflat = (np.where(home >= 0, home, 0)[None, :] + N * np.arange(P)[:, None]).ravel()

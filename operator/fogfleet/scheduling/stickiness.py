@@ -214,11 +214,11 @@ def release_overloads(problem: Problem, x: I64, new: I64, fit: Fit | None = None
     placed = np.flatnonzero(x >= 0)
     need = np.zeros((problem.n_instances, 3))
     need[placed] = fit.demand_at(placed, x[placed])
-    total = np.zeros((problem.n_nodes, 3))
+    total = fit.reserve.copy()
     np.add.at(total, x[placed], need[placed])
     for j in np.flatnonzero(np.any(total > problem.capacity + 1e-9, axis=1)):
         on = [int(i) for i in np.flatnonzero(x == j)]
-        load = need[on].sum(axis=0)
+        load = fit.reserve[j] + need[on].sum(axis=0)
         order = sorted(on, key=lambda i: (new[i] == j, -need[i, 0]))
         for i in order:
             if np.all(load <= problem.capacity[j] + 1e-9):

@@ -304,3 +304,62 @@ def test_every_cross_field_rule_is_stated_once_and_reaches_its_crd() -> None:
     ]:
         for rule in model.RULES:
             assert rule.crd() in validations(kind, *path), (kind, rule.message)
+
+
+# --- fallback (issue 13) -------------------------------------------------------------------
+
+
+def test_fallback_onboard_on_a_shared_module_names_the_field() -> None:
+    doc = _module()
+    doc["spec"]["scope"] = "shared"
+    doc["spec"]["fallback"] = {"mode": "onboard"}
+    err = _invalid(doc)
+    assert err.field == "spec.fallback.mode"
+    assert "a shared module has none" in err.message
+
+
+def test_fallback_onboard_without_outputs_names_the_field() -> None:
+    doc = _module()
+    doc["spec"]["topics"] = {"subscribes": doc["spec"]["topics"]["subscribes"]}
+    doc["spec"]["fallback"] = {"mode": "onboard"}
+    err = _invalid(doc)
+    assert (err.field, err.message.split(":")[0]) == (
+        "spec.fallback.mode",
+        "onboard needs topics.publishes",
+    )
+
+
+@pytest.mark.parametrize(
+    ("fallback", "field"),
+    [
+        ({"mode": "cloud"}, "spec.fallback.mode"),
+        ({"silentCycles": 0}, "spec.fallback.silentCycles"),
+    ],
+)
+def test_bad_fallback_values_name_their_field(fallback: dict[str, Any], field: str) -> None:
+    doc = _module()
+    doc["spec"]["fallback"] = fallback
+    assert _invalid(doc).field == field
+
+
+def test_the_module_fallback_wins_over_the_fleets_and_only_eligible_modules_keep_one() -> None:
+    from fogfleet.api.v1alpha1.fallback import Fallback, FallbackMode
+    from fogfleet.domain.fallback import effective_fallback
+
+    catalog = load_paths([WAREHOUSE])
+    (fleet,) = catalog.fleets
+    default = Fallback(mode=FallbackMode.ONBOARD, silent_cycles=5)
+    spec = fleet.spec.model_copy(update={"fallback": default})
+    mods = {m.metadata.name: m.spec for m in catalog.modules.values()}
+    hpe = mods["human-pose-estimation"]
+    got = effective_fallback(hpe, spec)
+    assert got is not None and got.silent_cycles == 5  # the fleet's default
+    assert effective_fallback(hpe, fleet.spec) is None  # fleets default to none
+    own = hpe.model_copy(update={"fallback": Fallback(mode=FallbackMode.NONE)})
+    assert effective_fallback(own, spec) is None  # the module's own mode wins
+    windows = hpe.model_copy(update={"fallback": Fallback(step_back_cycles=40)})
+    got = effective_fallback(windows, spec)  # mode from the fleet, windows its own
+    assert got is not None and (got.silent_cycles, got.step_back_cycles) == (3, 40)
+    # a module that must run on board never runs elsewhere: nothing to fall back from
+    critical = [m for m in mods.values() if m.taxonomy.safety.value == "critical"]
+    assert critical and all(effective_fallback(m, spec) is None for m in critical)

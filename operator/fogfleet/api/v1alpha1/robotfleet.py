@@ -9,6 +9,7 @@ from pydantic import Field, model_validator
 
 from .base import FogModel, Number, PosInt, refuse_duplicates
 from .common import Condition, LabelSelector, Name, ObjectMeta, Tier
+from .fallback import Fallback
 from .rules import CrossFieldRule, enforce
 
 __all__ = [
@@ -240,6 +241,10 @@ class RobotFleetSpec(FogModel):
     preferred_tiers: list[Tier] = Field(default_factory=list)
     """Tiers the fleet's modules should run on when they can, for modules that name none
     (e.g. [robot, edge]: the cloud only for overflow). Empty: no preference."""
+    fallback: Fallback = Field(default_factory=Fallback)
+    """Default fallback of the fleet's modules that set none (mode none unless given). With
+    onboard, a per-robot module that publishes topics keeps a standby on its robot while it
+    runs elsewhere; shared modules and modules without outputs have none."""
 
     @model_validator(mode="after")
     def _check(self) -> RobotFleetSpec:

@@ -16,6 +16,7 @@ from pydantic import Field, model_validator
 from .base import FogModel, NonNegInt, Number, PosInt, Quantity, parse_quantity, refuse_duplicates
 from .common import Condition, ObjectMeta, Tier
 from .computenode import DeviceType
+from .fallback import Fallback, FallbackMode
 from .rules import CrossFieldRule, enforce
 from .scaling import ScalingSpec
 from .template import ContainerTemplate
@@ -174,6 +175,13 @@ class Requirements(FogModel):
         return self
 
 
+_ONBOARD = "(has(self.fallback) && has(self.fallback.mode) && self.fallback.mode == 'onboard')"
+
+
+def _onboard(spec: SoftwareModuleSpec) -> bool:
+    return spec.fallback is not None and spec.fallback.mode is FallbackMode.ONBOARD
+
+
 class SoftwareModuleSpec(FogModel):
     """One containerised ROS 2 module: what it runs, how it behaves, what it needs."""
 
@@ -197,6 +205,19 @@ class SoftwareModuleSpec(FogModel):
             "requirements.gpu: resources.gpu requests GPUs; set requirements.gpu: true so the "
             "module is planned on a node that has them",
             lambda s: s.resources.gpu == 0 or s.requirements.gpu,
+        ),
+        CrossFieldRule(
+            f"!{_ONBOARD} || !has(self.scope) || self.scope != 'shared'",
+            "fallback.mode: onboard needs a robot to fall back to and a shared module has none "
+            "(use scope perRobot, or fallback.mode none)",
+            lambda s: not _onboard(s) or s.scope is not Scope.SHARED,
+        ),
+        CrossFieldRule(
+            f"!{_ONBOARD} || (has(self.topics) && has(self.topics.publishes) && "
+            "size(self.topics.publishes) > 0)",
+            "fallback.mode: onboard needs topics.publishes: the standby watches the module's "
+            "outputs to notice that the remote instance went silent",
+            lambda s: not _onboard(s) or bool(s.topics.publishes),
         ),
     )
 
@@ -233,6 +254,10 @@ class SoftwareModuleSpec(FogModel):
     reports their predicted misses (a Degraded plan) instead of refusing the fleet. Hard
     real-time and safety-critical modules are never degraded. Default from the taxonomy:
     700 for safety-relevant modules, 400 for soft real-time ones, 100 for the rest."""
+    fallback: Fallback | None = None
+    """What runs when the module is offloaded and its robot's link fails: onboard keeps a
+    standby on the robot (its on-board share reserved) that takes over on its own. Unset:
+    the fleet's spec.fallback."""
 
     @model_validator(mode="after")
     def _check(self) -> SoftwareModuleSpec:

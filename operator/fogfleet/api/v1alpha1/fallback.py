@@ -1,0 +1,39 @@
+"""What an offloaded module falls back to when its robot loses the link (issue 13).
+
+RoboEC2 (roboec2-dnn-offloading) keeps a local path that works while the robot is
+disconnected; a robot cut off from the edge cannot reach the API server either, so fogfleet
+plans the fallback with the placement: with ``mode: onboard`` the robot always holds the
+module's on-board share (the planner reserves it, as a constraint), and while the module runs
+off board a standby on the robot relays its outputs and computes them itself when they go
+silent for ``silentCycles`` cycles, handing back once the remote has delivered for
+``stepBackCycles`` cycles.
+"""
+
+from __future__ import annotations
+
+from enum import StrEnum
+from typing import Annotated
+
+from pydantic import Field
+
+from .base import FogModel
+
+__all__ = ["Fallback", "FallbackMode"]
+
+
+class FallbackMode(StrEnum):
+    """none: the module stops with the link; onboard: a standby on the robot takes over."""
+
+    NONE = "none"
+    ONBOARD = "onboard"
+
+
+class Fallback(FogModel):
+    """The fallback of an offloaded module when its robot's link fails."""
+
+    mode: FallbackMode | None = None
+    """none or onboard. On a SoftwareModule, unset takes the fleet's (default none)."""
+    silent_cycles: Annotated[int, Field(ge=1, le=1000)] = 3
+    """Cycles without an output of the remote instance before the standby takes over."""
+    step_back_cycles: Annotated[int, Field(ge=1, le=10000)] = 10
+    """Cycles the remote instance must deliver without a gap before the standby hands back."""
