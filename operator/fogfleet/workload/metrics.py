@@ -15,7 +15,11 @@ from prometheus_client.exposition import CONTENT_TYPE_LATEST
 
 from fogfleet.autoscaling.contract import CYCLE_TIME, HISTOGRAM_BUCKETS_SECONDS, MISSED_CYCLES
 
-__all__ = ["WorkloadMetrics"]
+__all__ = ["GAP_BUCKETS_SECONDS", "WorkloadMetrics"]
+
+# input gaps: a cycle or two (10-30 Hz topics), a fallback's takeover (a few cycles), a lost
+# link (seconds to minutes)
+GAP_BUCKETS_SECONDS = (0.05, 0.1, 0.2, 0.35, 0.5, 0.75, 1.0, 2.0, 5.0, 10.0, 30.0, 60.0, 120.0)
 
 
 class WorkloadMetrics:
@@ -72,11 +76,41 @@ class WorkloadMetrics:
             topic_labels,
             registry=self.registry,
         )
+        # what a consumer sees of each input: the gaps between its messages (a robot that went
+        # blind: how long, how often) and answers to an input older than one already received
+        # (two sources answering out of turn: what the fallback's first-response rule prevents)
+        self._gaps = Histogram(
+            "fogfleet_input_gap",
+            "Time between consecutive messages of an input topic",
+            topic_labels,
+            unit="seconds",
+            buckets=GAP_BUCKETS_SECONDS,
+            registry=self.registry,
+        )
+        self._out_of_order = Counter(
+            "fogfleet_out_of_order_messages",
+            "Messages answering an older input than one already received on the topic",
+            topic_labels,
+            registry=self.registry,
+        )
+        self._last_seen: dict[str, tuple[float, int]] = {}  # topic -> (monotonic s, origin)
         self._ids = ids
         self.healthy = True
 
     def received(self, topic: str) -> None:
         self._received.labels(**self._ids, topic=topic).inc()
+
+    def input_seen(self, topic: str, now_s: float, origin_ns: int) -> None:
+        """A message of input ``topic`` arrived at ``now_s`` (monotonic), answering the input
+        sent at ``origin_ns`` (0: not an answer)."""
+        prev = self._last_seen.get(topic)
+        newest = origin_ns
+        if prev is not None:
+            self._gaps.labels(**self._ids, topic=topic).observe(max(0.0, now_s - prev[0]))
+            if 0 < origin_ns < prev[1]:
+                self._out_of_order.labels(**self._ids, topic=topic).inc()
+            newest = max(prev[1], origin_ns)
+        self._last_seen[topic] = (now_s, newest)
 
     def foreign(self, topic: str, sender: str) -> None:
         self._foreign.labels(**self._ids, topic=topic, sender=sender).inc()

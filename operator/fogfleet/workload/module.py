@@ -80,6 +80,7 @@ def run_module(
             if spec.robot and header.robot and header.robot != spec.robot:
                 metrics.foreign(topic, header.robot)
                 return
+            metrics.input_seen(topic, time.monotonic(), header.origin_ns)
             with lock:
                 latest[topic] = (header, now)
 

@@ -89,3 +89,26 @@ def test_the_spec_carries_the_role_and_the_windows() -> None:
 def test_bad_fallback_settings_are_named(env: dict[str, str], says: str) -> None:
     with pytest.raises(ValueError, match=says):
         WorkloadSpec.from_env(env)
+
+
+def test_input_gaps_and_out_of_order_answers_are_counted() -> None:
+    from prometheus_client import generate_latest
+
+    from fogfleet.workload.metrics import WorkloadMetrics
+
+    m = WorkloadMetrics("safety", "robot-1", "robot")
+    for t, origin in ((0.0, 100), (0.08, 200), (0.16, 300), (2.66, 250), (2.74, 400), (2.82, 0)):
+        m.input_seen("objects", t, origin)
+    text = generate_latest(m.registry).decode()
+
+    def value(series: str) -> float:
+        line = next(ln for ln in text.splitlines() if ln.startswith(series))
+        return float(line.rsplit(" ", 1)[1])
+
+    def gaps_up_to(le: str) -> float:
+        return value(f'fogfleet_input_gap_seconds_bucket{{le="{le}",module="safety"')
+
+    assert gaps_up_to("0.1") == 4  # four 80 ms gaps
+    assert gaps_up_to("2.0") == 4 and gaps_up_to("5.0") == 5  # and the 2.5 s one
+    # 250 answers an older input than 300: out of turn; 0 (not an answer) never is
+    assert value("fogfleet_out_of_order_messages_total{") == 1
