@@ -8,8 +8,6 @@ the workload's own counters scraped by Prometheus.
 
 from __future__ import annotations
 
-import re
-import urllib.request
 from collections.abc import Iterator
 from functools import partial
 from pathlib import Path
@@ -20,85 +18,28 @@ import pytest
 from e2e.cluster.harness import Cluster
 from e2e.cluster.kube import Kube
 from e2e.operator_fixtures import Operator, fleet, install_crds, pods_by_instance, wait_ready
+from e2e.rosbed import EDGE, PROBE_PORT, ROBOTS, compute_node, ros_module, scrape
 
 pytestmark = [pytest.mark.e2e, pytest.mark.real, pytest.mark.timeout(600)]
-
-ROBOTS = ("bed-robot-1", "bed-robot-2")
-EDGE = "bed-edge-1"
-IMAGE = "ghcr.io/fogfleet/ros2-module:0.1.0"
-PROBE_PORT = 9101
-
-
-def _compute_node(name: str, tier: str, hardware: str, link: dict[str, Any]) -> dict[str, Any]:
-    return {
-        "apiVersion": "fogfleet.io/v1alpha1",
-        "kind": "ComputeNode",
-        "metadata": {"name": name},
-        # capacity comes from the Node (the bed's real share); the link is the emulated one
-        "spec": {"tier": tier, "hardwareType": hardware, "network": [link], "privacyLevel": 3},
-    }
-
-
-def _module(
-    name: str,
-    ns: str,
-    *,
-    cycle_ms: int,
-    taxonomy: tuple[str, str, str],
-    subscribes: list[tuple[str, int, int]],
-    publishes: list[tuple[str, int, int]],
-    profile: list[tuple[str, str, float, float]],
-    tiers: list[str] | None = None,
-    probe: bool = False,
-) -> dict[str, Any]:
-    def topics(items: list[tuple[str, int, int]]) -> list[dict[str, Any]]:
-        return [{"name": n, "sizeBytes": s, "rateHz": r} for n, s, r in items]
-
-    spec: dict[str, Any] = {
-        "template": {"image": IMAGE, "metricsPort": 9100, "imagePullPolicy": "Never"},
-        "taxonomy": dict(zip(("executionPattern", "realtime", "safety"), taxonomy, strict=True)),
-        "cycleTimeMillis": cycle_ms,
-        "activationPercent": 100,
-        "resources": {"cpu": "100m", "memory": "256Mi"},
-        "topics": {"subscribes": topics(subscribes), "publishes": topics(publishes)},
-        "profile": [
-            # plain numbers (type: number), fractions unquoted
-            {"hardwareType": hw, "cpu": cpu, "meanMillis": mean, "stdMillis": std}
-            for hw, cpu, mean, std in profile
-        ],
-    }
-    if tiers:
-        spec["requirements"] = {"tiers": tiers}
-    if probe:  # the cycle-time sidecar users add to a module nobody instrumented
-        spec["template"]["sidecars"] = [
-            {"name": "cycle-probe", "image": IMAGE, "imagePullPolicy": "Never",
-             "args": ["probe", "--port", str(PROBE_PORT)], "metricsPort": PROBE_PORT},
-        ]  # fmt: skip
-    return {
-        "apiVersion": "fogfleet.io/v1alpha1",
-        "kind": "SoftwareModule",
-        "metadata": {"name": name, "namespace": ns},
-        "spec": spec,
-    }
 
 
 def _fleet_objects(ns: str) -> list[dict[str, Any]]:
     wifi = {"type": "wifi", "latencyMillis": 4, "jitterMillis": 1, "bandwidthMbps": 100}
     lan = {"type": "lan", "latencyMillis": 1, "jitterMillis": 0, "bandwidthMbps": 1000}
-    nodes = [_compute_node(r, "robot", "bed-robot", wifi) for r in ROBOTS]
-    nodes.append(_compute_node(EDGE, "edge", "bed-edge", lan))
+    nodes = [compute_node(r, "robot", "bed-robot", wifi) for r in ROBOTS]
+    nodes.append(compute_node(EDGE, "edge", "bed-edge", lan))
     modules = [
         # the lidar driver: hard real time, stays on its robot
-        _module("lidar", ns, cycle_ms=100, taxonomy=("periodic", "hard", "critical"),
+        ros_module("lidar", ns, cycle_ms=100, taxonomy=("periodic", "hard", "critical"),
                 subscribes=[], publishes=[("scan", 4096, 10)],
                 profile=[("bed-robot", "50m", 4, 0.5)]),
         # localization: runs on the robot here
-        _module("localizer", ns, cycle_ms=100, taxonomy=("continuous", "soft", "relevant"),
+        ros_module("localizer", ns, cycle_ms=100, taxonomy=("continuous", "soft", "relevant"),
                 subscribes=[("scan", 4096, 10)], publishes=[("pose", 256, 10)],
                 profile=[("bed-robot", "100m", 15, 2), ("bed-edge", "100m", 10, 1)],
                 tiers=["robot"]),
         # the planner: offloaded to the edge, talks to its robot through the discovery server
-        _module("planner", ns, cycle_ms=1000, taxonomy=("periodic", "soft", "relevant"),
+        ros_module("planner", ns, cycle_ms=1000, taxonomy=("periodic", "soft", "relevant"),
                 subscribes=[("pose", 256, 10)], publishes=[("plan", 2048, 1)],
                 profile=[("bed-robot", "200m", 300, 20), ("bed-edge", "200m", 120, 10)],
                 tiers=["edge"], probe=True),
@@ -202,7 +143,7 @@ def test_a_split_ros_fleet_talks_across_nodes_within_each_robot_only(
         # the probe counts a cycle once it has discovered both topics across the link, which
         # can come a few planner cycles after the planner's own first ones: wait for three
         kube.wait_for(f"three cycles timed by {robot}'s probe", partial(_timed, url, 3), 60, 2)
-        probed = _scrape(url)
+        probed = scrape(url)
         count = probed["fogfleet_cycle_time_seconds_count"]
         probe_mean = probed["fogfleet_cycle_time_seconds_sum"] / count
         own = mean[("planner", robot)]
@@ -212,15 +153,4 @@ def test_a_split_ros_fleet_talks_across_nodes_within_each_robot_only(
 
 
 def _timed(url: str, cycles: int) -> bool:
-    return _scrape(url).get("fogfleet_cycle_time_seconds_count", 0.0) >= cycles
-
-
-def _scrape(url: str) -> dict[str, float]:
-    """Totals per metric name (labels summed) from a Prometheus text endpoint."""
-    text = urllib.request.urlopen(url, timeout=5).read().decode()
-    out: dict[str, float] = {}
-    for line in text.splitlines():
-        m = re.match(r"^(fogfleet_\w+)(\{[^}]*\})?\s+([0-9.eE+-]+)$", line)
-        if m and not re.search(r'[{,]le="', m.group(2) or ""):  # not a histogram bucket
-            out[m.group(1)] = out.get(m.group(1), 0.0) + float(m.group(3))
-    return out
+    return scrape(url).get("fogfleet_cycle_time_seconds_count", 0.0) >= cycles

@@ -60,7 +60,11 @@ def plan_fleet(
     # a degraded plan's CPU amounts, feasibility and figures hold for the degraded problem
     problem = problem.with_levels(schedule.levels)
     with_limits = schedule.with_limits  # False: onboard, planned for the nominal allocation
-    if not schedule.feasible or not stickiness.feasible(problem, placement, with_limits):
+    # instances with no node left (stranded: their node is down) stay unplaced; every other
+    # one must be placed and the plan must hold
+    placeable = problem.allowed.any(axis=1)
+    unplaced = bool((placement[placeable] < 0).any())
+    if unplaced or not stickiness.feasible(problem, placement, with_limits):
         err = Infeasible(
             f"RobotFleet/{key[1]}",
             "spec",

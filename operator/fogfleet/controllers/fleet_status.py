@@ -17,6 +17,7 @@ from fogfleet.errors import DanglingReference, Infeasible, InvalidSpec
 from fogfleet.render.deployments import format_cpu, identity_of
 from fogfleet.scheduling import stickiness
 from fogfleet.scheduling.explain import degraded_message
+from fogfleet.scheduling.fallback import disconnected
 
 from .deps import CachedPlan, Deps, fleet_key
 from .status import (
@@ -148,6 +149,19 @@ def fleet_status(
         "modulesTotal": total,
         "split": split_text(tiers),
     }
+    if cached is not None and problem.fallback_rows.size and not baseline:
+        status["fallbacks"] = [
+            {
+                "robot": cut.robot,
+                "reservedCpu": format_cpu(cut.reserved_cpu),
+                "standbys": list(cut.standbys),
+                "stopped": list(cut.stopped),
+                "predictedMissRate": finite(cut.miss_rate),
+            }
+            for cut in disconnected(problem, cached.placement)
+        ]
+    elif old.get("fallbacks"):
+        status["fallbacks"] = []  # a merge patch would otherwise keep the stale list
     if cached is not None:
         objectives = cached.objectives
         status.update(

@@ -17,7 +17,7 @@ from fogfleet.api.v1alpha1.robotfleet import RobotFleet
 from fogfleet.api.v1alpha1.softwaremodule import Scope, SoftwareModule
 from fogfleet.errors import DanglingReference, InvalidSpec
 
-from .fallback import effective_fallback
+from .fallback import standby_rows
 from .network import Link, uplink
 from .pairs import Block, Pair, PairTable, ProfileRow, pad_rungs
 from .problem import (
@@ -313,17 +313,10 @@ def build_problem(
         which = {m: k for k, m in enumerate(names)}
         rows = np.array([which[inst.module] for inst in instances], dtype=np.int64)
         preferred = freeze(by_module[rows].reshape(i_count, n))
-    keeps = {m.metadata.name: effective_fallback(m.spec, fleet.spec) is not None
-             for m, *_ in modules}  # fmt: skip
-    fallback = None
-    if any(keeps.values()):
-        # only where the robot may run the module (the standby runs there)
-        hm = np.asarray(home, dtype=np.int64)
-        on_robot = hm >= 0
-        on_robot[on_robot] = allowed[np.flatnonzero(on_robot), hm[on_robot]]
-        fallback = freeze(np.array([keeps[inst.module] for inst in instances]) & on_robot)
+    fallback, fallback_row = standby_rows(fleet, modules, instances, home, allowed, lim, home_rungs)
     return Problem(
         fallback=fallback,
+        fallback_row=fallback_row,
         preferred=preferred,
         priority=freeze(np.array([priorities[inst.module] for inst in instances], dtype=np.int64)),
         ladder=_ladder(blocks, home, home_rungs, remote, lim),

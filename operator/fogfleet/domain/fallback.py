@@ -3,10 +3,14 @@ the planner (the robot's reserve, ``Problem.fallback``) and by the renderer (the
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 
+import numpy as np
+from numpy.typing import NDArray
+
+from fogfleet.api.v1alpha1.base import parse_cpu
 from fogfleet.api.v1alpha1.fallback import Fallback, FallbackMode
-from fogfleet.api.v1alpha1.robotfleet import RobotFleetSpec
+from fogfleet.api.v1alpha1.robotfleet import RobotFleet, RobotFleetSpec
 from fogfleet.api.v1alpha1.softwaremodule import (
     Scope,
     SoftwareModule,
@@ -14,7 +18,10 @@ from fogfleet.api.v1alpha1.softwaremodule import (
     must_run_on_board,
 )
 
-__all__ = ["effective_fallback", "fleet_fallbacks"]
+from .pairs import ProfileRow
+from .problem import F64, Instance, freeze
+
+__all__ = ["effective_fallback", "fleet_fallbacks", "standby_rows"]
 
 
 def effective_fallback(module: SoftwareModuleSpec, fleet: RobotFleetSpec) -> Fallback | None:
@@ -37,6 +44,7 @@ def effective_fallback(module: SoftwareModuleSpec, fleet: RobotFleetSpec) -> Fal
         mode=FallbackMode.ONBOARD,
         silent_cycles=source.silent_cycles,
         step_back_cycles=source.step_back_cycles,
+        cpu=source.cpu,
     )
 
 
@@ -50,3 +58,35 @@ def fleet_fallbacks(
         if got is not None:
             out[name] = got
     return out
+
+
+def standby_rows(
+    fleet: RobotFleet,
+    modules: Sequence[tuple[SoftwareModule, float, float, int]],
+    instances: Sequence[Instance],
+    home: Sequence[int],
+    allowed: NDArray[np.bool_],
+    lim: tuple[F64, F64, F64],
+    home_rungs: Mapping[int, tuple[ProfileRow, ...]],
+) -> tuple[NDArray[np.bool_] | None, F64 | None]:
+    """Which instances keep an on-board fallback (``domain.fallback``; only where the robot
+    may run the module: the standby runs there) and the profile row their standby runs with
+    at home: the largest rung at or below ``fallback.cpu``, else the smallest; the limits
+    pick when no cpu is given."""
+    chosen = {m.metadata.name: effective_fallback(m.spec, fleet.spec) for m, *_ in modules}
+    if not any(chosen.values()):
+        return None, None
+    keep = np.zeros(len(instances), dtype=bool)
+    row = np.zeros((len(instances), 3))
+    for i, inst in enumerate(instances):
+        fb, h = chosen.get(inst.module), home[i]
+        if fb is None or h < 0 or not allowed[i, h]:
+            continue
+        keep[i] = True
+        pick = ProfileRow(float(lim[0][i, h]), float(lim[1][i, h]), float(lim[2][i, h]))
+        rungs = home_rungs.get(i) or (pick,)
+        want = np.inf if fb.cpu is None else parse_cpu(fb.cpu)
+        fits = [r for r in rungs if r.cpu <= want + 1e-9]
+        best = max(fits, key=lambda r: r.cpu) if fits else min(rungs, key=lambda r: r.cpu)
+        row[i] = (best.cpu, best.mean, best.std)
+    return freeze(keep), freeze(row)

@@ -124,6 +124,7 @@ class Problem:
     levels: NDArray[np.int64] | None = None  # (I,) rungs taken below the pick; None: none
     preferred: NDArray[np.bool_] | None = None  # (I, N) node's tier preferred; None: no wishes
     fallback: NDArray[np.bool_] | None = None  # (I,) keeps an on-board fallback; None: none
+    fallback_row: F64 | None = None  # (I, 3) cpu, mean, std (s) its standby runs with at home
 
     @property
     def n_instances(self) -> int:
@@ -185,28 +186,40 @@ class Problem:
             return np.zeros(0, dtype=np.int64)
         return freeze(np.flatnonzero(self.fallback & (self.home >= 0)).astype(np.int64))
 
-    def fallback_reserve(self, allocation: Allocation) -> F64:
-        """(N, 3) cpu, memory, gpus each robot holds for its modules' on-board fallbacks.
+    def fallback_share(self, allocation: Allocation) -> F64:
+        """(I, 3) cpu, memory, gpus each instance with a fallback holds on its robot.
 
-        An instance with a fallback needs its on-board share on its robot wherever it runs:
-        on board it runs there, off board its standby must be able to take over there
-        without asking the control plane (issue 13; RoboEC2's local path). So the robot
-        holds that share, ``allocation``'s request at home, at all times, and the
-        instance's demand on its home node counts as zero (``held_at_home``): together the
-        same load as the instance on board, plus the standby's reserve when it is not.
+        It needs that share on its robot wherever it runs: on board it runs there, off board
+        its standby must be able to take over there without asking the control plane (issue
+        13; RoboEC2's local path). The standby runs with ``fallback_row`` (at most the CPU the
+        instance would get on board); on board the instance needs the rest of its request
+        on top (``held_at_home``: only that rest counts as its demand there).
         """
-        out = np.zeros((self.n_nodes, 3))
+        out = np.zeros((self.n_instances, 3))
         rows = self.fallback_rows
         if rows.size:
             homes = self.home[rows]
-            np.add.at(out[:, 0], homes, allocation.cpu_request[rows, homes])
-            np.add.at(out[:, 1], homes, self.memory[rows])
-            np.add.at(out[:, 2], homes, self.gpu[rows])
+            cpu = allocation.cpu_request[rows, homes]
+            if self.fallback_row is not None:
+                cpu = np.minimum(cpu, self.fallback_row[rows, 0])
+            out[rows, 0] = cpu
+            out[rows, 1] = self.memory[rows]
+            out[rows, 2] = self.gpu[rows]
+        return out
+
+    def fallback_reserve(self, allocation: Allocation) -> F64:
+        """(N, 3) what each robot holds for its modules' on-board fallbacks, whatever the plan
+        (the sum of their ``fallback_share``)."""
+        out = np.zeros((self.n_nodes, 3))
+        rows = self.fallback_rows
+        if rows.size:
+            np.add.at(out, self.home[rows], self.fallback_share(allocation)[rows])
         return out
 
     @cached_property
     def held_at_home(self) -> NDArray[np.bool_]:
-        """(I,) instances whose demand on their home node is in ``fallback_reserve``."""
+        """(I,) instances part of whose demand on their home node (``fallback_share``) is in
+        ``fallback_reserve``: there they count only the rest."""
         held = np.zeros(self.n_instances, dtype=bool)
         held[self.fallback_rows] = True
         return freeze(held)

@@ -47,7 +47,7 @@ from fogfleet.api.v1alpha1.robotfleet import DEFAULT_CPU_LIMIT_PERCENT
 from fogfleet.api.v1alpha1.softwaremodule import ProfileEntry, SoftwareModule
 from fogfleet.domain.problem import Instance, Problem
 from fogfleet.render.podtemplate import module_pod_spec, scrape_port
-from fogfleet.render.ros import RosWiring, module_env
+from fogfleet.render.ros import RosWiring, module_env, stay_on_robot
 
 __all__ = [
     "ANNOTATION_MODULE",
@@ -277,6 +277,15 @@ def render_instance(
                 "blockOwnerDeletion": True,
             }
         ]
+    pod_spec = module_pod_spec(
+        module,
+        container_name=_dns(module.metadata.name)[:MAX_NAME] or "module",
+        affinity=_affinity([problem.nodes[k].node_name for k in nodes]),
+        resources=resources,
+        owned_env=owned_env,
+    )
+    if tier == "robot":
+        stay_on_robot(pod_spec)
     dep: dict[str, Any] = {
         "apiVersion": "apps/v1",
         "kind": "Deployment",
@@ -291,13 +300,7 @@ def render_instance(
             },
             "template": {
                 "metadata": {"labels": labels, "annotations": pod_annotations},
-                "spec": module_pod_spec(
-                    module,
-                    container_name=_dns(module.metadata.name)[:MAX_NAME] or "module",
-                    affinity=_affinity([problem.nodes[k].node_name for k in nodes]),
-                    resources=resources,
-                    owned_env=owned_env,
-                ),
+                "spec": pod_spec,
             },
         },
     }

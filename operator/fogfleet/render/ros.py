@@ -28,6 +28,7 @@ from fogfleet.api.v1alpha1.softwaremodule import ProfileEntry, SoftwareModule
 __all__ = [
     "COMPONENT_DISCOVERY",
     "METRICS_PORT",
+    "ROBOT_TOLERATIONS",
     "RosWiring",
     "discovery_servers",
     "discovery_service_name",
@@ -36,12 +37,31 @@ __all__ = [
     "pod_security",
     "render_discovery",
     "service_address",
+    "stay_on_robot",
 ]
 
 METRICS_PORT = 9100
 PROBE_PORT = 42100  # the discovery server's TCP listener, for the kubelet's probes
 COMPONENT_DISCOVERY = "ros-discovery-server"
 NON_ROOT_UID = 65532
+
+
+# A pod pinned to a robot has nowhere else to go: when the robot drops off the network its
+# kubelet cannot reach the API server, the node turns unreachable/not-ready, and the default
+# NoExecute tolerations (300 s upstream, often less) would have the pod deleted and re-created
+# on the same robot once it is back, killing what kept the robot working while it was cut off
+# (issue 13; KubeEdge keeps such pods too). Robot-pinned pods tolerate both taints for ever.
+ROBOT_TOLERATIONS: tuple[dict[str, str], ...] = (
+    {"key": "node.kubernetes.io/unreachable", "operator": "Exists", "effect": "NoExecute"},
+    {"key": "node.kubernetes.io/not-ready", "operator": "Exists", "effect": "NoExecute"},
+)
+
+
+def stay_on_robot(pod_spec: dict[str, Any]) -> dict[str, Any]:
+    """``pod_spec`` with ``ROBOT_TOLERATIONS`` added to its own tolerations."""
+    have = list(pod_spec.get("tolerations") or [])
+    pod_spec["tolerations"] = have + [dict(t) for t in ROBOT_TOLERATIONS if t not in have]
+    return pod_spec
 
 
 def robot_label(robot: str) -> str:
@@ -264,6 +284,7 @@ def render_discovery(
                     "securityContext": pod_sc,
                     "containers": [container],
                     "volumes": [{"name": "tmp", "emptyDir": {"sizeLimit": "16Mi"}}],
+                    "tolerations": [dict(t) for t in ROBOT_TOLERATIONS],
                 },
             },
         },

@@ -100,7 +100,8 @@ def give_back(problem: Problem, x: I64) -> I64:
             at_home = 0.0
             if held[i] and h != j:
                 k = min(int(levels[i]), int(lad.depth[i, h]))
-                at_home = lad.cpu[i, h, max(k - 1, 0)] - lad.cpu[i, h, k]
+                cap = np.inf if problem.fallback_row is None else problem.fallback_row[i, 0]
+                at_home = min(lad.cpu[i, h, max(k - 1, 0)], cap) - min(lad.cpu[i, h, k], cap)
                 if used[h] + at_home > problem.capacity[h, 0] + 1e-9:
                     continue
             if used[j] + more <= problem.capacity[j, 0] + 1e-9:

@@ -118,13 +118,16 @@ class Evaluation:
         return np.asarray(held, dtype=bool)
 
     def _requested(self, w: F64, r: int) -> F64:
-        """Per-node requests of resource ``r`` from per-instance weights ``w`` (P, I), with
-        each robot's fallback reserve in place of its fallback instances' on-board demand."""
+        """Per-node requests of resource ``r`` from per-instance weights ``w`` (P, I): each
+        robot's fallback reserve, plus what its fallback instances on board need beyond
+        their share of it, plus everything else."""
         held = self._held
         if held is None:
             return self.per_node(w)
-        reserve = self.problem.fallback_reserve(self.alloc)[:, r]
-        return self.per_node(np.where(held, 0.0, w)) + reserve[None, :]
+        p = self.problem
+        share = p.fallback_share(self.alloc)[:, r]
+        reserve = p.fallback_reserve(self.alloc)[:, r]
+        return self.per_node(np.where(held, w - share[None, :], w)) + reserve[None, :]
 
     @cached_property
     def cpu_requested(self) -> F64:

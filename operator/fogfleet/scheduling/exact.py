@@ -133,9 +133,11 @@ def solve_exact(
     lo.append(np.ones(len(genes)))
     hi.append(np.ones(len(genes)))
     demand = [alloc.cpu_request[pi, pj], problem.memory[pi], problem.gpu[pi]]
-    # a fallback's home share is its robot's reserve, held whatever the plan: a constant
+    # a fallback's share at home is its robot's reserve, held whatever the plan (a constant);
+    # on board the instance adds only the rest
     held = problem.held_at_home[pi] & (pj == problem.home[pi])
-    demand = [np.where(held, 0.0, d) for d in demand]
+    share = problem.fallback_share(alloc)[pi]
+    demand = [np.where(held, d - share[:, r], d) for r, d in enumerate(demand)]
     reserve = problem.fallback_reserve(alloc)
     z = sp.csr_matrix((-np.ones(n_n), (np.arange(n_n), np.full(n_n, n_pairs))), shape=(n_n, nv))
     for r in range(3):

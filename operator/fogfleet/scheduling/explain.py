@@ -46,7 +46,25 @@ def infeasible_message(problem: Problem, placement: np.ndarray, reasons: dict[in
         ]
     head = "no placement fits the fleet's nodes"
     detail = "; ".join([*fits_nowhere[:4], *parts[:8]]) or "constraints violated"
-    return f"{head}: {detail}"
+    return f"{head}: {detail}{_reserve_note(problem)}"
+
+
+def _reserve_note(problem: Problem) -> str:
+    """What the robots hold for on-board fallbacks (issue 13), when they hold anything."""
+    rows = problem.fallback_rows
+    if not rows.size:
+        return ""
+    reserve = problem.fallback_reserve(problem.limits)[:, 0]
+    robots = np.flatnonzero(reserve > 0)
+    modules = sorted({problem.instances[i].module for i in rows})
+    each = ", ".join(
+        f"{problem.nodes[r].name} {format_cores(float(reserve[r]))}" for r in robots[:4]
+    )
+    more = f" and {len(robots) - 4} more robots" if len(robots) > 4 else ""
+    return (
+        f" (CPU held for on-board fallbacks of {', '.join(modules)}: {each}{more}; a module "
+        "with fallback.mode onboard keeps its on-board share on its robot wherever it runs)"
+    )
 
 
 def _amount(resource: str, value: float) -> str:

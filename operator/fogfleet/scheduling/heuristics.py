@@ -59,22 +59,27 @@ class Fit:
         self.uplink = UPLINK_SHARE * problem.uplink_bandwidth
 
     @cached_property
+    def share(self) -> F64:
+        """(I, 3) each instance's share of its robot's ``reserve`` (``Problem.fallback_share``)."""
+        return self.problem.fallback_share(self.allocation)
+
+    @cached_property
     def reserve(self) -> F64:
         """(N, 3) what each robot holds for on-board fallbacks whatever the plan
         (``Problem.fallback_reserve``): every load summed from ``demand`` starts from it."""
         return self.problem.fallback_reserve(self.allocation)
 
     def demand_rows(self, rows: NDArray[np.int64]) -> F64:
-        """(R, N, 3) cpu request, memory, gpus of the instances ``rows`` on every node (zero
-        on its home node for an instance with a fallback: that share is in ``reserve``)."""
+        """(R, N, 3) cpu request, memory, gpus of the instances ``rows`` on every node (on its
+        home node an instance with a fallback needs only what its ``share`` does not cover)."""
         p = self.problem
         out = np.empty((len(rows), p.n_nodes, 3))
         out[:, :, 0] = self.allocation.cpu_request[rows]
         out[:, :, 1] = p.memory[rows][:, None]
         out[:, :, 2] = p.gpu[rows][:, None]
         held = p.held_at_home[rows]
-        if held.any():  # their home share is in ``reserve``
-            out[np.flatnonzero(held), p.home[rows[held]], :] = 0.0
+        if held.any():  # their share at home is in ``reserve``
+            out[np.flatnonzero(held), p.home[rows[held]], :] -= self.share[rows[held]]
         return out
 
     def demand_at(self, rows: NDArray[np.int64], nodes: NDArray[np.int64]) -> F64:
@@ -83,7 +88,7 @@ class Fit:
         cpu = self.allocation.cpu_request[rows, nodes]
         out = np.stack([cpu, p.memory[rows], p.gpu[rows]], axis=1)
         held = p.held_at_home[rows] & (nodes == p.home[rows])
-        out[held] = 0.0  # in ``reserve``
+        out[held] -= self.share[rows[held]]  # in ``reserve``
         return out
 
     def pref_rows(self, rows: NDArray[np.int64], q: F64 | None = None) -> F64:

@@ -102,7 +102,8 @@ def fingerprint(problem: Problem, settings: SchedulerSettings) -> str:
 
 
 def mask_unavailable(problem: Problem, unavailable: Mapping[int, str]) -> tuple[Problem, set[int]]:
-    """Drop unavailable nodes (NotReady, cordoned, missing) from every gene space.
+    """Drop unavailable nodes (NotReady, cordoned, missing) from every gene space; the
+    instances of a robot that is down keep the node they run on and nothing else.
 
     Returns the narrowed problem and the *stranded* instances: those that could run before
     but now have no node left (e.g. the on-board modules of a robot that is down).
@@ -114,6 +115,13 @@ def mask_unavailable(problem: Problem, unavailable: Mapping[int, str]) -> tuple[
     allowed[:, cols] = False
     current = problem.current.copy()
     current[np.isin(current, cols)] = -1
+    # a robot that is down (cut off, stopped) takes its data with it: its instances elsewhere
+    # stay where they run (their node keeps their share) instead of being planned anew
+    down = np.isin(problem.home, [j for j in cols if problem.tier[j] == 0])
+    rows = np.flatnonzero(down)
+    keep = current[rows]
+    allowed[rows] = False
+    allowed[rows[keep >= 0], keep[keep >= 0]] = True
     stranded = {int(i) for i in np.flatnonzero(problem.allowed.any(axis=1) & ~allowed.any(axis=1))}
     reasons = dict(problem.reasons)
     for i in stranded:

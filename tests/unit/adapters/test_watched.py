@@ -30,9 +30,7 @@ def obj(name: str, ns: str = "a", rv: str = "1", **labels: str) -> dict:
 def kube(monkeypatch):
     calls: list[str] = []
     for name in ("list_pods", "list_deployments", "list_nodes", "list_modules"):
-        monkeypatch.setattr(
-            KubeClient, name, lambda self, *a, name=name: calls.append(name) or []
-        )
+        monkeypatch.setattr(KubeClient, name, lambda self, *a, name=name: calls.append(name) or [])
     k = WatchedKube(client.ApiClient(client.Configuration()), namespaces=["a", "b"])
     k.calls = calls
     return k

@@ -263,6 +263,9 @@ def test_every_robot_gets_a_discovery_server_on_its_own_node_and_its_modules_use
         assert dep["spec"]["template"]["spec"]["affinity"]["nodeAffinity"][
             "requiredDuringSchedulingIgnoredDuringExecution"
         ]["nodeSelectorTerms"][0]["matchExpressions"][0]["values"] == [robot]
+        # it stays on its robot while the robot is cut off (no eviction)
+        tolerated = {t["key"] for t in dep["spec"]["template"]["spec"]["tolerations"]}
+        assert {"node.kubernetes.io/unreachable", "node.kubernetes.io/not-ready"} <= tolerated
     ips = {k[1]: s["spec"]["clusterIP"] for k, s in kube.services.items()}
     # each Service selects its own robot's server pod, never another robot's
     for (_, name), svc in kube.services.items():
@@ -458,3 +461,88 @@ def test_a_robot_listed_twice_is_refused_naming_it():
         RobotFleetSpec.model_validate(
             {"robots": ["r"], "nodes": ["edge-1", "edge-1"], "modules": [{"name": "m"}]}
         )
+
+
+def _standbys(kube) -> dict[str, dict]:
+    """robot -> its standby Deployment (an on-board fallback)."""
+    return {
+        d["metadata"]["annotations"]["fogfleet.io/robot"]: d
+        for d in module_deps(kube).values()
+        if d["metadata"]["annotations"].get("fogfleet.io/role") == "standby"
+    }
+
+
+def test_a_fleet_whose_robots_cannot_hold_every_fallback_is_refused_saying_why(kube, deps):
+    """The warehouse's robots are saturated by their own eight modules: holding a share for
+    every offloadable one does not fit, and the fleet is refused, not silently overcommitted."""
+    kube.fleets[KEY]["spec"]["fallback"] = {"mode": "onboard"}
+    with pytest.raises(Infeasible) as info:
+        run(kube, deps)
+    assert "held for on-board fallbacks" in str(info.value)
+    assert not module_deps(kube)
+
+
+def test_offloaded_fallbacks_get_standbys_their_robots_keep_while_down(kube, deps):
+    hpe = kube.modules[("warehouse", "human-pose-estimation")]["spec"]
+    # with a fallback, offloading frees nothing on the robot: only the preference sends it out
+    hpe["fallback"], hpe["preferredTiers"] = {"mode": "onboard", "cpu": 1}, ["edge"]
+    kube.fleets[KEY]["spec"].setdefault("scheduler", {})["migrationMarginPercent"] = 100
+    run(kube, deps)
+    kube.run_pods()
+    assert run(kube, deps).ready  # the standbys' pods count: they must run too
+    status = kube.fleets[KEY]["status"]
+    cuts = {c["robot"]: c for c in status["fallbacks"]}
+    standbys = _standbys(kube)
+    assert standbys, "the plan offloads modules that keep a fallback"
+    for robot, dep in standbys.items():
+        module = dep["metadata"]["annotations"]["fogfleet.io/module"]
+        assert module in cuts[robot]["standbys"] and parse_cpu(cuts[robot]["reservedCpu"]) > 0
+        assert 0 <= cuts[robot]["predictedMissRate"] <= 1
+    # the placement in status is the instances', not the standbys'
+    assert len(status["placement"]) == status["modulesTotal"]
+    # a robot that is down (its link cut) keeps its standby and its remote instances untouched
+    robot = sorted(standbys)[0]
+    versions = {
+        n: d["metadata"]["annotations"]["fogfleet.io/spec-hash"]
+        for n, d in module_deps(kube).items()
+    }
+    kube.set_ready(robot, False)
+    run(kube, deps)
+    assert robot in _standbys(kube)
+    after = {
+        n: d["metadata"]["annotations"]["fogfleet.io/spec-hash"]
+        for n, d in module_deps(kube).items()
+    }
+    assert after == versions
+    # without fallbacks the standbys go and the status says nothing of them
+    kube.set_ready(robot, True)
+    module = kube.modules[("warehouse", "human-pose-estimation")]
+    del module["spec"]["fallback"]
+    module["metadata"]["generation"] += 1
+    run(kube, deps)
+    assert not _standbys(kube) and not kube.fleets[KEY]["status"].get("fallbacks")
+
+
+def test_a_robot_that_is_down_leaves_everything_where_it_runs(kube, deps):
+    """Its on-board modules are stranded (kept, reported), its offloaded ones stay on their
+    nodes: nothing is re-planned around a robot whose data went with it."""
+    run(kube, deps)
+    kube.run_pods()
+    run(kube, deps)
+    before = placement(kube)
+    versions = {
+        n: d["metadata"]["annotations"]["fogfleet.io/spec-hash"]
+        for n, d in module_deps(kube).items()
+    }
+    kube.set_ready("robot-1", False)
+    out = run(kube, deps)
+    assert out.migrations == 0 and placement(kube) == before
+    assert {
+        n: d["metadata"]["annotations"]["fogfleet.io/spec-hash"]
+        for n, d in module_deps(kube).items()
+    } == versions
+    cond = conditions(kube)["Ready"]
+    assert (cond["status"], cond["reason"]) == ("False", "NodeUnavailable")
+    assert "robot-1 is NotReady" in cond["message"]
+    kube.set_ready("robot-1", True)
+    assert run(kube, deps).ready and placement(kube) == before

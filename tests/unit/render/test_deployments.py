@@ -180,3 +180,22 @@ def test_long_label_values_are_shortened_validly():
     assert len(value) <= 63
     assert re.fullmatch(r"[A-Za-z0-9]([-A-Za-z0-9_.]*[A-Za-z0-9])?", value)
     assert label_value("robot-1") == "robot-1"
+
+
+def test_pods_pinned_to_a_robot_stay_while_it_is_cut_off_and_others_do_not(catalog, problem):
+    """A robot's pods tolerate its node turning unreachable or not ready (no eviction: they
+    have nowhere else to go), edge pods keep the cluster's eviction."""
+    robots = set(np.flatnonzero(problem.tier == 0).tolist())
+    x = np.array([int(np.flatnonzero(row)[-1]) for row in problem.allowed])  # edge where allowed
+    deps = render_fleet(problem, modules(catalog), x)
+    taints = {"node.kubernetes.io/unreachable", "node.kubernetes.io/not-ready"}
+    seen = set()
+    for i, dep in zip(range(problem.n_instances), deps, strict=True):
+        tol = dep["spec"]["template"]["spec"].get("tolerations", [])
+        forever = {
+            t["key"] for t in tol
+            if t.get("effect") == "NoExecute" and "tolerationSeconds" not in t
+        }  # fmt: skip
+        seen.add(x[i] in robots)
+        assert forever == (taints if x[i] in robots else set()), dep["metadata"]["name"]
+    assert seen == {True, False}

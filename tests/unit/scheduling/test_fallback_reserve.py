@@ -118,3 +118,15 @@ def test_a_robot_too_small_for_the_reserve_makes_the_plan_infeasible() -> None:
     assert plan(_robot_and_edge(1.5), settings).feasible
     s = plan(_with_fallback(_robot_and_edge(1.5), 1), settings)
     assert not s.feasible
+
+
+def test_what_a_lost_link_leaves_of_each_robot() -> None:
+    from fogfleet.scheduling.fallback import disconnected
+
+    p = _with_fallback(_robot_and_edge(), 1)
+    (cut,) = disconnected(p, np.array([ROBOT, EDGE, EDGE]))
+    assert (cut.robot, cut.reserved_cpu, cut.standbys, cut.stopped) == ("n0", 1.0, ("m1",), ("m2",))
+    # on board the pinned module and the standby meet their 100 ms cycles; m2 is gone
+    assert cut.miss_rate == pytest.approx(1 / 3, abs=1e-3)
+    # nothing offloaded: nothing to lose
+    assert disconnected(p, np.array([ROBOT, ROBOT, ROBOT])) == []

@@ -3,7 +3,8 @@
 RoboEC2 (roboec2-dnn-offloading) keeps a local path that works while the robot is
 disconnected; a robot cut off from the edge cannot reach the API server either, so fogfleet
 plans the fallback with the placement: with ``mode: onboard`` the robot always holds the
-module's on-board share (the planner reserves it, as a constraint), and while the module runs
+module's on-board share, or the smaller ``cpu`` given (the planner reserves it, as a
+constraint), and while the module runs
 off board a standby on the robot relays its outputs and computes them itself when they go
 silent for ``silentCycles`` cycles, handing back once the remote has delivered for
 ``stepBackCycles`` cycles.
@@ -14,9 +15,9 @@ from __future__ import annotations
 from enum import StrEnum
 from typing import Annotated
 
-from pydantic import Field
+from pydantic import Field, model_validator
 
-from .base import FogModel
+from .base import FogModel, Quantity, parse_cpu
 
 __all__ = ["Fallback", "FallbackMode"]
 
@@ -37,3 +38,14 @@ class Fallback(FogModel):
     """Cycles without an output of the remote instance before the standby takes over."""
     step_back_cycles: Annotated[int, Field(ge=1, le=10000)] = 10
     """Cycles the remote instance must deliver without a gap before the standby hands back."""
+    cpu: Quantity | None = None
+    """CPU the standby runs with on the robot: the largest profiled CPU of the robot's
+    hardware at or below it (the smallest profiled one if none is). Unset: the module's own
+    on-board share. Less holds less on the robot and misses more while its link is down
+    (status.fallbacks predicts how much)."""
+
+    @model_validator(mode="after")
+    def _check(self) -> Fallback:
+        if self.cpu is not None and parse_cpu(self.cpu) <= 0:
+            raise ValueError("cpu: must be greater than zero")
+        return self

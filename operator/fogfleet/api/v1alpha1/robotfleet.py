@@ -282,6 +282,20 @@ class ObjectiveValue(FogModel):
     """Its value (lower is better)."""
 
 
+class RobotFallbackStatus(FogModel):
+    """What losing its link costs one robot under the deployed plan (fleets with fallbacks)."""
+
+    robot: str
+    reserved_cpu: str
+    """CPU the robot holds for its modules' on-board fallbacks, whatever the plan."""
+    standbys: list[str] = Field(default_factory=list)
+    """Offloaded modules whose standby on the robot takes over."""
+    stopped: list[str] = Field(default_factory=list)
+    """Offloaded modules without a fallback: they stop while the link is down."""
+    predicted_miss_rate: float
+    """Predicted fraction of the robot's cycles missed while its link is down (0-1)."""
+
+
 class RobotFleetStatus(FogModel):
     """The deployed plan and how its rollout stands (written by the operator)."""
 
@@ -312,6 +326,9 @@ class RobotFleetStatus(FogModel):
     """Instances the last plan moved."""
     last_plan_time: str | None = None
     """When the fleet was last planned (RFC 3339)."""
+    fallbacks: list[RobotFallbackStatus] = Field(default_factory=list)
+    """Per robot with offloaded modules, in a fleet with on-board fallbacks: its reserve and
+    what a lost link leaves of it."""
 
 
 class RobotFleet(FogModel):

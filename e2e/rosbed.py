@@ -1,0 +1,106 @@
+"""Objects of a small ROS 2 fleet on the bed's real nodes (the workload image plays them), and
+reading a pod's metrics: shared by the real-node e2e tests."""
+
+from __future__ import annotations
+
+import re
+import urllib.request
+from typing import Any
+
+__all__ = [
+    "EDGE",
+    "IMAGE",
+    "PROBE_PORT",
+    "ROBOTS",
+    "compute_node",
+    "ros_module",
+    "scrape",
+    "scrape_series",
+]
+
+ROBOTS = ("bed-robot-1", "bed-robot-2")
+EDGE = "bed-edge-1"
+IMAGE = "ghcr.io/fogfleet/ros2-module:0.1.0"
+PROBE_PORT = 9101
+
+
+def compute_node(name: str, tier: str, hardware: str, link: dict[str, Any]) -> dict[str, Any]:
+    return {
+        "apiVersion": "fogfleet.io/v1alpha1",
+        "kind": "ComputeNode",
+        "metadata": {"name": name},
+        # capacity comes from the Node (the bed's real share); the link is the emulated one
+        "spec": {"tier": tier, "hardwareType": hardware, "network": [link], "privacyLevel": 3},
+    }
+
+
+def ros_module(
+    name: str,
+    ns: str,
+    *,
+    cycle_ms: int,
+    taxonomy: tuple[str, str, str],
+    subscribes: list[tuple[str, int, int]],
+    publishes: list[tuple[str, int, int]],
+    profile: list[tuple[str, str, float, float]],
+    tiers: list[str] | None = None,
+    probe: bool = False,
+    **extra: Any,
+) -> dict[str, Any]:
+    """A SoftwareModule the workload image plays; ``extra`` goes into its spec as it is."""
+
+    def topics(items: list[tuple[str, int, int]]) -> list[dict[str, Any]]:
+        return [{"name": n, "sizeBytes": s, "rateHz": r} for n, s, r in items]
+
+    spec: dict[str, Any] = {
+        "template": {"image": IMAGE, "metricsPort": 9100, "imagePullPolicy": "Never"},
+        "taxonomy": dict(zip(("executionPattern", "realtime", "safety"), taxonomy, strict=True)),
+        "cycleTimeMillis": cycle_ms,
+        "activationPercent": 100,
+        "resources": {"cpu": "100m", "memory": "256Mi"},
+        "topics": {"subscribes": topics(subscribes), "publishes": topics(publishes)},
+        "profile": [
+            # plain numbers (type: number), fractions unquoted
+            {"hardwareType": hw, "cpu": cpu, "meanMillis": mean, "stdMillis": std}
+            for hw, cpu, mean, std in profile
+        ],
+    }
+    if tiers:
+        spec["requirements"] = {"tiers": tiers}
+    spec.update(extra)
+    if probe:  # the cycle-time sidecar users add to a module nobody instrumented
+        spec["template"]["sidecars"] = [
+            {"name": "cycle-probe", "image": IMAGE, "imagePullPolicy": "Never",
+             "args": ["probe", "--port", str(PROBE_PORT)], "metricsPort": PROBE_PORT},
+        ]  # fmt: skip
+    return {
+        "apiVersion": "fogfleet.io/v1alpha1",
+        "kind": "SoftwareModule",
+        "metadata": {"name": name, "namespace": ns},
+        "spec": spec,
+    }
+
+
+def scrape(url: str) -> dict[str, float]:
+    """Totals per metric name (labels summed) from a Prometheus text endpoint."""
+    text = urllib.request.urlopen(url, timeout=5).read().decode()
+    out: dict[str, float] = {}
+    for line in text.splitlines():
+        m = re.match(r"^(fogfleet_\w+)(\{[^}]*\})?\s+([0-9.eE+-]+)$", line)
+        if m and not re.search(r'[{,]le="', m.group(2) or ""):  # not a histogram bucket
+            out[m.group(1)] = out.get(m.group(1), 0.0) + float(m.group(3))
+    return out
+
+
+def scrape_series(url: str, name: str, **labels: str) -> float:
+    """The sum of the series of metric ``name`` whose labels include ``labels``."""
+    text = urllib.request.urlopen(url, timeout=5).read().decode()
+    total = 0.0
+    for line in text.splitlines():
+        m = re.match(r"^(\w+)\{([^}]*)\}\s+([0-9.eE+-]+)$", line)
+        if not m or m.group(1) != name:
+            continue
+        have = dict(re.findall(r'(\w+)="([^"]*)"', m.group(2)))
+        if all(have.get(k) == v for k, v in labels.items()):
+            total += float(m.group(3))
+    return total

@@ -1,0 +1,55 @@
+"""What a lost link leaves of each robot under a plan (issue 13): its offloaded modules with an
+on-board fallback run on board, in the share the robot holds for them
+(``Problem.fallback_reserve``); its other offloaded modules stop, so every cycle they would
+have run counts as missed. The prediction uses the plan's own load model
+(``Evaluation.instance_miss``) and the fleet's miss-rate definition: the mean over modules of
+each module's share of missed cycles (here one instance per module and robot)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from fogfleet.domain.problem import Problem
+
+from .evaluation import Evaluation
+
+__all__ = ["CutRobot", "disconnected"]
+
+
+@dataclass(frozen=True)
+class CutRobot:
+    robot: str
+    reserved_cpu: float  # cores the robot holds for its fallbacks, whatever the plan
+    standbys: tuple[str, ...]  # offloaded modules whose standby takes over
+    stopped: tuple[str, ...]  # offloaded modules without a fallback: they stop
+    miss_rate: float  # predicted while the link is down
+
+
+def disconnected(problem: Problem, x: NDArray[np.integer]) -> list[CutRobot]:
+    """Per robot with an offloaded module (in node order): what losing its link costs."""
+    x = np.asarray(x, dtype=np.int64)
+    home = problem.home
+    held = problem.held_at_home
+    off = (home >= 0) & (x >= 0) & (x != home)
+    local = np.where(off & held, home, x)  # the standbys take over on board
+    miss = Evaluation(problem, local[None, :], problem.limits).instance_miss()[0]
+    miss = np.where(off & ~held, 1.0, miss)
+    reserve = problem.fallback_reserve(problem.limits)[:, 0]
+    out: list[CutRobot] = []
+    for r in np.flatnonzero(problem.tier == 0):
+        mine = np.flatnonzero((home == r) & (x >= 0))
+        if not off[mine].any():
+            continue
+        out.append(
+            CutRobot(
+                robot=problem.nodes[r].name,
+                reserved_cpu=float(reserve[r]),
+                standbys=tuple(problem.instances[i].module for i in mine if off[i] and held[i]),
+                stopped=tuple(problem.instances[i].module for i in mine if off[i] and not held[i]),
+                miss_rate=float(miss[mine].mean()),
+            )
+        )
+    return out
