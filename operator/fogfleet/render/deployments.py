@@ -208,7 +208,11 @@ def render_instance(
     with_limits = with_limits and not baseline
     alloc = problem.limits if with_limits else problem.nominal
     j = nodes[0]
-    cpu = format_cpu(float(alloc.cpu_request[i, j]))
+    request, use = float(alloc.cpu_request[i, j]), float(alloc.cpu_use[i, j])
+    if role == ROLE_STANDBY and problem.fallback_row is not None:
+        # its share of the robot's reserve (Problem.fallback_share): the row it runs with
+        request = use = min(request, float(problem.fallback_row[i, 0]))
+    cpu = format_cpu(request)
     memory = str(int(np.ceil(problem.memory[i])))
     requests: dict[str, str] = {"cpu": cpu, "memory": memory}
     resources: dict[str, Any] = {"requests": requests}
@@ -216,8 +220,8 @@ def render_instance(
         limits = dict(requests)
         # what its row needs (a degraded instance, Problem.with_levels: more than it is
         # guaranteed), with the fleet's headroom for bursts (SchedulerSettings.cpu_limit_percent)
-        limit = float(alloc.cpu_use[i, j]) * cpu_limit_percent / 100
-        if limit > alloc.cpu_request[i, j]:
+        limit = use * cpu_limit_percent / 100
+        if limit > request:
             limits["cpu"] = format_cpu(limit)
         if problem.gpu[i] > 0:
             limits["nvidia.com/gpu"] = str(int(problem.gpu[i]))

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from fogfleet.domain.problem import Problem
+from fogfleet.domain.problem import Allocation, Problem
 
 from .evaluation import Evaluation
 
@@ -35,7 +35,8 @@ def disconnected(problem: Problem, x: NDArray[np.integer]) -> list[CutRobot]:
     held = problem.held_at_home
     off = (home >= 0) & (x >= 0) & (x != home)
     local = np.where(off & held, home, x)  # the standbys take over on board
-    miss = Evaluation(problem, local[None, :], problem.limits).instance_miss()[0]
+    ev = Evaluation(problem, local[None, :], _standby_allocation(problem, off & held))
+    miss = ev.instance_miss()[0]
     miss = np.where(off & ~held, 1.0, miss)
     reserve = problem.fallback_reserve(problem.limits)[:, 0]
     out: list[CutRobot] = []
@@ -53,3 +54,20 @@ def disconnected(problem: Problem, x: NDArray[np.integer]) -> list[CutRobot]:
             )
         )
     return out
+
+
+def _standby_allocation(problem: Problem, standing_in: NDArray[np.bool_]) -> Allocation:
+    """The limits allocation with the standbys of ``standing_in`` on their home node running
+    the row they were given (``Problem.fallback_row``: maybe less than the module's own)."""
+    lim = problem.limits
+    rows = np.flatnonzero(standing_in)
+    if problem.fallback_row is None or not rows.size:
+        return lim
+    h = problem.home[rows]
+    fb = problem.fallback_row[rows]
+    request, use = lim.cpu_request.copy(), lim.cpu_use.copy()
+    mean, std = lim.exe_mean.copy(), lim.exe_std.copy()
+    cpu = np.minimum(request[rows, h], fb[:, 0])
+    for a, v in zip((request, use, mean, std), (cpu, cpu, fb[:, 1], fb[:, 2]), strict=True):
+        a[rows, h] = v
+    return Allocation(request, use, mean, std, lim.has_limit)
