@@ -286,6 +286,7 @@ class RobotFallbackStatus(FogModel):
     """What losing its link costs one robot under the deployed plan (fleets with fallbacks)."""
 
     robot: str
+    """The robot's ComputeNode."""
     reserved_cpu: str
     """CPU the robot holds for its modules' on-board fallbacks, whatever the plan."""
     standbys: list[str] = Field(default_factory=list)
