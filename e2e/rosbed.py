@@ -5,14 +5,23 @@ from __future__ import annotations
 
 import re
 import urllib.request
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
 from typing import Any
+
+from e2e.cluster.harness import Cluster
+from e2e.cluster.kube import Kube
+from e2e.operator_fixtures import Operator, install_crds, wait_ready
 
 __all__ = [
     "EDGE",
     "IMAGE",
     "PROBE_PORT",
     "ROBOTS",
+    "bed_objects",
     "compute_node",
+    "operated_fleet",
     "ros_module",
     "scrape",
     "scrape_series",
@@ -79,6 +88,51 @@ def ros_module(
         "metadata": {"name": name, "namespace": ns},
         "spec": spec,
     }
+
+
+def bed_objects(ns: str, fleet: str, modules: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """The bed's two robots (Wi-Fi) and edge node (LAN) as ComputeNodes, ``modules``, and a
+    RobotFleet ``fleet`` of them with a small, seeded scheduler budget."""
+    wifi = {"type": "wifi", "latencyMillis": 4, "jitterMillis": 1, "bandwidthMbps": 100}
+    lan = {"type": "lan", "latencyMillis": 1, "jitterMillis": 0, "bandwidthMbps": 1000}
+    nodes = [compute_node(r, "robot", "bed-robot", wifi) for r in ROBOTS]
+    nodes.append(compute_node(EDGE, "edge", "bed-edge", lan))
+    fleet_obj = {
+        "apiVersion": "fogfleet.io/v1alpha1",
+        "kind": "RobotFleet",
+        "metadata": {"name": fleet, "namespace": ns},
+        "spec": {
+            "robots": list(ROBOTS),
+            "nodes": [EDGE],
+            "modules": [{"name": m["metadata"]["name"]} for m in modules],
+            "scheduler": {"population": 20, "generations": 10, "seed": 1},
+        },
+    }
+    return [*nodes, *modules, fleet_obj]
+
+
+@contextmanager
+def operated_fleet(
+    kube: Kube,
+    cluster: Cluster,
+    namespace: str,
+    tmp_path: Path,
+    diagnostics: list[Any],
+    objects: list[dict[str, Any]],
+    fleet: str,
+) -> Iterator[str]:
+    """The operator running, ``objects`` applied and the fleet Ready; yields the namespace."""
+    assert set(ROBOTS) | {EDGE} <= set(cluster.real_nodes)
+    install_crds(kube)
+    op = Operator(kube.kubeconfig, [namespace], tmp_path / "operator.log")
+    diagnostics.append(lambda: ("operator log", op.logs(150)))
+    op.start().wait_live()
+    try:
+        kube.apply(objects)
+        wait_ready(kube, namespace, fleet, timeout=300)
+        yield namespace
+    finally:
+        op.stop()
 
 
 def scrape(url: str) -> dict[str, float]:

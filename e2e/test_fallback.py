@@ -23,8 +23,8 @@ import pytest
 
 from e2e.cluster.harness import Cluster
 from e2e.cluster.kube import Kube
-from e2e.operator_fixtures import Operator, fleet, install_crds, pods_by_instance, wait_ready
-from e2e.rosbed import EDGE, ROBOTS, compute_node, ros_module, scrape, scrape_series
+from e2e.operator_fixtures import fleet, pods_by_instance
+from e2e.rosbed import EDGE, ROBOTS, bed_objects, operated_fleet, ros_module, scrape, scrape_series
 
 pytestmark = [pytest.mark.e2e, pytest.mark.real, pytest.mark.disconnect, pytest.mark.timeout(600)]
 
@@ -35,10 +35,6 @@ FLEET = "cutfleet"
 
 
 def _objects(ns: str) -> list[dict[str, Any]]:
-    wifi = {"type": "wifi", "latencyMillis": 4, "jitterMillis": 1, "bandwidthMbps": 100}
-    lan = {"type": "lan", "latencyMillis": 1, "jitterMillis": 0, "bandwidthMbps": 1000}
-    nodes = [compute_node(r, "robot", "bed-robot", wifi) for r in ROBOTS]
-    nodes.append(compute_node(EDGE, "edge", "bed-edge", lan))
     image = [("image", 8192, 10)]
     modules = [
         ros_module("camera", ns, cycle_ms=100, taxonomy=("periodic", "hard", "critical"),
@@ -60,36 +56,19 @@ def _objects(ns: str) -> list[dict[str, Any]]:
     ]  # fmt: skip
     for m in modules:
         m["spec"]["resources"]["memory"] = "192Mi"
-    fleet_obj = {
-        "apiVersion": "fogfleet.io/v1alpha1",
-        "kind": "RobotFleet",
-        "metadata": {"name": FLEET, "namespace": ns},
-        "spec": {
-            "robots": list(ROBOTS),
-            "nodes": [EDGE],
-            "modules": [{"name": m["metadata"]["name"]} for m in modules],
-            "scheduler": {"population": 20, "generations": 10, "seed": 1},
-        },
-    }
-    return [*nodes, *modules, fleet_obj]
+    return bed_objects(ns, FLEET, modules)
 
 
 @pytest.fixture
 def cut_fleet(
     kube: Kube, cluster: Cluster, namespace: str, tmp_path: Path, diagnostics: list[Any]
 ) -> Iterator[str]:
-    assert set(ROBOTS) | {EDGE} <= set(cluster.real_nodes)
-    install_crds(kube)
-    op = Operator(kube.kubeconfig, [namespace], tmp_path / "operator.log")
-    diagnostics.append(lambda: ("operator log", op.logs(150)))
-    op.start().wait_live()
+    objects = _objects(namespace)
     try:
-        kube.apply(_objects(namespace))
-        wait_ready(kube, namespace, FLEET, timeout=300)
-        yield namespace
+        with operated_fleet(kube, cluster, namespace, tmp_path, diagnostics, objects, FLEET) as ns:
+            yield ns
     finally:
         cluster.reset_link(ROBOTS[0])
-        op.stop()
 
 
 def _pod(pods: dict[str, Any], robot: str, module: str, standby: bool = False) -> Any:
@@ -184,7 +163,11 @@ def test_a_cut_link_leaves_the_fallbacks_outputs_flowing_and_stops_the_others(
     print(f"tracks again {time.monotonic() - back:.1f} s after the link returned")
     safety, sb = scrape(safety_url), scrape(standby_url)
 
-    # the standby took over once and computed the objects for the whole cut
+    # the standby took over once, within the silence window and two cycles of the remote's
+    # last output (its own measure), and computed the objects for the whole cut
+    gap = sb["fogfleet_fallback_takeover_gap_seconds"]
+    print(f"takeover: {gap:.3f} s from the remote's last output to the standby's first")
+    assert SILENT_CYCLES * CYCLE_S <= gap <= SILENT_CYCLES * CYCLE_S + 2 * CYCLE_S + 0.1
     assert (
         sb["fogfleet_fallback_takeovers_total"]
         == before["standby"]["fogfleet_fallback_takeovers_total"] + 1

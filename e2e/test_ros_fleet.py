@@ -17,62 +17,39 @@ import pytest
 
 from e2e.cluster.harness import Cluster
 from e2e.cluster.kube import Kube
-from e2e.operator_fixtures import Operator, fleet, install_crds, pods_by_instance, wait_ready
-from e2e.rosbed import EDGE, PROBE_PORT, ROBOTS, compute_node, ros_module, scrape
+from e2e.operator_fixtures import fleet, pods_by_instance
+from e2e.rosbed import EDGE, PROBE_PORT, ROBOTS, bed_objects, operated_fleet, ros_module, scrape
 
 pytestmark = [pytest.mark.e2e, pytest.mark.real, pytest.mark.timeout(600)]
 
 
 def _fleet_objects(ns: str) -> list[dict[str, Any]]:
-    wifi = {"type": "wifi", "latencyMillis": 4, "jitterMillis": 1, "bandwidthMbps": 100}
-    lan = {"type": "lan", "latencyMillis": 1, "jitterMillis": 0, "bandwidthMbps": 1000}
-    nodes = [compute_node(r, "robot", "bed-robot", wifi) for r in ROBOTS]
-    nodes.append(compute_node(EDGE, "edge", "bed-edge", lan))
     modules = [
         # the lidar driver: hard real time, stays on its robot
         ros_module("lidar", ns, cycle_ms=100, taxonomy=("periodic", "hard", "critical"),
-                subscribes=[], publishes=[("scan", 4096, 10)],
-                profile=[("bed-robot", "50m", 4, 0.5)]),
+                   subscribes=[], publishes=[("scan", 4096, 10)],
+                   profile=[("bed-robot", "50m", 4, 0.5)]),
         # localization: runs on the robot here
         ros_module("localizer", ns, cycle_ms=100, taxonomy=("continuous", "soft", "relevant"),
-                subscribes=[("scan", 4096, 10)], publishes=[("pose", 256, 10)],
-                profile=[("bed-robot", "100m", 15, 2), ("bed-edge", "100m", 10, 1)],
-                tiers=["robot"]),
+                   subscribes=[("scan", 4096, 10)], publishes=[("pose", 256, 10)],
+                   profile=[("bed-robot", "100m", 15, 2), ("bed-edge", "100m", 10, 1)],
+                   tiers=["robot"]),
         # the planner: offloaded to the edge, talks to its robot through the discovery server
         ros_module("planner", ns, cycle_ms=1000, taxonomy=("periodic", "soft", "relevant"),
-                subscribes=[("pose", 256, 10)], publishes=[("plan", 2048, 1)],
-                profile=[("bed-robot", "200m", 300, 20), ("bed-edge", "200m", 120, 10)],
-                tiers=["edge"], probe=True),
+                   subscribes=[("pose", 256, 10)], publishes=[("plan", 2048, 1)],
+                   profile=[("bed-robot", "200m", 300, 20), ("bed-edge", "200m", 120, 10)],
+                   tiers=["edge"], probe=True),
     ]  # fmt: skip
-    fleet_obj = {
-        "apiVersion": "fogfleet.io/v1alpha1",
-        "kind": "RobotFleet",
-        "metadata": {"name": "bedfleet", "namespace": ns},
-        "spec": {
-            "robots": list(ROBOTS),
-            "nodes": [EDGE],
-            "modules": [{"name": m["metadata"]["name"]} for m in modules],
-            "scheduler": {"population": 20, "generations": 10, "seed": 1},
-        },
-    }
-    return [*nodes, *modules, fleet_obj]
+    return bed_objects(ns, "bedfleet", modules)
 
 
 @pytest.fixture
 def ros_fleet(
     kube: Kube, cluster: Cluster, namespace: str, tmp_path: Path, diagnostics: list[Any]
 ) -> Iterator[str]:
-    assert set(ROBOTS) | {EDGE} <= set(cluster.real_nodes)
-    install_crds(kube)
-    op = Operator(kube.kubeconfig, [namespace], tmp_path / "operator.log")
-    diagnostics.append(lambda: ("operator log", op.logs(150)))
-    op.start().wait_live()
-    try:
-        kube.apply(_fleet_objects(namespace))
-        wait_ready(kube, namespace, "bedfleet", timeout=300)
-        yield namespace
-    finally:
-        op.stop()
+    objects = _fleet_objects(namespace)
+    with operated_fleet(kube, cluster, namespace, tmp_path, diagnostics, objects, "bedfleet") as ns:
+        yield ns
 
 
 def _series(cluster: Cluster, promql: str) -> dict[tuple[str, str], float]:

@@ -19,7 +19,9 @@ __all__ = ["GAP_BUCKETS_SECONDS", "WorkloadMetrics"]
 
 # input gaps: a cycle or two (10-30 Hz topics), a fallback's takeover (a few cycles), a lost
 # link (seconds to minutes)
-GAP_BUCKETS_SECONDS = (0.05, 0.1, 0.2, 0.35, 0.5, 0.75, 1.0, 2.0, 5.0, 10.0, 30.0, 60.0, 120.0)
+GAP_BUCKETS_SECONDS = (
+    0.05, 0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.75, 1.0, 2.0, 5.0, 10.0, 30.0, 60.0, 120.0,
+)  # fmt: skip
 
 
 class WorkloadMetrics:
@@ -67,6 +69,12 @@ class WorkloadMetrics:
         self.takeovers = Counter(
             "fogfleet_fallback_takeovers",
             "Times this standby took over from its silent remote instance",
+            list(ids),
+            registry=self.registry,
+        ).labels(**ids)
+        self.takeover_gap = Gauge(
+            "fogfleet_fallback_takeover_gap_seconds",
+            "Last takeover: from the remote's last output to this standby's first own output",
             list(ids),
             registry=self.registry,
         ).labels(**ids)

@@ -103,6 +103,7 @@ def run_module(
     )
     first = FirstResponse()
     counted = 0  # takeovers already in the metric
+    silent_since: float | None = None  # the remote's last output before the last takeover
 
     def claimed(topic: str, source: Source, origin: int) -> bool:
         """Only a standby arbitrates; the others always publish."""
@@ -135,18 +136,24 @@ def run_module(
         """Whether this process computes the outputs now (a standby only while in charge)."""
         if not standby:
             return True
-        nonlocal counted
+        nonlocal counted, silent_since
         with lock:
             active = takeover.should_run(now)
             metrics.fallback_active.set(1.0 if active else 0.0)
-            metrics.takeovers.inc(takeover.takeovers - counted)
-            counted = takeover.takeovers
+            if takeover.takeovers > counted:
+                metrics.takeovers.inc(takeover.takeovers - counted)
+                counted = takeover.takeovers
+                last = takeover.last_remote
+                silent_since = takeover.started if last is None else last
         return active
 
     def publish(topic: str, size: int, origin: int) -> None:
-        nonlocal seq
+        nonlocal seq, silent_since
         if not claimed(topic, Source.STANDBY, origin):
             return
+        if silent_since is not None:  # a standby's first own output after taking over
+            metrics.takeover_gap.set(time.monotonic() - silent_since)
+            silent_since = None
         seq += 1
         header = Header(spec.robot, spec.module, seq, time.time_ns(), origin)
         publishers[topic].publish(String(data=encode(header, size)))
