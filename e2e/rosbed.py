@@ -24,6 +24,7 @@ __all__ = [
     "operated_fleet",
     "ros_module",
     "scrape",
+    "scrape_buckets",
     "scrape_series",
 ]
 
@@ -158,3 +159,19 @@ def scrape_series(url: str, name: str, **labels: str) -> float:
         if all(have.get(k) == v for k, v in labels.items()):
             total += float(m.group(3))
     return total
+
+
+def scrape_buckets(url: str, name: str, **labels: str) -> dict[float, float]:
+    """The cumulative buckets (le -> count, +Inf as ``inf``) of histogram ``name`` whose
+    labels include ``labels``, from one scrape (so they are consistent with each other)."""
+    text = urllib.request.urlopen(url, timeout=5).read().decode()
+    out: dict[float, float] = {}
+    for line in text.splitlines():
+        m = re.match(r"^(\w+)\{([^}]*)\}\s+([0-9.eE+-]+)$", line)
+        if not m or m.group(1) != f"{name}_bucket":
+            continue
+        have = dict(re.findall(r'(\w+)="([^"]*)"', m.group(2)))
+        if all(have.get(k) == v for k, v in labels.items()):
+            le = float(have["le"])  # "+Inf" parses as inf
+            out[le] = out.get(le, 0.0) + float(m.group(3))
+    return out
