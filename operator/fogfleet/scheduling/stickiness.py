@@ -120,8 +120,10 @@ def mask_unavailable(problem: Problem, unavailable: Mapping[int, str]) -> tuple[
     down = np.isin(problem.home, [j for j in cols if problem.tier[j] == 0])
     rows = np.flatnonzero(down)
     keep = current[rows]
+    runs = keep >= 0
+    runs[runs] = problem.allowed[rows[runs], keep[runs]]  # and may still run there
     allowed[rows] = False
-    allowed[rows[keep >= 0], keep[keep >= 0]] = True
+    allowed[rows[runs], keep[runs]] = True
     stranded = {int(i) for i in np.flatnonzero(problem.allowed.any(axis=1) & ~allowed.any(axis=1))}
     reasons = dict(problem.reasons)
     for i in stranded:
