@@ -20,6 +20,7 @@ from fogfleet.adapters.metrics import PrometheusMetrics
 from fogfleet.adapters.prometheus import PrometheusClient
 from fogfleet.adapters.watched import WatchedKube
 from fogfleet.controllers.deps import Deps
+from fogfleet.controllers.links import LinkDeps
 from fogfleet.controllers.runtime import Runtime
 from fogfleet.controllers.scaling import ScalingDeps
 from fogfleet.handlers import register
@@ -158,13 +159,17 @@ def _run_kopf(
         asyncio.set_event_loop(asyncio.new_event_loop())
     memo = kopf.Memo(runtime=runtime, settings=settings)
     if settings.prometheus_url:
+        prometheus = PrometheusClient(settings.prometheus_url)
         memo.scaling = ScalingDeps(
-            runtime.deps.kube,
-            PrometheusClient(settings.prometheus_url),
-            period_seconds=settings.scaling_interval_seconds,
+            runtime.deps.kube, prometheus, period_seconds=settings.scaling_interval_seconds
+        )
+        memo.links = LinkDeps(
+            prometheus,
+            node_label=settings.link_node_label,
+            period_seconds=settings.link_interval_seconds,
         )
     else:
-        log.info("Scaling is off: FOGFLEET_PROMETHEUS_URL is not set")
+        log.info("Scaling and link monitoring are off: FOGFLEET_PROMETHEUS_URL is not set")
     kopf.run(
         registry=registry,
         memo=memo,

@@ -19,6 +19,9 @@ FOGFLEET_SCHEDULER_GENERATIONS    (population, generations, timeBudgetMillis); u
 FOGFLEET_SCHEDULER_TIME_BUDGET_MILLIS  CRD's own defaults (100, 100, 20000)
 FOGFLEET_PROMETHEUS_URL           Prometheus for SLO-driven scaling (unset: nothing scales)
 FOGFLEET_SCALING_INTERVAL_SECONDS how often each scaled module decides (default 15, the HPA's sync)
+FOGFLEET_LINK_INTERVAL_SECONDS    how often the robots' links are measured (default 10; needs
+                                  FOGFLEET_PROMETHEUS_URL)
+FOGFLEET_LINK_NODE_LABEL          Prometheus' label of a pod target's Node (default node)
 FOGFLEET_PEERING_NAME             kopf peering name when not standalone
 FOGFLEET_LEADER_ELECTION          true: only the holder of a Lease reconciles (several replicas)
 FOGFLEET_LEADER_ELECTION_NAMESPACE  the Lease's namespace (the chart sets the pod's namespace)
@@ -62,6 +65,8 @@ class Settings(BaseSettings):
     scheduler_time_budget_millis: Annotated[int, Field(ge=100)] | None = None
     prometheus_url: str | None = None
     scaling_interval_seconds: Annotated[float, Field(gt=0)] = 15.0
+    link_interval_seconds: Annotated[float, Field(gt=0)] = 10.0
+    link_node_label: Annotated[str, Field(pattern=r"^[a-zA-Z_][a-zA-Z0-9_]*$")] = "node"
     leader_election: bool = False
     leader_election_namespace: str = "fogfleet-system"
     leader_election_lease: str = "fogfleet-operator"

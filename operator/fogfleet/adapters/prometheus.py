@@ -39,7 +39,14 @@ from urllib3.util.retry import Retry
 
 from fogfleet.errors import DependencyUnavailable, InvalidSpec
 
-__all__ = ["QUERY_FIELD", "PrometheusClient", "PrometheusPort", "map_errors"]
+__all__ = [
+    "QUERY_FIELD",
+    "PrometheusClient",
+    "PrometheusPort",
+    "map_errors",
+    "series_of",
+    "value_of",
+]
 
 QUERY_FIELD = "spec.scaling.slo.query"
 TIMEOUT_SECONDS = 5.0
@@ -136,6 +143,22 @@ def value_of(result: Any, promql: str, obj: str = "", field: str = QUERY_FIELD) 
     return max(finite) if finite else None
 
 
+def series_of(
+    result: Any, promql: str, obj: str = "", field: str = QUERY_FIELD
+) -> list[tuple[dict[str, str], float]]:
+    """An instant vector as (labels, value) pairs; a scalar or range vector is refused."""
+    if not isinstance(result, list) or (len(result) == 2 and not isinstance(result[0], dict)):
+        raise InvalidSpec(obj or "PromQL", field, f"the query {promql!r} is not a vector")
+    out = []
+    for series in result:
+        if "value" not in series:
+            raise InvalidSpec(obj or "PromQL", field, f"the query {promql!r} is a range vector")
+        value = _number(series["value"][1], promql, obj, field)
+        if not math.isnan(value):
+            out.append(({str(k): str(v) for k, v in series.get("metric", {}).items()}, value))
+    return out
+
+
 class PrometheusClient:
     """PrometheusPort over one ``PrometheusConnect`` (thread-safe enough: one Session per call
     path; requests' connection pool is)."""
@@ -161,6 +184,14 @@ class PrometheusClient:
         with map_errors(self.url, promql, obj, field):
             result = self._prom.custom_query(promql, timeout=self.timeout)
             return value_of(result, promql, obj, field)
+
+    def query_series(
+        self, promql: str, *, obj: str = "", field: str = QUERY_FIELD
+    ) -> list[tuple[dict[str, str], float]]:
+        """Every series of an instant vector query with its labels (NaN left out)."""
+        with map_errors(self.url, promql, obj, field):
+            result = self._prom.custom_query(promql, timeout=self.timeout)
+            return series_of(result, promql, obj, field)
 
     def close(self) -> None:
         with contextlib.suppress(Exception):

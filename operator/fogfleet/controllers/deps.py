@@ -17,7 +17,10 @@ from numpy.typing import NDArray
 
 from fogfleet.adapters.ports import KubePort, MetricsPort, NullMetrics, Planner, Watches
 from fogfleet.adapters.prometheus import PrometheusPort
+from fogfleet.api.v1alpha1.linkhealth import LinkHealth
 from fogfleet.controllers.planning import CorePlanner
+from fogfleet.domain.linkhealth import RobotLink
+from fogfleet.domain.network import Link
 from fogfleet.domain.problem import Problem
 from fogfleet.scheduling.schedule import Schedule
 
@@ -67,6 +70,12 @@ class Rendered:
     stranded: frozenset[int]
     plan: CachedPlan | None
     baseline: bool
+    # what the link measurements need (controllers/links.py): robot ComputeNode -> (its
+    # Kubernetes Node, its declared uplink); the fleet's settings; its module names
+    robots: Mapping[str, tuple[str, Link]] = field(default_factory=dict)
+    link_health: LinkHealth | None = None
+    modules: frozenset[str] = frozenset()
+    measured: Mapping[str, Link] = field(default_factory=dict)  # robots planned around
 
 
 @dataclass
@@ -135,6 +144,9 @@ class Deps:
     api_concurrency: int = 8  # a reconcile's independent writes (Deployments) in flight at once
     watches: Watches | None = None  # the caches behind ``kube``, when it reads from watches
     full_reconcile_seconds: float = 60.0  # a status refresh never reuses an older render
+    # the robots' links as measured (controllers/links.py), and the standbys computing now
+    links: dict[FleetKey, dict[str, RobotLink]] = field(default_factory=dict)
+    standbys_active: dict[FleetKey, frozenset[tuple[str, str]]] = field(default_factory=dict)
 
 
 class ScalingKube(Protocol):

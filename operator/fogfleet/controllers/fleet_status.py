@@ -20,6 +20,7 @@ from fogfleet.scheduling.explain import degraded_message
 from fogfleet.scheduling.fallback import disconnected
 
 from .deps import CachedPlan, Deps, fleet_key
+from .links import LinkReport
 from .status import (
     complete,
     condition,
@@ -49,6 +50,7 @@ def fleet_status(
     baseline: bool,
     generation: int | None,
     old: Obj,
+    links: LinkReport | None = None,
 ) -> Obj:
     names = [d["metadata"]["name"] for d in desired]
     by_name = dict(zip(names, desired, strict=True))
@@ -106,12 +108,14 @@ def fleet_status(
             f"planned: {', '.join(sorted(waiting)[:10])}",
             generation,
         )
-    if roll.moving or stranded:
+    link_degraded = links.degraded if links is not None else None
+    if roll.moving or stranded or link_degraded:
         msg = f"{len(roll.moving)} module(s) moving to their new node" if roll.moving else ""
-        msg = "; ".join(x for x in [msg, *stuck] if x)
-        degraded = condition(
-            "Degraded", True, "NodeUnavailable" if stranded else "Migrating", msg, generation
+        msg = "; ".join(x for x in [link_degraded[1] if link_degraded else "", msg, *stuck] if x)
+        reason = (
+            "NodeUnavailable" if stranded else (link_degraded[0] if link_degraded else "Migrating")
         )
+        degraded = condition("Degraded", True, reason, msg, generation)
     elif problem.degraded and cached is not None:
         degraded = condition(
             "Degraded",
@@ -162,6 +166,10 @@ def fleet_status(
         ]
     elif old.get("fallbacks"):
         status["fallbacks"] = []  # a merge patch would otherwise keep the stale list
+    if links is not None and links.entries:
+        status["links"] = links.entries
+    elif old.get("links"):
+        status["links"] = []
     if cached is not None:
         objectives = cached.objectives
         status.update(

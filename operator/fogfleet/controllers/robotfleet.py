@@ -24,10 +24,13 @@ from typing import Any
 
 from fogfleet.api.labels import ANNOTATION_ROBOT, ANNOTATION_ROLE, LABEL_FLEET
 from fogfleet.api.loader import parse_object
+from fogfleet.api.v1alpha1.common import Tier
 from fogfleet.api.v1alpha1.robotfleet import RobotFleet, SchedulerName
 from fogfleet.controllers.ros import apply_ros_wiring, is_ros_object
 from fogfleet.domain.build import build_problem
 from fogfleet.domain.fallback import fleet_fallbacks
+from fogfleet.domain.linkhealth import planned_links
+from fogfleet.domain.network import uplink
 from fogfleet.domain.problem import Problem
 from fogfleet.errors import Infeasible, InvalidSpec
 from fogfleet.render.deployments import (
@@ -44,6 +47,7 @@ from .deps import CachedPlan, Deps, FleetKey, Rendered, fleet_key
 from .fleet_plan import plan_fleet
 from .fleet_status import fleet_status, plan_events, report_failure
 from .inputs import current_placement, gather
+from .links import link_events, link_report
 from .parallel import run_all
 from .stamp import input_stamp
 from .status import (
@@ -77,6 +81,8 @@ def forget(deps: Deps, key: FleetKey) -> None:
     deps.plans.pop(key, None)
     deps.rendered.pop(key, None)
     deps.failures.pop(key, None)
+    deps.links.pop(key, None)
+    deps.standbys_active.pop(key, None)
     deps.refs.forget(key)
 
 
@@ -115,7 +121,9 @@ def _reconcile(
     deployments = [d for d in listed if not is_ros_object(d)]
     raw_modules = kube.list_modules(ns)
     compute_nodes, nodes = kube.list_compute_nodes(), kube.list_nodes()
-    stamp = input_stamp(body, raw_modules, compute_nodes, nodes, listed)
+    # a robot's link measured worse than declared is planned with the measured figures
+    measured = planned_links(deps.links.get(key, {}))
+    stamp = (*input_stamp(body, raw_modules, compute_nodes, nodes, listed), measured)
     last = deps.rendered.pop(key, None)
     if (
         last is not None
@@ -128,7 +136,11 @@ def _reconcile(
     inputs = gather(fleet, compute_nodes, raw_modules, nodes)
     _raise_broken_references(fleet, inputs.broken)
     problem = build_problem(
-        fleet, inputs.catalog, current_placement(deployments), scaling_pools(raw_modules)
+        fleet,
+        inputs.catalog,
+        current_placement(deployments),
+        scaling_pools(raw_modules),
+        measured,
     )
     deps.refs.record(
         key,
@@ -142,6 +154,19 @@ def _reconcile(
         for j, n in enumerate(problem.nodes)
         if n.name in inputs.unavailable
     }
+    # a robot whose link is planned as declared again after a bad spell: its modules go
+    # where the plan puts them, not where the bad link had them moved (linkhealth)
+    recovered = set(last.measured) - set(measured) if last is not None else set()
+    if recovered:
+        log.info(
+            "RobotFleet %s/%s: %s planned with the declared link again",
+            ns,
+            name,
+            ", ".join(sorted(recovered)),
+        )
+        problem = stickiness.release_robots(
+            problem, [j for j, n in enumerate(problem.nodes) if n.name in recovered]
+        )
     before = problem.current
     problem, stranded = stickiness.mask_unavailable(problem, unavailable)
     never = {i: why for i, why in problem.reasons.items() if i not in stranded}
@@ -185,13 +210,21 @@ def _reconcile(
     listed = [d for d in kube.list_deployments(ns, selector) if _owned(d, body)]
     deployments = [d for d in listed if not is_ros_object(d)]
     rendered = Rendered(
-        input_stamp(body, raw_modules, compute_nodes, nodes, listed),
+        (*input_stamp(body, raw_modules, compute_nodes, nodes, listed), measured),
         time.monotonic(),
         problem,
         desired,
         frozenset(stranded),
         cached,
         baseline,
+        robots={
+            nd.name: (nd.node_name, uplink(inputs.catalog.nodes[nd.name].spec))
+            for nd in problem.nodes
+            if nd.tier is Tier.ROBOT and nd.name in inputs.catalog.nodes
+        },
+        link_health=fleet.spec.link_health,
+        modules=frozenset(m.name for m in fleet.spec.modules),
+        measured=measured,
     )
     deps.rendered[key] = rendered
     outcome = _finish(body, fleet, deps, rendered, deployments, planned, old_status, generation)
@@ -220,6 +253,7 @@ def _finish(
     pods = deps.kube.list_pods(ns, {LABEL_FLEET: label_value(name)})
     roll = rollout(rendered.desired, deployments, pods)
     stranded = set(rendered.stranded)
+    links = link_report(rendered, deps.links.get((ns, name)), deps.standbys_active.get((ns, name)))
     status = fleet_status(
         fleet,
         rendered.problem,
@@ -231,10 +265,13 @@ def _finish(
         rendered.baseline,
         generation,
         old_status,
+        links,
     )
     ready = not roll.waiting and not roll.moving and not stranded
     if not same_status(old_status, status):
         deps.kube.patch_fleet_status(ns, name, status)
+        for kind, reason, message in link_events(old_status.get("links") or [], links.entries):
+            deps.kube.emit_event(body, kind, reason, message)
         if ready != _is_ready(old_status):
             log.info(
                 "RobotFleet %s/%s is %sReady: %s",

@@ -20,6 +20,7 @@ from fogfleet.api.labels import LABEL_FLEET
 from fogfleet.errors import FogfleetError
 
 from .deps import Deps, FleetKey
+from .links import LinkDeps, measure_links
 from .queue import ReconcileQueue
 from .robotfleet import Outcome, forget, reconcile
 from .stamp import node_signature, pools_signature
@@ -65,9 +66,10 @@ class Runtime:
     # serves, which leaves namespaces Terminating forever once the operator is gone. Owner
     # references already clean up what fleets create, so fogfleet needs no finalizer at all.
 
-    def start_periodic(self, drift_seconds: float, scaling: Any = None) -> None:
-        """Re-check every known fleet each `drift_seconds`; decide scaling each period; start
-        the watch caches (their Pod events re-check fleets, see :meth:`pod_event`)."""
+    def start_periodic(self, drift_seconds: float, scaling: Any = None, links: Any = None) -> None:
+        """Re-check every known fleet each `drift_seconds`; decide scaling each period; measure
+        the robots' links each period; start the watch caches (their Pod events re-check
+        fleets, see :meth:`pod_event`)."""
         if self.deps.watches is not None:
             loop = asyncio.get_running_loop()
 
@@ -83,6 +85,8 @@ class Runtime:
         self.usage_changed()
         if scaling is not None:
             self._loops.append(asyncio.create_task(self._scaling(scaling), name="fogfleet-scaling"))
+        if links is not None:
+            self._loops.append(asyncio.create_task(self._links(links), name="fogfleet-links"))
 
     async def _drift(self, seconds: float) -> None:
         while True:
@@ -116,6 +120,18 @@ class Runtime:
                     await self.call(reconcile_scaling, dict(body), scaling, time.time())
                 except FogfleetError as exc:  # said in the module's conditions; retried next time
                     log.warning("Scaling SoftwareModule %s/%s failed: %s", *key, exc)
+
+    async def _links(self, links: LinkDeps) -> None:
+        """Measure the links every period; reconcile the fleets whose links changed."""
+        while True:
+            await asyncio.sleep(links.period_seconds)
+            try:
+                changed = await self.call(measure_links, self.deps, links, time.time())
+            except FogfleetError as exc:  # a bad query or answer: said in the log, retried
+                log.warning("Measuring the robots' links failed: %s", exc)
+                continue
+            for key in sorted(changed):
+                self.queue.schedule_debounced(key)
 
     async def call(self, fn: Callable[..., T], *args: Any) -> T:
         loop = asyncio.get_running_loop()

@@ -129,6 +129,7 @@ def build_problem(
     catalog: Catalog,
     current: dict[tuple[str, str, int], str] | None = None,
     pools: Mapping[str, Mapping[str, int]] | None = None,
+    measured_links: Mapping[str, Link] | None = None,
 ) -> Problem:
     """Resolve a fleet against the catalog into a Problem.
 
@@ -136,14 +137,17 @@ def build_problem(
     autoscaler's decision for shared modules: module name -> {tier: replicas} (tier ``any``:
     replicas without a pool); replica ``r`` of
     such a module may then only run on nodes of the tier it was counted for (edge replicas
-    first, then cloud), which is how privacy-constrained pools stay on the edge."""
+    first, then cloud), which is how privacy-constrained pools stay on the edge.
+    ``measured_links`` replaces the declared uplink of the ComputeNodes it names (a robot's
+    link measured worse than declared, ``domain.linkhealth``)."""
     obj = f"RobotFleet/{fleet.metadata.name}"
     namespace = fleet.metadata.namespace or "default"
     robots, others = _resolve_nodes(fleet, catalog)
     nodes = robots + others
     n = len(nodes)
     caps = np.array([_capacity(nd) for nd in nodes], dtype=np.float64)
-    links = [uplink(nd.spec) for nd in nodes]
+    measured = measured_links or {}
+    links = [measured.get(nd.metadata.name) or uplink(nd.spec) for nd in nodes]
     robot_index = {nd.metadata.name: j for j, nd in enumerate(robots)}
 
     modules: list[tuple[SoftwareModule, float, float, int]] = []

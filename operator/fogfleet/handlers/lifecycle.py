@@ -17,7 +17,9 @@ async def startup(settings: kopf.OperatorSettings, memo: Any, **_: Any) -> None:
     """Apply fogfleet's kopf settings (storage in annotations, our finalizer, posting)."""
     configure_kopf(settings, memo.settings)
     memo.runtime.start_periodic(
-        memo.settings.drift_interval_seconds, getattr(memo, "scaling", None)
+        memo.settings.drift_interval_seconds,
+        getattr(memo, "scaling", None),
+        getattr(memo, "links", None),
     )
 
 

@@ -15,7 +15,7 @@ import dataclasses
 import hashlib
 import json
 import logging
-from collections.abc import Mapping, Sequence
+from collections.abc import Collection, Mapping, Sequence
 from typing import Any
 
 import numpy as np
@@ -35,6 +35,7 @@ __all__ = [
     "mask_unavailable",
     "objective_values",
     "release_overloads",
+    "release_robots",
 ]
 
 log = logging.getLogger(__name__)
@@ -142,6 +143,20 @@ class Stickiness:
     migrations: list[int]  # instances moved off a node they ran on
     kept_current: bool
     reason: str
+
+
+def release_robots(problem: Problem, robots: Collection[int]) -> Problem:
+    """The problem with the instances of ``robots`` (node indices) planned as if they did not
+    run yet: the migration-margin rule keeps what runs unless the first objective improves,
+    so a robot whose modules were moved on board for a bad link (``domain.linkhealth``) would
+    keep them there for good once its link is healthy; released, they go where the whole
+    lexicographic order of the objectives puts them with the declared link."""
+    rows = np.isin(problem.home, list(robots))
+    if not rows.any():
+        return problem
+    current = problem.current.copy()
+    current[rows] = -1
+    return dataclasses.replace(problem, current=current)
 
 
 def _better(

@@ -172,6 +172,24 @@ def test_range_vectors_and_strings_are_bad_queries() -> None:
         client(ok([1, "abc"], "string")).query_value('"abc"')
 
 
+def test_series_keep_their_labels_and_leave_nan_out() -> None:
+    series = [
+        {"metric": {"node": "robot-1"}, "value": [1, "0.5"]},
+        {"metric": {"node": "robot-2"}, "value": [1, "NaN"]},
+    ]
+    assert client(ok(series)).query_series("up") == [({"node": "robot-1"}, 0.5)]
+    assert client(ok([])).query_series("up") == []
+
+
+def test_series_of_a_scalar_or_a_range_vector_is_a_bad_query() -> None:
+    with pytest.raises(InvalidSpec, match="not a vector"):
+        client(ok([1, "2"], "scalar")).query_series("scalar(up)", field="status.links")
+    with pytest.raises(InvalidSpec, match="range vector"):
+        client(ok([{"metric": {}, "values": [[1, "1"]]}], "matrix")).query_series("up[1m]")
+    with pytest.raises(DependencyUnavailable):
+        client(raise_(requests.exceptions.ConnectionError("refused"))).query_series("up")
+
+
 # --------------------------------------------------------------------------- fakes
 
 

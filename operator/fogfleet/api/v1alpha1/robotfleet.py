@@ -10,6 +10,7 @@ from pydantic import Field, model_validator
 from .base import FogModel, Number, PosInt, refuse_duplicates
 from .common import Condition, LabelSelector, Name, ObjectMeta, Tier
 from .fallback import Fallback
+from .linkhealth import LinkHealth, RobotLinkStatus
 from .rules import CrossFieldRule, enforce
 
 __all__ = [
@@ -245,6 +246,9 @@ class RobotFleetSpec(FogModel):
     """Default fallback of the fleet's modules that set none (mode none unless given). With
     onboard, a per-robot module that publishes topics keeps a standby on its robot while it
     runs elsewhere; shared modules and modules without outputs have none."""
+    link_health: LinkHealth = Field(default_factory=LinkHealth)
+    """How the robots' links are measured and re-planned around (needs the operator's
+    Prometheus)."""
 
     @model_validator(mode="after")
     def _check(self) -> RobotFleetSpec:
@@ -304,7 +308,8 @@ class RobotFleetStatus(FogModel):
     """The metadata.generation this status describes."""
     conditions: list[Condition] = Field(default_factory=list)
     """Ready (every instance runs where planned), Scheduled (planned or bound) and Degraded
-    (instances moving or stranded on an unavailable node)."""
+    (instances moving or stranded on an unavailable node, a robot's link lost or measured
+    worse than declared, a standby computing on board)."""
     scheduler: str | None = None
     """The algorithm that made the plan."""
     placement: list[PlacementEntry] = Field(default_factory=list)
@@ -330,6 +335,8 @@ class RobotFleetStatus(FogModel):
     fallbacks: list[RobotFallbackStatus] = Field(default_factory=list)
     """Per robot with offloaded modules, in a fleet with on-board fallbacks: its reserve and
     what a lost link leaves of it."""
+    links: list[RobotLinkStatus] = Field(default_factory=list)
+    """Per robot, its link as measured (fleets whose links are monitored)."""
 
 
 class RobotFleet(FogModel):
