@@ -5,7 +5,9 @@ adapter reads it from Prometheus): the share of scrapes answered in a window, an
 answered scrape, which is one round trip over keep-alive plus the exporter's own time. Half
 of it bounds the one-way latency from above, like ping's minimum; retransmissions after loss
 and a busy exporter raise the slow scrapes, not the fastest one, so the estimate does not
-chase noise.
+chase noise. (The fogfleet workload keeps its connection alive and gzips its answer; an
+exporter that closes the connection after each scrape costs a second round trip, and its
+robot's link reads up to twice as slow as it is.)
 
 Judging (``judge``) and remembering (``advance``) are separate so that each is tested alone:
 

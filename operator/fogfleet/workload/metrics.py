@@ -6,6 +6,7 @@ reach it there), 127.0.0.1 in tests.
 
 from __future__ import annotations
 
+import gzip
 import threading
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from typing import Any
@@ -138,6 +139,11 @@ class WorkloadMetrics:
         metrics = self
 
         class Handler(BaseHTTPRequestHandler):
+            # keep-alive and gzip: a scrape is then one round trip over the robot's link, so
+            # the fastest scrape measures the link (controllers/links.py), and it costs the
+            # link less
+            protocol_version = "HTTP/1.1"
+
             def do_GET(self) -> None:
                 if self.path.startswith("/metrics"):
                     body, ctype = generate_latest(metrics.registry), CONTENT_TYPE_LATEST
@@ -145,10 +151,15 @@ class WorkloadMetrics:
                     body, ctype = b"ok\n", "text/plain"
                 else:
                     self.send_response(404 if self.path != "/healthz" else 503)
+                    self.send_header("Content-Length", "0")
                     self.end_headers()
                     return
                 self.send_response(200)
                 self.send_header("Content-Type", ctype)
+                if "gzip" in self.headers.get("Accept-Encoding", ""):
+                    body = gzip.compress(body, compresslevel=1)
+                    self.send_header("Content-Encoding", "gzip")
+                self.send_header("Content-Length", str(len(body)))
                 self.end_headers()
                 self.wfile.write(body)
 

@@ -1,0 +1,67 @@
+"""The workload's /metrics endpoint: keep-alive and gzip, so a scrape is one round trip."""
+
+from __future__ import annotations
+
+import gzip
+import http.client
+from collections.abc import Iterator
+
+import pytest
+
+from fogfleet.workload.metrics import WorkloadMetrics
+
+
+@pytest.fixture
+def endpoint() -> Iterator[tuple[WorkloadMetrics, int]]:
+    metrics = WorkloadMetrics("detector", "robot-1", "robot")
+    server = metrics.serve("127.0.0.1", 0)
+    try:
+        yield metrics, int(server.server_address[1])
+    finally:
+        server.shutdown()
+        server.server_close()
+
+
+def test_scrapes_reuse_one_connection(endpoint: tuple[WorkloadMetrics, int]) -> None:
+    metrics, port = endpoint
+    conn = http.client.HTTPConnection("127.0.0.1", port, timeout=5)
+    try:
+        for _ in range(3):
+            conn.request("GET", "/metrics")
+            resp = conn.getresponse()
+            body = resp.read()
+            assert resp.status == 200 and b"fogfleet_cycle_time_seconds" in body
+            assert int(resp.getheader("Content-Length", "0")) == len(body)
+        assert conn.sock is not None, "the server closed the connection after a scrape"
+    finally:
+        conn.close()
+
+
+def test_gzip_when_the_scraper_accepts_it(endpoint: tuple[WorkloadMetrics, int]) -> None:
+    _, port = endpoint
+    conn = http.client.HTTPConnection("127.0.0.1", port, timeout=5)
+    try:
+        conn.request("GET", "/metrics", headers={"Accept-Encoding": "gzip"})
+        resp = conn.getresponse()
+        packed = resp.read()
+        assert resp.getheader("Content-Encoding") == "gzip"
+        assert b"fogfleet_missed_cycles_total" in gzip.decompress(packed)
+    finally:
+        conn.close()
+
+
+def test_healthz_and_unknown_paths(endpoint: tuple[WorkloadMetrics, int]) -> None:
+    metrics, port = endpoint
+    conn = http.client.HTTPConnection("127.0.0.1", port, timeout=5)
+    try:
+        conn.request("GET", "/healthz")
+        resp = conn.getresponse()
+        assert (resp.status, resp.read()) == (200, b"ok\n")
+        metrics.healthy = False
+        conn.request("GET", "/healthz")
+        resp = conn.getresponse()
+        assert resp.status == 503 and resp.read() == b""
+        conn.request("GET", "/nope")  # the same connection still answers
+        assert conn.getresponse().status == 404
+    finally:
+        conn.close()
