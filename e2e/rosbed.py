@@ -121,11 +121,13 @@ def operated_fleet(
     diagnostics: list[Any],
     objects: list[dict[str, Any]],
     fleet: str,
+    env: dict[str, str] | None = None,
 ) -> Iterator[str]:
-    """The operator running, ``objects`` applied and the fleet Ready; yields the namespace."""
+    """The operator running (with ``env`` on top of the tests' settings), ``objects`` applied
+    and the fleet Ready; yields the namespace."""
     assert set(ROBOTS) | {EDGE} <= set(cluster.real_nodes)
     install_crds(kube)
-    op = Operator(kube.kubeconfig, [namespace], tmp_path / "operator.log")
+    op = Operator(kube.kubeconfig, [namespace], tmp_path / "operator.log", env)
     diagnostics.append(lambda: ("operator log", op.logs(150)))
     op.start().wait_live()
     try:

@@ -24,7 +24,7 @@ import pytest
 
 from e2e.cluster.harness import Cluster
 from e2e.cluster.kube import Kube
-from e2e.operator_fixtures import fleet, pods_by_instance
+from e2e.operator_fixtures import all_pods, conditions, events, fleet, pods_by_instance
 from e2e.rosbed import (
     EDGE,
     ROBOTS,
@@ -42,6 +42,9 @@ CUT_SECONDS = 60
 CYCLE_S = 0.1
 SILENT_CYCLES = 3
 FLEET = "cutfleet"
+LINK_WINDOW_S = 10  # spec.linkHealth.windowSeconds
+LINK_STABLE_S = 30  # spec.linkHealth.stableSeconds
+SLOW_MS = 150  # one way: the detector's 100 ms cycle cannot be served across it
 
 
 def _objects(ns: str) -> list[dict[str, Any]]:
@@ -66,7 +69,12 @@ def _objects(ns: str) -> list[dict[str, Any]]:
     ]  # fmt: skip
     for m in modules:
         m["spec"]["resources"]["memory"] = "192Mi"
-    return bed_objects(ns, FLEET, modules)
+    objects = bed_objects(ns, FLEET, modules)
+    objects[-1]["spec"]["linkHealth"] = {
+        "windowSeconds": LINK_WINDOW_S,
+        "stableSeconds": LINK_STABLE_S,
+    }
+    return objects
 
 
 @pytest.fixture
@@ -74,8 +82,12 @@ def cut_fleet(
     kube: Kube, cluster: Cluster, namespace: str, tmp_path: Path, diagnostics: list[Any]
 ) -> Iterator[str]:
     objects = _objects(namespace)
+    # the operator measures the robots' links from the bed's Prometheus (every 2 s)
+    env = {"FOGFLEET_PROMETHEUS_URL": cluster.prometheus_url, "FOGFLEET_LINK_INTERVAL_SECONDS": "2"}
     try:
-        with operated_fleet(kube, cluster, namespace, tmp_path, diagnostics, objects, FLEET) as ns:
+        with operated_fleet(
+            kube, cluster, namespace, tmp_path, diagnostics, objects, FLEET, env
+        ) as ns:
             yield ns
     finally:
         cluster.reset_link(ROBOTS[0])
@@ -156,9 +168,29 @@ def test_a_cut_link_leaves_the_fallbacks_outputs_flowing_and_stops_the_others(
             safety_url, "fogfleet_out_of_order_messages_total", topic="objects"
         ),
     }
+    kube.wait_for(
+        "both robots' links measured healthy",
+        lambda: all(_link(kube, ns, r).get("state") == "Healthy" for r in ROBOTS),
+        60,
+        interval=1,
+    )
+    print(f"links before the cut: {[_link(kube, ns, r) for r in ROBOTS]}")
     cut = time.monotonic()
     cluster.set_link(robot, loss_percent=100)
-    time.sleep(CUT_SECONDS)
+    # the control plane sees the robot go silent: Lost, Degraded=True, and nothing is moved
+    kube.wait_for(
+        "robot-1's link reported lost",
+        lambda: _link(kube, ns, robot).get("state") == "Lost",
+        CUT_SECONDS - 10,
+        interval=0.5,
+    )
+    lost_after = time.monotonic() - cut
+    degraded = conditions(fleet(kube, ns, FLEET))["Degraded"]
+    print(f"link reported lost {lost_after:.1f} s into the cut; Degraded: {degraded}")
+    assert degraded["status"] == "True"
+    assert f"link lost to {robot}: on-board standbys take over" in degraded["message"]
+    assert _link(kube, ns, other)["state"] == "Healthy"
+    time.sleep(max(0.0, CUT_SECONDS - (time.monotonic() - cut)))
     cluster.reset_link(robot)
     back = time.monotonic()
     kube.wait_for("robot-1's pods reachable again", lambda: _reachable(standby_url), 60)
@@ -231,3 +263,123 @@ def test_a_cut_link_leaves_the_fallbacks_outputs_flowing_and_stops_the_others(
     assert {n: p["metadata"]["uid"] for n, p in after.items()} == {
         n: p["metadata"]["uid"] for n, p in pods.items()
     }
+    # the link is healthy again without a re-plan, and the Events said what happened
+    kube.wait_for(
+        "robot-1's link healthy again",
+        lambda: _link(kube, ns, robot).get("state") == "Healthy",
+        LINK_WINDOW_S + 30,
+        interval=1,
+    )
+    reasons = {e["reason"] for e in events(kube, ns, name=FLEET)}
+    assert {"LinkLost", "LinkHealthy"} <= reasons and "LinkDegraded" not in reasons, reasons
+    assert fleet(kube, ns, FLEET)["status"]["migrations"] == 0
+
+
+def test_a_slow_link_brings_the_offloaded_detector_on_board_and_back_once_stable(
+    kube: Kube, cluster: Cluster, cut_fleet: str
+) -> None:
+    """Robot-1's link 150 ms one way (declared 4 ms): measured Degraded, its detector planned
+    on board (its 100 ms cycle cannot be served across), the robot's pods running; once the
+    link is healthy again for the stable window, the detector goes back to the edge."""
+    ns = cut_fleet
+    robot, other = ROBOTS
+    kube.wait_for(
+        "both robots' links measured healthy",
+        lambda: all(_link(kube, ns, r).get("state") == "Healthy" for r in ROBOTS),
+        60,
+        interval=1,
+    )
+    healthy = {r: _link(kube, ns, r)["measuredLatencyMillis"] for r in ROBOTS}
+    print(f"measured one-way latency on the declared 4 ms links: {healthy} ms")
+    assert all(ms < 32 for ms in healthy.values())  # the limit: 3 x 4 + 20 ms
+    slowed = time.monotonic()
+    cluster.set_link(robot, delay_ms=SLOW_MS)
+    try:
+        kube.wait_for(
+            "robot-1's link measured degraded",
+            lambda: _link(kube, ns, robot).get("state") == "Degraded",
+            LINK_WINDOW_S + 30,
+            interval=0.5,
+        )
+        detected = time.monotonic() - slowed
+        seen = _link(kube, ns, robot)
+        print(f"degraded after {detected:.1f} s: {seen}")
+        assert SLOW_MS <= seen["measuredLatencyMillis"] <= 1.2 * SLOW_MS + 20  # one round trip
+        assert seen["plannedLatencyMillis"] == seen["measuredLatencyMillis"]
+        kube.wait_for(
+            "robot-1's detector running on board",
+            lambda: _runs(kube, ns, robot, "detector") == robot,
+            180,
+            interval=1,
+        )
+        moved = time.monotonic() - slowed
+        where = _placement(kube, ns)
+        print(f"detector on board {moved:.1f} s after the link slowed; placement {where}")
+        assert where[(robot, "detector")] == robot and where[(other, "detector")] == EDGE
+        assert where[(robot, "tracker")] == EDGE  # edge-only: it stays and misses
+        cond = conditions(fleet(kube, ns, FLEET))["Degraded"]
+        assert cond["status"] == "True" and cond["reason"] in ("LinkDegraded", "Migrating")
+        assert f"{robot}'s link measured" in cond["message"]
+        assert {"LinkDegraded", "Migrated"} <= {e["reason"] for e in events(kube, ns, name=FLEET)}
+    finally:
+        cluster.reset_link(robot)
+    restored = time.monotonic()
+    kube.wait_for(
+        "robot-1's link recovering",
+        lambda: _link(kube, ns, robot).get("state") in ("Recovering", "Healthy"),
+        LINK_WINDOW_S + 30,
+        interval=0.5,
+    )
+    assert _runs(kube, ns, robot, "detector") == robot, "moved back before the stable window"
+    kube.wait_for(
+        "robot-1's detector back on the edge",
+        lambda: _runs(kube, ns, robot, "detector") == EDGE,
+        LINK_STABLE_S + LINK_WINDOW_S + 180,
+        interval=1,
+    )
+    back = time.monotonic() - restored
+    print(f"detector back on the edge {back:.1f} s after the link was restored")
+    assert back >= LINK_STABLE_S
+    assert _link(kube, ns, robot)["state"] == "Healthy"
+    kube.wait_for(
+        "the fleet Ready and not degraded",
+        lambda: (
+            conditions(fleet(kube, ns, FLEET))["Degraded"]["status"] == "False"
+            and conditions(fleet(kube, ns, FLEET))["Ready"]["status"] == "True"
+        ),
+        120,
+        interval=1,
+    )
+    assert "LinkHealthy" in {e["reason"] for e in events(kube, ns, name=FLEET)}
+
+
+def _link(kube: Kube, ns: str, robot: str) -> dict[str, Any]:
+    """status.links' entry of ``robot`` ({} until measured)."""
+    links = (fleet(kube, ns, FLEET).get("status") or {}).get("links") or []
+    return next((e for e in links if e["robot"] == robot), {})
+
+
+def _placement(kube: Kube, ns: str) -> dict[tuple[str, str], str]:
+    return {
+        (p["robot"], p["module"]): p["node"] for p in fleet(kube, ns, FLEET)["status"]["placement"]
+    }
+
+
+def _runs(kube: Kube, ns: str, robot: str, module: str) -> str | None:
+    """The node where ``robot``'s ``module`` is planned, once its pod there is Ready."""
+    node = _placement(kube, ns).get((robot, module))
+    for pod in all_pods(kube, ns):
+        labels = pod["metadata"].get("labels") or {}
+        if (
+            labels.get("fogfleet.io/robot") == robot
+            and labels.get("fogfleet.io/module") == module
+            and labels.get("app.kubernetes.io/component") != "fallback-standby"
+            and pod["spec"].get("nodeName") == node
+            and not pod["metadata"].get("deletionTimestamp")
+            and any(
+                c["type"] == "Ready" and c["status"] == "True"
+                for c in (pod.get("status") or {}).get("conditions") or []
+            )
+        ):
+            return node
+    return None

@@ -272,6 +272,14 @@ def test_values_defaults_match_the_plain_manifests() -> None:
     assert env["FOGFLEET_LEASE_SECONDS"] == str(values["leaderElection"]["leaseSeconds"])
 
 
+def test_chart_link_defaults_are_the_operators_own() -> None:
+    from fogfleet.settings import Settings
+
+    links, defaults = _values()["links"], Settings()
+    assert links["intervalSeconds"] == defaults.link_interval_seconds
+    assert links["nodeLabel"] == defaults.link_node_label
+
+
 def test_chart_clusterrole_template_has_the_same_rules_as_the_manifest() -> None:
     # Without helm: the template's rules block is plain YAML between the metadata and the end.
     text = (CHART / "templates" / "clusterrole.yaml").read_text()
