@@ -23,7 +23,7 @@ def endpoint() -> Iterator[tuple[WorkloadMetrics, int]]:
 
 
 def test_scrapes_reuse_one_connection(endpoint: tuple[WorkloadMetrics, int]) -> None:
-    metrics, port = endpoint
+    _, port = endpoint
     conn = http.client.HTTPConnection("127.0.0.1", port, timeout=5)
     try:
         for _ in range(3):
