@@ -27,6 +27,7 @@ from pydantic import BaseModel
 from .labels import LABEL_PART_OF, MANAGER
 from .schema import QUANTITY_PATTERN, CrdGenerationError, convert, deep_update, node_at
 from .v1alpha1.computenode import ComputeNode, ComputeNodeSpec
+from .v1alpha1.fallback import Fallback
 from .v1alpha1.podtemplate import OWNED_POD_FIELDS
 from .v1alpha1.robotfleet import ObjectiveName, RobotFleet, RobotFleetSpec, SchedulerSettings
 from .v1alpha1.softwaremodule import SoftwareModule, SoftwareModuleSpec
@@ -156,6 +157,7 @@ KINDS: tuple[KindInfo, ...] = (
         ),
         rules={
             "spec": _cel(SoftwareModuleSpec),
+            "spec.fallback": _cel(Fallback),
             "spec.cycleTimeMillis": (_POSITIVE_NUMBER_RULE,),
             "spec.template": _OWNED_RULES,
         },
@@ -195,6 +197,7 @@ KINDS: tuple[KindInfo, ...] = (
         ),
         rules={
             "spec": _cel(RobotFleetSpec),
+            "spec.fallback": _cel(Fallback),
             "spec.scheduler.objectives": _cel(SchedulerSettings),
         },
         # CEL's cost estimate needs a bound for the O(n^2) uniqueness rule (without it the API

@@ -28,7 +28,7 @@ from fogfleet.api.v1alpha1.common import Tier
 from fogfleet.api.v1alpha1.robotfleet import RobotFleet, SchedulerName
 from fogfleet.controllers.ros import apply_ros_wiring, is_ros_object
 from fogfleet.domain.build import build_problem
-from fogfleet.domain.fallback import fleet_fallbacks
+from fogfleet.domain.fallback import fleet_fallbacks, variant_names
 from fogfleet.domain.linkhealth import planned_links
 from fogfleet.domain.network import uplink
 from fogfleet.domain.problem import Problem
@@ -104,10 +104,13 @@ def reconcile(body: Obj, deps: Deps) -> Outcome:
         raise
 
 
-def _record_references(deps: Deps, key: FleetKey, fleet: RobotFleet) -> None:
+def _record_references(
+    deps: Deps, key: FleetKey, fleet: RobotFleet, modules: set[str] | None = None
+) -> None:
     names = set(fleet.spec.robots) | set(fleet.spec.nodes)
     selector = fleet.spec.robot_selector is not None or fleet.spec.node_selector is not None
-    deps.refs.record(key, names, set(), {m.name for m in fleet.spec.modules}, selector)
+    wanted = modules if modules is not None else {m.name for m in fleet.spec.modules}
+    deps.refs.record(key, names, set(), wanted, selector)
 
 
 def _reconcile(
@@ -134,6 +137,14 @@ def _reconcile(
         return _finish(body, fleet, deps, last, deployments, False, old_status, generation)
     log.debug("RobotFleet %s/%s: inputs changed, full reconcile", ns, name)
     inputs = gather(fleet, compute_nodes, raw_modules, nodes)
+    modules = {
+        m.metadata.name: m
+        for m in inputs.catalog.modules.values()
+        if (m.metadata.namespace or "default") == ns
+    }
+    # the variants the fleet's standbys run: a change to one (or its creation) re-plans it
+    wanted = {m.name for m in fleet.spec.modules} | variant_names(fleet.spec, modules)
+    _record_references(deps, key, fleet, wanted)
     _raise_broken_references(fleet, inputs.broken)
     problem = build_problem(
         fleet,
@@ -146,7 +157,7 @@ def _reconcile(
         key,
         {n.name for n in problem.nodes},
         {n.node_name for n in problem.nodes},
-        {m.name for m in fleet.spec.modules},
+        wanted,
         fleet.spec.robot_selector is not None or fleet.spec.node_selector is not None,
     )
     unavailable = {
@@ -172,11 +183,6 @@ def _reconcile(
     never = {i: why for i, why in problem.reasons.items() if i not in stranded}
     if never:
         raise Infeasible(f"RobotFleet/{name}", "spec.modules", "; ".join(never.values()))
-    modules = {
-        m.metadata.name: m
-        for m in inputs.catalog.modules.values()
-        if (m.metadata.namespace or "default") == ns
-    }
     owner = Owner(name, body["metadata"]["uid"]) if body["metadata"].get("uid") else None
     baseline = fleet.spec.scheduler.algorithm is SchedulerName.K8S_DEFAULT
     cached: CachedPlan | None = None

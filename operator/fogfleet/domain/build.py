@@ -17,7 +17,7 @@ from fogfleet.api.v1alpha1.robotfleet import RobotFleet
 from fogfleet.api.v1alpha1.softwaremodule import Scope, SoftwareModule
 from fogfleet.errors import DanglingReference, InvalidSpec
 
-from .fallback import standby_rows
+from .fallback import standbys
 from .network import Link, uplink
 from .pairs import Block, Pair, PairTable, ProfileRow, pad_rungs
 from .problem import (
@@ -317,10 +317,13 @@ def build_problem(
         which = {m: k for k, m in enumerate(names)}
         rows = np.array([which[inst.module] for inst in instances], dtype=np.int64)
         preferred = freeze(by_module[rows].reshape(i_count, n))
-    fallback, fallback_row = standby_rows(fleet, modules, instances, home, allowed, lim, home_rungs)
+    held = standbys(fleet, catalog, modules, instances, home, robots, allowed, lim, home_rungs)
     return Problem(
-        fallback=fallback,
-        fallback_row=fallback_row,
+        fallback=held.keep,
+        fallback_row=held.row,
+        fallback_variant=held.variant,
+        fallback_cycle=held.cycle,
+        fallback_need=held.need,
         preferred=preferred,
         priority=freeze(np.array([priorities[inst.module] for inst in instances], dtype=np.int64)),
         ladder=_ladder(blocks, home, home_rungs, remote, lim),

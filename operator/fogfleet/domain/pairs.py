@@ -28,7 +28,7 @@ from .network import LOCAL, Link, path
 from .problem import EXEC_SHARE_OF_CYCLE
 from .taxonomy import may_degrade, must_stay_onboard
 
-__all__ = ["Block", "Pair", "PairTable", "ProfileRow", "pad_rungs"]
+__all__ = ["Block", "Pair", "PairTable", "ProfileRow", "pad_rungs", "profile_rows"]
 
 F64 = NDArray[np.float64]
 

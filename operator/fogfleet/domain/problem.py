@@ -125,6 +125,12 @@ class Problem:
     preferred: NDArray[np.bool_] | None = None  # (I, N) node's tier preferred; None: no wishes
     fallback: NDArray[np.bool_] | None = None  # (I,) keeps an on-board fallback; None: none
     fallback_row: F64 | None = None  # (I, 3) cpu, mean, std (s) its standby runs with at home
+    # standbys that run a lighter variant module (fallback mode variant): its own CPU row
+    # (not capped by the module's own request at home: the module may not even run there),
+    # its cycle time, its memory and GPUs; None: every standby runs the module itself
+    fallback_variant: NDArray[np.bool_] | None = None  # (I,)
+    fallback_cycle: F64 | None = None  # (I,) the standby's cycle time, seconds
+    fallback_need: F64 | None = None  # (I, 2) memory bytes, gpus the standby holds
 
     @property
     def n_instances(self) -> int:
@@ -205,6 +211,11 @@ class Problem:
             out[rows, 0] = cpu
             out[rows, 1] = self.memory[rows]
             out[rows, 2] = self.gpu[rows]
+            if self.fallback_variant is not None and self.fallback_row is not None:
+                v = rows[self.fallback_variant[rows]]  # a variant holds what it runs with
+                out[v, 0] = self.fallback_row[v, 0]
+                if self.fallback_need is not None:
+                    out[v, 1:] = self.fallback_need[v]
         return out
 
     def fallback_reserve(self, allocation: Allocation) -> F64:
@@ -217,11 +228,21 @@ class Problem:
         return out
 
     @cached_property
+    def standing_by(self) -> NDArray[np.bool_]:
+        """(I,) instances whose robot holds a fallback for them: off board, a standby runs
+        there (``render``), and a lost link leaves the standby (``scheduling.fallback``)."""
+        out = np.zeros(self.n_instances, dtype=bool)
+        out[self.fallback_rows] = True
+        return freeze(out)
+
+    @cached_property
     def held_at_home(self) -> NDArray[np.bool_]:
         """(I,) instances part of whose demand on their home node (``fallback_share``) is in
-        ``fallback_reserve``: there they count only the rest."""
-        held = np.zeros(self.n_instances, dtype=bool)
-        held[self.fallback_rows] = True
+        ``fallback_reserve``: there they count only the rest. Not a variant's: it holds its
+        own row, which the module on board does not use (it counts its whole demand)."""
+        held = self.standing_by.copy()
+        if self.fallback_variant is not None:
+            held &= ~self.fallback_variant
         return freeze(held)
 
     def node_index(self, name: str) -> int:

@@ -209,11 +209,17 @@ def render_instance(
     alloc = problem.limits if with_limits else problem.nominal
     j = nodes[0]
     request, use = float(alloc.cpu_request[i, j]), float(alloc.cpu_use[i, j])
+    mem, gpu = float(problem.memory[i]), float(problem.gpu[i])
+    variant = role == ROLE_STANDBY and fallback is not None and fallback.variant is not None
     if role == ROLE_STANDBY and problem.fallback_row is not None:
         # its share of the robot's reserve (Problem.fallback_share): the row it runs with
         request = use = min(request, float(problem.fallback_row[i, 0]))
+        if variant:  # a variant module: its own row, memory and GPUs
+            request = use = float(problem.fallback_row[i, 0])
+            if problem.fallback_need is not None:
+                mem, gpu = (float(v) for v in problem.fallback_need[i])
     cpu = format_cpu(request)
-    memory = str(int(np.ceil(problem.memory[i])))
+    memory = str(int(np.ceil(mem)))
     requests: dict[str, str] = {"cpu": cpu, "memory": memory}
     resources: dict[str, Any] = {"requests": requests}
     if with_limits:
@@ -223,8 +229,8 @@ def render_instance(
         limit = use * cpu_limit_percent / 100
         if limit > request:
             limits["cpu"] = format_cpu(limit)
-        if problem.gpu[i] > 0:
-            limits["nvidia.com/gpu"] = str(int(problem.gpu[i]))
+        if gpu > 0:
+            limits["nvidia.com/gpu"] = str(int(gpu))
         resources["limits"] = limits
     tier = "" if baseline else problem.nodes[j].tier.value
     selector = {LABEL_FLEET: label_value(problem.fleet), LABEL_INSTANCE: name}
@@ -263,6 +269,8 @@ def render_instance(
         else {problem.nodes[k].node_name: _nominal_row(problem, i, k) for k in nodes},
         role=role,
         fallback=fallback if role else None,
+        stands_in_for=inst.module if variant else "",
+        remote_cycle_millis=float(problem.cycle[i]) * 1e3 if variant else None,
     )
     metadata: dict[str, Any] = {
         "name": name,
@@ -348,10 +356,13 @@ def render_fleet(
     def one(
         i: int, nodes: list[int], role: str = "", fallback: Fallback | None = None
     ) -> dict[str, Any]:
+        name = problem.instances[i].module
+        if role == ROLE_STANDBY and fallback is not None and fallback.variant is not None:
+            name = fallback.variant  # the standby runs the lighter variant module
         return render_instance(
             problem,
             i,
-            modules[problem.instances[i].module],
+            modules[name],
             nodes,
             baseline=baseline,
             with_limits=with_limits,
@@ -373,7 +384,7 @@ def render_fleet(
             continue
         j, home = int(placement[i]), int(problem.home[i])
         fallback = (fallbacks or {}).get(inst.module)
-        if fallback is None or not problem.held_at_home[i] or j == home:
+        if fallback is None or not problem.standing_by[i] or j == home:
             out.append(one(i, [j]))
             continue
         # offloaded with an on-board fallback: the remote instance and its standby

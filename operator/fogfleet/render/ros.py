@@ -123,12 +123,15 @@ def module_spec_json(
     hardware_type: str,
     node_rows: Mapping[str, ProfileEntry] | None = None,
     fallback: Fallback | None = None,
+    remote_cycle_millis: float | None = None,
 ) -> str:
     """What the workload needs of the module: cycle, activation, topics, its node's profile.
 
     ``node_rows`` (node name -> the row it runs with there) is for a Deployment that
     kube-scheduler places (the k8s-default baseline): it learns its node only when it runs, so
-    it gets the row of every node it may land on (``profileByNode``).
+    it gets the row of every node it may land on (``profileByNode``). ``remote_cycle_millis``
+    is, for a variant's standby, the cycle time of the module it stands in for: the remote's
+    silence is counted in the remote's cycles.
     """
     spec = module.spec
     body: dict[str, Any] = {
@@ -144,6 +147,8 @@ def module_spec_json(
             "silentCycles": fallback.silent_cycles,
             "stepBackCycles": fallback.step_back_cycles,
         }
+        if remote_cycle_millis is not None:
+            body["fallback"]["remoteCycleTimeMillis"] = remote_cycle_millis
     return json.dumps(body, separators=(",", ":"), sort_keys=True)
 
 
@@ -160,6 +165,8 @@ def module_env(
     node_rows: Mapping[str, ProfileEntry] | None = None,
     role: str = "",
     fallback: Fallback | None = None,
+    stands_in_for: str = "",
+    remote_cycle_millis: float | None = None,
 ) -> list[dict[str, Any]]:
     """The environment fogfleet owns in a module container (ROS wiring + FOGFLEET_*).
 
@@ -167,19 +174,25 @@ def module_env(
     from the downward API and has no FOGFLEET_CPU (no limit: it runs the row of its node).
     ``role`` (``remote`` or ``standby``, with the module's ``fallback``) is an instance with an
     on-board fallback (``workload.fallback``); unset for every other instance.
+    ``stands_in_for``: a variant's standby runs ``module`` for that module (its name in
+    FOGFLEET_MODULE and the metrics, the variant's in FOGFLEET_VARIANT).
     """
     env = {
         "FOGFLEET_FLEET": fleet,
         "FOGFLEET_ROBOT": robot,
-        "FOGFLEET_MODULE": module.metadata.name,
+        "FOGFLEET_MODULE": stands_in_for or module.metadata.name,
         "FOGFLEET_TIER": tier,
         "FOGFLEET_NODE": node,
         "FOGFLEET_HARDWARE_TYPE": hardware_type,
         "FOGFLEET_CPU": cpu,
-        "FOGFLEET_MODULE_SPEC": module_spec_json(module, hardware_type, node_rows, fallback),
+        "FOGFLEET_MODULE_SPEC": module_spec_json(
+            module, hardware_type, node_rows, fallback, remote_cycle_millis
+        ),
     }
     if role:
         env["FOGFLEET_ROLE"] = role
+    if stands_in_for:
+        env["FOGFLEET_VARIANT"] = module.metadata.name
     if node_rows:
         del env["FOGFLEET_NODE"], env["FOGFLEET_CPU"], env["FOGFLEET_HARDWARE_TYPE"]
     if wiring is not None and wiring.settings.enabled:

@@ -63,7 +63,9 @@ def _reserve_note(problem: Problem) -> str:
     more = f" and {len(robots) - 4} more robots" if len(robots) > 4 else ""
     return (
         f" (CPU held for on-board fallbacks of {', '.join(modules)}: {each}{more}; a module "
-        "with fallback.mode onboard keeps its on-board share on its robot wherever it runs)"
+        "with fallback.mode onboard keeps its on-board share on its robot wherever it runs, "
+        "one with mode variant its variant's; a smaller fallback.cpu or a lighter variant "
+        "holds less)"
     )
 
 

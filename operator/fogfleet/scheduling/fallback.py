@@ -7,6 +7,7 @@ each module's share of missed cycles (here one instance per module and robot).""
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
@@ -32,10 +33,11 @@ def disconnected(problem: Problem, x: NDArray[np.integer]) -> list[CutRobot]:
     """Per robot with an offloaded module (in node order): what losing its link costs."""
     x = np.asarray(x, dtype=np.int64)
     home = problem.home
-    held = problem.held_at_home
+    held = problem.standing_by
     off = (home >= 0) & (x >= 0) & (x != home)
     local = np.where(off & held, home, x)  # the standbys take over on board
-    ev = Evaluation(problem, local[None, :], _standby_allocation(problem, off & held))
+    cut = _standing_in(problem, off & held)
+    ev = Evaluation(cut, local[None, :], _standby_allocation(cut, off & held, problem))
     miss = ev.instance_miss()[0]
     miss = np.where(off & ~held, 1.0, miss)
     reserve = problem.fallback_reserve(problem.limits)[:, 0]
@@ -56,9 +58,23 @@ def disconnected(problem: Problem, x: NDArray[np.integer]) -> list[CutRobot]:
     return out
 
 
-def _standby_allocation(problem: Problem, standing_in: NDArray[np.bool_]) -> Allocation:
+def _standing_in(problem: Problem, standing_in: NDArray[np.bool_]) -> Problem:
+    """The problem as the cut robot runs it: a variant standby at its own cycle time, its
+    share of the reserve being what it runs with (as a standby of the module itself)."""
+    if problem.fallback_variant is None:
+        return problem
+    cycle = problem.cycle
+    if problem.fallback_cycle is not None:
+        cycle = np.where(standing_in, problem.fallback_cycle, cycle)
+    return dataclasses.replace(problem, cycle=cycle, fallback_variant=None)
+
+
+def _standby_allocation(
+    problem: Problem, standing_in: NDArray[np.bool_], planned: Problem
+) -> Allocation:
     """The limits allocation with the standbys of ``standing_in`` on their home node running
-    the row they were given (``Problem.fallback_row``: maybe less than the module's own)."""
+    the row they were given (``Problem.fallback_row``: maybe less than the module's own; a
+    variant's whatever the module's own at home, per ``planned``)."""
     lim = problem.limits
     rows = np.flatnonzero(standing_in)
     if problem.fallback_row is None or not rows.size:
@@ -68,6 +84,8 @@ def _standby_allocation(problem: Problem, standing_in: NDArray[np.bool_]) -> All
     request, use = lim.cpu_request.copy(), lim.cpu_use.copy()
     mean, std = lim.exe_mean.copy(), lim.exe_std.copy()
     cpu = np.minimum(request[rows, h], fb[:, 0])
+    if planned.fallback_variant is not None:
+        cpu = np.where(planned.fallback_variant[rows], fb[:, 0], cpu)
     for a, v in zip((request, use, mean, std), (cpu, cpu, fb[:, 1], fb[:, 2]), strict=True):
         a[rows, h] = v
     return Allocation(request, use, mean, std, lim.has_limit)

@@ -99,7 +99,7 @@ def run_module(
     last_origin = 0
     standby = spec.role is Role.STANDBY
     takeover = Takeover(
-        spec.cycle_s, spec.silent_cycles, spec.step_back_cycles, started=time.monotonic()
+        spec.takeover_cycle_s, spec.silent_cycles, spec.step_back_cycles, started=time.monotonic()
     )
     first = FirstResponse()
     counted = 0  # takeovers already in the metric

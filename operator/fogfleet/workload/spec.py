@@ -96,6 +96,12 @@ class WorkloadSpec:
     role: Role = Role.PRIMARY
     silent_cycles: int = 3  # a standby takes over after this many cycles without the remote
     step_back_cycles: int = 10  # and steps back after the remote has delivered this long
+    remote_cycle_s: float | None = None  # a variant's standby: the remote module's cycle
+
+    @property
+    def takeover_cycle_s(self) -> float:
+        """The cycle the remote's silence is counted in (the remote module's)."""
+        return self.remote_cycle_s if self.remote_cycle_s is not None else self.cycle_s
 
     @property
     def row(self) -> ExecRow:
@@ -145,6 +151,11 @@ class WorkloadSpec:
                 role=Role(role),
                 silent_cycles=_positive(fallback, "silentCycles", 3),
                 step_back_cycles=_positive(fallback, "stepBackCycles", 10),
+                remote_cycle_s=(
+                    _quantity(fallback["remoteCycleTimeMillis"]) / 1e3
+                    if "remoteCycleTimeMillis" in fallback
+                    else None
+                ),
             )
         except (KeyError, TypeError, ValueError) as exc:
             raise ValueError(f"{ENV_SPEC}: {exc!r}") from exc

@@ -285,6 +285,7 @@ def test_every_cross_field_rule_is_stated_once_and_reaches_its_crd() -> None:
     """The models' RULES are what the CRDs validate with (one statement, two checkers)."""
     from fogfleet.api.crdgen import render_crds
     from fogfleet.api.v1alpha1.computenode import ComputeNodeSpec
+    from fogfleet.api.v1alpha1.fallback import Fallback
     from fogfleet.api.v1alpha1.robotfleet import RobotFleetSpec, SchedulerSettings
     from fogfleet.api.v1alpha1.softwaremodule import SoftwareModuleSpec
 
@@ -301,6 +302,8 @@ def test_every_cross_field_rule_is_stated_once_and_reaches_its_crd() -> None:
         ("SoftwareModule", ("spec",), SoftwareModuleSpec),
         ("RobotFleet", ("spec",), RobotFleetSpec),
         ("RobotFleet", ("spec", "scheduler", "objectives"), SchedulerSettings),
+        ("SoftwareModule", ("spec", "fallback"), Fallback),
+        ("RobotFleet", ("spec", "fallback"), Fallback),
     ]:
         for rule in model.RULES:
             assert rule.crd() in validations(kind, *path), (kind, rule.message)
@@ -325,8 +328,39 @@ def test_fallback_onboard_without_outputs_names_the_field() -> None:
     err = _invalid(doc)
     assert (err.field, err.message.split(":")[0]) == (
         "spec.fallback.mode",
-        "onboard needs topics.publishes",
+        "onboard and variant need topics.publishes",
     )
+
+
+@pytest.mark.parametrize(
+    ("fallback", "field", "why"),
+    [
+        ({"mode": "variant"}, "spec.fallback.variant", "mode variant needs the name"),
+        ({"mode": "onboard", "variant": "lite"}, "spec.fallback.variant", "only with mode variant"),
+        ({"variant": "lite"}, "spec.fallback.variant", "only with mode variant"),
+        ({"mode": "variant", "variant": "Not_A_Name"}, "spec.fallback.variant", ""),
+    ],
+)
+def test_fallback_variant_needs_its_module_and_only_with_its_mode(
+    fallback: dict[str, Any], field: str, why: str
+) -> None:
+    doc = _module()
+    doc["spec"]["fallback"] = fallback
+    err = _invalid(doc)
+    assert err.field == field and why in err.message
+
+
+def test_a_fleet_default_fallback_cannot_be_a_variant() -> None:
+    from fogfleet.api.v1alpha1.robotfleet import RobotFleetSpec
+
+    with pytest.raises(ValueError, match="set it on that SoftwareModule"):
+        RobotFleetSpec.model_validate(
+            {
+                "robots": ["r1"],
+                "modules": [{"name": "m"}],
+                "fallback": {"mode": "variant", "variant": "lite"},
+            }
+        )
 
 
 @pytest.mark.parametrize(

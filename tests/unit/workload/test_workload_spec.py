@@ -44,6 +44,13 @@ def test_the_operators_environment_becomes_a_spec() -> None:
     assert spec.row == ExecRow(0.25, 0.038, 0.004)
 
 
+def test_a_variants_standby_counts_the_remotes_silence_in_the_remotes_cycles() -> None:
+    assert WorkloadSpec.from_env(_env()).takeover_cycle_s == pytest.approx(0.033)
+    variant = {**SPEC, "cycleTimeMillis": 200, "fallback": {"remoteCycleTimeMillis": 33}}
+    spec = WorkloadSpec.from_env(_env(FOGFLEET_MODULE_SPEC=json.dumps(variant)))
+    assert spec.cycle_s == pytest.approx(0.2) and spec.takeover_cycle_s == pytest.approx(0.033)
+
+
 def test_a_missing_or_broken_spec_names_the_variable() -> None:
     with pytest.raises(ValueError, match="FOGFLEET_MODULE_SPEC is not set"):
         WorkloadSpec.from_env({})

@@ -9,7 +9,7 @@ from pydantic import Field, model_validator
 
 from .base import FogModel, Number, PosInt, refuse_duplicates
 from .common import Condition, LabelSelector, Name, ObjectMeta, Tier
-from .fallback import Fallback
+from .fallback import Fallback, FallbackMode
 from .linkhealth import LinkHealth, RobotLinkStatus
 from .rules import CrossFieldRule, enforce
 
@@ -222,6 +222,12 @@ class RobotFleetSpec(FogModel):
             "(has(self.robots) && size(self.robots) > 0) || has(self.robotSelector)",
             "robots: list at least one robot or set robotSelector",
             lambda s: bool(s.robots) or s.robot_selector is not None,
+        ),
+        CrossFieldRule(
+            "!has(self.fallback) || !has(self.fallback.mode) || self.fallback.mode != 'variant'",
+            "fallback.mode: variant names one module's variant: set it on that SoftwareModule "
+            "(the fleet's default is none or onboard)",
+            lambda s: s.fallback.mode is not FallbackMode.VARIANT,
         ),
     )
 

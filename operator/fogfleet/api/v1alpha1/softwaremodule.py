@@ -16,7 +16,7 @@ from pydantic import Field, model_validator
 from .base import FogModel, NonNegInt, Number, PosInt, Quantity, parse_quantity, refuse_duplicates
 from .common import Condition, ObjectMeta, Tier
 from .computenode import DeviceType
-from .fallback import Fallback, FallbackMode
+from .fallback import STANDING_BY, Fallback
 from .rules import CrossFieldRule, enforce
 from .scaling import ScalingSpec
 from .template import ContainerTemplate
@@ -175,11 +175,15 @@ class Requirements(FogModel):
         return self
 
 
-_ONBOARD = "(has(self.fallback) && has(self.fallback.mode) && self.fallback.mode == 'onboard')"
+_ONBOARD = (
+    "(has(self.fallback) && has(self.fallback.mode) && "
+    "(self.fallback.mode == 'onboard' || self.fallback.mode == 'variant'))"
+)
 
 
 def _onboard(spec: SoftwareModuleSpec) -> bool:
-    return spec.fallback is not None and spec.fallback.mode is FallbackMode.ONBOARD
+    """The module keeps a standby on its robot (fallback mode onboard or variant)."""
+    return spec.fallback is not None and spec.fallback.mode in STANDING_BY
 
 
 class SoftwareModuleSpec(FogModel):
@@ -208,15 +212,15 @@ class SoftwareModuleSpec(FogModel):
         ),
         CrossFieldRule(
             f"!{_ONBOARD} || !has(self.scope) || self.scope != 'shared'",
-            "fallback.mode: onboard needs a robot to fall back to and a shared module has none "
-            "(use scope perRobot, or fallback.mode none)",
+            "fallback.mode: onboard and variant need a robot to fall back to and a shared module "
+            "has none (use scope perRobot, or fallback.mode none)",
             lambda s: not _onboard(s) or s.scope is not Scope.SHARED,
         ),
         CrossFieldRule(
             f"!{_ONBOARD} || (has(self.topics) && has(self.topics.publishes) && "
             "size(self.topics.publishes) > 0)",
-            "fallback.mode: onboard needs topics.publishes: the standby watches the module's "
-            "outputs to notice that the remote instance went silent",
+            "fallback.mode: onboard and variant need topics.publishes: the standby watches the "
+            "module's outputs to notice that the remote instance went silent",
             lambda s: not _onboard(s) or bool(s.topics.publishes),
         ),
     )
@@ -256,8 +260,8 @@ class SoftwareModuleSpec(FogModel):
     700 for safety-relevant modules, 400 for soft real-time ones, 100 for the rest."""
     fallback: Fallback | None = None
     """What runs when the module is offloaded and its robot's link fails: onboard keeps a
-    standby on the robot (its on-board share reserved) that takes over on its own. Unset:
-    the fleet's spec.fallback."""
+    standby on the robot (its on-board share reserved) that takes over on its own; variant
+    keeps a standby running a lighter variant module. Unset: the fleet's spec.fallback."""
 
     @model_validator(mode="after")
     def _check(self) -> SoftwareModuleSpec:
