@@ -76,9 +76,8 @@ def measure_links(deps: Deps, links: LinkDeps, now: float) -> set[FleetKey]:
         for key, r in list(deps.rendered.items())
         if r.robots and r.link_health is not None and r.link_health.monitor
     }
-    for key in set(deps.links) - set(fleets):
-        deps.links.pop(key, None)
-        deps.standbys_active.pop(key, None)
+    # a fleet being reconciled right now is briefly missing from ``rendered``: its link states
+    # stay (``robotfleet.forget`` drops them when the fleet goes)
     if not fleets:
         return set()
     try:

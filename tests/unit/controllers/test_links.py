@@ -8,7 +8,7 @@ import pytest
 
 import fogfleet.controllers.robotfleet as robotfleet
 from fogfleet.controllers.links import LinkDeps, link_events, measure_links
-from fogfleet.controllers.robotfleet import reconcile
+from fogfleet.controllers.robotfleet import forget, reconcile
 from fogfleet.errors import DependencyUnavailable
 
 KEY = ("warehouse", "warehouse")
@@ -202,11 +202,17 @@ def test_a_fleet_that_does_not_monitor_its_links_is_not_measured(kube, deps, pro
     assert "links" not in status(kube) or status(kube)["links"] == []
 
 
-def test_a_forgotten_fleet_drops_its_links(kube, deps, prom) -> None:
+def test_a_fleet_in_the_middle_of_a_reconcile_keeps_its_links_until_forgotten(
+    kube, deps, prom
+) -> None:
     run(kube, deps)
+    prom.round_trip["robot-1"] = 1.0
     measure(deps, prom, 0)
-    deps.rendered.clear()
+    rendered = deps.rendered.pop(KEY)  # what a reconcile in another thread does for a moment
     measure(deps, prom, 10)
+    assert deps.links[KEY]["robot-1"].state.value == "Degraded"
+    deps.rendered[KEY] = rendered
+    forget(deps, KEY)  # the fleet is gone
     assert KEY not in deps.links and KEY not in deps.standbys_active
 
 
