@@ -21,6 +21,7 @@ from fogfleet.adapters.prometheus import PrometheusClient
 from fogfleet.adapters.watched import WatchedKube
 from fogfleet.controllers.deps import Deps
 from fogfleet.controllers.links import LinkDeps
+from fogfleet.controllers.observed import ObservedDeps
 from fogfleet.controllers.runtime import Runtime
 from fogfleet.controllers.scaling import ScalingDeps
 from fogfleet.handlers import register
@@ -168,8 +169,12 @@ def _run_kopf(
             node_label=settings.link_node_label,
             period_seconds=settings.link_interval_seconds,
         )
+        memo.observed = ObservedDeps(prometheus, period_seconds=settings.observe_interval_seconds)
     else:
-        log.info("Scaling and link monitoring are off: FOGFLEET_PROMETHEUS_URL is not set")
+        log.info(
+            "Scaling, link monitoring and drift detection are off: FOGFLEET_PROMETHEUS_URL is "
+            "not set"
+        )
     kopf.run(
         registry=registry,
         memo=memo,

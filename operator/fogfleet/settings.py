@@ -22,6 +22,8 @@ FOGFLEET_SCALING_INTERVAL_SECONDS how often each scaled module decides (default 
 FOGFLEET_LINK_INTERVAL_SECONDS    how often the robots' links are measured (default 10; needs
                                   FOGFLEET_PROMETHEUS_URL)
 FOGFLEET_LINK_NODE_LABEL          Prometheus' label of a pod target's Node (default node)
+FOGFLEET_OBSERVE_INTERVAL_SECONDS how often the modules' measured cycles are read for drift
+                                  (default 30; needs FOGFLEET_PROMETHEUS_URL)
 FOGFLEET_PEERING_NAME             kopf peering name when not standalone
 FOGFLEET_LEADER_ELECTION          true: only the holder of a Lease reconciles (several replicas)
 FOGFLEET_LEADER_ELECTION_NAMESPACE  the Lease's namespace (the chart sets the pod's namespace)
@@ -67,6 +69,7 @@ class Settings(BaseSettings):
     scaling_interval_seconds: Annotated[float, Field(gt=0)] = 15.0
     link_interval_seconds: Annotated[float, Field(gt=0)] = 10.0
     link_node_label: Annotated[str, Field(pattern=r"^[a-zA-Z_][a-zA-Z0-9_]*$")] = "node"
+    observe_interval_seconds: Annotated[float, Field(gt=0)] = 30.0
     leader_election: bool = False
     leader_election_namespace: str = "fogfleet-system"
     leader_election_lease: str = "fogfleet-operator"

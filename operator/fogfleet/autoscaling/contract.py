@@ -8,6 +8,7 @@ metric                              type       labels                           
 ==================================  =========  =======================================  ==========
 fogfleet_cycle_time_seconds         histogram  module, robot, tier                      seconds
 fogfleet_missed_cycles_total        counter    module, robot, tier                      cycles
+fogfleet_execution_time_seconds     histogram  module, robot, tier, hardware_type, cpu  seconds
 fogfleet_requests_served_total      counter    module, tier, privacy                    requests
 fogfleet_requests_rejected_total    counter    module, privacy, reason                  requests
 fogfleet_response_time_seconds      histogram  module, tier, privacy                    seconds
@@ -18,7 +19,9 @@ fogfleet_replicas                   gauge      module, tier, state              
 Label values: ``module`` is the SoftwareModule's name; ``robot`` the robot's name; ``tier`` one
 of ``robot``, ``edge``, ``cloud``; ``privacy`` ``private`` or ``normal``; ``reason`` (why a
 request was rejected) ``slo`` (no tier could meet its target) or ``capacity`` (no replica at
-all); ``state`` ``ready`` or ``starting``. ``namespace`` and ``pod`` are added by Prometheus'
+all); ``state`` ``ready`` or ``starting``; ``hardware_type`` the node's hardware type and
+``cpu`` the module's CPU limit in millicores (``100m``; empty without a limit), the key of
+the profile row the execution time belongs to. ``namespace`` and ``pod`` are added by Prometheus'
 Kubernetes service discovery, not by the exporter. ``module`` rather than ``service`` avoids
 the label the Prometheus Operator itself attaches to every target.
 
@@ -39,6 +42,7 @@ if TYPE_CHECKING:  # the workload image imports this module without pydantic
 
 __all__ = [
     "CYCLE_TIME",
+    "EXECUTION_TIME",
     "HISTOGRAM_BUCKETS_SECONDS",
     "MISSED_CYCLES",
     "QUEUE_LENGTH",
@@ -54,6 +58,7 @@ __all__ = [
 ]
 
 CYCLE_TIME = "fogfleet_cycle_time_seconds"
+EXECUTION_TIME = "fogfleet_execution_time_seconds"
 MISSED_CYCLES = "fogfleet_missed_cycles_total"
 REQUESTS_SERVED = "fogfleet_requests_served_total"
 REQUESTS_REJECTED = "fogfleet_requests_rejected_total"

@@ -17,10 +17,13 @@ from numpy.typing import NDArray
 
 from fogfleet.adapters.ports import KubePort, MetricsPort, NullMetrics, Planner, Watches
 from fogfleet.adapters.prometheus import PrometheusPort
+from fogfleet.api.v1alpha1.computenode import ComputeNode
 from fogfleet.api.v1alpha1.linkhealth import LinkHealth
+from fogfleet.api.v1alpha1.observed import DriftSettings
 from fogfleet.controllers.planning import CorePlanner
 from fogfleet.domain.linkhealth import RobotLink
 from fogfleet.domain.network import Link
+from fogfleet.domain.observed import ModuleDrift
 from fogfleet.domain.problem import Problem
 from fogfleet.scheduling.schedule import Schedule
 
@@ -76,6 +79,11 @@ class Rendered:
     link_health: LinkHealth | None = None
     modules: frozenset[str] = frozenset()
     measured: Mapping[str, Link] = field(default_factory=dict)  # robots planned around
+    # what drift detection needs (controllers/observed.py): the fleet's settings, the plan's
+    # predicted miss rate per module, one ComputeNode per hardware type (declared rows)
+    drift: DriftSettings | None = None
+    predicted: Mapping[str, float] = field(default_factory=dict)
+    hardware: Mapping[str, ComputeNode] = field(default_factory=dict)
 
 
 @dataclass
@@ -147,6 +155,10 @@ class Deps:
     # the robots' links as measured (controllers/links.py), and the standbys computing now
     links: dict[FleetKey, dict[str, RobotLink]] = field(default_factory=dict)
     standbys_active: dict[FleetKey, frozenset[tuple[str, str]]] = field(default_factory=dict)
+    # per fleet: each module's measured against predicted misses (controllers/observed.py),
+    # and (plan id, when its measures began, the last re-plan for drift)
+    drift: dict[FleetKey, dict[str, ModuleDrift]] = field(default_factory=dict)
+    drift_epoch: dict[FleetKey, tuple[str, float, float | None]] = field(default_factory=dict)
 
 
 class ScalingKube(Protocol):

@@ -20,6 +20,7 @@ from fogfleet.scheduling.explain import degraded_message
 from fogfleet.scheduling.fallback import disconnected
 
 from .deps import CachedPlan, Deps, fleet_key
+from .drift_report import DriftReport
 from .links import LinkReport
 from .status import (
     complete,
@@ -51,6 +52,7 @@ def fleet_status(
     generation: int | None,
     old: Obj,
     links: LinkReport | None = None,
+    drift: DriftReport | None = None,
 ) -> Obj:
     names = [d["metadata"]["name"] for d in desired]
     by_name = dict(zip(names, desired, strict=True))
@@ -144,9 +146,12 @@ def fleet_status(
             f"Planned {total - len(stranded)} of {total} modules",
             generation,
         )
+    conds = [ready_c, sched, degraded]
+    if drift is not None and drift.condition is not None:
+        conds.append(condition("Drift", *drift.condition, generation))
     status: Obj = {
         "observedGeneration": generation,
-        "conditions": merge_conditions(old.get("conditions") or [], [ready_c, sched, degraded]),
+        "conditions": merge_conditions(old.get("conditions") or [], conds),
         "scheduler": fleet.spec.scheduler.algorithm.value,
         "placement": placement,
         "modulesPlaced": len(placement),
@@ -170,6 +175,10 @@ def fleet_status(
         status["links"] = links.entries
     elif old.get("links"):
         status["links"] = []
+    if drift is not None and drift.entries:
+        status["measured"] = drift.entries
+    elif old.get("measured"):
+        status["measured"] = []
     if cached is not None:
         objectives = cached.objectives
         status.update(

@@ -42,12 +42,15 @@ from fogfleet.render.deployments import (
     render_fleet,
 )
 from fogfleet.scheduling import stickiness
+from fogfleet.scheduling.objectives import module_miss_rates
 
 from .deps import CachedPlan, Deps, FleetKey, Rendered, fleet_key
+from .drift_report import drift_events, drift_report
 from .fleet_plan import plan_fleet
 from .fleet_status import fleet_status, plan_events, report_failure
 from .inputs import current_placement, gather
 from .links import link_events, link_report
+from .observed import profile_corrections
 from .parallel import run_all
 from .stamp import input_stamp
 from .status import (
@@ -83,6 +86,8 @@ def forget(deps: Deps, key: FleetKey) -> None:
     deps.failures.pop(key, None)
     deps.links.pop(key, None)
     deps.standbys_active.pop(key, None)
+    deps.drift.pop(key, None)
+    deps.drift_epoch.pop(key, None)
     deps.refs.forget(key)
 
 
@@ -126,7 +131,10 @@ def _reconcile(
     compute_nodes, nodes = kube.list_compute_nodes(), kube.list_nodes()
     # a robot's link measured worse than declared is planned with the measured figures
     measured = planned_links(deps.links.get(key, {}))
-    stamp = (*input_stamp(body, raw_modules, compute_nodes, nodes, listed), measured)
+    # modules' profiles corrected by what ran (controllers/observed.py)
+    corrections = profile_corrections(raw_modules)
+    learnt = tuple(sorted(corrections.items()))
+    stamp = (*input_stamp(body, raw_modules, compute_nodes, nodes, listed), measured, learnt)
     last = deps.rendered.pop(key, None)
     if (
         last is not None
@@ -152,6 +160,7 @@ def _reconcile(
         current_placement(deployments),
         scaling_pools(raw_modules),
         measured,
+        corrections,
     )
     deps.refs.record(
         key,
@@ -216,7 +225,7 @@ def _reconcile(
     listed = [d for d in kube.list_deployments(ns, selector) if _owned(d, body)]
     deployments = [d for d in listed if not is_ros_object(d)]
     rendered = Rendered(
-        (*input_stamp(body, raw_modules, compute_nodes, nodes, listed), measured),
+        (*input_stamp(body, raw_modules, compute_nodes, nodes, listed), measured, learnt),
         time.monotonic(),
         problem,
         desired,
@@ -231,6 +240,17 @@ def _reconcile(
         link_health=fleet.spec.link_health,
         modules=frozenset(m.name for m in fleet.spec.modules),
         measured=measured,
+        drift=fleet.spec.drift,
+        predicted=(
+            module_miss_rates(problem, cached.placement, cached.schedule.with_limits)
+            if cached is not None and not baseline
+            else {}
+        ),
+        hardware={
+            nd.spec.hardware_type: nd
+            for nd in inputs.catalog.nodes.values()
+            if nd.metadata.name in {n.name for n in problem.nodes}
+        },
     )
     deps.rendered[key] = rendered
     outcome = _finish(body, fleet, deps, rendered, deployments, planned, old_status, generation)
@@ -260,6 +280,7 @@ def _finish(
     roll = rollout(rendered.desired, deployments, pods)
     stranded = set(rendered.stranded)
     links = link_report(rendered, deps.links.get((ns, name)), deps.standbys_active.get((ns, name)))
+    drift = drift_report(rendered, deps.drift.get((ns, name)))
     status = fleet_status(
         fleet,
         rendered.problem,
@@ -272,11 +293,15 @@ def _finish(
         generation,
         old_status,
         links,
+        drift,
     )
     ready = not roll.waiting and not roll.moving and not stranded
     if not same_status(old_status, status):
         deps.kube.patch_fleet_status(ns, name, status)
-        for kind, reason, message in link_events(old_status.get("links") or [], links.entries):
+        for kind, reason, message in [
+            *link_events(old_status.get("links") or [], links.entries),
+            *drift_events(old_status.get("measured") or [], drift.entries),
+        ]:
             deps.kube.emit_event(body, kind, reason, message)
         if ready != _is_ready(old_status):
             log.info(

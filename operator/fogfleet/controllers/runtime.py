@@ -21,6 +21,7 @@ from fogfleet.errors import FogfleetError
 
 from .deps import Deps, FleetKey
 from .links import LinkDeps, measure_links
+from .observed import ObservedDeps, observe, profile_corrections
 from .queue import ReconcileQueue
 from .robotfleet import Outcome, forget, reconcile
 from .stamp import node_signature, pools_signature
@@ -66,10 +67,12 @@ class Runtime:
     # serves, which leaves namespaces Terminating forever once the operator is gone. Owner
     # references already clean up what fleets create, so fogfleet needs no finalizer at all.
 
-    def start_periodic(self, drift_seconds: float, scaling: Any = None, links: Any = None) -> None:
+    def start_periodic(
+        self, drift_seconds: float, scaling: Any = None, links: Any = None, observed: Any = None
+    ) -> None:
         """Re-check every known fleet each `drift_seconds`; decide scaling each period; measure
-        the robots' links each period; start the watch caches (their Pod events re-check
-        fleets, see :meth:`pod_event`)."""
+        the robots' links and the modules' cycles each period; start the watch caches (their
+        Pod events re-check fleets, see :meth:`pod_event`)."""
         if self.deps.watches is not None:
             loop = asyncio.get_running_loop()
 
@@ -87,6 +90,10 @@ class Runtime:
             self._loops.append(asyncio.create_task(self._scaling(scaling), name="fogfleet-scaling"))
         if links is not None:
             self._loops.append(asyncio.create_task(self._links(links), name="fogfleet-links"))
+        if observed is not None:
+            self._loops.append(
+                asyncio.create_task(self._observed(observed), name="fogfleet-observed")
+            )
 
     async def _drift(self, seconds: float) -> None:
         while True:
@@ -123,12 +130,21 @@ class Runtime:
 
     async def _links(self, links: LinkDeps) -> None:
         """Measure the links every period; reconcile the fleets whose links changed."""
+        await self._measuring(links.period_seconds, measure_links, links, "the robots' links")
+
+    async def _observed(self, observed: ObservedDeps) -> None:
+        """Read the modules' cycles every period; reconcile the fleets whose drift changed."""
+        await self._measuring(observed.period_seconds, observe, observed, "the modules' cycles")
+
+    async def _measuring(
+        self, period: float, fn: Callable[..., set[FleetKey]], port: Any, what: str
+    ) -> None:
         while True:
-            await asyncio.sleep(links.period_seconds)
+            await asyncio.sleep(period)
             try:
-                changed = await self.call(measure_links, self.deps, links, time.time())
+                changed = await self.call(fn, self.deps, port, time.time())
             except FogfleetError as exc:  # a bad query or answer: said in the log, retried
-                log.warning("Measuring the robots' links failed: %s", exc)
+                log.warning("Measuring %s failed: %s", what, exc)
                 continue
             for key in sorted(changed):
                 self.queue.schedule_debounced(key)
@@ -193,8 +209,10 @@ class Runtime:
             self.scaled.pop(module_key, None)
         else:
             self.scaled[module_key] = dict(body)
-        # the autoscaler's decision (status.scaling.pools) changes what fleets place, too
-        if self._changed("SoftwareModule", body, event_type, pools_signature(body)):
+        # the autoscaler's decision (status.scaling.pools) and a profile corrected by what ran
+        # (status.profileCorrection) change what fleets place, too
+        learnt = tuple(sorted(profile_corrections([body]).items()))
+        if self._changed("SoftwareModule", body, event_type, (pools_signature(body), learnt)):
             self.usage_changed()
             meta = body.get("metadata") or {}
             for key in self.deps.refs.using_module(

@@ -130,6 +130,7 @@ def build_problem(
     current: dict[tuple[str, str, int], str] | None = None,
     pools: Mapping[str, Mapping[str, int]] | None = None,
     measured_links: Mapping[str, Link] | None = None,
+    corrections: Mapping[tuple[str, str], float] | None = None,
 ) -> Problem:
     """Resolve a fleet against the catalog into a Problem.
 
@@ -139,7 +140,9 @@ def build_problem(
     such a module may then only run on nodes of the tier it was counted for (edge replicas
     first, then cloud), which is how privacy-constrained pools stay on the edge.
     ``measured_links`` replaces the declared uplink of the ComputeNodes it names (a robot's
-    link measured worse than declared, ``domain.linkhealth``)."""
+    link measured worse than declared, ``domain.linkhealth``). ``corrections`` multiplies the
+    declared profile rows of a (module, hardware type) (learnt from what ran,
+    ``domain.observed``)."""
     obj = f"RobotFleet/{fleet.metadata.name}"
     namespace = fleet.metadata.namespace or "default"
     robots, others = _resolve_nodes(fleet, catalog)
@@ -233,7 +236,7 @@ def build_problem(
         bandwidth=float(np.mean([links[j].bandwidth for j in range(len(robots))])),
         loss=float(np.mean([links[j].loss for j in range(len(robots))])),
     )
-    table = PairTable(nodes, caps, links)
+    table = PairTable(nodes, caps, links, corrections)
     remote = range(len(robots), n)  # edge and cloud nodes: one block per module and link
     blocks: list[Block] = []
     home_rungs: dict[int, tuple[ProfileRow, ...]] = {}

@@ -20,6 +20,7 @@ async def startup(settings: kopf.OperatorSettings, memo: Any, **_: Any) -> None:
         memo.settings.drift_interval_seconds,
         getattr(memo, "scaling", None),
         getattr(memo, "links", None),
+        getattr(memo, "observed", None),
     )
 
 

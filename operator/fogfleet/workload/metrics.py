@@ -14,7 +14,12 @@ from typing import Any
 from prometheus_client import CollectorRegistry, Counter, Gauge, Histogram, generate_latest
 from prometheus_client.exposition import CONTENT_TYPE_LATEST
 
-from fogfleet.autoscaling.contract import CYCLE_TIME, HISTOGRAM_BUCKETS_SECONDS, MISSED_CYCLES
+from fogfleet.autoscaling.contract import (
+    CYCLE_TIME,
+    EXECUTION_TIME,
+    HISTOGRAM_BUCKETS_SECONDS,
+    MISSED_CYCLES,
+)
 
 __all__ = ["GAP_BUCKETS_SECONDS", "WorkloadMetrics"]
 
@@ -26,9 +31,21 @@ GAP_BUCKETS_SECONDS = (
 
 
 class WorkloadMetrics:
-    def __init__(self, module: str, robot: str, tier: str) -> None:
+    def __init__(
+        self, module: str, robot: str, tier: str, hardware_type: str = "", cpu: str = ""
+    ) -> None:
         self.registry = CollectorRegistry()
         ids = {"module": module, "robot": robot, "tier": tier}
+        # what one cycle's work took, by where and with how much CPU it ran: what the operator
+        # learns a module's real profile from (issue 10; controllers/observed.py)
+        self.execution = Histogram(
+            EXECUTION_TIME.removesuffix("_seconds"),
+            "Execution time of one cycle's work (eq. 4's t_exe), by hardware type and CPU limit",
+            [*ids, "hardware_type", "cpu"],
+            unit="seconds",
+            buckets=HISTOGRAM_BUCKETS_SECONDS,
+            registry=self.registry,
+        ).labels(**ids, hardware_type=hardware_type, cpu=cpu)
         self.cycle = Histogram(
             CYCLE_TIME.removesuffix("_seconds"),
             "Input transfer + execution + output of one cycle (eq. 4)",

@@ -61,7 +61,9 @@ def run_module(
     from rclpy.qos import QoSProfile, ReliabilityPolicy
     from std_msgs.msg import String
 
-    metrics = WorkloadMetrics(spec.module, spec.robot, spec.tier)
+    metrics = WorkloadMetrics(
+        spec.module, spec.robot, spec.tier, spec.hardware_type, spec.cpu_label
+    )
     server = metrics.serve(host, port)
     rng = random.Random(seed)
     rclpy.init()
@@ -193,7 +195,9 @@ def run_module(
             newest, received = max(fresh, key=lambda hr: hr[0].sent_ns, default=(None, 0))
             t_in = 0.0 if newest is None else (received - newest.sent_ns) / 1e9
             origin = min((h.sent_ns for h, _ in fresh), default=time.time_ns())
-            burner.run(sample_exec_seconds(spec.row, rng))
+            metrics.execution.observe(
+                burner.run(sample_exec_seconds(spec.row, rng) * spec.work_factor)
+            )
             for t in spec.publishes:
                 if t.rate_hz * spec.cycle_s <= 1.0:
                     publish(t.name, t.size_bytes, origin)

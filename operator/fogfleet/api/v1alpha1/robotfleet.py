@@ -11,11 +11,13 @@ from .base import FogModel, Number, PosInt, refuse_duplicates
 from .common import Condition, LabelSelector, Name, ObjectMeta, Tier
 from .fallback import Fallback, FallbackMode
 from .linkhealth import LinkHealth, RobotLinkStatus
+from .observed import DriftSettings
 from .rules import CrossFieldRule, enforce
 
 __all__ = [
     "ChoiceRule",
     "DiscoveryRange",
+    "ModuleMissStatus",
     "ModuleRef",
     "ObjectiveName",
     "ObjectiveValue",
@@ -255,6 +257,9 @@ class RobotFleetSpec(FogModel):
     link_health: LinkHealth = Field(default_factory=LinkHealth)
     """How the robots' links are measured and re-planned around (needs the operator's
     Prometheus)."""
+    drift: DriftSettings = Field(default_factory=DriftSettings)
+    """When measured misses above the plan's prediction re-plan the fleet with learnt
+    profiles (needs the operator's Prometheus)."""
 
     @model_validator(mode="after")
     def _check(self) -> RobotFleetSpec:
@@ -307,6 +312,21 @@ class RobotFallbackStatus(FogModel):
     """Predicted fraction of the robot's cycles missed while its link is down (0-1)."""
 
 
+class ModuleMissStatus(FogModel):
+    """One module's cycles as measured against the deployed plan's prediction."""
+
+    module: str
+    """The SoftwareModule."""
+    predicted_miss_rate: float
+    """What the plan predicts (0-1)."""
+    measured_miss_rate: float | None = None
+    """What its pods' counters show over spec.drift.windowSeconds (0-1)."""
+    cycles: float = 0
+    """Cycles measured in the window."""
+    drifting_since: str | None = None
+    """Since when it misses more than predicted by the margin (RFC 3339)."""
+
+
 class RobotFleetStatus(FogModel):
     """The deployed plan and how its rollout stands (written by the operator)."""
 
@@ -315,7 +335,8 @@ class RobotFleetStatus(FogModel):
     conditions: list[Condition] = Field(default_factory=list)
     """Ready (every instance runs where planned), Scheduled (planned or bound) and Degraded
     (instances moving or stranded on an unavailable node, a robot's link lost or measured
-    worse than declared, a standby computing on board)."""
+    worse than declared, a standby computing on board) and Drift (modules missing more
+    cycles than the plan predicted)."""
     scheduler: str | None = None
     """The algorithm that made the plan."""
     placement: list[PlacementEntry] = Field(default_factory=list)
@@ -343,6 +364,8 @@ class RobotFleetStatus(FogModel):
     what a lost link leaves of it."""
     links: list[RobotLinkStatus] = Field(default_factory=list)
     """Per robot, its link as measured (fleets whose links are monitored)."""
+    measured: list[ModuleMissStatus] = Field(default_factory=list)
+    """Per module, its measured miss rate against the plan's prediction (spec.drift)."""
 
 
 class RobotFleet(FogModel):

@@ -17,6 +17,7 @@ from .base import FogModel, NonNegInt, Number, PosInt, Quantity, parse_quantity,
 from .common import Condition, ObjectMeta, Tier
 from .computenode import DeviceType
 from .fallback import STANDING_BY, Fallback
+from .observed import ObservedRow, ProfileCorrection
 from .rules import CrossFieldRule, enforce
 from .scaling import ScalingSpec
 from .template import ContainerTemplate
@@ -336,6 +337,11 @@ class SoftwareModuleStatus(FogModel):
     """Instances placed by all those plans."""
     split: str | None = None
     """Instances on robots/edge/cloud, as "3/2/0" (like the RobotFleet's split)."""
+    observed: list[ObservedRow] = Field(default_factory=list)
+    """Execution times measured where the module runs, per hardware type and CPU limit."""
+    profile_correction: list[ProfileCorrection] = Field(default_factory=list)
+    """Per hardware type, the factor the planner multiplies the declared profile by (set
+    when a fleet's drift showed the declared profile wrong)."""
 
 
 class SoftwareModule(FogModel):

@@ -1,0 +1,312 @@
+"""What the fleets' modules really do, from Prometheus, and drift (issue 10).
+
+Every ``period_seconds`` the operator reads, per namespace it planned fleets in:
+
+- each module's execution times by hardware type and CPU limit
+  (``fogfleet_execution_time_seconds``: count, mean, 95th percentile over the fleet's
+  ``spec.drift.windowSeconds``) into the SoftwareModule's ``status.observed``;
+- each fleet's measured miss rate per module (``fogfleet_missed_cycles_total`` over
+  ``fogfleet_cycle_time_seconds_count`` of the fleet's pods) since its last plan, at most the
+  window, against the plan's prediction (``domain.observed.drifting``).
+
+A module that drifts for ``forSeconds`` (and ``minIntervalSeconds`` after the fleet's last
+re-plan for drift) gets its ``status.profileCorrection`` from its observations
+(``domain.observed.correction``); the SoftwareModule's watch event re-plans every fleet that
+runs it, with its declared rows times the factor. The fleet says so in ``status.measured``,
+its ``Drift`` condition and Events; the module in an Event of its own.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass
+from typing import Any
+
+from fogfleet.api.timestamps import timestamp
+from fogfleet.api.v1alpha1.base import parse_cpu
+from fogfleet.domain.observed import (
+    ModuleDrift,
+    Observation,
+    correction,
+    declared_row,
+    drift_due,
+    drifting,
+)
+from fogfleet.domain.pairs import profile_rows
+from fogfleet.errors import DependencyUnavailable, FogfleetError
+
+from .deps import Deps, FleetKey, Rendered
+from .links import SeriesPort
+
+__all__ = ["ObservedDeps", "observe", "profile_corrections"]
+
+log = logging.getLogger(__name__)
+Obj = dict[str, Any]
+FIELD = "status.observed"
+MIN_WINDOW_S = 20  # a miss rate over less (a few scrapes) says nothing yet
+_BY = "module, hardware_type, cpu"
+EXEC_COUNT = (
+    'sum by ({by}) (increase(fogfleet_execution_time_seconds_count{{namespace="{ns}"}}[{w}s]))'
+)
+EXEC_SUM = 'sum by ({by}) (increase(fogfleet_execution_time_seconds_sum{{namespace="{ns}"}}[{w}s]))'
+EXEC_P95 = (
+    "histogram_quantile(0.95, sum by (le, {by}) "
+    '(increase(fogfleet_execution_time_seconds_bucket{{namespace="{ns}"}}[{w}s])))'
+)
+_PODS = 'namespace="{ns}",pod=~"{fleet}-.*"'
+MISSED = "sum by (module) (increase(fogfleet_missed_cycles_total{{" + _PODS + "}}[{w}s]))"
+CYCLES = "sum by (module) (increase(fogfleet_cycle_time_seconds_count{{" + _PODS + "}}[{w}s]))"
+
+
+@dataclass
+class ObservedDeps:
+    prometheus: SeriesPort
+    period_seconds: float = 30.0
+
+
+def observe(deps: Deps, od: ObservedDeps, now: float) -> set[FleetKey]:
+    """One round; the fleets whose measured state changed (to be reconciled)."""
+    fleets = {
+        key: r
+        for key, r in list(deps.rendered.items())
+        if r.drift is not None and r.drift.enabled and r.predicted
+    }
+    if not fleets:
+        return set()
+    changed: set[FleetKey] = set()
+    try:
+        by_ns: dict[str, dict[str, list[Observation]]] = {}
+        for ns in sorted({k[0] for k in fleets}):
+            window = max(
+                r.drift.window_seconds for k, r in fleets.items() if k[0] == ns and r.drift
+            )
+            by_ns[ns] = _observations(od, ns, window)
+            _write_observed(deps, ns, by_ns[ns], fleets, now)
+        for key, rendered in fleets.items():
+            if _fleet_round(deps, od, key, rendered, by_ns[key[0]], now):
+                changed.add(key)
+    except DependencyUnavailable as exc:
+        log.warning("Reading the modules' measured cycles failed (last states stand): %s", exc)
+    return changed
+
+
+def _observations(od: ObservedDeps, ns: str, window: int) -> dict[str, list[Observation]]:
+    """Module -> its execution times per (hardware type, CPU limit) over the window."""
+    args = {"by": _BY, "ns": ns, "w": window}
+
+    def by_key(promql: str) -> dict[tuple[str, str, str], float]:
+        series = od.prometheus.query_series(promql, obj=f"namespace {ns}", field=FIELD)
+        return {
+            (m.get("module", ""), m.get("hardware_type", ""), m.get("cpu", "")): v
+            for m, v in series
+        }
+
+    counts = by_key(EXEC_COUNT.format(**args))
+    sums = by_key(EXEC_SUM.format(**args))
+    p95s = by_key(EXEC_P95.format(**args))
+    out: dict[str, list[Observation]] = {}
+    for (module, hw, cpu), n in sorted(counts.items()):
+        if n < 1 or not module or not hw or (module, hw, cpu) not in sums:
+            continue
+        mean = sums[(module, hw, cpu)] / n
+        out.setdefault(module, []).append(
+            Observation(
+                module,
+                hw,
+                parse_cpu(cpu) if cpu else None,
+                n,
+                mean,
+                p95s.get((module, hw, cpu), mean),
+            )
+        )
+    return out
+
+
+def _write_observed(
+    deps: Deps,
+    ns: str,
+    observations: Mapping[str, list[Observation]],
+    fleets: Mapping[FleetKey, Rendered],
+    now: float,
+) -> None:
+    """status.observed of the namespace's modules that the fleets run and were measured."""
+    hardware: dict[str, Any] = {}
+    for key, r in fleets.items():
+        if key[0] == ns:
+            hardware.update(r.hardware)
+    modules = {str(m["metadata"]["name"]): m for m in deps.kube.list_modules(ns)}
+    for name, rows in sorted(observations.items()):
+        raw = modules.get(name)
+        if raw is None:
+            continue
+        declared = _declared(raw, hardware)
+        entries = []
+        for obs in rows:
+            row = declared.get(obs.hardware_type)
+            entry: Obj = {
+                "hardwareType": obs.hardware_type,
+                "cpu": "" if obs.cpu is None else f"{round(obs.cpu * 1000)}m",
+                "count": round(obs.count, 1),
+                "meanMillis": round(obs.mean * 1e3, 2),
+                "stdMillis": round(obs.std * 1e3, 2),
+                "p95Millis": round(obs.p95 * 1e3, 2),
+                "lastUpdate": timestamp(now),
+            }
+            if row is not None:
+                got = declared_row(row, obs.cpu)
+                if got is not None:
+                    entry["declaredMeanMillis"] = round(got.mean * 1e3, 2)
+            entries.append(entry)
+        try:
+            deps.kube.patch_module_status(ns, name, {"observed": entries})
+        except FogfleetError as exc:
+            log.warning("Writing SoftwareModule %s/%s status.observed failed: %s", ns, name, exc)
+
+
+def _declared(raw: Mapping[str, Any], hardware: Mapping[str, Any]) -> dict[str, list[Any]]:
+    """Hardware type -> the module's declared rows there (``hardware``: one ComputeNode per
+    type, for the speed factor of 'default' rows)."""
+    from fogfleet.api.loader import parse_object
+    from fogfleet.api.v1alpha1.softwaremodule import SoftwareModule
+
+    try:
+        module = parse_object({k: v for k, v in raw.items() if k != "status"})
+    except FogfleetError:
+        return {}
+    if not isinstance(module, SoftwareModule):
+        return {}
+    return {hw: profile_rows(module, node) for hw, node in hardware.items()}
+
+
+def _fleet_round(
+    deps: Deps,
+    od: ObservedDeps,
+    key: FleetKey,
+    rendered: Rendered,
+    observations: Mapping[str, list[Observation]],
+    now: float,
+) -> bool:
+    settings = rendered.drift
+    assert settings is not None
+    plan_id = rendered.plan.plan_id if rendered.plan is not None else ""
+    epoch = deps.drift_epoch.get(key)
+    before = deps.drift.get(key, {})
+    if epoch is None or epoch[0] != plan_id:  # a new plan: its measures start now
+        deps.drift_epoch[key] = epoch = (plan_id, now, epoch[2] if epoch else None)
+        before = {}
+    window = int(min(settings.window_seconds, now - epoch[1]))
+    measured: dict[str, tuple[float, float]] = {}
+    if window >= MIN_WINDOW_S:
+        args = {"ns": key[0], "fleet": _escape(key[1]), "w": window}
+        missed = _by_module(od, MISSED.format(**args))
+        cycles = _by_module(od, CYCLES.format(**args))
+        measured = {m: (missed.get(m, 0.0) / n, n) for m, n in cycles.items() if n >= 1}
+    after: dict[str, ModuleDrift] = {}
+    for module, predicted in sorted(rendered.predicted.items()):
+        rate, n = measured.get(module, (None, 0.0))
+        prev = before.get(module)
+        bad = drifting(predicted, rate, float(settings.margin_percent))
+        since = (
+            (prev.since if prev is not None and prev.since is not None else now) if bad else None
+        )
+        after[module] = ModuleDrift(predicted, rate, n, since)
+    due = [
+        m
+        for m, d in after.items()
+        if drift_due(d.since, now, settings.for_seconds, epoch[2], settings.min_interval_seconds)
+    ]
+    if due and _adopt(deps, key, rendered, due, after, observations, now):
+        deps.drift_epoch[key] = (plan_id, epoch[1], now)
+    deps.drift[key] = after
+    return _summary(before) != _summary(after)
+
+
+def _summary(states: Mapping[str, ModuleDrift]) -> dict[str, tuple[Any, ...]]:
+    return {m: (d.since is not None, d.measured is not None) for m, d in states.items()}
+
+
+def _adopt(
+    deps: Deps,
+    key: FleetKey,
+    rendered: Rendered,
+    modules: list[str],
+    states: Mapping[str, ModuleDrift],
+    observations: Mapping[str, list[Observation]],
+    now: float,
+) -> bool:
+    """Write the drifting modules' corrections (their watch events re-plan the fleets)."""
+    assert rendered.drift is not None
+    raws = {str(m["metadata"]["name"]): m for m in deps.kube.list_modules(key[0])}
+    adopted = False
+    for name in modules:
+        raw = raws.get(name)
+        obs = observations.get(name, [])
+        if raw is None or not obs:
+            continue
+        factors = correction(obs, _declared(raw, rendered.hardware), rendered.drift.prior_cycles)
+        if not factors:
+            continue
+        d = states[name]
+        why = (
+            f"RobotFleet {key[1]} measured {name} missing {(d.measured or 0) * 100:.1f}% of its "
+            f"cycles, predicted {d.predicted * 100:.1f}%"
+        )
+        old = {
+            c.get("hardwareType"): c
+            for c in ((raw.get("status") or {}).get("profileCorrection") or [])
+        }
+        for hw, (factor, n) in factors.items():
+            old[hw] = {
+                "hardwareType": hw,
+                "factor": round(factor, 4),
+                "samples": round(n, 1),
+                "adoptedAt": timestamp(now),
+                "reason": why,
+            }
+        entries = [old[hw] for hw in sorted(old)]
+        try:
+            deps.kube.patch_module_status(key[0], name, {"profileCorrection": entries})
+        except FogfleetError as exc:
+            log.warning(
+                "Writing SoftwareModule %s/%s profileCorrection failed: %s", key[0], name, exc
+            )
+            continue
+        text = ", ".join(f"{hw} x{f:.2f} ({n:.0f} cycles)" for hw, (f, n) in factors.items())
+        deps.kube.emit_event(
+            raw, "Warning", "ProfileCorrected", f"{why}: re-planned with its profile {text}"
+        )
+        log.info("SoftwareModule %s/%s: profile corrected (%s): %s", key[0], name, text, why)
+        adopted = True
+    return adopted
+
+
+def _by_module(od: ObservedDeps, promql: str) -> dict[str, float]:
+    return {
+        labels["module"]: v
+        for labels, v in od.prometheus.query_series(promql, obj="drift", field="spec.drift")
+        if "module" in labels
+    }
+
+
+def _escape(text: str) -> str:
+    """A Kubernetes name as a regex inside a PromQL string (names have no quotes or
+    backslashes; the dot is escaped for the regex and its backslash for the string)."""
+    return text.replace(".", "\\\\.")
+
+
+def profile_corrections(modules: Iterable[Mapping[str, Any]]) -> dict[tuple[str, str], float]:
+    """(module, hardware type) -> factor, from the SoftwareModules' status.profileCorrection
+    (as the API server sends them); malformed entries are ignored."""
+    out: dict[tuple[str, str], float] = {}
+    for raw in modules:
+        name = str((raw.get("metadata") or {}).get("name", ""))
+        for entry in (raw.get("status") or {}).get("profileCorrection") or []:
+            try:
+                factor = float(entry["factor"])
+                hw = str(entry["hardwareType"])
+            except (KeyError, TypeError, ValueError):
+                continue
+            if factor > 0 and hw:
+                out[(name, hw)] = factor
+    return out

@@ -1,0 +1,172 @@
+"""Measured cycles against the plan: status.observed, drift, the corrected profile."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import pytest
+
+from fogfleet.controllers.observed import ObservedDeps, observe
+from fogfleet.controllers.robotfleet import reconcile
+from fogfleet.errors import DependencyUnavailable
+
+KEY = ("warehouse", "warehouse")
+MODULE = "nav-localization"
+
+
+class FakePrometheus:
+    """SeriesPort: execution times per (module, hw, cpu) and per-module cycles and misses."""
+
+    def __init__(self) -> None:
+        self.exec: dict[tuple[str, str, str], tuple[float, float]] = {}  # -> (count, mean s)
+        self.cycles: dict[str, float] = {}
+        self.missed: dict[str, float] = {}
+        self.queries: list[str] = []
+        self.down = False
+
+    def query_series(
+        self, promql: str, *, obj: str = "", field: str = ""
+    ) -> list[tuple[dict[str, str], float]]:
+        self.queries.append(promql)
+        if self.down:
+            raise DependencyUnavailable("Cannot query Prometheus: refused")
+
+        def labelled(k: tuple[str, str, str]) -> dict[str, str]:
+            return dict(zip(("module", "hardware_type", "cpu"), k, strict=True))
+
+        if "execution_time_seconds_count" in promql:
+            return [(labelled(k), n) for k, (n, _) in self.exec.items()]
+        if "execution_time_seconds_sum" in promql:
+            return [(labelled(k), n * m) for k, (n, m) in self.exec.items()]
+        if "execution_time_seconds_bucket" in promql:
+            return [(labelled(k), 1.2 * m) for k, (_, m) in self.exec.items()]
+        if "missed_cycles_total" in promql:
+            return [({"module": m}, v) for m, v in self.missed.items()]
+        if "cycle_time_seconds_count" in promql:
+            return [({"module": m}, v) for m, v in self.cycles.items()]
+        raise AssertionError(promql)
+
+
+@pytest.fixture
+def prom() -> FakePrometheus:
+    return FakePrometheus()
+
+
+def run(kube: Any, deps: Any) -> None:
+    reconcile(kube.get_fleet(*KEY), deps)
+
+
+def status(kube: Any) -> dict[str, Any]:
+    return dict(kube.fleets[KEY]["status"])
+
+
+def cond(kube: Any, type_: str) -> dict[str, Any]:
+    return next(c for c in status(kube)["conditions"] if c["type"] == type_)
+
+
+def where(kube: Any, robot: str = "robot-1") -> tuple[str, str]:
+    p = next(p for p in status(kube)["placement"] if p["robot"] == robot and p["module"] == MODULE)
+    return p["node"], p["cpu"]
+
+
+def declared_mean(kube: Any, deps: Any, node: str, cpu: str) -> float:
+    from fogfleet.api.loader import parse_object
+    from fogfleet.api.v1alpha1.base import parse_cpu
+    from fogfleet.domain.observed import declared_row
+    from fogfleet.domain.pairs import profile_rows
+
+    module = parse_object(
+        {k: v for k, v in kube.modules[("warehouse", MODULE)].items() if k != "status"}
+    )
+    row = declared_row(profile_rows(module, parse_object(kube.compute_nodes[node])), parse_cpu(cpu))
+    assert row is not None
+    return row.mean
+
+
+def test_the_modules_measured_rows_are_written_with_their_declared_mean(kube, deps, prom) -> None:
+    run(kube, deps)
+    node, cpu = where(kube)
+    hw = kube.compute_nodes[node]["spec"]["hardwareType"]
+    mean = declared_mean(kube, deps, node, cpu)
+    prom.exec[(MODULE, hw, cpu)] = (500.0, 3 * mean)
+    observe(deps, ObservedDeps(prom), 0.0)
+    (row,) = kube.modules[("warehouse", MODULE)]["status"]["observed"]
+    assert (row["hardwareType"], row["cpu"], row["count"]) == (hw, cpu, 500.0)
+    assert row["meanMillis"] == pytest.approx(3 * mean * 1e3, abs=0.01)
+    assert row["declaredMeanMillis"] == pytest.approx(mean * 1e3, abs=0.01)
+    assert row["p95Millis"] > row["meanMillis"] and row["stdMillis"] > 0
+
+
+def test_lasting_drift_corrects_the_profile_once_and_the_fleet_re_plans(kube, deps, prom) -> None:
+    run(kube, deps)
+    node, cpu = where(kube)
+    hw = kube.compute_nodes[node]["spec"]["hardwareType"]
+    mean = declared_mean(kube, deps, node, cpu)
+    od = ObservedDeps(prom)
+    observe(deps, od, 0.0)  # the plan's measures begin
+    run(kube, deps)
+    assert cond(kube, "Drift")["reason"] == "NotMeasured"
+    # the module runs 3x slower than declared and misses half its cycles
+    prom.exec[(MODULE, hw, cpu)] = (900.0, 3 * mean)
+    prom.cycles = {MODULE: 1000.0, "nav-controller": 1000.0}
+    prom.missed = {MODULE: 500.0}
+    assert observe(deps, od, 100.0) == {KEY}
+    run(kube, deps)
+    drift = cond(kube, "Drift")
+    assert drift["status"] == "True" and drift["reason"] == "MissesAbovePlan"
+    assert f"{MODULE} misses 50.0% of 1000 cycles" in drift["message"]
+    measured = {e["module"]: e for e in status(kube)["measured"]}
+    assert measured[MODULE]["measuredMissRate"] == 0.5 and "driftingSince" in measured[MODULE]
+    assert "driftingSince" not in measured["nav-controller"]
+    assert ("Warning", "Drift") in {e[:2] for e in kube.events}
+    observe(deps, od, 130.0)  # 30 s of drift: not yet (forSeconds 60)
+    assert "profileCorrection" not in kube.modules[("warehouse", MODULE)].get("status", {})
+    plans = deps.planner.calls + deps.planner.replans
+    observe(deps, od, 170.0)
+    (fix,) = kube.modules[("warehouse", MODULE)]["status"]["profileCorrection"]
+    assert fix["hardwareType"] == hw
+    assert fix["factor"] == pytest.approx((100 + 900 * 3) / 1000, abs=1e-3)
+    assert "measured nav-localization missing 50.0% of its cycles" in fix["reason"]
+    assert ("Warning", "ProfileCorrected") in {e[:2] for e in kube.events}
+    run(kube, deps)  # the module's watch event would do this
+    assert deps.planner.calls + deps.planner.replans > plans, "planned with the learnt profile"
+    assert deps.rendered[KEY].problem.nominal.exe_mean.max() > 0
+    # a new plan: its measures start again (nothing measured at once) ...
+    predicted = deps.rendered[KEY].predicted[MODULE]
+    prom.exec[(MODULE, hw, cpu)] = (900.0, 6 * mean)
+    prom.missed = {MODULE: 1000.0 * min(1.0, predicted + 0.5)}  # still far above the plan
+    observe(deps, od, 180.0)
+    assert deps.drift[KEY][MODULE].measured is None
+    observe(deps, od, 260.0)
+    assert deps.drift[KEY][MODULE].since == 260.0
+    # ... and however long it drifts, no second correction within minIntervalSeconds
+    observe(deps, od, 330.0)
+    (again,) = kube.modules[("warehouse", MODULE)]["status"]["profileCorrection"]
+    assert again == fix, "corrected twice within 300 s"
+    observe(deps, od, 480.0)
+    (later,) = kube.modules[("warehouse", MODULE)]["status"]["profileCorrection"]
+    assert later["factor"] > fix["factor"] and later["adoptedAt"] != fix["adoptedAt"]
+
+
+def test_measures_within_the_margin_are_as_predicted(kube, deps, prom) -> None:
+    run(kube, deps)
+    od = ObservedDeps(prom)
+    observe(deps, od, 0.0)
+    prom.cycles = {MODULE: 1000.0}
+    prom.missed = {MODULE: 30.0}  # 3 %: within the 5-point margin
+    observe(deps, od, 100.0)
+    run(kube, deps)
+    assert cond(kube, "Drift")["reason"] == "AsPredicted"
+
+
+def test_prometheus_down_changes_nothing(kube, deps, prom) -> None:
+    run(kube, deps)
+    prom.down = True
+    assert observe(deps, ObservedDeps(prom), 0.0) == set()
+
+
+def test_a_fleet_without_drift_detection_is_not_read(kube, deps, prom) -> None:
+    kube.fleets[KEY]["spec"]["drift"] = {"enabled": False}
+    run(kube, deps)
+    assert observe(deps, ObservedDeps(prom), 0.0) == set() and prom.queries == []
+    assert "Drift" not in {c["type"] for c in status(kube)["conditions"]}
