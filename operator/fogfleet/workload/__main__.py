@@ -4,6 +4,7 @@ entry points)."""
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import os
 import sys
 
@@ -16,6 +17,13 @@ def main(argv: list[str] | None = None) -> int:
     m = sub.add_parser("module", help="play the SoftwareModule in $FOGFLEET_MODULE_SPEC")
     m.add_argument("--host", default=os.environ.get("FOGFLEET_METRICS_HOST", "0.0.0.0"))
     m.add_argument("--port", type=int, default=int(os.environ.get("FOGFLEET_METRICS_PORT", "9100")))
+    m.add_argument(
+        "--work-factor",
+        type=_work_factor,
+        default=1.0,
+        help="experiments: do this many times the work the profile row says (a declared "
+        "profile that is wrong, for the operator to learn; default 1)",
+    )
     p = sub.add_parser(
         "probe", help="measure the cycle times of the module in $FOGFLEET_MODULE_SPEC (sidecar)"
     )
@@ -49,16 +57,25 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     from .module import run_module
 
+    spec = dataclasses.replace(spec, work_factor=ns.work_factor)
     limit = "no CPU limit" if spec.cpu is None else f"{spec.cpu:g} CPU"
     print(
         f"fogfleet-workload: {spec.robot or 'shared'}/{spec.module} on {spec.node} "
         f"({spec.tier or 'any tier'}, {limit}): cycle {spec.cycle_s * 1e3:g} ms, "
         f"activation {spec.activation:.0%}, work {spec.row.mean_s * 1e3:g}±"
-        f"{spec.row.std_s * 1e3:g} ms at {spec.row.cpu:g} CPU",
+        f"{spec.row.std_s * 1e3:g} ms at {spec.row.cpu:g} CPU"
+        + (f" x{spec.work_factor:g}" if spec.work_factor != 1 else ""),
         flush=True,
     )
     run_module(spec, ns.host, ns.port)
     return 0
+
+
+def _work_factor(text: str) -> float:
+    value = float(text)
+    if not 0 < value <= 100:
+        raise argparse.ArgumentTypeError(f"{text!r}: a number above 0, at most 100")
+    return value
 
 
 if __name__ == "__main__":

@@ -98,8 +98,8 @@ class WorkloadSpec:
     step_back_cycles: int = 10  # and steps back after the remote has delivered this long
     remote_cycle_s: float | None = None  # a variant's standby: the remote module's cycle
     hardware_type: str = ""  # the node's (FOGFLEET_HARDWARE_TYPE): a label of its exec times
-    # experiments only (FOGFLEET_WORK_FACTOR): the module's real work is this many times its
-    # profile row, as when a declared profile is optimistic (issue 10's closed loop)
+    # experiments only (``module --work-factor``): the module's real work is this many times
+    # its profile row, as when a declared profile is optimistic (issue 10's closed loop)
     work_factor: float = 1.0
 
     @property
@@ -161,7 +161,6 @@ class WorkloadSpec:
                 silent_cycles=_positive(fallback, "silentCycles", 3),
                 step_back_cycles=_positive(fallback, "stepBackCycles", 10),
                 hardware_type=env.get("FOGFLEET_HARDWARE_TYPE", ""),
-                work_factor=_factor(env.get("FOGFLEET_WORK_FACTOR", "1")),
                 remote_cycle_s=(
                     _quantity(fallback["remoteCycleTimeMillis"]) / 1e3
                     if "remoteCycleTimeMillis" in fallback
@@ -170,13 +169,6 @@ class WorkloadSpec:
             )
         except (KeyError, TypeError, ValueError) as exc:
             raise ValueError(f"{ENV_SPEC}: {exc!r}") from exc
-
-
-def _factor(text: str) -> float:
-    value = float(text)
-    if not 0 < value <= 100:
-        raise ValueError(f"FOGFLEET_WORK_FACTOR={text!r}: a number above 0, at most 100")
-    return value
 
 
 def _positive(raw: Mapping[str, Any], key: str, default: int) -> int:

@@ -7,6 +7,7 @@ import http.client
 from collections.abc import Iterator
 
 import pytest
+from prometheus_client import generate_latest
 
 from fogfleet.workload.metrics import WorkloadMetrics
 
@@ -65,3 +66,24 @@ def test_healthz_and_unknown_paths(endpoint: tuple[WorkloadMetrics, int]) -> Non
         assert conn.getresponse().status == 404
     finally:
         conn.close()
+
+
+def test_execution_times_carry_the_row_they_belong_to() -> None:
+    metrics = WorkloadMetrics("detector", "robot-1", "robot", "bed-robot", "100m")
+    metrics.execution.observe(0.12)
+    text = generate_latest(metrics.registry).decode()
+    assert (
+        'fogfleet_execution_time_seconds_count{cpu="100m",hardware_type="bed-robot",'
+        'module="detector",robot="robot-1",tier="robot"} 1.0'
+    ) in text
+
+
+def test_the_work_factor_is_a_positive_number() -> None:
+    import argparse
+
+    from fogfleet.workload.__main__ import _work_factor
+
+    assert _work_factor("4") == 4.0
+    for bad in ("0", "-1", "1000"):
+        with pytest.raises(argparse.ArgumentTypeError):
+            _work_factor(bad)
