@@ -2,7 +2,8 @@
 
 The localizer declares 30 ms a cycle on the robot at 100m, so the planner keeps it on board
 (its fleet prefers the robots); it really works four times as long (``module --work-factor
-4``, the workload's stand-in for a profile measured elsewhere) and misses every 100 ms cycle. The operator reads its execution times and misses from Prometheus, reports the drift,
+4``, the workload's stand-in for a profile measured elsewhere) and misses every 100 ms cycle.
+The operator reads its execution times and misses from Prometheus, reports the drift,
 corrects the module's profile for the robots' hardware and re-plans: the localizer moves to
 the edge, and its measured miss rate falls. Every figure comes from the workloads' own
 counters in the bed's Prometheus.

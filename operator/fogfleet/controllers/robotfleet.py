@@ -15,14 +15,13 @@ Blocking (API calls, the GA): run it in a worker thread (``asyncio.to_thread``).
 
 from __future__ import annotations
 
-import functools
 import logging
 import time
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, replace
 from typing import Any
 
-from fogfleet.api.labels import ANNOTATION_ROBOT, ANNOTATION_ROLE, LABEL_FLEET
+from fogfleet.api.labels import LABEL_FLEET
 from fogfleet.api.loader import parse_object
 from fogfleet.api.v1alpha1.common import Tier
 from fogfleet.api.v1alpha1.robotfleet import RobotFleet, SchedulerName
@@ -31,19 +30,16 @@ from fogfleet.domain.build import build_problem
 from fogfleet.domain.fallback import fleet_fallbacks, variant_names
 from fogfleet.domain.linkhealth import planned_links
 from fogfleet.domain.network import uplink
-from fogfleet.domain.problem import Problem
 from fogfleet.errors import Infeasible, InvalidSpec
 from fogfleet.render.deployments import (
-    ROLE_STANDBY,
     Owner,
-    hash_annotation,
-    identity_of,
     label_value,
     render_fleet,
 )
 from fogfleet.scheduling import stickiness
 from fogfleet.scheduling.objectives import module_miss_rates
 
+from .apply import apply_fleet, owned
 from .deps import CachedPlan, Deps, FleetKey, Rendered, fleet_key
 from .drift_report import drift_events, drift_report
 from .fleet_plan import plan_fleet
@@ -51,7 +47,6 @@ from .fleet_status import fleet_status, plan_events, report_failure
 from .inputs import current_placement, gather
 from .links import link_events, link_report
 from .observed import profile_corrections
-from .parallel import run_all
 from .stamp import input_stamp
 from .status import (
     condition,
@@ -125,7 +120,7 @@ def _reconcile(
     ns, name = key
     kube = deps.kube
     selector = {LABEL_FLEET: label_value(name)}
-    listed = [d for d in kube.list_deployments(ns, selector) if _owned(d, body)]
+    listed = [d for d in kube.list_deployments(ns, selector) if owned(d, body)]
     deployments = [d for d in listed if not is_ros_object(d)]
     raw_modules = kube.list_modules(ns)
     compute_nodes, nodes = kube.list_compute_nodes(), kube.list_nodes()
@@ -218,11 +213,11 @@ def _reconcile(
             plan_id=cached.plan_id,
             wiring=wiring,
         )
-    applied, pruned = _apply(deps, ns, desired, deployments, problem, stranded)
+    applied, pruned = apply_fleet(deps, ns, desired, deployments, problem, stranded)
     if applied or pruned:
         deps.metrics.count_apply(name, applied, pruned)
     # what we wrote (modules' and discovery servers' Deployments) is what the next stamp sees
-    listed = [d for d in kube.list_deployments(ns, selector) if _owned(d, body)]
+    listed = [d for d in kube.list_deployments(ns, selector) if owned(d, body)]
     deployments = [d for d in listed if not is_ros_object(d)]
     rendered = Rendered(
         (*input_stamp(body, raw_modules, compute_nodes, nodes, listed), measured, learnt),
@@ -335,12 +330,6 @@ def scaling_pools(modules: Iterable[Mapping[str, Any]]) -> dict[str, dict[str, i
     return pools
 
 
-def _owned(dep: Obj, fleet: Obj) -> bool:
-    uid = (fleet.get("metadata") or {}).get("uid")
-    refs = (dep.get("metadata") or {}).get("ownerReferences") or []
-    return not uid or not refs or any(r.get("uid") == uid for r in refs)
-
-
 def _raise_broken_references(fleet: RobotFleet, broken: dict[str, InvalidSpec]) -> None:
     wanted = [f"ComputeNode/{n}" for n in [*fleet.spec.robots, *fleet.spec.nodes]]
     wanted += [f"SoftwareModule/{m.name}" for m in fleet.spec.modules]
@@ -352,43 +341,6 @@ def _raise_broken_references(fleet: RobotFleet, broken: dict[str, InvalidSpec]) 
                 "spec",
                 f"references {exc.obj}, which is invalid: {exc.field}: {exc.message}",
             )
-
-
-def _standby_of(deployment: Obj, robots: set[str]) -> bool:
-    """Whether ``deployment`` is the on-board standby of one of ``robots``."""
-    ann = (deployment.get("metadata") or {}).get("annotations") or {}
-    return ann.get(ANNOTATION_ROLE) == ROLE_STANDBY and ann.get(ANNOTATION_ROBOT) in robots
-
-
-def _apply(
-    deps: Deps,
-    ns: str,
-    desired: list[Obj],
-    deployments: list[Obj],
-    problem: Problem,
-    stranded: set[int],
-) -> tuple[int, int]:
-    have = {d["metadata"]["name"]: d for d in deployments}
-    changed = [
-        d for d in desired if hash_annotation(have.get(d["metadata"]["name"])) != hash_annotation(d)
-    ]
-    keep = {d["metadata"]["name"] for d in desired}
-    idents = {
-        (problem.instances[i].robot, problem.instances[i].module, problem.instances[i].replica)
-        for i in stranded
-    }
-    # stranded instances keep their Deployment until their node returns, and so do the
-    # on-board standbys of a robot that is down (cut off, they may be serving right now)
-    down = {problem.instances[i].robot for i in stranded} - {""}
-    stale = [
-        n
-        for n, d in have.items()
-        if n not in keep and identity_of(d) not in idents and not _standby_of(d, down)
-    ]
-    kube = deps.kube
-    run_all([functools.partial(kube.apply_deployment, d) for d in changed], deps.api_concurrency)
-    run_all([functools.partial(kube.delete_deployment, ns, n) for n in stale], deps.api_concurrency)
-    return len(changed), len(stale)
 
 
 def _is_ready(status: Obj) -> bool:
