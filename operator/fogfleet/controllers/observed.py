@@ -23,6 +23,7 @@ from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 from typing import Any
 
+from fogfleet import GROUP, VERSION
 from fogfleet.api.timestamps import timestamp
 from fogfleet.api.v1alpha1.base import parse_cpu
 from fogfleet.domain.observed import (
@@ -273,8 +274,9 @@ def _adopt(
             )
             continue
         text = ", ".join(f"{hw} x{f:.2f} ({n:.0f} cycles)" for hw, (f, n) in factors.items())
+        involved = {**raw, "apiVersion": f"{GROUP}/{VERSION}", "kind": "SoftwareModule"}
         deps.kube.emit_event(
-            raw, "Warning", "ProfileCorrected", f"{why}: re-planned with its profile {text}"
+            involved, "Warning", "ProfileCorrected", f"{why}: re-planned with its profile {text}"
         )
         log.info("SoftwareModule %s/%s: profile corrected (%s): %s", key[0], name, text, why)
         adopted = True
