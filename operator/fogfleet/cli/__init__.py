@@ -100,6 +100,18 @@ def _parser() -> argparse.ArgumentParser:
         "--placement",
         help="also simulate a placement saved from `plan --json` or a fleet's YAML with status",
     )
+    sp.add_argument(
+        "--from-prometheus",
+        metavar="URL",
+        help="simulate with the modules' execution times measured in this Prometheus (the "
+        "fleet's namespace), and add each scheduler's re-plan from them",
+    )
+    sp.add_argument(
+        "--window",
+        type=int,
+        default=600,
+        help="seconds of measurements with --from-prometheus (default 600)",
+    )
     sp.add_argument("--json", action="store_true")
     sp.set_defaults(func=cmd_simulate)
 

@@ -128,6 +128,16 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     catalog = catalog_of(args.paths)
     fleet = fleets_of(catalog, args.fleet)[0]
     problem = build_problem(fleet, catalog)
+    learnt: dict[tuple[str, str], tuple[float, float]] = {}
+    if args.from_prometheus:
+        from .observed import describe, learnt_corrections
+
+        learnt = learnt_corrections(args.from_prometheus, fleet, catalog, args.window)
+        if not args.json:
+            print(f"Execution times measured over {args.window} s in {args.from_prometheus}:")
+            for line in describe(learnt) or ["none (every plan runs as declared)"]:
+                print(f"  {line}")
+    factors = {k: f for k, (f, _) in learnt.items()}
     names = (
         list(SCHEDULERS[:3])
         if args.scheduler == "all"
@@ -146,6 +156,21 @@ def cmd_simulate(args: argparse.Namespace) -> int:
             infeasible.append(
                 f"{name}: {infeasible_message(problem, schedule.placement, schedule.reasons)}"
             )
+    if factors:  # what re-planning with the measured profiles would give
+        from .observed import under_corrections
+
+        real = build_problem(fleet, catalog, corrections=factors)
+        for name in names:
+            schedule = plan(real, settings_of(fleet, str(name), args.seed, args))
+            planned = real.with_levels(schedule.levels)
+            placements[f"{name} re-planned"] = (
+                schedule.placement,
+                planned.allocation(schedule.with_limits),
+            )
+        placements = {
+            k: (x, a if k.endswith(" re-planned") else under_corrections(problem, a, factors))
+            for k, (x, a) in placements.items()
+        }
     result: dict[str, Any] = {}
     for name, (placement, allocation) in placements.items():
         sim = simulate(

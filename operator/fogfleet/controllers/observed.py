@@ -40,7 +40,13 @@ from fogfleet.errors import DependencyUnavailable, FogfleetError
 from .deps import Deps, FleetKey, Rendered
 from .links import SeriesPort
 
-__all__ = ["ObservedDeps", "observe", "profile_corrections"]
+__all__ = [
+    "ObservedDeps",
+    "declared_rows",
+    "observe",
+    "profile_corrections",
+    "read_observations",
+]
 
 log = logging.getLogger(__name__)
 Obj = dict[str, Any]
@@ -82,7 +88,7 @@ def observe(deps: Deps, od: ObservedDeps, now: float) -> set[FleetKey]:
             window = max(
                 r.drift.window_seconds for k, r in fleets.items() if k[0] == ns and r.drift
             )
-            by_ns[ns] = _observations(od, ns, window)
+            by_ns[ns] = read_observations(od.prometheus, ns, window)
             _write_observed(deps, ns, by_ns[ns], fleets, now)
         for key, rendered in fleets.items():
             if _fleet_round(deps, od, key, rendered, by_ns[key[0]], now):
@@ -92,12 +98,13 @@ def observe(deps: Deps, od: ObservedDeps, now: float) -> set[FleetKey]:
     return changed
 
 
-def _observations(od: ObservedDeps, ns: str, window: int) -> dict[str, list[Observation]]:
-    """Module -> its execution times per (hardware type, CPU limit) over the window."""
+def read_observations(prometheus: SeriesPort, ns: str, window: int) -> dict[str, list[Observation]]:
+    """Module -> its execution times per (hardware type, CPU limit) over the window, in
+    namespace ``ns`` (the metrics contract's ``fogfleet_execution_time_seconds``)."""
     args = {"by": _BY, "ns": ns, "w": window}
 
     def by_key(promql: str) -> dict[tuple[str, str, str], float]:
-        series = od.prometheus.query_series(promql, obj=f"namespace {ns}", field=FIELD)
+        series = prometheus.query_series(promql, obj=f"namespace {ns}", field=FIELD)
         return {
             (m.get("module", ""), m.get("hardware_type", ""), m.get("cpu", "")): v
             for m, v in series
@@ -141,7 +148,7 @@ def _write_observed(
         raw = modules.get(name)
         if raw is None:
             continue
-        declared = _declared(raw, hardware)
+        declared = declared_rows(raw, hardware)
         entries = []
         for obs in rows:
             row = declared.get(obs.hardware_type)
@@ -165,7 +172,7 @@ def _write_observed(
             log.warning("Writing SoftwareModule %s/%s status.observed failed: %s", ns, name, exc)
 
 
-def _declared(raw: Mapping[str, Any], hardware: Mapping[str, Any]) -> dict[str, list[Any]]:
+def declared_rows(raw: Mapping[str, Any], hardware: Mapping[str, Any]) -> dict[str, list[Any]]:
     """Hardware type -> the module's declared rows there (``hardware``: one ComputeNode per
     type, for the speed factor of 'default' rows)."""
     from fogfleet.api.loader import parse_object
@@ -245,7 +252,9 @@ def _adopt(
         obs = observations.get(name, [])
         if raw is None or not obs:
             continue
-        factors = correction(obs, _declared(raw, rendered.hardware), rendered.drift.prior_cycles)
+        factors = correction(
+            obs, declared_rows(raw, rendered.hardware), rendered.drift.prior_cycles
+        )
         if not factors:
             continue
         d = states[name]

@@ -1,0 +1,70 @@
+"""``fogfleet simulate --from-prometheus URL``: the fleet as it really runs (issue 10).
+
+The modules' measured execution times (``fogfleet_execution_time_seconds`` in the fleet's
+namespace) give each (module, hardware type) a correction of its declared profile, the same
+blend the operator adopts on drift (``domain.observed.correction``). Every plan is then
+simulated with the corrected execution times: a plan made from the declared profile shows
+what it really misses, and a re-plan made from the corrected one what re-planning would gain,
+before anything is applied.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from fogfleet.adapters.prometheus import PrometheusClient
+from fogfleet.api.loader import Catalog
+from fogfleet.api.v1alpha1.robotfleet import RobotFleet
+from fogfleet.controllers.observed import declared_rows, read_observations
+from fogfleet.domain.observed import correction
+from fogfleet.domain.problem import Allocation, Problem
+
+__all__ = ["learnt_corrections", "under_corrections"]
+
+
+def learnt_corrections(
+    url: str, fleet: RobotFleet, catalog: Catalog, window: int
+) -> dict[tuple[str, str], tuple[float, float]]:
+    """(module, hardware type) -> (factor, measured cycles) from the fleet's namespace."""
+    ns = fleet.metadata.namespace or "default"
+    client = PrometheusClient(url)
+    try:
+        seen = read_observations(client, ns, window)
+    finally:
+        client.close()
+    hardware = {n.spec.hardware_type: n for n in catalog.nodes.values()}
+    out: dict[tuple[str, str], tuple[float, float]] = {}
+    for name, rows in sorted(seen.items()):
+        module = catalog.module(ns, name)
+        if module is None:
+            continue
+        raw = module.model_dump(by_alias=True, mode="json", exclude_none=True)
+        learnt = correction(rows, declared_rows(raw, hardware), fleet.spec.drift.prior_cycles)
+        for hw, got in learnt.items():
+            out[(name, hw)] = got
+    return out
+
+
+def under_corrections(
+    problem: Problem, allocation: Allocation, factors: dict[tuple[str, str], float]
+) -> Allocation:
+    """``allocation`` (a plan's CPU amounts and its rows) with the execution times each
+    instance really has on each node: its rows times the correction of its module there."""
+    scale = np.ones((problem.n_instances, problem.n_nodes))
+    for i, inst in enumerate(problem.instances):
+        for j, node in enumerate(problem.nodes):
+            scale[i, j] = factors.get((inst.module, node.hardware_type), 1.0)
+    return Allocation(
+        allocation.cpu_request,
+        allocation.cpu_use,
+        allocation.exe_mean * scale,
+        allocation.exe_std * scale,
+        allocation.has_limit,
+    )
+
+
+def describe(learnt: dict[tuple[str, str], tuple[float, float]]) -> Any:
+    """One line per correction, for the table's header."""
+    return [f"{m} on {hw}: x{f:.2f} ({n:.0f} cycles)" for (m, hw), (f, n) in sorted(learnt.items())]
