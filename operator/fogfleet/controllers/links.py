@@ -215,7 +215,9 @@ def _degraded(
             f"link lost to {', '.join(lost)}: on-board standbys take over, nothing is moved"
         )
     for r in bad:
-        parts.append(f"{links[r].message}: planned with the measured link")
+        rl = links[r]
+        recovering = rl.state is LinkState.RECOVERING  # its message says it already
+        parts.append(rl.message if recovering else f"{rl.message}: planned with the measured link")
     if active:
         parts.append(
             "standbys computing on board: "
