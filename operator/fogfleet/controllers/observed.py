@@ -231,7 +231,11 @@ def _fleet_round(
 
 
 def _summary(states: Mapping[str, ModuleDrift]) -> dict[str, tuple[Any, ...]]:
-    return {m: (d.since is not None, d.measured is not None) for m, d in states.items()}
+    """What of the states the fleet's status shows (its rates to the point)."""
+    return {
+        m: (d.since is not None, None if d.measured is None else round(d.measured, 2))
+        for m, d in states.items()
+    }
 
 
 def _adopt(
