@@ -20,9 +20,10 @@ def main(argv: list[str] | None = None) -> int:
     m.add_argument(
         "--work-factor",
         type=_work_factor,
-        default=1.0,
-        help="experiments: do this many times the work the profile row says (a declared "
-        "profile that is wrong, for the operator to learn; default 1)",
+        default=(1.0, ""),
+        metavar="F[@HARDWARE_TYPE]",
+        help="experiments: do F times the work the profile row says, on every node or only "
+        "on that hardware type (a declared profile that is wrong, for the operator to learn)",
     )
     p = sub.add_parser(
         "probe", help="measure the cycle times of the module in $FOGFLEET_MODULE_SPEC (sidecar)"
@@ -57,7 +58,9 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     from .module import run_module
 
-    spec = dataclasses.replace(spec, work_factor=ns.work_factor)
+    factor, where = ns.work_factor
+    if not where or where == spec.hardware_type:
+        spec = dataclasses.replace(spec, work_factor=factor)
     limit = "no CPU limit" if spec.cpu is None else f"{spec.cpu:g} CPU"
     print(
         f"fogfleet-workload: {spec.robot or 'shared'}/{spec.module} on {spec.node} "
@@ -71,11 +74,18 @@ def main(argv: list[str] | None = None) -> int:
     return 0
 
 
-def _work_factor(text: str) -> float:
-    value = float(text)
+def _work_factor(text: str) -> tuple[float, str]:
+    """``F`` or ``F@HARDWARE_TYPE``."""
+    number, _, where = text.partition("@")
+    try:
+        value = float(number)
+    except ValueError:
+        value = -1.0
     if not 0 < value <= 100:
-        raise argparse.ArgumentTypeError(f"{text!r}: a number above 0, at most 100")
-    return value
+        raise argparse.ArgumentTypeError(
+            f"{text!r}: F or F@HARDWARE_TYPE, F a number above 0, at most 100"
+        )
+    return value, where
 
 
 if __name__ == "__main__":

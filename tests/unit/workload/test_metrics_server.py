@@ -83,7 +83,8 @@ def test_the_work_factor_is_a_positive_number() -> None:
 
     from fogfleet.workload.__main__ import _work_factor
 
-    assert _work_factor("4") == 4.0
-    for bad in ("0", "-1", "1000"):
+    assert _work_factor("4") == (4.0, "")
+    assert _work_factor("2.5@bed-robot") == (2.5, "bed-robot")
+    for bad in ("0", "-1", "1000", "x@bed-robot", "@bed-robot"):
         with pytest.raises(argparse.ArgumentTypeError):
             _work_factor(bad)
