@@ -322,6 +322,13 @@ class Evaluation:
             q[hot] = self._expect(at, m[hot], sd[hot], self.use[hot], peak[hot])
         return np.where(self.valid, q, 0.0)
 
+    def migrations(self) -> F64:
+        """Extension: instances placed away from the node they run on now (``Problem.current``;
+        a re-plan's moves as a cost in the objective, not only the migration margin)."""
+        cur = self.problem.current[None, :]
+        moved: F64 = ((cur >= 0) & self.valid & (self.x != cur)).sum(axis=1).astype(np.float64)
+        return moved
+
     def miss_rate(self) -> F64:
         """The fleet's miss rate (P,), one definition for the planner, the simulator, status
         and the benchmarks: the mean over modules of each module's rate, a module's rate being

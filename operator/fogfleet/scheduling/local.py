@@ -196,6 +196,13 @@ class MoveEvaluator:
             )
             out["missRate"][slow] = whole.miss_rate()
             out["missedCycles"][slow] = whole.missed_cycles()
+        # migrations: only the moved instance's own term changes
+        was = fleet.current[inst]
+        out["migrations"] = (
+            ev.migrations()[par]
+            - ((was >= 0) & (cur != was)).astype(float)
+            + ((was >= 0) & (node != was)).astype(float)
+        )
         return {n: out[n] for n in EVALUATORS}, G
 
 

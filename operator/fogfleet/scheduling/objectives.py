@@ -34,6 +34,7 @@ __all__ = [
     "cost",
     "energy",
     "evaluate",
+    "migrations",
     "missRate",
     "miss_probability",
     "missedCycles",
@@ -101,6 +102,12 @@ def energy(problem: Problem, X: NDArray[np.integer], allocation: Allocation) -> 
     return Evaluation(problem, X, allocation).energy()
 
 
+def migrations(problem: Problem, X: NDArray[np.integer], allocation: Allocation) -> F64:
+    """Extension (issue 10): how many running instances the plan moves to another node; listed
+    in ``scheduler.objectives``, a re-plan trades moves against the other objectives."""
+    return Evaluation(problem, X, allocation).migrations()
+
+
 def constraints(problem: Problem, X: NDArray[np.integer], allocation: Allocation) -> F64:
     """Hard constraints G (P, 3N + N_R + 1), feasible where every entry <= 0: per node
     (cpu requests, memory, gpus - capacity) / capacity; per robot (off-board traffic -
@@ -124,6 +131,7 @@ EVALUATORS: dict[str, Callable[[Evaluation], F64]] = {
     ObjectiveName.MISS_RATE.value: Evaluation.miss_rate,
     ObjectiveName.COST.value: Evaluation.cost,
     ObjectiveName.ENERGY.value: Evaluation.energy,
+    ObjectiveName.MIGRATIONS.value: Evaluation.migrations,
 }
 
 # The per-node objectives: what ``Evaluation.of_node_sums`` supports (from ``NODE_SUMS``).
@@ -137,6 +145,7 @@ OBJECTIVES: dict[str, Callable[[Problem, NDArray[np.integer], Allocation], F64]]
     ObjectiveName.MISS_RATE.value: missRate,
     ObjectiveName.COST.value: cost,
     ObjectiveName.ENERGY.value: energy,
+    ObjectiveName.MIGRATIONS.value: migrations,
 }
 
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 from functools import lru_cache
 
 import numpy as np
@@ -40,10 +41,15 @@ def test_incremental_scores_equal_whole_plan_evaluation(seed: int, with_limits: 
     what ``objectives.evaluate`` computes for the whole moved plan. Random (mostly
     infeasible) parents; with the nominal allocation nodes are contended, which exercises
     the whole-plan fallback for missRate and missedCycles."""
+    rng = np.random.default_rng(seed)
     p = _warehouse()
+    # a fleet that runs somewhere already (random nodes, some instances new): migrations count
+    placed = PlacementProblem(p, ("missRate",), with_limits=True).full(
+        PlacementProblem(p, ("missRate",), with_limits=True).random_genes(1, rng)
+    )[0]
+    p = dataclasses.replace(p, current=np.where(rng.random(len(placed)) < 0.8, placed, -1))
     pp = PlacementProblem(p, tuple(EVALUATORS), with_limits=with_limits)
     me = MoveEvaluator(pp)
-    rng = np.random.default_rng(seed)
     fulls = pp.full(pp.random_genes(12, rng))
     par, inst, node = _random_moves(me, fulls, 300, rng)
     vals, G = me.evaluate(fulls, par, inst, node)

@@ -13,6 +13,7 @@ from fogfleet.scheduling.objectives import (
     cost,
     energy,
     evaluate,
+    migrations,
     missedCycles,
     missRate,
     onboard,
@@ -87,6 +88,16 @@ def test_cost_and_energy(tiny: Problem) -> None:
     assert cost(tiny, X, tiny.limits) == pytest.approx([0.0, 0.14, 0.10 + 0.05])
     # A: 10 + 5 * 1.7 = 18.5 W; B: 10 + 5 * 1 + 0.1 * 50 Mbps = 20
     assert energy(tiny, X, tiny.limits) == pytest.approx([18.5, 20.0, 20.0])
+
+
+def test_migrations_count_running_instances_the_plan_moves(tiny: Problem) -> None:
+    import dataclasses
+
+    # m0 runs on n0 and m2 on n2 now, m1 nowhere yet (a new instance never counts)
+    running = dataclasses.replace(tiny, current=np.array([0, -1, 2]))
+    assert migrations(running, X, running.limits) == pytest.approx([1.0, 0.0, 1.0])
+    assert migrations(running, np.array([[0, -1, -1]]), running.limits) == pytest.approx([0.0])
+    assert migrations(tiny, X, tiny.limits) == pytest.approx([0.0, 0.0, 0.0])  # nothing runs
 
 
 def test_unplaced_instances_contribute_nothing(tiny: Problem) -> None:

@@ -53,6 +53,7 @@ class ObjectiveName(StrEnum):
     MISS_RATE = "missRate"  # predicted fraction of missed cycles
     COST = "cost"
     ENERGY = "energy"
+    MIGRATIONS = "migrations"  # instances a plan moves off the node they run on (issue 10)
 
 
 class ChoiceRule(StrEnum):
