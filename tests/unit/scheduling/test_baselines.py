@@ -65,6 +65,7 @@ def test_onboard_puts_robot_modules_home(warehouse: Problem) -> None:
         "missRate",
         "cost",
         "energy",
+        "migrations",
     }
 
 
