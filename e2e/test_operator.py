@@ -221,6 +221,12 @@ def test_invalid_objects_are_rejected_or_reported_without_touching_what_runs(
     module["spec"] = {**module["spec"], "cycleTimeMillis": -5}
     proc = kube.kubectl("apply", "-f", "-", input=dump(module), check=False)
     assert proc.returncode != 0 and "cycleTimeMillis" in proc.stderr, proc.stderr
+    # no profile at all is refused, unless the operator is to profile the module itself
+    unprofiled = dict(of_kind(docs, "SoftwareModule")[0])
+    unprofiled["spec"] = {**unprofiled["spec"], "profile": []}
+    proc = kube.kubectl("apply", "-f", "-", input=dump(unprofiled), check=False)
+    assert proc.returncode != 0, proc.stdout
+    assert "profile: at least one row, unless profiling.mode is auto" in proc.stderr, proc.stderr
     # a pod-template field fogfleet owns: refused by the API server with the reason
     owned = dict(of_kind(docs, "SoftwareModule")[0])
     owned["spec"] = {**owned["spec"], "template": {**owned["spec"]["template"], "affinity": {}}}

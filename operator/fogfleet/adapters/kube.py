@@ -312,6 +312,34 @@ class KubeClient:
                 missing_ok=True,
             )
 
+    def create_job(self, body: Obj) -> Obj:
+        ns, name = body["metadata"]["namespace"], body["metadata"]["name"]
+        path = f"/apis/batch/v1/namespaces/{ns}/jobs"
+        with map_errors(f"create Job {ns}/{name}", f"Job/{name}"):
+            try:
+                return self._call("POST", path, body=body) or {}
+            except ApiException as exc:
+                if exc.status != 409:  # AlreadyExists: a Job of this name is this run's
+                    raise
+                return self._call("GET", f"{path}/{name}") or {}
+
+    def list_jobs(self, namespace: str, selector: Mapping[str, str]) -> list[Obj]:
+        return self._list(
+            f"/apis/batch/v1/namespaces/{namespace}/jobs", f"list Jobs in {namespace}", selector
+        )
+
+    def list_job_pods(self, namespace: str, job: str) -> list[Obj]:
+        return KubeClient.list_pods(self, namespace, {"batch.kubernetes.io/job-name": job})
+
+    def delete_job(self, namespace: str, name: str) -> None:
+        with map_errors(f"delete Job {namespace}/{name}"):
+            self._call(
+                "DELETE",
+                f"/apis/batch/v1/namespaces/{namespace}/jobs/{name}",
+                body={"propagationPolicy": "Background"},
+                missing_ok=True,
+            )
+
     def _merge_patch(self, what: str, path: str, body: Mapping[str, Any]) -> None:
         """A JSON merge patch of one fogfleet object (a missing object is not an error);
         ``path`` is ``<namespace>/<plural>/<name>...`` or ``/<plural>/<name>...`` for a

@@ -57,6 +57,20 @@ class KubePort(Protocol):
         """Delete (foreground of pods is left to the garbage collector); missing is fine."""
         ...
 
+    def create_job(self, body: Obj) -> Obj:
+        """Create a Job (a profiling run); one that exists already is returned as stored."""
+        ...
+
+    def list_jobs(self, namespace: str, selector: Mapping[str, str]) -> list[Obj]: ...
+
+    def list_job_pods(self, namespace: str, job: str) -> list[Obj]:
+        """The pods of Job ``job``, from the API server (with their termination messages)."""
+        ...
+
+    def delete_job(self, namespace: str, name: str) -> None:
+        """Delete a Job and its pods; missing is fine."""
+        ...
+
     def patch_fleet_status(self, namespace: str, name: str, status: Mapping[str, Any]) -> None:
         """One JSON merge patch of the status subresource (None values remove fields)."""
         ...

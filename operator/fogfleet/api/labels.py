@@ -14,6 +14,7 @@ __all__ = [
     "ANNOTATION_ROLE",
     "ANNOTATION_SCALER_STATE",
     "ANNOTATION_SPEC_HASH",
+    "COMPONENT_PROFILING",
     "HOSTNAME_KEY",
     "LABEL_COMPONENT",
     "LABEL_FLEET",
@@ -21,6 +22,9 @@ __all__ = [
     "LABEL_MANAGED_BY",
     "LABEL_MODULE",
     "LABEL_PART_OF",
+    "LABEL_PROFILE_CPU",
+    "LABEL_PROFILE_HARDWARE",
+    "LABEL_PROFILE_SPEC",
     "LABEL_ROBOT",
     "LABEL_TIER",
     "MANAGER",
@@ -38,6 +42,11 @@ LABEL_MODULE = "fogfleet.io/module"
 LABEL_TIER = "fogfleet.io/tier"
 """On module pods (where the plan put them) and on Nodes (the tier a node belongs to)."""
 LABEL_INSTANCE = "fogfleet.io/instance"
+LABEL_PROFILE_HARDWARE = "fogfleet.io/profile-hardware-type"
+LABEL_PROFILE_CPU = "fogfleet.io/profile-cpu"
+LABEL_PROFILE_SPEC = "fogfleet.io/profile-spec"
+"""On profiling Jobs (issue 10): the hardware type, CPU limit and module spec hash profiled."""
+COMPONENT_PROFILING = "profiling"
 
 ANNOTATION_ROBOT = "fogfleet.io/robot"
 ANNOTATION_MODULE = "fogfleet.io/module"

@@ -16,6 +16,7 @@ from fogfleet.api.loader import Catalog, parse_object
 from fogfleet.api.v1alpha1.computenode import ComputeNode, NodeResources
 from fogfleet.api.v1alpha1.robotfleet import RobotFleet
 from fogfleet.api.v1alpha1.softwaremodule import SoftwareModule
+from fogfleet.domain.profiling import with_profiled
 from fogfleet.errors import InvalidSpec
 from fogfleet.render.deployments import identity_of
 
@@ -89,7 +90,7 @@ def gather(
             broken[f"SoftwareModule/{name}"] = exc
             continue
         assert isinstance(mod, SoftwareModule)
-        catalog.add(mod)
+        catalog.add(with_profiled(mod, raw))
     return Inputs(catalog, unavailable, broken)
 
 

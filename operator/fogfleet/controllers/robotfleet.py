@@ -47,6 +47,7 @@ from .fleet_status import fleet_status, plan_events, report_failure
 from .inputs import current_placement, gather
 from .links import link_events, link_report
 from .observed import profile_corrections
+from .profiling import PROFILING_POLL_SECONDS, profile_first, report_waiting
 from .stamp import input_stamp
 from .status import (
     condition,
@@ -104,6 +105,20 @@ def reconcile(body: Obj, deps: Deps) -> Outcome:
         raise
 
 
+def _profiled(raw_modules: Iterable[Mapping[str, Any]]) -> tuple[tuple[str, str], ...]:
+    """What the modules' automatic profiling has recorded (a new profile is a new input)."""
+    return tuple(
+        sorted(
+            (
+                str(m["metadata"]["name"]),
+                repr(((m.get("status") or {}).get("profiling") or {}).get("rows")),
+            )
+            for m in raw_modules
+            if (m.get("status") or {}).get("profiling")
+        )
+    )
+
+
 def _record_references(
     deps: Deps, key: FleetKey, fleet: RobotFleet, modules: set[str] | None = None
 ) -> None:
@@ -128,7 +143,7 @@ def _reconcile(
     measured = planned_links(deps.links.get(key, {}))
     # modules' profiles corrected by what ran (controllers/observed.py)
     corrections = profile_corrections(raw_modules)
-    learnt = tuple(sorted(corrections.items()))
+    learnt = (tuple(sorted(corrections.items())), _profiled(raw_modules))
     stamp = (*input_stamp(body, raw_modules, compute_nodes, nodes, listed), measured, learnt)
     last = deps.rendered.pop(key, None)
     if (
@@ -149,6 +164,20 @@ def _reconcile(
     wanted = {m.name for m in fleet.spec.modules} | variant_names(fleet.spec, modules)
     _record_references(deps, key, fleet, wanted)
     _raise_broken_references(fleet, inputs.broken)
+    # modules with profiling auto are planned once their profiles are known (issue 10)
+    waiting, recorded = profile_first(deps, fleet, inputs.catalog, raw_modules)
+    if waiting:
+        message = report_waiting(body, deps, old_status, generation, waiting)
+        poll = None if waiting.failed else PROFILING_POLL_SECONDS
+        return Outcome(requeue_after=poll, message=message)
+    if recorded:  # the rows just written are part of the modules now
+        learnt = (learnt[0], _profiled(raw_modules))
+        inputs = gather(fleet, compute_nodes, raw_modules, nodes)
+        modules = {
+            m.metadata.name: m
+            for m in inputs.catalog.modules.values()
+            if (m.metadata.namespace or "default") == ns
+        }
     problem = build_problem(
         fleet,
         inputs.catalog,

@@ -31,14 +31,15 @@ from .problem import (
 )
 from .taxonomy import module_priority
 
-__all__ = ["build_problem"]
+__all__ = ["build_problem", "resolve_nodes"]
 
 F64 = NDArray[np.float64]
 
 
-def _resolve_nodes(
+def resolve_nodes(
     fleet: RobotFleet, catalog: Catalog
 ) -> tuple[list[ComputeNode], list[ComputeNode]]:
+    """The fleet's robots and its other nodes (named, then selected), or why not."""
     obj = f"RobotFleet/{fleet.metadata.name}"
     robots: list[ComputeNode] = []
     for k, name in enumerate(fleet.spec.robots):
@@ -145,7 +146,7 @@ def build_problem(
     ``domain.observed``)."""
     obj = f"RobotFleet/{fleet.metadata.name}"
     namespace = fleet.metadata.namespace or "default"
-    robots, others = _resolve_nodes(fleet, catalog)
+    robots, others = resolve_nodes(fleet, catalog)
     nodes = robots + others
     n = len(nodes)
     caps = np.array([_capacity(nd) for nd in nodes], dtype=np.float64)

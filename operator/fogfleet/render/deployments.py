@@ -72,6 +72,7 @@ __all__ = [
     "hash_annotation",
     "identity_of",
     "label_value",
+    "node_affinity",
     "render_fleet",
     "render_instance",
     "spec_hash",
@@ -157,7 +158,7 @@ def identity_of(deployment: Mapping[str, Any]) -> tuple[str, str, int] | None:
     return ann.get(ANNOTATION_ROBOT, ""), ann[ANNOTATION_MODULE], replica
 
 
-def _affinity(node_names: Sequence[str]) -> dict[str, Any]:
+def node_affinity(node_names: Sequence[str]) -> dict[str, Any]:
     term = {
         "matchExpressions": [{"key": HOSTNAME_KEY, "operator": "In", "values": list(node_names)}]
     }
@@ -292,7 +293,7 @@ def render_instance(
     pod_spec = module_pod_spec(
         module,
         container_name=_dns(module.metadata.name)[:MAX_NAME] or "module",
-        affinity=_affinity([problem.nodes[k].node_name for k in nodes]),
+        affinity=node_affinity([problem.nodes[k].node_name for k in nodes]),
         resources=resources,
         owned_env=owned_env,
     )

@@ -8,7 +8,9 @@ import dataclasses
 import os
 import sys
 
+from .profile import DEFAULT_OUTPUT, ENV_PROFILE_OUTPUT, profile_cycles, run_profile
 from .spec import WorkloadSpec
+from .work import describe, work_for
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -24,6 +26,15 @@ def main(argv: list[str] | None = None) -> int:
         metavar="F[@HARDWARE_TYPE]",
         help="experiments: do F times the work the profile row says, on every node or only "
         "on that hardware type (a declared profile that is wrong, for the operator to learn)",
+    )
+    m.add_argument(
+        "--cpu-work",
+        type=_cpu_work,
+        default=None,
+        metavar="MILLIS",
+        help="milliseconds of CPU per cycle, single-threaded: the module's true work, burnt as "
+        "fast as its CPU limit lets it (the kernel's CFS quota decides how long it takes); "
+        "without it the workload plays its profile row",
     )
     p = sub.add_parser(
         "probe", help="measure the cycle times of the module in $FOGFLEET_MODULE_SPEC (sidecar)"
@@ -56,22 +67,70 @@ def main(argv: list[str] | None = None) -> int:
         )
         run_probe(spec, ns.host, ns.port)
         return 0
-    from .module import run_module
-
     factor, where = ns.work_factor
     if not where or where == spec.hardware_type:
         spec = dataclasses.replace(spec, work_factor=factor)
+    if ns.cpu_work is not None:
+        spec = dataclasses.replace(spec, cpu_work_s=ns.cpu_work / 1e3)
+    try:
+        cycles = profile_cycles(os.environ)
+        if cycles is not None and spec.cpu_work_s is None and not spec.profile:
+            raise ValueError(
+                "no work to profile: give the module its work (--cpu-work MILLIS) or a "
+                "profile row for this node"
+            )
+        what = describe(spec)  # a module with neither its own work nor a row: said here
+    except ValueError as exc:
+        print(f"fogfleet-workload: {exc}", file=sys.stderr)
+        return 2
+    if cycles is not None:
+        return _profile(spec, cycles, what)
+    from .module import run_module
+
     limit = "no CPU limit" if spec.cpu is None else f"{spec.cpu:g} CPU"
     print(
         f"fogfleet-workload: {spec.robot or 'shared'}/{spec.module} on {spec.node} "
         f"({spec.tier or 'any tier'}, {limit}): cycle {spec.cycle_s * 1e3:g} ms, "
-        f"activation {spec.activation:.0%}, work {spec.row.mean_s * 1e3:g}±"
-        f"{spec.row.std_s * 1e3:g} ms at {spec.row.cpu:g} CPU"
-        + (f" x{spec.work_factor:g}" if spec.work_factor != 1 else ""),
+        f"activation {spec.activation:.0%}, {what}",
         flush=True,
     )
     run_module(spec, ns.host, ns.port)
     return 0
+
+
+def _profile(spec: WorkloadSpec, cycles: int, what: str) -> int:
+    """A profiling Job's run (``workload.profile``): no ROS, one result line."""
+    import random
+
+    work = work_for(spec, random.Random())
+    output = os.environ.get(ENV_PROFILE_OUTPUT) or DEFAULT_OUTPUT
+    print(
+        f"fogfleet-workload: profiling {spec.module} on {spec.node or 'this node'} "
+        f"({spec.hardware_type or 'unknown hardware'}, {spec.cpu_label or 'no limit'}): "
+        f"{cycles} cycles of {what}",
+        flush=True,
+    )
+    try:
+        run_profile(spec, work, cycles, output)
+    except OSError as exc:
+        print(f"fogfleet-workload: cannot write the profile to {output}: {exc}", file=sys.stderr)
+        return 1
+    finally:
+        work.close()
+    return 0
+
+
+def _cpu_work(text: str) -> float:
+    """``MILLIS``: above 0, at most 10000."""
+    try:
+        value = float(text)
+    except ValueError:
+        value = -1.0
+    if not 0 < value <= 10000:
+        raise argparse.ArgumentTypeError(
+            f"{text!r}: milliseconds of CPU per cycle, a number above 0, at most 10000"
+        )
+    return value
 
 
 def _work_factor(text: str) -> tuple[float, str]:

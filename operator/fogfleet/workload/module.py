@@ -16,11 +16,11 @@ import threading
 import time
 from typing import Any
 
-from .burn import Burner
 from .fallback import FirstResponse, Role, Source, Takeover, remote_topic
 from .messages import Header, decode, encode
 from .metrics import WorkloadMetrics
-from .spec import WorkloadSpec, mean_episode_s, sample_exec_seconds
+from .spec import WorkloadSpec, mean_episode_s
+from .work import work_for
 
 __all__ = ["run_module"]
 
@@ -55,7 +55,8 @@ def run_module(
     duration: float | None = None,
 ) -> WorkloadMetrics:
     """Run until SIGTERM (or `duration` seconds, for tests); returns the metrics."""
-    burner = Burner(spec.row.cpu)  # fork before ROS starts
+    rng = random.Random(seed)
+    work = work_for(spec, rng)  # forks a row's workers: before ROS starts
     import rclpy
     from rclpy.experimental.events_executor import EventsExecutor
     from rclpy.qos import QoSProfile, ReliabilityPolicy
@@ -65,7 +66,6 @@ def run_module(
         spec.module, spec.robot, spec.tier, spec.hardware_type, spec.cpu_label
     )
     server = metrics.serve(host, port)
-    rng = random.Random(seed)
     rclpy.init()
     node = rclpy.create_node(spec.module.replace("-", "_"))
     qos = QoSProfile(depth=5, reliability=ReliabilityPolicy.BEST_EFFORT)
@@ -195,9 +195,7 @@ def run_module(
             newest, received = max(fresh, key=lambda hr: hr[0].sent_ns, default=(None, 0))
             t_in = 0.0 if newest is None else (received - newest.sent_ns) / 1e9
             origin = min((h.sent_ns for h, _ in fresh), default=time.time_ns())
-            metrics.execution.observe(
-                burner.run(sample_exec_seconds(spec.row, rng) * spec.work_factor)
-            )
+            metrics.execution.observe(work.run())
             for t in spec.publishes:
                 if t.rate_hz * spec.cycle_s <= 1.0:
                     publish(t.name, t.size_bytes, origin)
@@ -227,7 +225,7 @@ def run_module(
         executor.shutdown()
         node.destroy_node()
         rclpy.try_shutdown()
-        burner.close()
+        work.close()
         server.shutdown()
         server.server_close()
     return metrics

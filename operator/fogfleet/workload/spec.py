@@ -101,6 +101,9 @@ class WorkloadSpec:
     # experiments only (``module --work-factor``): the module's real work is this many times
     # its profile row, as when a declared profile is optimistic (issue 10's closed loop)
     work_factor: float = 1.0
+    # the module's own work (``module --cpu-work MILLIS``): seconds of CPU a cycle, burnt as
+    # fast as the CPU limit allows; None: it plays its profile row
+    cpu_work_s: float | None = None
 
     @property
     def cpu_label(self) -> str:

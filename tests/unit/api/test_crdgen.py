@@ -257,7 +257,11 @@ def test_every_example_object_is_accepted_by_its_crd() -> None:
         ),
         (lambda d: d["spec"].update(colour="blue"), "spec.colour: unknown field"),
         (lambda d: d["spec"]["profile"][0].update(cores=2), "spec.profile[0].cores: unknown field"),
-        (lambda d: d["spec"].update(profile=[]), "spec.profile: needs at least 1 items"),
+        (
+            lambda d: d["spec"].update(profiling={"mode": "sometimes"}),
+            "spec.profiling.mode: 'sometimes'",
+        ),
+        (lambda d: d["spec"].update(profiling={"cycles": 2}), "spec.profiling.cycles: 2 is less"),
         (lambda d: d["spec"].pop("taxonomy"), "spec.taxonomy: required field is missing"),
         (lambda d: d["spec"]["template"].update(image=""), "spec.template.image: shorter than 1"),
     ],

@@ -58,6 +58,8 @@ class FakeKube:
         self.status_patches: list[Obj] = []
         self.module_patches: list[tuple[str, str]] = []
         self.events: list[tuple[str, str, str]] = []
+        self.jobs: dict[tuple[str, str], Obj] = {}
+        self.job_pods: dict[tuple[str, str], list[Obj]] = {}  # (ns, job) -> its pods
 
     # seeding
     def load_warehouse(self) -> None:
@@ -186,6 +188,49 @@ class FakeKube:
 
     def delete_service(self, namespace: str, name: str) -> None:
         self.services.pop((namespace, name), None)
+
+    def create_job(self, body: Obj) -> Obj:
+        key = (body["metadata"]["namespace"], body["metadata"]["name"])
+        self.jobs.setdefault(key, copy.deepcopy(body))
+        return copy.deepcopy(self.jobs[key])
+
+    def list_jobs(self, namespace: str, selector: Mapping[str, str]) -> list[Obj]:
+        return copy.deepcopy(
+            [
+                j
+                for (ns, _), j in self.jobs.items()
+                if ns == namespace and _match(j["metadata"]["labels"], selector)
+            ]
+        )
+
+    def list_job_pods(self, namespace: str, job: str) -> list[Obj]:
+        return copy.deepcopy(self.job_pods.get((namespace, job), []))
+
+    def delete_job(self, namespace: str, name: str) -> None:
+        self.jobs.pop((namespace, name), None)
+        self.job_pods.pop((namespace, name), None)
+        self.deleted.append(name)
+
+    def finish_job(self, namespace: str, name: str, message: str, ok: bool = True) -> None:
+        """What the Job controller and kubelet would do: the pod ends with ``message``."""
+        job = self.jobs[(namespace, name)]
+        job["status"] = {"succeeded": 1} if ok else {
+            "failed": 1,
+            "conditions": [{"type": "Failed", "status": "True", "reason": "BackoffLimitExceeded",
+                            "message": "Job has reached the specified backoff limit"}],
+        }  # fmt: skip
+        state = {"exitCode": 0 if ok else 2, "reason": "Completed" if ok else "Error",
+                 "message": message}  # fmt: skip
+        self.job_pods[(namespace, name)] = [
+            {
+                "metadata": {"name": f"{name}-x", "namespace": namespace},
+                "spec": {"nodeName": "somewhere"},
+                "status": {
+                    "phase": "Succeeded" if ok else "Failed",
+                    "containerStatuses": [{"name": "m", "state": {"terminated": state}}],
+                },
+            }
+        ]
 
     def patch_fleet_status(self, namespace: str, name: str, status: Mapping[str, Any]) -> None:
         _merge(self.fleets[(namespace, name)].setdefault("status", {}), status)

@@ -18,6 +18,7 @@ from .common import Condition, ObjectMeta, Tier
 from .computenode import DeviceType
 from .fallback import STANDING_BY, Fallback
 from .observed import ObservedRow, ProfileCorrection
+from .profiling import Profiling, ProfilingMode, ProfilingStatus
 from .rules import CrossFieldRule, enforce
 from .scaling import ScalingSpec
 from .template import ContainerTemplate
@@ -36,6 +37,7 @@ __all__ = [
     "Taxonomy",
     "Topic",
     "Topics",
+    "auto_profiled",
     "default_priority",
 ]
 
@@ -187,6 +189,11 @@ def _onboard(spec: SoftwareModuleSpec) -> bool:
     return spec.fallback is not None and spec.fallback.mode in STANDING_BY
 
 
+def auto_profiled(spec: SoftwareModuleSpec) -> bool:
+    """The operator profiles the module where it has no rows (profiling.mode auto)."""
+    return spec.profiling is not None and spec.profiling.mode is ProfilingMode.AUTO
+
+
 class SoftwareModuleSpec(FogModel):
     """One containerised ROS 2 module: what it runs, how it behaves, what it needs."""
 
@@ -218,6 +225,13 @@ class SoftwareModuleSpec(FogModel):
             lambda s: not _onboard(s) or s.scope is not Scope.SHARED,
         ),
         CrossFieldRule(
+            "(has(self.profile) && size(self.profile) > 0) || (has(self.profiling) && "
+            "has(self.profiling.mode) && self.profiling.mode == 'auto')",
+            "profile: at least one row, unless profiling.mode is auto (the operator then "
+            "profiles the module on each hardware type it needs)",
+            lambda s: bool(s.profile) or auto_profiled(s),
+        ),
+        CrossFieldRule(
             f"!{_ONBOARD} || (has(self.topics) && has(self.topics.publishes) && "
             "size(self.topics.publishes) > 0)",
             "fallback.mode: onboard and variant need topics.publishes: the standby watches the "
@@ -237,8 +251,12 @@ class SoftwareModuleSpec(FogModel):
     """Share of time the module is active, 1-100 (Table II's avg. execution rate)."""
     resources: ModuleResources
     """The nominal request of a plain Deployment (and the module's memory)."""
-    profile: list[ProfileEntry] = Field(min_length=1)
-    """Execution time per hardware type and CPU limit (Fig. 3's look-up table)."""
+    profile: list[ProfileEntry] = Field(default_factory=list)
+    """Execution time per hardware type and CPU limit (Fig. 3's look-up table). May be empty
+    with profiling.mode auto."""
+    profiling: Profiling | None = None
+    """Profile the module with short Jobs on a hardware type that has no rows (mode auto)
+    before planning it there. Unset: off."""
     topics: Topics = Field(default_factory=Topics)
     """ROS 2 topics exchanged with the robot (default: none)."""
     requirements: Requirements = Field(default_factory=Requirements)
@@ -342,6 +360,9 @@ class SoftwareModuleStatus(FogModel):
     profile_correction: list[ProfileCorrection] = Field(default_factory=list)
     """Per hardware type, the factor the planner multiplies the declared profile by (set
     when a fleet's drift showed the declared profile wrong)."""
+    profiling: ProfilingStatus | None = None
+    """Automatic profiling: its runs per hardware type and the rows it found (used like
+    declared rows)."""
 
 
 class SoftwareModule(FogModel):

@@ -1,0 +1,264 @@
+"""Automatic profiling, the pure part (issue 10): what to profile, at which CPU limits, and
+the profile fitted from what the Jobs measured.
+
+**Where.** A module with ``profiling.mode: auto`` needs a profile on every hardware type of
+the fleet's nodes it may run on (its tiers, its robot only when it must stay on board, a
+shared module never on a robot: the rules of ``domain.pairs``) and has no rows for, neither
+declared nor ``default`` nor profiled before.
+
+**Which limits.** FogROS2-Config benchmarks a few edge-case machines instead of the whole
+grid and fits from them. Here the grid is the module's ``profiling.cpus`` that a node of the
+type can give at all; the Jobs measure its smallest and largest limit and the one closest to
+their geometric middle (three Jobs whatever the grid's size; every limit of a grid of three
+or fewer).
+
+**The fit.** With ``c`` cores a cycle of ``W`` CPU-seconds of single-threaded work takes
+about ``W / c`` (processor sharing, the simulator's job model, ``sim.engine``), and fixed costs
+add a constant: ``t(c) = a + b / c``, fitted by least squares in ``1 / c`` through the
+measured means (``a`` kept >= 0, ``b`` >= 0). A fitted row's spread keeps the measured rows'
+coefficient of variation. Measured rows are written as measured; the largest relative error
+of the fit on them is reported, so a module whose time does not follow the curve (CFS quota
+periods make it a staircase for short cycles) says so.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+from pydantic import ValidationError
+
+from fogfleet.api.v1alpha1.base import parse_cpu
+from fogfleet.api.v1alpha1.common import Tier
+from fogfleet.api.v1alpha1.computenode import ComputeNode
+from fogfleet.api.v1alpha1.profiling import ProfiledRow, ProfilingStatus
+from fogfleet.api.v1alpha1.softwaremodule import (
+    ProfileEntry,
+    Scope,
+    SoftwareModule,
+    auto_profiled,
+)
+
+from .taxonomy import must_stay_onboard
+
+__all__ = [
+    "Fit",
+    "Measurement",
+    "current_rows",
+    "edge_cases",
+    "fit_profile",
+    "format_millicores",
+    "grid_for",
+    "module_spec_hash",
+    "needed_profiles",
+    "profiling_status",
+    "with_profiled",
+    "with_profiled_rows",
+]
+
+
+@dataclass(frozen=True)
+class Measurement:
+    """What one profiling Job measured at one CPU limit."""
+
+    cpu: float  # cores
+    mean_ms: float
+    std_ms: float
+    cycles: int
+    cpu_seconds: float = 0.0
+    wall_seconds: float = 0.0
+
+
+@dataclass(frozen=True)
+class Fit:
+    """``t(c) = a + b / c`` (ms, c in cores) and the rows it gives for a grid."""
+
+    a_ms: float
+    b_ms_cores: float
+    cv: float  # fitted rows' std / mean
+    error_percent: float  # the largest relative error on the measured limits
+    rows: tuple[ProfiledRow, ...]
+
+
+def format_millicores(cores: float) -> str:
+    """A CPU limit as the label and status show it: "100m"."""
+    return f"{round(cores * 1000)}m"
+
+
+def module_spec_hash(module: SoftwareModule) -> str:
+    """What a profile of the module depends on: its container, cycle and profiling settings
+    (not its declared rows). A change to any of them profiles the module again."""
+    spec = module.spec
+    basis = {
+        "template": spec.template.wire(),
+        "cycle": str(spec.cycle_time_millis),
+        "profiling": spec.profiling.wire() if spec.profiling is not None else None,
+    }
+    text = json.dumps(basis, sort_keys=True, default=str)
+    return hashlib.sha256(text.encode()).hexdigest()[:10]
+
+
+def edge_cases(grid: Sequence[float]) -> list[float]:
+    """The limits to measure: all of a grid of three or fewer, else its smallest, its largest
+    and the one closest to their geometric middle (ties: the smaller)."""
+    cpus = sorted(set(grid))
+    if len(cpus) <= 3:
+        return cpus
+    lo, hi = cpus[0], cpus[-1]
+    middle = math.sqrt(lo * hi)
+    inner = cpus[1:-1]
+    mid = min(inner, key=lambda c: (round(abs(math.log(c / middle)), 9), c))
+    return [lo, mid, hi]
+
+
+def grid_for(module: SoftwareModule, capacities: Iterable[float]) -> list[float]:
+    """The module's profiling grid (cores, ascending) that the largest node of a hardware type
+    can give (``capacities``: those nodes' CPU less what they keep reserved)."""
+    assert module.spec.profiling is not None
+    most = max(capacities, default=0.0)
+    return sorted({parse_cpu(c) for c in module.spec.profiling.cpus if parse_cpu(c) <= most + 1e-9})
+
+
+def _may_run_on(module: SoftwareModule, node: ComputeNode) -> bool:
+    """The tier rules of ``domain.pairs`` that do not depend on the profile."""
+    spec, tier = module.spec, node.spec.tier
+    if tier is Tier.ROBOT and spec.scope is Scope.SHARED:
+        return False  # shared replicas never run on a robot
+    if must_stay_onboard(spec.taxonomy) and tier is not Tier.ROBOT:
+        return False
+    req = spec.requirements
+    return not (req.tiers and tier not in req.tiers)
+
+
+def needed_profiles(
+    modules: Iterable[SoftwareModule], nodes: Iterable[ComputeNode]
+) -> dict[str, dict[str, list[ComputeNode]]]:
+    """module name -> hardware type -> the fleet's nodes of that type, for every module with
+    automatic profiling that may run there and has no rows for the type (``modules`` carry
+    their profiled rows already: ``with_profiled_rows``)."""
+    nodes = list(nodes)
+    out: dict[str, dict[str, list[ComputeNode]]] = {}
+    for mod in modules:
+        if not auto_profiled(mod.spec):
+            continue
+        have = {r.hardware_type for r in mod.spec.profile}
+        if "default" in have:
+            continue  # every type has rows: the default ones, speed-scaled
+        for node in nodes:
+            hw = node.spec.hardware_type
+            if hw not in have and _may_run_on(mod, node):
+                out.setdefault(mod.metadata.name, {}).setdefault(hw, []).append(node)
+    return out
+
+
+def fit_profile(hardware_type: str, grid: Sequence[float], measured: Sequence[Measurement]) -> Fit:
+    """The rows of ``grid`` on ``hardware_type`` from the Jobs' ``measured`` limits (see the
+    module docstring)."""
+    if not measured:
+        raise ValueError("nothing measured to fit")
+    xs = [1.0 / m.cpu for m in measured]
+    ys = [m.mean_ms for m in measured]
+    a, b = _least_squares(xs, ys)
+    total = sum(ys)
+    cv = sum(m.std_ms for m in measured) / total if total > 0 else 0.0
+    error = max(abs(a + b * x - y) / y for x, y in zip(xs, ys, strict=True) if y > 0) * 100
+    by_cpu = {round(m.cpu, 6): m for m in measured}
+    rows: list[ProfiledRow] = []
+    for cpu in sorted(set(grid) | set(by_cpu)):
+        m = by_cpu.get(round(cpu, 6))
+        if m is not None:
+            row = ProfiledRow(
+                hardware_type=hardware_type,
+                cpu=format_millicores(cpu),
+                mean_millis=round(m.mean_ms, 3),
+                std_millis=round(m.std_ms, 3),
+                source="measured",
+                cycles=m.cycles,
+            )
+        else:
+            mean = a + b / cpu
+            row = ProfiledRow(
+                hardware_type=hardware_type,
+                cpu=format_millicores(cpu),
+                mean_millis=round(mean, 3),
+                std_millis=round(mean * cv, 3),
+                source="fitted",
+            )
+        rows.append(row)
+    return Fit(a, b, cv, round(error, 2), tuple(rows))
+
+
+def _least_squares(xs: Sequence[float], ys: Sequence[float]) -> tuple[float, float]:
+    """``y = a + b x`` with ``a, b >= 0`` (more CPU never slows a module down; no cycle takes
+    less than nothing)."""
+    n = len(xs)
+    if n == 1:
+        return 0.0, ys[0] / xs[0]  # one point: all of it the CPU-bound part
+    mx, my = sum(xs) / n, sum(ys) / n
+    var = sum((x - mx) ** 2 for x in xs)
+    b = sum((x - mx) * (y - my) for x, y in zip(xs, ys, strict=True)) / var if var > 0 else 0.0
+    a = my - b * mx
+    if b < 0:
+        return my, 0.0
+    if a < 0:  # through the origin
+        return 0.0, sum(x * y for x, y in zip(xs, ys, strict=True)) / sum(x * x for x in xs)
+    return a, b
+
+
+def with_profiled_rows(
+    module: SoftwareModule, rows: Iterable[ProfiledRow], profiled_types: Iterable[str]
+) -> SoftwareModule:
+    """``module`` with the profiled rows of ``profiled_types`` (runs of its current spec)
+    appended to its profile, where it declares no rows of that type."""
+    declared = {r.hardware_type for r in module.spec.profile}
+    use = set(profiled_types) - declared
+    extra = [
+        ProfileEntry(
+            hardware_type=r.hardware_type,
+            cpu=r.cpu,
+            mean_millis=r.mean_millis,
+            std_millis=r.std_millis,
+        )
+        for r in rows
+        if r.hardware_type in use
+    ]
+    if not extra:
+        return module
+    spec = module.spec.model_copy(update={"profile": [*module.spec.profile, *extra]})
+    return module.model_copy(update={"spec": spec})
+
+
+def current_rows(
+    status: ProfilingStatus | None, spec_hash: str
+) -> tuple[set[str], list[ProfiledRow]]:
+    """The hardware types whose profiling of this spec finished, and their rows."""
+    if status is None:
+        return set(), []
+    done = {
+        r.hardware_type for r in status.runs if r.state == "Profiled" and r.spec_hash == spec_hash
+    }
+    return done, [r for r in status.rows if r.hardware_type in done]
+
+
+def profiling_status(raw: Mapping[str, Any]) -> ProfilingStatus | None:
+    """A SoftwareModule's ``status.profiling`` as the operator wrote it (else None)."""
+    data = (raw.get("status") or {}).get("profiling")
+    if not data:
+        return None
+    try:
+        return ProfilingStatus.model_validate(data)
+    except ValidationError:
+        return None
+
+
+def with_profiled(module: SoftwareModule, raw: Mapping[str, Any]) -> SoftwareModule:
+    """``module`` with the rows its profiling found for its current spec (from ``raw``'s
+    status) in its profile, where it declares none of that hardware type."""
+    if not auto_profiled(module.spec):
+        return module
+    done, rows = current_rows(profiling_status(raw), module_spec_hash(module))
+    return with_profiled_rows(module, rows, done)
