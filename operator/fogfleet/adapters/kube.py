@@ -303,14 +303,15 @@ class KubeClient:
         with map_errors(f"delete Service {namespace}/{name}"):
             self._call("DELETE", f"/api/v1/namespaces/{namespace}/services/{name}", missing_ok=True)
 
+    def _delete_with_pods(self, kind: str, path: str) -> None:
+        """Delete an object whose pods the garbage collector then removes; missing is fine."""
+        with map_errors(f"delete {kind} {path.rsplit('/', 1)[-1]}"):
+            self._call("DELETE", path, body={"propagationPolicy": "Background"}, missing_ok=True)
+
     def delete_deployment(self, namespace: str, name: str) -> None:
-        with map_errors(f"delete Deployment {namespace}/{name}"):
-            self._call(
-                "DELETE",
-                f"/apis/apps/v1/namespaces/{namespace}/deployments/{name}",
-                body={"propagationPolicy": "Background"},
-                missing_ok=True,
-            )
+        self._delete_with_pods(
+            "Deployment", f"/apis/apps/v1/namespaces/{namespace}/deployments/{name}"
+        )
 
     def create_job(self, body: Obj) -> Obj:
         ns, name = body["metadata"]["namespace"], body["metadata"]["name"]
@@ -332,13 +333,7 @@ class KubeClient:
         return KubeClient.list_pods(self, namespace, {"batch.kubernetes.io/job-name": job})
 
     def delete_job(self, namespace: str, name: str) -> None:
-        with map_errors(f"delete Job {namespace}/{name}"):
-            self._call(
-                "DELETE",
-                f"/apis/batch/v1/namespaces/{namespace}/jobs/{name}",
-                body={"propagationPolicy": "Background"},
-                missing_ok=True,
-            )
+        self._delete_with_pods("Job", f"/apis/batch/v1/namespaces/{namespace}/jobs/{name}")
 
     def _merge_patch(self, what: str, path: str, body: Mapping[str, Any]) -> None:
         """A JSON merge patch of one fogfleet object (a missing object is not an error);

@@ -120,31 +120,29 @@ def _profile(spec: WorkloadSpec, cycles: int, what: str) -> int:
     return 0
 
 
-def _cpu_work(text: str) -> float:
-    """``MILLIS``: above 0, at most 10000."""
+def _bounded(text: str, most: float, what: str, given: str = "") -> float:
+    """A number above 0 and at most ``most``, or argparse's error naming ``what`` (and the
+    argument as ``given``, when ``text`` is only part of it)."""
     try:
         value = float(text)
     except ValueError:
         value = -1.0
-    if not 0 < value <= 10000:
+    if not 0 < value <= most:
         raise argparse.ArgumentTypeError(
-            f"{text!r}: milliseconds of CPU per cycle, a number above 0, at most 10000"
+            f"{given or text!r}: {what} a number above 0, at most {most:g}"
         )
     return value
+
+
+def _cpu_work(text: str) -> float:
+    """``MILLIS``: above 0, at most 10000."""
+    return _bounded(text, 10000, "milliseconds of CPU per cycle,")
 
 
 def _work_factor(text: str) -> tuple[float, str]:
     """``F`` or ``F@HARDWARE_TYPE``."""
     number, _, where = text.partition("@")
-    try:
-        value = float(number)
-    except ValueError:
-        value = -1.0
-    if not 0 < value <= 100:
-        raise argparse.ArgumentTypeError(
-            f"{text!r}: F or F@HARDWARE_TYPE, F a number above 0, at most 100"
-        )
-    return value, where
+    return _bounded(number, 100, "F or F@HARDWARE_TYPE, F", given=text), where
 
 
 if __name__ == "__main__":
