@@ -17,8 +17,12 @@ Judging (``judge``) and remembering (``advance``) are separate so that each is t
 - answered, but slower than ``latencyFactor`` x declared + ``latencyMarginMillis``, or fewer
   answers than ``minAnsweredPercent``: **Degraded**. The fleet is planned with the measured
   link in place of the declared one (eq. 4's transfer then charges what the link costs), so
-  the planner moves what suffers on board where it fits. Too few answers at a fine latency
-  count only after a whole window of them: every cut begins and ends with such windows;
+  the planner moves what suffers on board where it fits. Either counts only once it has
+  lasted a whole window: every cut begins and ends with windows of too few answers, and the
+  first scrapes of a pod that has just started are slow (its exporter still starting: on the
+  bed the first window of a new fleet read 40-112 ms one way over a 4 ms link, and the next
+  one 10-15 ms), which would move modules for nothing and keep them moved for the stable
+  window;
 - healthy after Degraded: **Recovering** (still planned with the measured link) until healthy
   for ``stableSeconds``, then **Healthy** and planned as declared again: modules move back
   only after a stable window, and a link that flaps stays re-planned around.
@@ -116,6 +120,7 @@ class RobotLink:
     sample: LinkSample
     healthy_since: float | None = None  # Recovering: since when the windows say healthy
     sparse_since: float | None = None  # since when the windows lack answers (latency fine)
+    slow_since: float | None = None  # since when the windows are too slow (not planned yet)
 
 
 def advance(
@@ -129,7 +134,9 @@ def advance(
     """The link's state after one more window of ``window`` seconds (see the module
     docstring). Too few answers at a fine latency count only once they have lasted a whole
     window: a window that overlaps a cut, as it begins or ends, holds some unanswered
-    scrapes, and re-planning a robot as its link goes would move pods it cannot receive."""
+    scrapes, and re-planning a robot as its link goes would move pods it cannot receive. A
+    link not planned around yet counts as slow once it has been for a whole window too (the
+    first scrapes of new pods are slow); one planned around follows its measure at once."""
     planned = prev.planned if prev is not None else None
 
     def to(new: LinkState, link: Link | None, msg: str, healthy: float | None = None) -> RobotLink:
@@ -144,6 +151,13 @@ def advance(
             return replace(prev, sample=sample, sparse_since=sparse)
         got = advance(prev, replace(verdict, slow=True), sample, now, stable)
         return replace(got, sparse_since=sparse)
+    if verdict.state is LinkState.DEGRADED and verdict.slow and planned is None:
+        slow = prev.slow_since if prev is not None and prev.slow_since is not None else now
+        if now - slow < window:  # not yet a whole window of it: hold what we knew
+            if prev is None:
+                return RobotLink(LinkState.UNKNOWN, now, None, verdict.message, sample,
+                                 slow_since=slow)  # fmt: skip
+            return replace(prev, sample=sample, slow_since=slow)
     if verdict.state is LinkState.UNKNOWN:  # nothing measured: keep what we knew
         if prev is None:
             return to(LinkState.UNKNOWN, None, verdict.message)

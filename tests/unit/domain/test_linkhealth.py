@@ -141,6 +141,25 @@ def test_a_link_that_answers_too_rarely_for_a_whole_window_is_degraded() -> None
     assert s.planned.loss == pytest.approx(0.7)
 
 
-def test_a_slow_link_is_degraded_at_once_whatever_the_window() -> None:
-    s = step(step(None, sample(5), 0, 10), sample(150, answered=0.3), 2, 10)
-    assert s.state is LinkState.DEGRADED
+def test_a_slow_link_is_degraded_once_it_has_been_slow_for_a_whole_window() -> None:
+    healthy = step(None, sample(5), 0, 10)
+    s = step(healthy, sample(150, answered=0.3), 2, 10)
+    assert s.state is LinkState.HEALTHY and s.slow_since == 2 and s.planned is None
+    s = step(s, sample(150), 8, 10)
+    assert s.state is LinkState.HEALTHY
+    s = step(s, sample(150), 12, 10)
+    assert s.state is LinkState.DEGRADED and s.planned is not None and s.since == 12
+
+
+def test_a_new_fleets_slow_first_window_moves_nothing() -> None:
+    # the pods' exporters are starting: their first scrapes are slow, the next ones are not
+    s = step(None, sample(112), 0, 10)
+    assert s.state is LinkState.UNKNOWN and s.planned is None
+    s = step(s, sample(10), 2, 10)
+    assert s.state is LinkState.HEALTHY and s.planned is None and s.slow_since is None
+    assert step(s, sample(150), 4, 10).state is LinkState.HEALTHY  # its clock starts again
+
+
+def test_a_link_planned_around_follows_its_measure_at_once() -> None:
+    s = step(step(step(None, sample(150), 0), sample(5), 10, 10), sample(150), 12, 10)
+    assert s.state is LinkState.DEGRADED  # was Recovering: already planned around
