@@ -22,7 +22,7 @@ from numpy.typing import NDArray
 from fogfleet.api.v1alpha1.base import parse_cpu, parse_quantity
 from fogfleet.api.v1alpha1.common import Tier
 from fogfleet.api.v1alpha1.computenode import ComputeNode
-from fogfleet.api.v1alpha1.softwaremodule import SoftwareModule
+from fogfleet.api.v1alpha1.softwaremodule import SoftwareModule, auto_profiled
 
 from .network import LOCAL, Link, path
 from .problem import EXEC_SHARE_OF_CYCLE
@@ -174,9 +174,10 @@ class PairTable:
             self._profiles[key] = rows
         rows = [r for r in self._profiles[key] if r.cpu <= self.caps[j, 0] + 1e-9]
         if not rows:
+            auto = " (profiling.mode auto: the operator profiles it there first)"
             return (
                 f"{name}: no execution-time profile for hardware type "
-                f"{ns.hardware_type!r} that fits its CPU"
+                f"{ns.hardware_type!r} that fits its CPU" + (auto if auto_profiled(spec) else "")
             )
         link = LOCAL if j == home else path(home_link, self.links[j])
         if (id(mod), link) not in self._transfers:
