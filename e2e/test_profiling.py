@@ -79,7 +79,11 @@ def test_a_module_without_a_profile_is_profiled_by_jobs_then_placed(
     # 100 ms period) stretches 10 ms of work over several periods, where 200m runs it at once
     assert rows["200m"]["meanMillis"] >= 0.9 * WORK_MS, rows
     assert rows["50m"]["meanMillis"] > 3 * rows["200m"]["meanMillis"], rows
-    assert rows["200m"]["meanMillis"] <= rows["150m"]["meanMillis"] <= rows["50m"]["meanMillis"]
+    # the fitted limit lies between its measured neighbours (the robot is a 400m computer:
+    # its own quota per 10 ms slows 10 ms of work to ~25 ms whatever the pod's limit above it)
+    near = sorted([rows["100m"]["meanMillis"], rows["200m"]["meanMillis"]])
+    assert near[0] <= rows["150m"]["meanMillis"] <= near[1], rows
+    assert run["fitErrorPercent"] is not None and run["fitErrorPercent"] >= 0
     # the fleet waited for it, said so, and was planned with it
     waited = events(kube, ns, "ProfilingPending", FLEET)
     assert waited and "mapper on bed-robot" in waited[0]["message"], waited

@@ -254,8 +254,12 @@ def _step(
     wall_s = sum(m.wall_seconds for m in measured)
     message = (
         f"{len(limits)} Jobs at {', '.join(format_millicores(c) for c in limits)} "
-        f"({cpu_s:.1f} CPU-s) instead of {len(grid)}; fit t(c) = {fit.a_ms:.2f} ms + "
-        f"{fit.b_ms_cores:.2f} ms / c (c in cores), largest error {fit.error_percent:g} %"
+        f"({cpu_s:.1f} CPU-s) instead of {len(grid)}"
+        + (
+            f"; the middle limit predicted from the ends {fit.error_percent:g} % off"
+            if fit.error_percent is not None
+            else ""
+        )
     )
     new_run = ProfilingRun(
         hardware_type=hw,

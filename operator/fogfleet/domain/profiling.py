@@ -13,12 +13,15 @@ their geometric middle (three Jobs whatever the grid's size; every limit of a gr
 or fewer).
 
 **The fit.** With ``c`` cores a cycle of ``W`` CPU-seconds of single-threaded work takes
-about ``W / c`` (processor sharing, the simulator's job model, ``sim.engine``), and fixed costs
-add a constant: ``t(c) = a + b / c``, fitted by least squares in ``1 / c`` through the
-measured means (``a`` kept >= 0, ``b`` >= 0). A fitted row's spread keeps the measured rows'
-coefficient of variation. Measured rows are written as measured; the largest relative error
-of the fit on them is reported, so a module whose time does not follow the curve (CFS quota
-periods make it a staircase for short cycles) says so.
+about ``W / c`` (processor sharing, the simulator's job model, ``sim.engine``) plus fixed
+costs: a line in ``1 / c``. A real CPU limit is a CFS quota per 100 ms period, which makes it
+a staircase instead (10 ms of work takes ~10 ms at 100m, whose quota holds it, and ~185 ms at
+50m, measured on the bed), so one curve through the measured limits can be far off between
+them (a least-squares ``a + b / c`` was 228 % off at the bed's middle limit). The rows between
+two measured limits are therefore interpolated linearly in ``1 / c`` between those two (exact
+for ``a + b / c``, never beyond its neighbours for a staircase), their spread likewise;
+measured rows are written as measured. How far to trust the fitted rows is reported: the
+middle measured limit as the two ends predict it, against what it measured.
 """
 
 from __future__ import annotations
@@ -75,12 +78,9 @@ class Measurement:
 
 @dataclass(frozen=True)
 class Fit:
-    """``t(c) = a + b / c`` (ms, c in cores) and the rows it gives for a grid."""
+    """The rows of a grid, measured or interpolated, and how far interpolation is off."""
 
-    a_ms: float
-    b_ms_cores: float
-    cv: float  # fitted rows' std / mean
-    error_percent: float  # the largest relative error on the measured limits
+    error_percent: float | None  # the middle measured limit predicted from the ends (None: < 3)
     rows: tuple[ProfiledRow, ...]
 
 
@@ -160,53 +160,55 @@ def fit_profile(hardware_type: str, grid: Sequence[float], measured: Sequence[Me
     module docstring)."""
     if not measured:
         raise ValueError("nothing measured to fit")
-    xs = [1.0 / m.cpu for m in measured]
-    ys = [m.mean_ms for m in measured]
-    a, b = _least_squares(xs, ys)
-    total = sum(ys)
-    cv = sum(m.std_ms for m in measured) / total if total > 0 else 0.0
-    error = max(abs(a + b * x - y) / y for x, y in zip(xs, ys, strict=True) if y > 0) * 100
-    by_cpu = {round(m.cpu, 6): m for m in measured}
+    points = sorted(measured, key=lambda m: m.cpu)
+    by_cpu = {round(m.cpu, 6): m for m in points}
     rows: list[ProfiledRow] = []
     for cpu in sorted(set(grid) | set(by_cpu)):
         m = by_cpu.get(round(cpu, 6))
         if m is not None:
-            row = ProfiledRow(
-                hardware_type=hardware_type,
-                cpu=format_millicores(cpu),
-                mean_millis=round(m.mean_ms, 3),
-                std_millis=round(m.std_ms, 3),
-                source="measured",
-                cycles=m.cycles,
+            rows.append(
+                ProfiledRow(
+                    hardware_type=hardware_type,
+                    cpu=format_millicores(cpu),
+                    mean_millis=round(m.mean_ms, 3),
+                    std_millis=round(m.std_ms, 3),
+                    source="measured",
+                    cycles=m.cycles,
+                )
             )
-        else:
-            mean = a + b / cpu
-            row = ProfiledRow(
+            continue
+        mean, std = _between(points, cpu)
+        rows.append(
+            ProfiledRow(
                 hardware_type=hardware_type,
                 cpu=format_millicores(cpu),
                 mean_millis=round(mean, 3),
-                std_millis=round(mean * cv, 3),
+                std_millis=round(std, 3),
                 source="fitted",
             )
-        rows.append(row)
-    return Fit(a, b, cv, round(error, 2), tuple(rows))
+        )
+    error = None
+    if len(points) >= 3:
+        ends = [points[0], points[-1]]
+        error = max(
+            abs(_between(ends, m.cpu)[0] - m.mean_ms) / m.mean_ms * 100
+            for m in points[1:-1]
+            if m.mean_ms > 0
+        )
+    return Fit(None if error is None else round(error, 2), tuple(rows))
 
 
-def _least_squares(xs: Sequence[float], ys: Sequence[float]) -> tuple[float, float]:
-    """``y = a + b x`` with ``a, b >= 0`` (more CPU never slows a module down; no cycle takes
-    less than nothing)."""
-    n = len(xs)
-    if n == 1:
-        return 0.0, ys[0] / xs[0]  # one point: all of it the CPU-bound part
-    mx, my = sum(xs) / n, sum(ys) / n
-    var = sum((x - mx) ** 2 for x in xs)
-    b = sum((x - mx) * (y - my) for x, y in zip(xs, ys, strict=True)) / var if var > 0 else 0.0
-    a = my - b * mx
-    if b < 0:
-        return my, 0.0
-    if a < 0:  # through the origin
-        return 0.0, sum(x * y for x, y in zip(xs, ys, strict=True)) / sum(x * x for x in xs)
-    return a, b
+def _between(points: Sequence[Measurement], cpu: float) -> tuple[float, float]:
+    """Mean and std at ``cpu``, linear in ``1 / c`` between the measured neighbours of
+    ``points`` (sorted by CPU); the nearest end outside them."""
+    if cpu <= points[0].cpu:
+        return points[0].mean_ms, points[0].std_ms
+    if cpu >= points[-1].cpu:
+        return points[-1].mean_ms, points[-1].std_ms
+    hi = next(k for k, m in enumerate(points) if m.cpu >= cpu)
+    a, b = points[hi - 1], points[hi]
+    w = (1 / cpu - 1 / b.cpu) / (1 / a.cpu - 1 / b.cpu)  # 1 at a, 0 at b
+    return b.mean_ms + w * (a.mean_ms - b.mean_ms), b.std_ms + w * (a.std_ms - b.std_ms)
 
 
 def with_profiled_rows(

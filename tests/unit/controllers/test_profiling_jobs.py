@@ -98,6 +98,7 @@ def test_finished_jobs_give_the_profile_and_the_fleet_is_planned(auto: Any, deps
     (r,) = prof["runs"]
     assert r["state"] == "Profiled" and r["jobs"] == 3 and r["grid"] == 4
     assert r["cpuSeconds"] == pytest.approx(1.2) and r["fitErrorPercent"] == pytest.approx(0)
+    assert "predicted from the ends 0 % off" in r["message"]
     rows = {row["cpu"]: row for row in prof["rows"]}
     assert rows["2000m"]["source"] == "fitted"
     assert rows["2000m"]["meanMillis"] == pytest.approx(17.5)

@@ -73,11 +73,10 @@ def test_edge_cases_are_the_ends_and_the_geometric_middle() -> None:
     assert edge_cases([0.3, 0.1]) == [0.1, 0.3]  # a small grid is measured whole
 
 
-def test_a_curve_of_the_model_is_fitted_exactly_and_fills_the_grid() -> None:
-    # t(c) = 2 ms + 10 ms / c; spreads a tenth of the means
+def test_work_over_cpu_plus_a_constant_is_interpolated_exactly() -> None:
+    # t(c) = 2 ms + 10 ms / c, a line in 1/c; spreads a tenth of the means
     measured = [Measurement(c, 2 + 10 / c, (2 + 10 / c) / 10, 50) for c in (0.05, 0.2, 0.8)]
     fit = fit_profile("robot-x", [0.05, 0.1, 0.2, 0.4, 0.8], measured)
-    assert fit.a_ms == pytest.approx(2) and fit.b_ms_cores == pytest.approx(10)
     assert fit.error_percent == pytest.approx(0, abs=1e-6)
     rows = {r.cpu: r for r in fit.rows}
     assert [r.cpu for r in fit.rows] == ["50m", "100m", "200m", "400m", "800m"]
@@ -87,13 +86,20 @@ def test_a_curve_of_the_model_is_fitted_exactly_and_fills_the_grid() -> None:
     assert rows["50m"].source == "measured" and rows["50m"].cycles == 50
 
 
-def test_the_fit_never_has_more_cpu_slow_a_module_down_nor_a_negative_constant() -> None:
-    flat = fit_profile("x", [0.1, 0.2], [Measurement(0.1, 10, 1, 5), Measurement(0.2, 12, 1, 5)])
-    assert flat.b_ms_cores == 0 and flat.a_ms == pytest.approx(11)
-    # steeper than 1/c: the constant would be negative, so the curve goes through the origin
-    steep = fit_profile("x", [0.1, 0.4], [Measurement(0.1, 100, 1, 5), Measurement(0.4, 5, 1, 5)])
-    assert steep.a_ms == 0 and steep.b_ms_cores > 0
-    assert steep.error_percent > 10  # and it says how far off that is
+def test_a_quota_staircase_stays_between_its_neighbours_and_says_how_far_off_it_may_be() -> None:
+    # measured on the bed: 10 ms of CPU work at 50m, 100m and 200m (CFS quota per 100 ms)
+    measured = [
+        Measurement(0.05, 185, 32, 20),
+        Measurement(0.1, 24, 24, 20),
+        Measurement(0.2, 28, 6.5, 20),
+    ]
+    fit = fit_profile("bed-robot", [0.05, 0.1, 0.15, 0.2], measured)
+    mid = next(r for r in fit.rows if r.cpu == "150m")
+    assert mid.source == "fitted" and 24 <= mid.mean_millis <= 28
+    assert mid.mean_millis == pytest.approx(28 - (1 / 0.15 - 5) / 5 * 4, abs=1e-3)
+    # the ends predict 100m at 80 ms, it measured 24: the fitted rows are flagged as rough
+    assert fit.error_percent == pytest.approx((28 + 5 / 15 * 157 - 24) / 24 * 100, rel=1e-3)
+    assert fit_profile("x", [0.1, 0.2], measured[1:]).error_percent is None  # two: unknown
 
 
 def test_grid_keeps_the_limits_a_node_of_the_type_can_give() -> None:

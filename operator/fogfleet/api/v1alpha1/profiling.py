@@ -5,10 +5,10 @@ FogROS2-Config benchmarks a few edge-case machines and fits its latency model fr
 instead of benchmarking the whole grid; fogfleet does the same per hardware type: with
 ``profiling.mode: auto`` a fleet that needs the module on a hardware type without rows gets
 short profiling Jobs of the module's own container there, at the smallest, the largest and
-one middle CPU limit of ``profiling.cpus``, fits ``t(c) = a + b / c`` through what they
-measured and writes every limit of the grid to the module's ``status.profiled`` (measured
-rows as measured, the others fitted). The fleet is planned once every profile it needs is
-known and says what it waits for until then.
+one middle CPU limit of ``profiling.cpus``, interpolates the others between what they
+measured (``domain.profiling``) and writes every limit of the grid to the module's
+``status.profiling.rows`` (measured rows as measured, the others fitted). The fleet is
+planned once every profile it needs is known and says what it waits for until then.
 
 The module's container must support the profiling contract (the fogfleet workload does):
 with ``FOGFLEET_PROFILE_CYCLES=N`` it runs N cycles of its work alone, at its CPU limit, and
@@ -103,7 +103,8 @@ class ProfilingRun(FogModel):
     wall_seconds: float = 0
     """How long the Jobs ran, added up, in seconds."""
     fit_error_percent: float | None = None
-    """The fit's largest relative error on the measured limits, in percent."""
+    """How far the fitted rows may be off, in percent: the middle measured limit as the two
+    ends predict it, against what it measured (three limits or more)."""
     message: str = ""
     """What happened (the failure's reason)."""
     spec_hash: str
