@@ -153,6 +153,12 @@ KINDS: tuple[KindInfo, ...] = (
             {"name": "Instances", "type": "integer", "jsonPath": ".status.instances"},
             {"name": "Split", "type": "string", "jsonPath": ".status.split"},
             {"name": "Scope", "type": "string", "jsonPath": ".spec.scope", "priority": 1},
+            {
+                "name": "Profiling",
+                "type": "string",
+                "jsonPath": ".spec.profiling.mode",
+                "priority": 1,
+            },
             _AGE,
         ),
         rules={
