@@ -17,11 +17,12 @@ about ``W / c`` (processor sharing, the simulator's job model, ``sim.engine``) p
 costs: a line in ``1 / c``. A real CPU limit is a CFS quota per 100 ms period, which makes it
 a staircase instead (on the bed, 10 ms of work took 185 ms at 50m, whose 5 ms a period
 cannot hold it, and 24 ms at 100m, which can), so one curve through the measured limits can
-be far off between them (a least-squares ``a + b / c`` was 228 % off at the bed's middle limit). The rows between
-two measured limits are therefore interpolated linearly in ``1 / c`` between those two (exact
-for ``a + b / c``, never beyond its neighbours for a staircase), their spread likewise;
-measured rows are written as measured. How far to trust the fitted rows is reported: the
-middle measured limit as the two ends predict it, against what it measured.
+be far off between them (a least-squares ``a + b / c`` was 228 % off at the bed's middle
+limit). The rows between two measured limits are therefore interpolated linearly in ``1 / c``
+between those two (exact for ``a + b / c``, never beyond its neighbours for a staircase),
+their spread likewise; measured rows are written as measured. How far to trust the fitted
+rows is reported: the middle measured limit as the two ends predict it, against what it
+measured.
 """
 
 from __future__ import annotations
