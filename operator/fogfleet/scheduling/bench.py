@@ -115,7 +115,8 @@ def _best_on_front(problem: Problem, s: Schedule) -> float:
 def optimality_gap(
     seeds: Sequence[int] = (1, 2, 3, 4, 5), problem: Problem | None = None
 ) -> list[Row]:
-    """(a) nsga2 (default settings) vs the MILP optimum of S, one row per seed."""
+    """(a) nsga2 (default settings) vs the MILP optimum of S, one row per seed; beside it the
+    gap when every generation runs (``stallGenerations: 0``): what stopping early costs."""
     p = problem or warehouse_problem()
     t0 = time.perf_counter()
     ex = solve_exact(p)
@@ -125,6 +126,7 @@ def optimality_gap(
     for seed in seeds:
         s = plan(p, SchedulerSettings(seed=seed))
         best = _best_on_front(p, s)
+        every = _best_on_front(p, plan(p, SchedulerSettings(seed=seed, stall_generations=0)))
         rows.append(
             {
                 "bench": "gap",
@@ -135,6 +137,8 @@ def optimality_gap(
                 "chosen_S": round(scalarised(p, s.placement), 5),
                 "exact_S": round(opt, 5),
                 "gap_pct": round(100 * (best - opt) / opt, 2),
+                "generations": s.generations,
+                "gap_every_generation_pct": round(100 * (every - opt) / opt, 2),
                 "nsga2_s": round(s.duration_seconds, 2),
                 "exact_s": round(t_exact, 2),
             }
@@ -143,25 +147,28 @@ def optimality_gap(
 
 
 def decision_time(repeats: int = 5, robots: int = 100, edges: int = 40, seed: int = 1) -> list[Row]:
-    """(b) plan() wall time: warehouse (median of ``repeats``) and the synthetic fleet (once)."""
+    """(b) plan() wall time: the warehouse (median of ``repeats``) with the default stall rule
+    and with every generation run (``stallGenerations: 0``), interleaved so both see the same
+    machine; then the synthetic fleet (once)."""
     p = warehouse_problem()
-    times, feas = [], []
+    variants = {"default": None, "every generation": 0}
+    runs: dict[str, list[Schedule]] = {name: [] for name in variants}
     for _ in range(repeats):
-        s = plan(p, SchedulerSettings(seed=seed))
-        times.append(s.duration_seconds)
-        feas.append(s.feasible)
+        for name, stall in variants.items():
+            runs[name].append(plan(p, SchedulerSettings(seed=seed, stall_generations=stall)))
     rows: list[Row] = [
         {
             "bench": "time",
-            "fleet": p.fleet,
+            "fleet": f"{p.fleet} ({name})",
             "genes": p.n_instances,
             "nodes": p.n_nodes,
-            "median_s": round(statistics.median(times), 2),
+            "median_s": round(statistics.median(s.duration_seconds for s in done), 2),
             "runs": repeats,
-            "feasible": all(feas),
-            "generations": s.generations,
-            "missRate": s.objectives["missRate"],
+            "feasible": all(s.feasible for s in done),
+            "generations": done[-1].generations,
+            "missRate": done[-1].objectives["missRate"],
         }
+        for name, done in runs.items()
     ]
     cat, fleet = synthetic_fleet(robots, edges, seed)
     q = build_problem(fleet, cat)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import enum
 import time
 from collections.abc import Callable
 from dataclasses import replace
@@ -23,6 +24,7 @@ from .bookkeeping import (
     binary_tournament,
 )
 from .choice import choose, non_dominated
+from .convergence import StallWatch, stall_window
 from .degrade import degrade
 from .exact import scalarised, solve_exact
 from .local import pareto_local_search
@@ -47,6 +49,17 @@ LOCAL_SEARCH_FLOOR_SECONDS = 60.0
 __all__ = ["Progress", "choose_plan", "nsga2", "plan", "weights_of"]
 
 Progress = Callable[[int, int], None]
+
+
+class Stop(enum.Enum):
+    """Why the evolution ended."""
+
+    GENERATIONS = "generations"  # all of spec.scheduler.generations ran
+    BUDGET = "budget"  # the time budget cut it
+    STALLED = "stalled"  # converged: convergence.StallWatch
+    EXHAUSTIVE = "exhaustive"  # a small search space was enumerated instead
+
+
 I64 = NDArray[np.int64]
 
 
@@ -130,10 +143,10 @@ def nsga2(
         # loop would spin on duplicates), and the front is then exact.
         axes = [pp.table[g, : pp.counts[g]] for g in range(pp.n_var)]
         X = np.stack([a.ravel() for a in np.meshgrid(*axes, indexing="ij")], axis=1)
-        generations, n_eval = settings.generations, len(X)
+        generations, n_eval, stop = settings.generations, len(X), Stop.EXHAUSTIVE
         local_search = False
     else:
-        X, generations, n_eval = _evolve(pp, settings, paper, progress, t0, budget)
+        X, generations, n_eval, stop = _evolve(pp, settings, paper, progress, t0, budget)
     # objectives and constraints without any penalty, for an honest report
     clean = PlacementProblem(problem, names, with_limits=True)
     out: dict[str, NDArray[np.float64]] = {}
@@ -175,12 +188,19 @@ def nsga2(
         extra = dict(sched.reasons)
         extra[-1] = "no plan satisfies the capacity and uplink constraints"
         sched = replace(sched, reasons=extra)
-    if generations < settings.generations:
+    if stop is Stop.BUDGET:
         sched = replace(
             sched,
             choice_reason=sched.choice_reason
             + f" (time budget reached after {generations} generations; set generations: "
             f"{generations} to reproduce this plan)",
+        )
+    elif stop is Stop.STALLED:
+        sched = replace(
+            sched,
+            choice_reason=sched.choice_reason
+            + f" (converged after {generations} generations: the best plan had not improved"
+            f" in the last {stall_window(settings.stall_generations, pp.n_var)} generations)",
         )
     return replace(
         sched,
@@ -200,8 +220,10 @@ def _evolve(
     progress: Progress | None,
     t0: float,
     budget: float,
-) -> tuple[NDArray[np.int64], int, int]:
-    """Run NSGA-II; the final population's genes, generations run and evaluations."""
+) -> tuple[NDArray[np.int64], int, int, Stop]:
+    """Run NSGA-II; the final population's genes, generations run, evaluations and why it
+    stopped. fogfleet's configuration stops early once converged (``convergence``); the
+    paper's stand-in runs every generation."""
     mut = settings.mutation_percent / 100.0
     crossover = GeneCrossover("single_point" if paper else "uniform")
     mutation = GeneMutation(prob=1.0, per_gene=mut) if paper else GeneMutation(prob=mut)
@@ -222,16 +244,24 @@ def _evolve(
     algorithm.setup(
         pp, termination=("n_gen", settings.generations), seed=settings.seed, verbose=False
     )
-    generations = 0
+    watch = StallWatch(0 if paper else stall_window(settings.stall_generations, pp.n_var))
+    generations, stop = 0, Stop.GENERATIONS
     while algorithm.has_next():
         algorithm.next()
         generations = int(algorithm.n_gen) - 1 if algorithm.n_gen is not None else generations + 1
         if progress is not None:
             progress(generations, settings.generations)
-        if time.perf_counter() - t0 > budget:
+        if watch.window and generations < settings.generations:
+            pop = algorithm.pop
+            F = np.array([ind.F for ind in pop], dtype=np.float64)
+            if watch.update(F, np.array([ind.CV[0] for ind in pop], dtype=np.float64)):
+                stop = Stop.STALLED
+                break
+        if time.perf_counter() - t0 > budget and generations < settings.generations:
+            stop = Stop.BUDGET
             break
     X = np.asarray(algorithm.pop.get("X")).astype(np.int64)
-    return X, generations, int(algorithm.evaluator.n_eval)
+    return X, generations, int(algorithm.evaluator.n_eval), stop
 
 
 def choose_plan(

@@ -144,7 +144,12 @@ class SchedulerSettings(FogModel):
     population: Annotated[int, Field(ge=4, le=2000)] = 100
     """NSGA-II population size."""
     generations: Annotated[int, Field(ge=1, le=10000)] = 100
-    """NSGA-II generations (the time budget may stop it earlier)."""
+    """NSGA-II generations at most (convergence or the time budget may stop it earlier)."""
+    stall_generations: Annotated[int, Field(ge=0, le=10000)] | None = None
+    """The evolution stops once the population's best feasible plan (lexicographically, in
+    the order of objectives) has not improved for this many generations, and the local
+    search takes over. Unset: 10, or one per 10 genes for larger fleets. 0: run every
+    generation. Reads no clock: the same seed gives the same plan."""
     mutation_percent: Annotated[int, Field(ge=0, le=100)] = 30
     """Probability, in percent, that a child is mutated."""
     seed: Annotated[int, Field(ge=0)] = 1
