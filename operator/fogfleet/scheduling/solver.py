@@ -188,22 +188,15 @@ def nsga2(
         extra = dict(sched.reasons)
         extra[-1] = "no plan satisfies the capacity and uplink constraints"
         sched = replace(sched, reasons=extra)
-    if stop is Stop.BUDGET:
-        sched = replace(
-            sched,
-            choice_reason=sched.choice_reason
-            + f" (time budget reached after {generations} generations; set generations: "
-            f"{generations} to reproduce this plan)",
-        )
-    elif stop is Stop.STALLED:
-        sched = replace(
-            sched,
-            choice_reason=sched.choice_reason
-            + f" (converged after {generations} generations: the best plan had not improved"
-            f" in the last {stall_window(settings.stall_generations, pp.n_var)} generations)",
-        )
+    why_stopped = {
+        Stop.BUDGET: f" (time budget reached after {generations} generations; set generations: "
+        f"{generations} to reproduce this plan)",
+        Stop.STALLED: f" (converged after {generations} generations: the best plan had not "
+        f"improved in the last {stall_window(settings.stall_generations, pp.n_var)} generations)",
+    }.get(stop, "")
     return replace(
         sched,
+        choice_reason=sched.choice_reason + why_stopped,
         pareto_front=F[front],
         pareto_placements=full[front],
         objective_names=names,
