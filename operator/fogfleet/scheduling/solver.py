@@ -49,6 +49,7 @@ LOCAL_SEARCH_FLOOR_SECONDS = 60.0
 __all__ = ["Progress", "choose_plan", "nsga2", "plan", "weights_of"]
 
 Progress = Callable[[int, int], None]
+I64 = NDArray[np.int64]
 
 
 class Stop(enum.Enum):
@@ -58,9 +59,6 @@ class Stop(enum.Enum):
     BUDGET = "budget"  # the time budget cut it
     STALLED = "stalled"  # converged: convergence.StallWatch
     EXHAUSTIVE = "exhaustive"  # a small search space was enumerated instead
-
-
-I64 = NDArray[np.int64]
 
 
 def weights_of(settings: SchedulerSettings) -> dict[str, float]:
@@ -121,7 +119,8 @@ def nsga2(
     ``mutation_percent`` % of the offspring (1/G of their genes), duplicate elimination.
     ``paper=True`` is the stand-in for the paper's PyGAD setup: random sampling, no repair,
     single-point crossover, every gene mutated with p = mutation_percent %, constraints
-    only as a penalty on the objectives. The evolution stops after ``generations`` or once
+    only as a penalty on the objectives. The evolution stops after ``generations``, once
+    converged (``stall_generations``, ``convergence``; not the stand-in) or once
     ``time_budget_millis`` has passed (``Schedule.generations`` tells how many ran); the
     Pareto local search after it is bounded by work, so the same seed and the same number of
     generations give the same plan whatever the clock did (rerun with ``generations`` set to
