@@ -6,15 +6,15 @@ Pure functions of the plan and of what the cluster shows (Deployments and their 
 
 from __future__ import annotations
 
-import logging
 import math
 from collections.abc import Iterable, Mapping, Sequence
 from typing import Any
 
-from pydantic import BaseModel, ValidationError
+from pydantic import BaseModel
 
 from fogfleet.api.labels import LABEL_INSTANCE
 from fogfleet.api.timestamps import timestamp
+from fogfleet.api.v1alpha1.base import status_part
 from fogfleet.api.v1alpha1.softwaremodule import ScalingStatus
 from fogfleet.render.deployments import hash_annotation
 
@@ -35,21 +35,13 @@ __all__ = [
     "without_transition_times",
 ]
 
-log = logging.getLogger(__name__)
 Obj = dict[str, Any]
 
 
 def scaling_status(module: Mapping[str, Any]) -> ScalingStatus | None:
-    """The autoscaler's last decision on a SoftwareModule (``status.scaling``), the one way
-    every reader gets it; None when there is none or it is not in the shape we write."""
-    raw = (module.get("status") or {}).get("scaling")
-    if not raw:
-        return None
-    try:
-        return ScalingStatus.model_validate(raw)
-    except ValidationError:
-        log.warning("Ignored an unreadable status.scaling: %s", raw)
-        return None
+    """The autoscaler's last decision on a SoftwareModule (``status.scaling``); None when there
+    is none or it is not in the shape we write."""
+    return status_part(module, "scaling", ScalingStatus)
 
 
 def wire_keys(model: type[BaseModel]) -> tuple[str, ...]:

@@ -34,9 +34,7 @@ from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
-from pydantic import ValidationError
-
-from fogfleet.api.v1alpha1.base import parse_cpu
+from fogfleet.api.v1alpha1.base import parse_cpu, status_part
 from fogfleet.api.v1alpha1.common import Tier
 from fogfleet.api.v1alpha1.computenode import ComputeNode
 from fogfleet.api.v1alpha1.profiling import ProfiledRow, ProfilingStatus
@@ -249,13 +247,7 @@ def current_rows(
 
 def profiling_status(raw: Mapping[str, Any]) -> ProfilingStatus | None:
     """A SoftwareModule's ``status.profiling`` as the operator wrote it (else None)."""
-    data = (raw.get("status") or {}).get("profiling")
-    if not data:
-        return None
-    try:
-        return ProfilingStatus.model_validate(data)
-    except ValidationError:
-        return None
+    return status_part(raw, "profiling", ProfilingStatus)
 
 
 def with_profiled(module: SoftwareModule, raw: Mapping[str, Any]) -> SoftwareModule:

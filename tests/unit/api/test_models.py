@@ -397,3 +397,16 @@ def test_the_module_fallback_wins_over_the_fleets_and_only_eligible_modules_keep
     # a module that must run on board never runs elsewhere: nothing to fall back from
     critical = [m for m in mods.values() if m.taxonomy.safety.value == "critical"]
     assert critical and all(effective_fallback(m, spec) is None for m in critical)
+
+
+def test_a_status_part_is_read_back_as_its_model_or_none_with_a_warning(caplog) -> None:
+    from fogfleet.api.v1alpha1.base import status_part
+    from fogfleet.api.v1alpha1.profiling import ProfilingStatus
+
+    good = {"status": {"profiling": {"runs": [], "rows": []}}}
+    assert status_part(good, "profiling", ProfilingStatus) == ProfilingStatus()
+    assert status_part({}, "profiling", ProfilingStatus) is None
+    assert status_part({"status": None}, "profiling", ProfilingStatus) is None
+    bad = {"status": {"profiling": {"runs": "not a list"}}}
+    assert status_part(bad, "profiling", ProfilingStatus) is None
+    assert "unreadable status.profiling" in caplog.text

@@ -7,12 +7,14 @@ Conventions (STYLE.md): camelCase on the wire, unknown fields rejected, ints or 
 from __future__ import annotations
 
 import functools
+import logging
 import math
 import re
+from collections.abc import Mapping
 from decimal import Decimal, InvalidOperation
-from typing import Annotated, Any
+from typing import Annotated, Any, TypeVar
 
-from pydantic import BaseModel, BeforeValidator, ConfigDict, Field
+from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, ValidationError
 from pydantic.alias_generators import to_camel
 
 __all__ = [
@@ -28,7 +30,11 @@ __all__ = [
     "parse_memory",
     "parse_quantity",
     "refuse_duplicates",
+    "status_part",
 ]
+
+log = logging.getLogger(__name__)
+M = TypeVar("M", bound=BaseModel)
 
 
 class FogModel(BaseModel):
@@ -160,3 +166,16 @@ def refuse_duplicates(values: list[Any], field: str) -> None:
         seen.add(value)
     if dup:
         raise ValueError(f"{field}: {', '.join(sorted(dup))} listed more than once")
+
+
+def status_part(obj: Mapping[str, Any], key: str, model: type[M]) -> M | None:
+    """``status.<key>`` of an object the operator wrote, read back as ``model``: the one way
+    every reader gets it; None when there is none or it is not in the shape we write (logged)."""
+    raw = (obj.get("status") or {}).get(key)
+    if not raw:
+        return None
+    try:
+        return model.model_validate(raw)
+    except ValidationError:
+        log.warning("Ignored an unreadable status.%s: %s", key, raw)
+        return None
