@@ -22,9 +22,10 @@ from dataclasses import dataclass, replace
 from typing import Any
 
 from fogfleet.api.labels import LABEL_FLEET
-from fogfleet.api.loader import parse_object
+from fogfleet.api.loader import Catalog, parse_object
 from fogfleet.api.v1alpha1.common import Tier
 from fogfleet.api.v1alpha1.robotfleet import RobotFleet, SchedulerName
+from fogfleet.api.v1alpha1.softwaremodule import SoftwareModule
 from fogfleet.controllers.ros import apply_ros_wiring, is_ros_object
 from fogfleet.domain.build import build_problem
 from fogfleet.domain.fallback import fleet_fallbacks, variant_names
@@ -119,6 +120,15 @@ def _profiled(raw_modules: Iterable[Mapping[str, Any]]) -> tuple[tuple[str, str]
     )
 
 
+def _modules_in(catalog: Catalog, ns: str) -> dict[str, SoftwareModule]:
+    """The catalog's SoftwareModules of the fleet's namespace, by name."""
+    return {
+        m.metadata.name: m
+        for m in catalog.modules.values()
+        if (m.metadata.namespace or "default") == ns
+    }
+
+
 def _record_references(
     deps: Deps, key: FleetKey, fleet: RobotFleet, modules: set[str] | None = None
 ) -> None:
@@ -155,11 +165,7 @@ def _reconcile(
         return _finish(body, fleet, deps, last, deployments, False, old_status, generation)
     log.debug("RobotFleet %s/%s: inputs changed, full reconcile", ns, name)
     inputs = gather(fleet, compute_nodes, raw_modules, nodes)
-    modules = {
-        m.metadata.name: m
-        for m in inputs.catalog.modules.values()
-        if (m.metadata.namespace or "default") == ns
-    }
+    modules = _modules_in(inputs.catalog, ns)
     # the variants the fleet's standbys run: a change to one (or its creation) re-plans it
     wanted = {m.name for m in fleet.spec.modules} | variant_names(fleet.spec, modules)
     _record_references(deps, key, fleet, wanted)
@@ -173,11 +179,7 @@ def _reconcile(
     if recorded:  # the rows just written are part of the modules now
         learnt = (learnt[0], _profiled(raw_modules))
         inputs = gather(fleet, compute_nodes, raw_modules, nodes)
-        modules = {
-            m.metadata.name: m
-            for m in inputs.catalog.modules.values()
-            if (m.metadata.namespace or "default") == ns
-        }
+        modules = _modules_in(inputs.catalog, ns)
     problem = build_problem(
         fleet,
         inputs.catalog,
