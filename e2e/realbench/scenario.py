@@ -48,13 +48,16 @@ class Scenario:
         """The ComputeNodes (cluster-scoped; their names are the bed's real Nodes)."""
         return self.of_kind("ComputeNode")
 
-    def namespaced(self, namespace: str, scheduler: str) -> list[Obj]:
-        """The SoftwareModules and the RobotFleet in ``namespace``, planned by ``scheduler``."""
+    def namespaced(self, namespace: str, scheduler: str, drift: Obj | None = None) -> list[Obj]:
+        """The SoftwareModules and the RobotFleet in ``namespace``, planned by ``scheduler``
+        (with ``drift`` as its ``spec.drift``, if given)."""
         out = self.of_kind("SoftwareModule") + self.of_kind("RobotFleet")
         for d in out:
             d["metadata"]["namespace"] = namespace
             if d["kind"] == "RobotFleet":
                 d["spec"]["scheduler"]["algorithm"] = scheduler
+                if drift is not None:
+                    d["spec"]["drift"] = dict(drift)
         return out
 
     @property

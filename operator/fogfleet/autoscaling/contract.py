@@ -6,8 +6,8 @@ dashboard or an SLO written against one works against all three.
 ==================================  =========  =======================================  ==========
 metric                              type       labels                                   unit
 ==================================  =========  =======================================  ==========
-fogfleet_cycle_time_seconds         histogram  module, robot, tier                      seconds
-fogfleet_missed_cycles_total        counter    module, robot, tier                      cycles
+fogfleet_cycle_time_seconds         histogram  module, robot, tier, hardware_type, cpu  seconds
+fogfleet_missed_cycles_total        counter    module, robot, tier, hardware_type, cpu  cycles
 fogfleet_execution_time_seconds     histogram  module, robot, tier, hardware_type, cpu  seconds
 fogfleet_requests_served_total      counter    module, tier, privacy                    requests
 fogfleet_requests_rejected_total    counter    module, privacy, reason                  requests
@@ -21,7 +21,7 @@ of ``robot``, ``edge``, ``cloud``; ``privacy`` ``private`` or ``normal``; ``reas
 request was rejected) ``slo`` (no tier could meet its target) or ``capacity`` (no replica at
 all); ``state`` ``ready`` or ``starting``; ``hardware_type`` the node's hardware type and
 ``cpu`` the module's CPU limit in millicores (``100m``; empty without a limit), the key of
-the profile row the execution time belongs to. ``namespace`` and ``pod`` are added by Prometheus'
+the profile row the cycle belongs to. ``namespace`` and ``pod`` are added by Prometheus'
 Kubernetes service discovery, not by the exporter. ``module`` rather than ``service`` avoids
 the label the Prometheus Operator itself attaches to every target.
 

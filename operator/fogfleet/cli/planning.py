@@ -11,6 +11,7 @@ from typing import Any
 
 import numpy as np
 
+from fogfleet.domain.observed import Learnt
 from fogfleet.errors import InvalidSpec
 from fogfleet.scheduling.explain import degraded_message, infeasible_message, unplaced_reasons
 from fogfleet.scheduling.objectives import module_miss_rates
@@ -128,7 +129,7 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     catalog = catalog_of(args.paths)
     fleet = fleets_of(catalog, args.fleet)[0]
     problem = build_problem(fleet, catalog)
-    learnt: dict[tuple[str, str], tuple[float, float]] = {}
+    learnt: dict[tuple[str, str], tuple[Learnt, float]] = {}
     if args.from_prometheus:
         from .observed import describe, learnt_corrections
 

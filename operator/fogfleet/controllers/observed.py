@@ -4,15 +4,18 @@ Every ``period_seconds`` the operator reads, per namespace it planned fleets in:
 
 - each module's execution times by hardware type and CPU limit
   (``fogfleet_execution_time_seconds``: count, mean, 95th percentile over the fleet's
-  ``spec.drift.windowSeconds``) into the SoftwareModule's ``status.observed``;
+  ``spec.drift.windowSeconds``) and its cycles and misses there
+  (``fogfleet_cycle_time_seconds_count``, ``fogfleet_missed_cycles_total``) into the
+  SoftwareModule's ``status.observed``;
 - each fleet's measured miss rate per module (``fogfleet_missed_cycles_total`` over
   ``fogfleet_cycle_time_seconds_count`` of the fleet's pods) since its last plan, at most the
   window, against the plan's prediction (``domain.observed.drifting``).
 
 A module that drifts for ``forSeconds`` (and ``minIntervalSeconds`` after the fleet's last
 re-plan for drift) gets its ``status.profileCorrection`` from its observations
-(``domain.observed.correction``); the SoftwareModule's watch event re-plans every fleet that
-runs it, with its declared rows times the factor. The fleet says so in ``status.measured``,
+(``domain.observed.correction``: a factor and the cycle's noise, fitted around the fleet's
+plan); the SoftwareModule's watch event re-plans every fleet that runs it, with its declared
+rows so corrected. The fleet says so in ``status.measured``,
 its ``Drift`` condition and Events; the module in an Event of its own.
 """
 
@@ -27,12 +30,14 @@ from fogfleet import GROUP, VERSION
 from fogfleet.api.timestamps import timestamp
 from fogfleet.api.v1alpha1.base import parse_cpu
 from fogfleet.domain.observed import (
+    Learnt,
     ModuleDrift,
     Observation,
     correction,
     declared_row,
     drift_due,
     drifting,
+    timings,
 )
 from fogfleet.domain.pairs import profile_rows
 from fogfleet.errors import DependencyUnavailable, FogfleetError
@@ -43,6 +48,7 @@ from .links import SeriesPort
 __all__ = [
     "ObservedDeps",
     "declared_rows",
+    "describe",
     "observe",
     "profile_corrections",
     "read_observations",
@@ -61,6 +67,10 @@ EXEC_P95 = (
     "histogram_quantile(0.95, sum by (le, {by}) "
     '(increase(fogfleet_execution_time_seconds_bucket{{namespace="{ns}"}}[{w}s])))'
 )
+CYCLE_COUNT = (
+    'sum by ({by}) (increase(fogfleet_cycle_time_seconds_count{{namespace="{ns}"}}[{w}s]))'
+)
+CYCLE_MISSED = 'sum by ({by}) (increase(fogfleet_missed_cycles_total{{namespace="{ns}"}}[{w}s]))'
 _PODS = 'namespace="{ns}",pod=~"{fleet}-.*"'
 MISSED = "sum by (module) (increase(fogfleet_missed_cycles_total{{" + _PODS + "}}[{w}s]))"
 CYCLES = "sum by (module) (increase(fogfleet_cycle_time_seconds_count{{" + _PODS + "}}[{w}s]))"
@@ -113,6 +123,8 @@ def read_observations(prometheus: SeriesPort, ns: str, window: int) -> dict[str,
     counts = by_key(EXEC_COUNT.format(**args))
     sums = by_key(EXEC_SUM.format(**args))
     p95s = by_key(EXEC_P95.format(**args))
+    cycles = by_key(CYCLE_COUNT.format(**args))
+    missed = by_key(CYCLE_MISSED.format(**args))
     out: dict[str, list[Observation]] = {}
     for (module, hw, cpu), n in sorted(counts.items()):
         if n < 1 or not module or not hw or (module, hw, cpu) not in sums:
@@ -126,6 +138,8 @@ def read_observations(prometheus: SeriesPort, ns: str, window: int) -> dict[str,
                 n,
                 mean,
                 p95s.get((module, hw, cpu), mean),
+                cycles.get((module, hw, cpu), 0.0),
+                missed.get((module, hw, cpu), 0.0),
             )
         )
     return out
@@ -161,6 +175,9 @@ def _write_observed(
                 "p95Millis": round(obs.p95 * 1e3, 2),
                 "lastUpdate": timestamp(now),
             }
+            if obs.cycles >= 1:
+                entry["cycles"] = round(obs.cycles, 1)
+                entry["missedPercent"] = round(100 * obs.missed / obs.cycles, 2)
             if row is not None:
                 got = declared_row(row, obs.cpu)
                 if got is not None:
@@ -256,8 +273,13 @@ def _adopt(
         obs = observations.get(name, [])
         if raw is None or not obs:
             continue
+        timing = (
+            timings(rendered.problem, rendered.plan.placement, name)
+            if rendered.plan is not None
+            else {}
+        )
         factors = correction(
-            obs, declared_rows(raw, rendered.hardware), rendered.drift.prior_cycles
+            obs, declared_rows(raw, rendered.hardware), rendered.drift.prior_cycles, timing
         )
         if not factors:
             continue
@@ -270,10 +292,11 @@ def _adopt(
             c.get("hardwareType"): c
             for c in ((raw.get("status") or {}).get("profileCorrection") or [])
         }
-        for hw, (factor, n) in factors.items():
+        for hw, (learnt, n) in factors.items():
             old[hw] = {
                 "hardwareType": hw,
-                "factor": round(factor, 4),
+                "factor": round(learnt.factor, 4),
+                "noiseMillis": round(learnt.noise * 1e3, 2),
                 "samples": round(n, 1),
                 "adoptedAt": timestamp(now),
                 "reason": why,
@@ -286,7 +309,7 @@ def _adopt(
                 "Writing SoftwareModule %s/%s profileCorrection failed: %s", key[0], name, exc
             )
             continue
-        text = ", ".join(f"{hw} x{f:.2f} ({n:.0f} cycles)" for hw, (f, n) in factors.items())
+        text = ", ".join(describe(hw, got, n) for hw, (got, n) in factors.items())
         involved = {**raw, "apiVersion": f"{GROUP}/{VERSION}", "kind": "SoftwareModule"}
         deps.kube.emit_event(
             involved, "Warning", "ProfileCorrected", f"{why}: re-planned with its profile {text}"
@@ -310,18 +333,25 @@ def _escape(text: str) -> str:
     return text.replace(".", "\\\\.")
 
 
-def profile_corrections(modules: Iterable[Mapping[str, Any]]) -> dict[tuple[str, str], float]:
-    """(module, hardware type) -> factor, from the SoftwareModules' status.profileCorrection
-    (as the API server sends them); malformed entries are ignored."""
-    out: dict[tuple[str, str], float] = {}
+def describe(hardware_type: str, learnt: Learnt, cycles: float) -> str:
+    """One correction as the Events and the CLI say it."""
+    noise = f" + {learnt.noise * 1e3:.1f} ms noise" if learnt.noise > 0 else ""
+    return f"{hardware_type} x{learnt.factor:.2f}{noise} ({cycles:.0f} cycles)"
+
+
+def profile_corrections(modules: Iterable[Mapping[str, Any]]) -> dict[tuple[str, str], Learnt]:
+    """(module, hardware type) -> its correction, from the SoftwareModules'
+    status.profileCorrection (as the API server sends them); malformed entries are ignored."""
+    out: dict[tuple[str, str], Learnt] = {}
     for raw in modules:
         name = str((raw.get("metadata") or {}).get("name", ""))
         for entry in (raw.get("status") or {}).get("profileCorrection") or []:
             try:
                 factor = float(entry["factor"])
+                noise = float(entry.get("noiseMillis", 0.0)) / 1e3
                 hw = str(entry["hardwareType"])
-            except (KeyError, TypeError, ValueError):
+            except (AttributeError, KeyError, TypeError, ValueError):
                 continue
-            if factor > 0 and hw:
-                out[(name, hw)] = factor
+            if factor > 0 and noise >= 0 and hw:
+                out[(name, hw)] = Learnt(factor, noise)
     return out

@@ -19,6 +19,7 @@ from fogfleet.errors import DanglingReference, InvalidSpec
 
 from .fallback import standbys
 from .network import Link, uplink
+from .observed import Learnt
 from .pairs import Block, Pair, PairTable, ProfileRow, pad_rungs
 from .problem import (
     TIER_CODE,
@@ -131,7 +132,7 @@ def build_problem(
     current: dict[tuple[str, str, int], str] | None = None,
     pools: Mapping[str, Mapping[str, int]] | None = None,
     measured_links: Mapping[str, Link] | None = None,
-    corrections: Mapping[tuple[str, str], float] | None = None,
+    corrections: Mapping[tuple[str, str], Learnt] | None = None,
 ) -> Problem:
     """Resolve a fleet against the catalog into a Problem.
 
@@ -141,9 +142,9 @@ def build_problem(
     such a module may then only run on nodes of the tier it was counted for (edge replicas
     first, then cloud), which is how privacy-constrained pools stay on the edge.
     ``measured_links`` replaces the declared uplink of the ComputeNodes it names (a robot's
-    link measured worse than declared, ``domain.linkhealth``). ``corrections`` multiplies the
-    declared profile rows of a (module, hardware type) (learnt from what ran,
-    ``domain.observed``)."""
+    link measured worse than declared, ``domain.linkhealth``). ``corrections`` corrects the
+    declared profile rows of a (module, hardware type) (learnt from what ran: a factor and the
+    cycle's noise, ``domain.observed``)."""
     obj = f"RobotFleet/{fleet.metadata.name}"
     namespace = fleet.metadata.namespace or "default"
     robots, others = resolve_nodes(fleet, catalog)

@@ -14,7 +14,7 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -27,6 +27,9 @@ from fogfleet.api.v1alpha1.softwaremodule import SoftwareModule, auto_profiled
 from .network import LOCAL, Link, path
 from .problem import EXEC_SHARE_OF_CYCLE
 from .taxonomy import may_degrade, must_stay_onboard
+
+if TYPE_CHECKING:
+    from .observed import Learnt
 
 __all__ = ["Block", "Pair", "PairTable", "ProfileRow", "pad_rungs", "profile_rows"]
 
@@ -119,12 +122,12 @@ class PairTable:
         nodes: Sequence[ComputeNode],
         caps: F64,
         links: Sequence[Link],
-        corrections: Mapping[tuple[str, str], float] | None = None,
+        corrections: Mapping[tuple[str, str], Learnt] | None = None,
     ) -> None:
         self.nodes = nodes
         self.caps = caps
         self.links = links
-        # (module, hardware type) -> factor on the declared rows (domain.observed)
+        # (module, hardware type) -> the correction of the declared rows (domain.observed)
         self.corrections = corrections or {}
         self._profiles: dict[tuple[int, str, Any], list[ProfileRow]] = {}
         self._transfers: dict[tuple[int, Link], tuple[float, float, float]] = {}
@@ -168,9 +171,9 @@ class PairTable:
         key = (id(mod), ns.hardware_type, ns.speed_factor)
         if key not in self._profiles:
             rows = profile_rows(mod, nd)
-            k = self.corrections.get((mod.metadata.name, ns.hardware_type), 1.0)
-            if k != 1.0:  # learnt from what ran (issue 10)
-                rows = [ProfileRow(r.cpu, r.mean * k, r.std * k) for r in rows]
+            learnt = self.corrections.get((mod.metadata.name, ns.hardware_type))
+            if learnt is not None:  # learnt from what ran (issue 10)
+                rows = [learnt.row(r) for r in rows]
             self._profiles[key] = rows
         rows = [r for r in self._profiles[key] if r.cpu <= self.caps[j, 0] + 1e-9]
         if not rows:

@@ -21,6 +21,8 @@ class FakePrometheus:
         self.exec: dict[tuple[str, str, str], tuple[float, float]] = {}  # -> (count, mean s)
         self.cycles: dict[str, float] = {}
         self.missed: dict[str, float] = {}
+        # cycles and misses by (module, hw, cpu): what the cycle's noise is fitted to
+        self.cycles_by: dict[tuple[str, str, str], tuple[float, float]] = {}
         self.queries: list[str] = []
         self.down = False
 
@@ -40,6 +42,10 @@ class FakePrometheus:
             return [(labelled(k), n * m) for k, (n, m) in self.exec.items()]
         if "execution_time_seconds_bucket" in promql:
             return [(labelled(k), 1.2 * m) for k, (_, m) in self.exec.items()]
+        if "hardware_type" in promql and "missed_cycles_total" in promql:
+            return [(labelled(k), missed) for k, (_, missed) in self.cycles_by.items()]
+        if "hardware_type" in promql and "cycle_time_seconds_count" in promql:
+            return [(labelled(k), n) for k, (n, _) in self.cycles_by.items()]
         if "missed_cycles_total" in promql:
             return [({"module": m}, v) for m, v in self.missed.items()]
         if "cycle_time_seconds_count" in promql:
@@ -170,3 +176,33 @@ def test_a_fleet_without_drift_detection_is_not_read(kube, deps, prom) -> None:
     run(kube, deps)
     assert observe(deps, ObservedDeps(prom), 0.0) == set() and prom.queries == []
     assert "Drift" not in {c["type"] for c in status(kube)["conditions"]}
+
+
+def test_misses_beside_a_work_as_declared_teach_the_cycles_noise(kube, deps, prom) -> None:
+    """The work takes what it was declared to, yet 20 % of the cycles miss: the correction
+    keeps the factor near 1, learns the noise, and the re-plan leaves the module room."""
+    run(kube, deps)
+    node, cpu = where(kube)
+    hw = kube.compute_nodes[node]["spec"]["hardwareType"]
+    mean = declared_mean(kube, deps, node, cpu)
+    od = ObservedDeps(prom)
+    observe(deps, od, 0.0)
+    prom.exec[(MODULE, hw, cpu)] = (2000.0, mean)
+    prom.cycles_by[(MODULE, hw, cpu)] = (2000.0, 400.0)
+    prom.cycles, prom.missed = {MODULE: 2000.0}, {MODULE: 400.0}
+    observe(deps, od, 100.0)
+    (row,) = kube.modules[("warehouse", MODULE)]["status"]["observed"]
+    assert (row["cycles"], row["missedPercent"]) == (2000.0, 20.0)
+    before = deps.rendered[KEY].problem
+    observe(deps, od, 170.0)
+    (fix,) = kube.modules[("warehouse", MODULE)]["status"]["profileCorrection"]
+    assert fix["factor"] == pytest.approx(1.0, abs=1e-3)
+    assert fix["noiseMillis"] > 1.0
+    assert "ms noise" in next(e for e in kube.events if e[1] == "ProfileCorrected")[2]
+    run(kube, deps)
+    after = deps.rendered[KEY].problem
+    mine = [i for i, inst in enumerate(after.instances) if inst.module == MODULE]
+    h = [j for j, n in enumerate(after.nodes) if n.hardware_type == hw]
+    # every row of the type now has the noise in its std, so the model predicts misses there
+    grew = after.limits.exe_std[mine][:, h] > before.limits.exe_std[mine][:, h]
+    assert grew[after.allowed[mine][:, h]].all()

@@ -10,13 +10,18 @@ import pytest
 from fogfleet.api.loader import load_paths
 from fogfleet.domain.build import build_problem
 from fogfleet.domain.observed import (
+    Learnt,
     Observation,
+    Timing,
     correction,
+    cycle_noise,
     declared_row,
     drift_due,
     drifting,
+    timings,
 )
 from fogfleet.domain.pairs import ProfileRow
+from fogfleet.scheduling.evaluation import miss_probability
 
 ROWS = [ProfileRow(0.1, 0.040, 0.004), ProfileRow(0.2, 0.020, 0.002)]
 WAREHOUSE = Path(__file__).resolve().parents[3] / "manifests" / "examples" / "warehouse"
@@ -43,10 +48,11 @@ def test_the_correction_blends_measured_over_declared_with_the_prior_by_count() 
     declared = {"robot-nuc": ROWS}
     # 300 cycles at 100m took 120 ms against 40 ms declared: 3x; prior 100 cycles of 1x
     got = correction([obs(0.1, 300, 0.120)], declared, prior=100)
-    assert got["robot-nuc"] == pytest.approx(((100 + 300 * 3) / 400, 300))
+    assert got["robot-nuc"][0].factor == pytest.approx((100 + 300 * 3) / 400)
+    assert got["robot-nuc"][1] == 300
     # two rows, each against its own declared mean, weighted by their counts
     got = correction([obs(0.1, 100, 0.080), obs(0.2, 300, 0.060)], declared, prior=0)
-    assert got["robot-nuc"][0] == pytest.approx((100 * 2 + 300 * 3) / 400)
+    assert got["robot-nuc"][0].factor == pytest.approx((100 * 2 + 300 * 3) / 400)
     # no prior and no measure: nothing; a type without declared rows: nothing
     assert correction([], declared, prior=100) == {}
     assert correction([obs(0.1, 50, 0.1, hw="other")], declared, prior=100) == {}
@@ -55,7 +61,7 @@ def test_the_correction_blends_measured_over_declared_with_the_prior_by_count() 
 def test_a_large_prior_keeps_the_declared_profile_until_many_cycles_say_otherwise() -> None:
     few = correction([obs(0.1, 10, 0.120)], {"robot-nuc": ROWS}, prior=1000)
     many = correction([obs(0.1, 100000, 0.120)], {"robot-nuc": ROWS}, prior=1000)
-    assert few["robot-nuc"][0] < 1.05 and many["robot-nuc"][0] > 2.9
+    assert few["robot-nuc"][0].factor < 1.05 and many["robot-nuc"][0].factor > 2.9
 
 
 def test_drift_is_a_miss_rate_above_the_prediction_by_the_margin() -> None:
@@ -77,7 +83,7 @@ def test_the_planner_runs_the_declared_rows_times_the_correction() -> None:
     plain = build_problem(fleet, catalog)
     module = plain.instances[0].module
     hw = plain.nodes[int(plain.home[0])].hardware_type
-    slow = build_problem(fleet, catalog, corrections={(module, hw): 3.0})
+    slow = build_problem(fleet, catalog, corrections={(module, hw): Learnt(3.0)})
     rows = [i for i, inst in enumerate(plain.instances) if inst.module == module]
     i = rows[0]
     h = int(plain.home[i])
@@ -90,3 +96,92 @@ def test_the_planner_runs_the_declared_rows_times_the_correction() -> None:
     assert np.array_equal(plain.limits.exe_mean[same], slow.limits.exe_mean[same])
     edges = np.flatnonzero(plain.tier == 1)
     assert np.array_equal(plain.nominal.exe_mean[i, edges], slow.nominal.exe_mean[i, edges])
+
+
+# -- the cycle's noise ------------------------------------------------------------------------
+
+CONTROLLER = Timing(cycle=0.033)  # a 30 Hz loop whose inputs come from its own node
+ROW_67M = ProfileRow(0.067, 0.023, 0.002)  # 23 ms of work at 67m: 10 ms of slack
+
+
+def model_miss(timing: Timing, row: ProfileRow) -> float:
+    """The planner's miss probability of one cycle (III-D), as ``Evaluation`` computes it."""
+    mean = np.array([timing.net_mean + row.mean])
+    std = np.array([np.hypot(row.std, timing.net_std)])
+    return float(miss_probability(mean, std, np.array([timing.cycle]))[0])
+
+
+def test_the_noise_makes_the_models_tail_the_measured_share_of_misses() -> None:
+    # the model predicts no misses with 5 std of slack; 9 % missed on the bed
+    assert model_miss(CONTROLLER, ROW_67M) < 1e-6
+    sigma = cycle_noise(0.09, CONTROLLER, ROW_67M)
+    assert sigma is not None and 0.005 < sigma < 0.010
+    noisy = Learnt(1.0, sigma)
+    assert model_miss(CONTROLLER, noisy.row(ROW_67M)) == pytest.approx(0.09, rel=1e-6)
+    # with a transfer around the work, the same share leaves less room for noise
+    remote = Timing(0.033, net_mean=0.004, net_std=0.001)
+    far = cycle_noise(0.09, remote, ROW_67M)
+    assert far is not None and far < sigma
+    assert model_miss(remote, Learnt(1.0, far).row(ROW_67M)) == pytest.approx(0.09, rel=1e-6)
+
+
+def test_the_noise_is_none_where_the_misses_say_nothing_about_it() -> None:
+    assert cycle_noise(0.0, CONTROLLER, ROW_67M) == 0.0  # never missed: no noise
+    # a row the model already predicts to miss this often needs no noise
+    assert cycle_noise(1e-9, CONTROLLER, ROW_67M) == 0.0
+    # the mean reaches the deadline, or half the cycles miss: the factor's work, not noise
+    assert cycle_noise(0.2, CONTROLLER, ProfileRow(0.033, 0.040, 0.004)) is None
+    assert cycle_noise(0.6, CONTROLLER, ROW_67M) is None
+
+
+def test_the_noise_blends_with_the_prior_and_moves_the_pick_to_more_cpu() -> None:
+    declared = {"bed-robot": [ROW_67M, ProfileRow(0.133, 0.013, 0.001)]}
+    missing = Observation("m", "bed-robot", 0.067, 5400, 0.023, 0.026, 5400, 486)  # 9 %
+    ((learnt, n),) = correction([missing], declared, 100, {"bed-robot": CONTROLLER}).values()
+    alone = cycle_noise(0.09, CONTROLLER, ROW_67M)
+    assert alone is not None and n == 5400
+    assert learnt.factor == pytest.approx(1.0)  # the work took what it was declared to
+    assert learnt.noise == pytest.approx(alone * np.sqrt(5400 / 5500))
+    # without the plan's timing the noise is not learnt
+    ((plain, _),) = correction([missing], declared, 100).values()
+    assert plain.noise == 0.0
+    # the planner's rule (pairs.PairTable: the smallest CPU whose mean + 2 std fits 90 % of
+    # the cycle) keeps 67m as declared and takes 133m once the noise is known
+    budget = 0.9 * CONTROLLER.cycle
+
+    def pick(rows: list[ProfileRow]) -> float:
+        return next(r.cpu for r in rows if r.mean + 2 * r.std <= budget)
+
+    assert pick(declared["bed-robot"]) == 0.067
+    assert pick([learnt.row(r) for r in declared["bed-robot"]]) == 0.133
+
+
+def test_timings_are_the_plans_cycle_and_transfer_per_hardware_type() -> None:
+    catalog = load_paths([WAREHOUSE])
+    (fleet,) = catalog.fleets
+    problem = build_problem(fleet, catalog)
+    module = problem.instances[0].module
+    placement = np.where(problem.home >= 0, problem.home, -1)
+    got = timings(problem, placement, module)
+    hw = problem.nodes[int(problem.home[0])].hardware_type
+    assert list(got) == [hw]
+    assert got[hw].cycle == pytest.approx(float(problem.cycle[0]))
+    mine = [k for k, inst in enumerate(problem.instances) if inst.module == module]
+    local = problem.net_mean[mine, problem.home[mine]]
+    assert got[hw].net_mean == pytest.approx(float(np.mean(local)))
+    assert got[hw].net_mean < 0.001  # on its own robot: a local transfer
+    assert timings(problem, np.full_like(placement, -1), module) == {}
+
+
+def test_the_planner_adds_the_noise_to_every_row_of_its_hardware_type() -> None:
+    catalog = load_paths([WAREHOUSE])
+    (fleet,) = catalog.fleets
+    plain = build_problem(fleet, catalog)
+    i = 0
+    h = int(plain.home[i])
+    module, hw = plain.instances[i].module, plain.nodes[h].hardware_type
+    noisy = build_problem(fleet, catalog, corrections={(module, hw): Learnt(1.0, 0.005)})
+    assert noisy.nominal.exe_mean[i, h] == pytest.approx(plain.nominal.exe_mean[i, h])
+    assert noisy.nominal.exe_std[i, h] == pytest.approx(
+        np.hypot(plain.nominal.exe_std[i, h], 0.005)
+    )

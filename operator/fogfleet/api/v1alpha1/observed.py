@@ -5,8 +5,8 @@ The declared profile (``SoftwareModule.spec.profile``) is the prior. The operato
 module's measured execution times from Prometheus (``fogfleet_execution_time_seconds`` by
 hardware type and CPU limit) into ``status.observed``. When a fleet's modules miss more
 cycles than its plan predicted (``spec.drift``), the operator blends the observations into a
-correction factor per hardware type (``status.profileCorrection``) and the fleet is planned
-with the declared rows times that factor.
+correction per hardware type (``status.profileCorrection``: a factor on the execution times
+and the cycle's noise) and the fleet is planned with the declared rows so corrected.
 """
 
 from __future__ import annotations
@@ -57,6 +57,10 @@ class ObservedRow(FogModel):
     """95th percentile, in milliseconds (from the histogram's buckets)."""
     declared_mean_millis: float | None = None
     """The declared profile's mean for this hardware type and CPU, in milliseconds."""
+    cycles: float | None = None
+    """Cycles the module ran here in the window (its work and everything around it)."""
+    missed_percent: float | None = None
+    """Share of those cycles longer than the module's cycle time, in percent."""
     last_update: str
     """When it was measured (RFC 3339)."""
 
@@ -68,6 +72,11 @@ class ProfileCorrection(FogModel):
     """The hardware type."""
     factor: float
     """Measured over declared execution time, blended with the prior (1: as declared)."""
+    noise_millis: float = 0.0
+    """Standard deviation of what a cycle takes besides its work and transfer (wake-ups,
+    middleware, the node's other processes), in milliseconds: fitted so that the planner's
+    normal tail at the deadline matches the measured miss rate, blended with the prior (0),
+    and added to every row's std on this hardware type."""
     samples: float
     """Measured cycles behind it."""
     adopted_at: str
