@@ -14,9 +14,10 @@ Every ``period_seconds`` the operator reads, per namespace it planned fleets in:
 A module that drifts for ``forSeconds`` (and ``minIntervalSeconds`` after the fleet's last
 re-plan for drift) gets its ``status.profileCorrection`` from its observations
 (``domain.observed.correction``: a factor and the cycle's noise, fitted around the fleet's
-plan); the SoftwareModule's watch event re-plans every fleet that runs it, with its declared
-rows so corrected. The fleet says so in ``status.measured``,
-its ``Drift`` condition and Events; the module in an Event of its own.
+plan); so do the fleet's other measured modules, since it re-plans anyway. The
+SoftwareModule's watch event re-plans every fleet that runs it, with its declared rows so
+corrected. The fleet says so in ``status.measured``, its ``Drift`` condition and Events; each
+module in an Event of its own.
 """
 
 from __future__ import annotations
@@ -264,11 +265,15 @@ def _adopt(
     observations: Mapping[str, list[Observation]],
     now: float,
 ) -> bool:
-    """Write the drifting modules' corrections (their watch events re-plan the fleets)."""
+    """Write the corrections of the drifting ``modules`` (their watch events re-plan the
+    fleets) and, since the fleet re-plans anyway, of its other measured modules: one drift
+    re-plan per ``minIntervalSeconds`` learns all that was measured, not the first module to
+    drift alone (a module missing a little less would wait out the interval)."""
     assert rendered.drift is not None
     raws = {str(m["metadata"]["name"]): m for m in deps.kube.list_modules(key[0])}
     adopted = False
-    for name in modules:
+    others = [m for m in sorted(states) if m not in modules]
+    for name in [*modules, *others]:
         raw = raws.get(name)
         obs = observations.get(name, [])
         if raw is None or not obs:
@@ -288,6 +293,8 @@ def _adopt(
             f"RobotFleet {key[1]} measured {name} missing {(d.measured or 0) * 100:.1f}% of its "
             f"cycles, predicted {d.predicted * 100:.1f}%"
         )
+        if name not in modules:
+            why += f" (re-planned for the drift of {', '.join(modules)})"
         old = {
             c.get("hardwareType"): c
             for c in ((raw.get("status") or {}).get("profileCorrection") or [])
@@ -315,7 +322,7 @@ def _adopt(
             involved, "Warning", "ProfileCorrected", f"{why}: re-planned with its profile {text}"
         )
         log.info("SoftwareModule %s/%s: profile corrected (%s): %s", key[0], name, text, why)
-        adopted = True
+        adopted = adopted or name in modules
     return adopted
 
 

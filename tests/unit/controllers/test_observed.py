@@ -70,8 +70,8 @@ def cond(kube: Any, type_: str) -> dict[str, Any]:
     return next(c for c in status(kube)["conditions"] if c["type"] == type_)
 
 
-def where(kube: Any, robot: str = "robot-1") -> tuple[str, str]:
-    p = next(p for p in status(kube)["placement"] if p["robot"] == robot and p["module"] == MODULE)
+def where(kube: Any, robot: str = "robot-1", module: str = MODULE) -> tuple[str, str]:
+    p = next(p for p in status(kube)["placement"] if p["robot"] == robot and p["module"] == module)
     return p["node"], p["cpu"]
 
 
@@ -163,6 +163,8 @@ def test_measures_within_the_margin_are_as_predicted(kube, deps, prom) -> None:
     observe(deps, od, 100.0)
     run(kube, deps)
     assert cond(kube, "Drift")["reason"] == "AsPredicted"
+    observe(deps, od, 200.0)  # however long it lasts: nothing is learnt without drift
+    assert "profileCorrection" not in kube.modules[("warehouse", MODULE)].get("status", {})
 
 
 def test_prometheus_down_changes_nothing(kube, deps, prom) -> None:
@@ -206,3 +208,25 @@ def test_misses_beside_a_work_as_declared_teach_the_cycles_noise(kube, deps, pro
     # every row of the type now has the noise in its std, so the model predicts misses there
     grew = after.limits.exe_std[mine][:, h] > before.limits.exe_std[mine][:, h]
     assert grew[after.allowed[mine][:, h]].all()
+
+
+def test_a_re_plan_for_drift_learns_every_measured_module_of_the_fleet(kube, deps, prom) -> None:
+    """One module drifts; another misses 3 % (inside the margin). The re-plan for the first
+    learns the second's noise too instead of leaving it to wait out minIntervalSeconds."""
+    run(kube, deps)
+    od = ObservedDeps(prom)
+    observe(deps, od, 0.0)
+    for module, share in ((MODULE, 0.5), ("nav-controller", 0.03)):
+        node, cpu = where(kube, module=module)
+        hw = kube.compute_nodes[node]["spec"]["hardwareType"]
+        mean = 0.001  # far inside any cycle: misses beside the work
+        prom.exec[(module, hw, cpu)] = (2000.0, mean)
+        prom.cycles_by[(module, hw, cpu)] = (2000.0, 2000.0 * share)
+        prom.cycles[module], prom.missed[module] = 2000.0, 2000.0 * share
+    observe(deps, od, 100.0)
+    observe(deps, od, 170.0)
+    (fix,) = kube.modules[("warehouse", "nav-controller")]["status"]["profileCorrection"]
+    assert fix["noiseMillis"] > 0
+    assert "re-planned for the drift of nav-localization" in fix["reason"]
+    (own,) = kube.modules[("warehouse", MODULE)]["status"]["profileCorrection"]
+    assert "re-planned for" not in own["reason"]
