@@ -35,7 +35,7 @@ import secrets
 import sys
 import tempfile
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -277,9 +277,17 @@ class _ComputeNodes:
 
 
 def run_bench(
-    kube: Kube, cluster: harness.Cluster, cfg: BenchConfig, workdir: Path
+    kube: Kube,
+    cluster: harness.Cluster,
+    cfg: BenchConfig,
+    workdir: Path,
+    failures: list[str] | None = None,
+    on_run: Callable[[list[RunResult]], None] | None = None,
 ) -> list[RunResult]:
-    """Every run of the benchmark on a running bed (the operator is started and stopped here)."""
+    """Every run of the benchmark on a running bed (the operator is started and stopped here).
+
+    A run that times out is logged, added to ``failures`` (when given; else it ends the
+    benchmark) and the next one goes on; ``on_run`` sees the results after every run."""
     scenario = Scenario()
     missing = {n["metadata"]["name"] for n in scenario.nodes()} - set(cluster.real_nodes)
     if missing:
@@ -306,8 +314,18 @@ def run_bench(
         previous = None
         try:
             for rep, scheduler, ns in plan:
-                results.append(one_run(kube, cluster, scenario, scheduler, rep, ns, cfg, previous))
+                try:
+                    results.append(
+                        one_run(kube, cluster, scenario, scheduler, rep, ns, cfg, previous)
+                    )
+                except AssertionError as exc:
+                    if failures is None:
+                        raise
+                    failures.append(f"rep {rep + 1} {scheduler}: {exc}")
+                    log(f"  {scheduler} FAILED (the next run goes on): {exc}")
                 previous = ns
+                if on_run is not None:
+                    on_run(results)
             if previous:
                 _wait_gone(kube, previous)
         finally:
@@ -447,11 +465,23 @@ def main(argv: Sequence[str] | None = None) -> int:
     cfg = BenchConfig(ns.window, ns.warmup, ns.reps, schedulers)
     kube, cluster = _connect()
     t0 = time.monotonic()
-    with tempfile.TemporaryDirectory(prefix="bench-real-") as tmp:
-        results = run_bench(kube, cluster, cfg, Path(tmp))
-    doc = summarise(results, cfg)
-    doc["totalSeconds"] = round(time.monotonic() - t0)
-    ns.json.write_text(json.dumps(doc, indent=2) + "\n")
+    failures: list[str] = []
+
+    def write(results: list[RunResult], complete: bool = False) -> dict[str, Any]:
+        """bench-real.json after every run: a run that fails keeps what was measured."""
+        doc = summarise(results, cfg)
+        doc |= {"complete": complete, "failedRuns": list(failures)}
+        doc["totalSeconds"] = round(time.monotonic() - t0)
+        ns.json.write_text(json.dumps(doc, indent=2) + "\n")
+        return doc
+
+    # the operator's log stays beside the results (a failed run is read from it)
+    workdir = Path(tempfile.mkdtemp(prefix="bench-real-"))
+    log(f"operator log: {workdir / 'operator.log'}")
+    results = run_bench(kube, cluster, cfg, workdir, failures, write)
+    doc = write(results, complete=True)
     print(table(doc))
+    for f in failures:
+        print(f"FAILED: {f}")
     print(f"\n{len(results)} runs in {doc['totalSeconds']} s; wrote {ns.json}")
-    return 0
+    return 1 if failures else 0
