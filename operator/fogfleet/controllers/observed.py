@@ -274,6 +274,8 @@ def _adopt(
     adopted = False
     others = [m for m in sorted(states) if m not in modules]
     for name in [*modules, *others]:
+        if name not in modules and not adopted:
+            break  # no drifting module was corrected: no re-plan, nothing else to learn
         raw = raws.get(name)
         obs = observations.get(name, [])
         if raw is None or not obs:

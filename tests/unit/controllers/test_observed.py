@@ -230,3 +230,20 @@ def test_a_re_plan_for_drift_learns_every_measured_module_of_the_fleet(kube, dep
     assert "re-planned for the drift of nav-localization" in fix["reason"]
     (own,) = kube.modules[("warehouse", MODULE)]["status"]["profileCorrection"]
     assert "re-planned for" not in own["reason"]
+
+
+def test_nothing_is_learnt_when_the_drifting_module_cannot_be_corrected(kube, deps, prom) -> None:
+    """The drifting module has no execution times (so no correction and no re-plan): the
+    fleet's other measured modules are left as they are too."""
+    run(kube, deps)
+    od = ObservedDeps(prom)
+    observe(deps, od, 0.0)
+    prom.cycles[MODULE], prom.missed[MODULE] = 2000.0, 1000.0  # drifting, nothing measured
+    node, cpu = where(kube, module="nav-controller")
+    hw = kube.compute_nodes[node]["spec"]["hardwareType"]
+    prom.exec[("nav-controller", hw, cpu)] = (2000.0, 0.001)
+    prom.cycles_by[("nav-controller", hw, cpu)] = (2000.0, 60.0)
+    observe(deps, od, 100.0)
+    observe(deps, od, 170.0)
+    for name in (MODULE, "nav-controller"):
+        assert "profileCorrection" not in kube.modules[("warehouse", name)].get("status", {})
