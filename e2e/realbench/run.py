@@ -46,6 +46,8 @@ from e2e.cluster.kube import Kube, guard_kubeconfig
 from e2e.operator_fixtures import Operator, fleet, install_crds, wait_ready
 from e2e.realbench.measure import WindowRates, median_rates, snapshot, window_rates
 from e2e.realbench.scenario import FLEET, ROOT, SCALE, Scenario
+from fogfleet.controllers.observed import describe
+from fogfleet.domain.observed import Learnt
 from fogfleet.sim import simulate
 from fogfleet.sim.simulator import fleet_miss_rate
 
@@ -217,10 +219,9 @@ def _corrections(kube: Kube, namespace: str) -> list[str]:
     out = []
     for m in json.loads(got.stdout)["items"]:
         for c in (m.get("status") or {}).get("profileCorrection") or []:
-            out.append(
-                f"{m['metadata']['name']} on {c['hardwareType']} x{c['factor']:.2f}"
-                f" + {c.get('noiseMillis', 0):.1f} ms noise"
-            )
+            learnt = Learnt(float(c["factor"]), float(c.get("noiseMillis", 0.0)) / 1e3)
+            said = describe(c["hardwareType"], learnt, float(c.get("samples", 0.0)))
+            out.append(f"{m['metadata']['name']} on {said}")
     return sorted(out)
 
 
