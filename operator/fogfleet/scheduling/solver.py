@@ -27,6 +27,7 @@ from .choice import choose, non_dominated
 from .convergence import StallWatch, stall_window
 from .degrade import degrade
 from .exact import scalarised, solve_exact
+from .levelling import with_levelled
 from .local import pareto_local_search
 from .mating import ArrayMating
 from .operators import (
@@ -159,7 +160,8 @@ def nsga2(
         # bounded by work, not by the clock, so a rerun with the generations reached
         # reproduces the plan; the deadline is only a safety net for pathological fleets
         deadline = t0 + max(LOCAL_SEARCH_SAFETY * budget, LOCAL_SEARCH_FLOOR_SECONDS)
-        X, F, n_local = pareto_local_search(clean, X[idx], F[idx], deadline=deadline)
+        X, F = with_levelled(clean, X[idx], F[idx])
+        X, F, n_local = pareto_local_search(clean, X, F, deadline=deadline)
         cv = np.zeros(len(X))
         feasible = np.ones(len(X), dtype=bool)
     full = pp.full(X)

@@ -293,7 +293,8 @@ def keep_running(
     fit = Fit(problem, problem.limits)
     pinned = release_overloads(problem, np.where(usable, cur, -1).astype(np.int64), new, fit)
     sticky = fill_around(problem, pinned, new, fit)
-    if (sticky < 0).any() or not feasible(problem, sticky, with_limits):
+    # an instance no node may take (its robot is down) is unplaced in ``new`` too
+    if ((sticky < 0) & (new >= 0)).any() or not feasible(problem, sticky, with_limits):
         sticky = _revert(problem, new, cur, usable)
     kept = [int(i) for i in np.flatnonzero(usable & (sticky != cur))]
     names = [settings.objectives[0].value]  # only the first objective justifies a move
