@@ -55,7 +55,7 @@ BISECTIONS = 7  # target levels tried per starting plan (the last step ~1/128 of
 BETWEEN = 3  # targets tried between the lowest one found and the starting plan's peak
 # instance x node cells the packings of one ``with_levelled`` call may look at: bounds its work
 # (not the clock, so a plan is reproducible); the 1000-gene stand-in uses ~11M (~2.5 s),
-# 1000 robots x 8 modules all of it (~7 s)
+# 1000 robots x 8 modules all of it (~10 s of a 41 s first plan)
 WORK_CELLS = 15_000_000
 LATENCY_TIE = 1e-3  # weight of ``Fit.pref`` (miss, then latency) among equally loaded nodes
 
