@@ -23,7 +23,10 @@ Prints one table and writes ``bench-scale.json`` at the repository root (git-ign
 ``{"sizes": [{"robots", "pods", "plainSeconds", "operatorSeconds", "planningSeconds",
 "readyLagSeconds", "operatorPeakRssMiB", "firstPlanSeconds", "incrementalReplanSeconds",
 "incrementalMoved", ...}]}``. The cluster's client rate limits are the harness's (raised for
-both paths, e2e/cluster/cluster.py). Everything talks to 127.0.0.1 only.
+both paths, e2e/cluster/cluster.py); the fake nodes heartbeat as slowly as a large cluster's
+for the run (``cluster.heartbeats.relaxed``: 120 s Leases; the bed's 10 s ones, renewed every
+2.5 s, cost hundreds of writes a second at hundreds of nodes and expired at 300 robots).
+Everything talks to 127.0.0.1 only.
 """
 
 from __future__ import annotations
@@ -63,7 +66,7 @@ from e2e.bench_operator import (  # noqa: E402
     table,
     teardown_cluster,
 )
-from e2e.cluster import harness  # noqa: E402
+from e2e.cluster import harness, heartbeats  # noqa: E402
 from e2e.cluster.kube import Kube  # noqa: E402
 from e2e.operator_fixtures import Operator  # noqa: E402
 
@@ -312,11 +315,14 @@ def main(argv: list[str] | None = None) -> int:
     logdir = Path(tempfile.mkdtemp(prefix="fogfleet-bench-scale-"))
     started = time.strftime("%Y-%m-%dT%H:%M:%S%z")
     env = {"FOGFLEET_LOG_LEVEL": args.operator_log_level}
-    rows = [bench_size(kube, n, token, logdir, env) for n in sizes]
+    with heartbeats.relaxed() as beats:
+        rows = [bench_size(kube, n, token, logdir, env) for n in sizes]
     report = {
         "started": started,
         "command": " ".join([Path(sys.executable).name, "-m", "e2e.bench_scale", *sys.argv[1:]]),
         "edgesPerRobot": EDGES_PER_ROBOT,
+        "nodeLeaseSeconds": beats.lease_seconds,
+        "nodeMonitorGracePeriod": beats.grace_period,
         "sizes": rows,
         "operatorLogs": str(logdir),
     }

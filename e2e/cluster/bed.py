@@ -13,7 +13,7 @@ import sys
 import time
 from pathlib import Path
 
-from e2e.cluster import bednet, cgroups, realnodes
+from e2e.cluster import bednet, cgroups, heartbeats, realnodes
 from e2e.cluster.base import (
     HERE,
     HOST,
@@ -138,6 +138,7 @@ def ensure_up(*, nodes: bool = True) -> Cluster:
         state = _read_state() or {}
         if cluster is not None and state.get("versions") == load_versions():
             log(f"already running and healthy: {cluster.api_server}")
+            heartbeats.restore()  # a scale run that died may have left slow ones
             _refresh_images(cluster)
             return cluster
         if cluster is not None:

@@ -9,6 +9,7 @@ import json
 import os
 import time
 from collections.abc import Mapping
+from dataclasses import dataclass
 from typing import Any
 
 from e2e.cluster.base import (
@@ -101,8 +102,21 @@ def _prometheus_config(ports: Mapping[str, int]) -> dict[str, Any]:
     }
 
 
-def _argv(ports: Mapping[str, int]) -> dict[str, tuple[list[str], dict[str, str] | None]]:
+@dataclass(frozen=True)
+class Heartbeats:
+    """How long kwok's fake-node Leases last (kwok renews them every quarter of it) and how
+    late a Lease may be before kube-controller-manager marks its node NotReady. The bed's
+    defaults are short so the node-failure tests see a failure within seconds."""
+
+    lease_seconds: int = NODE_LEASE_SECONDS
+    grace_period: str = NODE_MONITOR_GRACE_PERIOD
+
+
+def _argv(
+    ports: Mapping[str, int], heartbeats: Heartbeats | None = None
+) -> dict[str, tuple[list[str], dict[str, str] | None]]:
     b, s, pki = BIN_DIR, STATE_DIR, STATE_DIR / "pki"
+    heartbeats = heartbeats or Heartbeats()
     kc = str(KUBECONFIG)
     allow = "--authorization-always-allow-paths=/healthz,/readyz,/livez,/metrics"
     etcd_url = f"http://{HOST}:{ports['etcd']}"
@@ -178,7 +192,7 @@ def _argv(ports: Mapping[str, int]) -> dict[str, tuple[list[str], dict[str, str]
                 f"--cluster-signing-cert-file={pki / 'ca.crt'}",
                 f"--cluster-signing-key-file={pki / 'ca.key'}",
                 f"--node-monitor-period={NODE_MONITOR_PERIOD}",
-                f"--node-monitor-grace-period={NODE_MONITOR_GRACE_PERIOD}",
+                f"--node-monitor-grace-period={heartbeats.grace_period}",
                 f"--kube-api-qps={CONTROLLER_API_QPS}",
                 f"--kube-api-burst={CONTROLLER_API_BURST}",
                 f"--cert-dir={s / 'certs' / 'kcm'}",
@@ -212,7 +226,7 @@ def _argv(ports: Mapping[str, int]) -> dict[str, tuple[list[str], dict[str, str]
                 f"--server-address={HOST}:{ports['kwok']}",
                 f"--tls-cert-file={pki / 'admin.crt'}",
                 f"--tls-private-key-file={pki / 'admin.key'}",
-                f"--node-lease-duration-seconds={NODE_LEASE_SECONDS}",
+                f"--node-lease-duration-seconds={heartbeats.lease_seconds}",
                 "--cidr=10.0.0.0/16",
                 "--v=WARN",  # INFO logs every Lease renewal (about 10 MB an hour)
             ],

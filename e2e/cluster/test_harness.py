@@ -142,3 +142,24 @@ def test_a_cluster_from_state_knows_its_real_nodes_and_versions() -> None:
              "versions": {"K8S_VERSION": "1.36.3"}}  # fmt: skip
     cluster = harness.Cluster.from_state(state)
     assert cluster.real_nodes == ("bed-robot-1",) and cluster.versions["K8S_VERSION"] == "1.36.3"
+
+
+def test_scale_heartbeats_reach_kwok_and_the_controller_manager_only(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from e2e.cluster import heartbeats
+    from e2e.cluster.cluster import PREFERRED_PORTS
+    from e2e.cluster.controlplane import Heartbeats, _argv
+
+    bed, scale = _argv(PREFERRED_PORTS), _argv(PREFERRED_PORTS, heartbeats.SCALE)
+    assert "--node-lease-duration-seconds=120" in scale["kwok"][0]
+    assert "--node-monitor-grace-period=120s" in scale["kube-controller-manager"][0]
+    assert f"--node-lease-duration-seconds={Heartbeats().lease_seconds}" in bed["kwok"][0]
+    assert {n for n in bed if bed[n][0] != scale[n][0]} == {"kwok", "kube-controller-manager"}
+    # the file a relaxed run leaves names what the bed runs with until restored
+    monkeypatch.setattr(heartbeats, "_FILE", tmp_path / "heartbeats.json")
+    assert heartbeats.current() == Heartbeats()
+    (tmp_path / "heartbeats.json").write_text(
+        json.dumps({"lease_seconds": 120, "grace_period": "120s"})
+    )
+    assert heartbeats.current() == heartbeats.SCALE
