@@ -47,14 +47,18 @@ def _switch(to: Heartbeats) -> None:
         raise HarnessError("the bed is not running (make cluster-up)")
     ports = state["ports"]
     argv = _argv(ports, to)
-    shorter = to.lease_seconds < current().lease_seconds
+    old = current()
+    shorter = to.lease_seconds < old.lease_seconds
     order = ("kwok", "kube-controller-manager") if shorter else _COMPONENTS
     for name in order:
         _stop(name)
         _start(name, *argv[name])
         _wait_healthy(name, ports)
         if name == "kwok" and shorter:
-            _wait_renewed(Cluster.from_state(state), to.lease_seconds / 4 + 1.0)
+            # kwok's new run takes a Lease over only once its old run's expires
+            _wait_renewed(
+                Cluster.from_state(state), to.lease_seconds / 4 + 1.0, old.lease_seconds + 60.0
+            )
     if to == Heartbeats():
         _FILE.unlink(missing_ok=True)
     else:
@@ -62,7 +66,7 @@ def _switch(to: Heartbeats) -> None:
     log(f"fake-node Leases of {to.lease_seconds}s, NotReady after {to.grace_period}")
 
 
-def _wait_renewed(cluster: Cluster, within: float, timeout: float = 120.0) -> None:
+def _wait_renewed(cluster: Cluster, within: float, timeout: float) -> None:
     """Until the Lease of every node kwok heartbeats was renewed in the last ``within`` s."""
     nodes = cluster.kubectl_json("get", "nodes")["items"]
     fake = {
