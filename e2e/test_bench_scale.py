@@ -12,6 +12,8 @@ from pathlib import Path
 import pytest
 
 from e2e import bench_scale
+from e2e.cluster import heartbeats
+from e2e.cluster.controlplane import Heartbeats
 from e2e.cluster.kube import Kube
 
 pytestmark = [pytest.mark.e2e, pytest.mark.timeout(600)]
@@ -32,6 +34,9 @@ def test_a_small_fleet_goes_through_every_step_of_the_scale_benchmark(
     assert -1 < row["readyLagSeconds"] < 30  # two watchers of the same pods: ms apart
     assert row["incrementalReplanSeconds"] > 0 and row["joinToReadySeconds"] > 0
     assert 0 <= row["incrementalMoved"] <= row["pods"]
+    # measured with a large cluster's heartbeats, and the bed's are back afterwards
+    assert (doc["nodeLeaseSeconds"], doc["nodeMonitorGracePeriod"]) == (120, "120s")
+    assert heartbeats.current() == Heartbeats()
     assert row["operatorPeakRssMiB"] > 50
     table = capsys.readouterr().out
     assert "Ready lag s" in table and "\n5 " in table
