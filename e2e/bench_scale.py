@@ -22,10 +22,12 @@ every Node a kwok node, every ComputeNode a real object validated by the real AP
 Prints one table and writes ``bench-scale.json`` at the repository root (git-ignored):
 ``{"sizes": [{"robots", "pods", "plainSeconds", "operatorSeconds", "planningSeconds",
 "readyLagSeconds", "operatorPeakRssMiB", "firstPlanSeconds", "incrementalReplanSeconds",
-"incrementalMoved", ...}]}``. The cluster's client rate limits are the harness's (raised for
-both paths, e2e/cluster/cluster.py); the fake nodes heartbeat as slowly as a large cluster's
-for the run (``cluster.heartbeats.relaxed``: 120 s Leases; the bed's 10 s ones, renewed every
-2.5 s, cost hundreds of writes a second at hundreds of nodes and expired at 300 robots).
+"incrementalMoved", ...}], "rssSlopes": [{"fromPods", "toPods", "peakMiBPer1000Pods"}]}``
+(the operator's peak RSS growth between consecutive sizes). The cluster's client rate limits
+are the harness's (raised for both paths, e2e/cluster/cluster.py); the fake nodes heartbeat
+as slowly as a large cluster's for the run (``cluster.heartbeats.relaxed``: 120 s Leases; the
+bed's 10 s ones, renewed every 2.5 s, cost hundreds of writes a second at hundreds of nodes
+and expired at 300 robots).
 Everything talks to 127.0.0.1 only.
 """
 
@@ -34,6 +36,7 @@ from __future__ import annotations
 import argparse
 import copy
 import datetime
+import itertools
 import json
 import math
 import secrets
@@ -299,6 +302,29 @@ def format_rows(rows: list[Obj]) -> str:
     return "\n".join([table(lines, header), *errors])
 
 
+def rss_slopes(rows: list[Obj]) -> list[Obj]:
+    """Operator peak RSS growth between consecutive measured sizes, in MiB per 1000 pods: a
+    footprint linear in the pods keeps it constant from one interval to the next."""
+    got = sorted(
+        (r for r in rows if isinstance(r.get("operatorPeakRssMiB"), int | float)),
+        key=lambda r: r["pods"],
+    )
+    return [
+        {
+            "fromPods": a["pods"],
+            "toPods": b["pods"],
+            "peakMiBPer1000Pods": round(
+                1000
+                * (b["operatorPeakRssMiB"] - a["operatorPeakRssMiB"])
+                / (b["pods"] - a["pods"]),
+                1,
+            ),
+        }
+        for a, b in itertools.pairwise(got)
+        if b["pods"] > a["pods"]
+    ]
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--sizes", default="100,300,1000", help="robot counts, comma-separated")
@@ -324,11 +350,17 @@ def main(argv: list[str] | None = None) -> int:
         "nodeLeaseSeconds": beats.lease_seconds,
         "nodeMonitorGracePeriod": beats.grace_period,
         "sizes": rows,
+        "rssSlopes": rss_slopes(rows),
         "operatorLogs": str(logdir),
     }
     Path(args.out).write_text(json.dumps(report, indent=2) + "\n")
     print(f"fogfleet fleet-scale benchmark ({started}; load after: {loadavg()})")
     print(format_rows(rows))
+    for sl in report["rssSlopes"]:
+        print(
+            f"operator peak RSS {sl['fromPods']} -> {sl['toPods']} pods: "
+            f"{sl['peakMiBPer1000Pods']:.0f} MiB per 1000 pods"
+        )
     print(f"written: {args.out}; operator logs: {logdir}")
     return 1 if any("error" in r for r in rows) else 0
 

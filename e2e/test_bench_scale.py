@@ -36,6 +36,7 @@ def test_a_small_fleet_goes_through_every_step_of_the_scale_benchmark(
     assert 0 <= row["incrementalMoved"] <= row["pods"]
     # measured with a large cluster's heartbeats, and the bed's are back afterwards
     assert (doc["nodeLeaseSeconds"], doc["nodeMonitorGracePeriod"]) == (120, "120s")
+    assert doc["rssSlopes"] == []  # one size: no interval
     assert heartbeats.current() == Heartbeats()
     assert row["operatorPeakRssMiB"] > 50
     table = capsys.readouterr().out
@@ -44,3 +45,17 @@ def test_a_small_fleet_goes_through_every_step_of_the_scale_benchmark(
     assert left.stdout.strip() == ""
     nodes = kube.kubectl("get", "nodes", "-l", "fogfleet.io/bench=true", "-o", "name")
     assert nodes.stdout.strip() == ""
+
+
+def test_the_rss_slope_is_per_interval_so_superlinear_growth_shows() -> None:
+    rows = [
+        {"robots": 100, "pods": 800, "operatorPeakRssMiB": 300.0},
+        {"robots": 5, "pods": 40, "error": "failed"},
+        {"robots": 300, "pods": 2400, "operatorPeakRssMiB": 700.0},
+        {"robots": 1000, "pods": 8000, "operatorPeakRssMiB": 3500.0},
+    ]
+    assert bench_scale.rss_slopes(rows) == [
+        {"fromPods": 800, "toPods": 2400, "peakMiBPer1000Pods": 250.0},
+        {"fromPods": 2400, "toPods": 8000, "peakMiBPer1000Pods": 500.0},
+    ]
+    assert bench_scale.rss_slopes(rows[:2]) == []

@@ -4,6 +4,7 @@ allocations of IV-B, eq. 4's transfer times per instance and node)."""
 
 from __future__ import annotations
 
+import hashlib
 from collections.abc import Mapping
 
 import numpy as np
@@ -26,6 +27,7 @@ from .problem import (
     Allocation,
     Instance,
     Ladder,
+    LazyLadder,
     NodeInfo,
     Problem,
     freeze,
@@ -331,7 +333,7 @@ def build_problem(
         fallback_need=held.need,
         preferred=preferred,
         priority=freeze(np.array([priorities[inst.module] for inst in instances], dtype=np.int64)),
-        ladder=_ladder(blocks, home, home_rungs, remote, lim),
+        ladder_source=_lazy_ladder(blocks, home, home_rungs, remote, lim),
         fleet=fleet.metadata.name,
         namespace=namespace,
         nodes=tuple(
@@ -353,9 +355,7 @@ def build_problem(
         net_mean=freeze(net_mean),
         net_std=freeze(net_std),
         traffic=freeze(traffic),
-        limits=Allocation(
-            freeze(lim_req), freeze(lim_req.copy()), freeze(lim_exe), freeze(lim_std), True
-        ),
+        limits=Allocation(freeze(lim_req), lim_req, freeze(lim_exe), freeze(lim_std), True),
         nominal=Allocation(
             freeze(nom_req), freeze(nom_use), freeze(nom_exe), freeze(nom_std), False
         ),
@@ -364,8 +364,36 @@ def build_problem(
     )
 
 
-def _ladder(
+Rungs = tuple[tuple[F64, F64, F64], NDArray[np.int64]]  # a block's (m, k) rungs, (m,) depth
+
+
+def _lazy_ladder(
     blocks: list[Block],
+    home: list[int],
+    home_rungs: Mapping[int, tuple[ProfileRow, ...]],
+    remote: range,
+    lim: tuple[F64, F64, F64],
+) -> LazyLadder | None:
+    """The ladder, to be built on first use (``LazyLadder``); None where nothing may degrade.
+    It keeps only the blocks' rungs (one per distinct block) and the limits arrays."""
+    parts: list[Rungs] = [(blk.rungs, blk.depth) for blk in blocks]
+    if not any(d.any() for _, d in parts) and not any(len(r) > 1 for r in home_rungs.values()):
+        return None
+    rows = dict(home_rungs)
+    digest = hashlib.sha256()
+    which: dict[int, int] = {}  # distinct blocks in order of first use
+    for rungs, d in parts:
+        if id(rungs) not in which:
+            which[id(rungs)] = len(which)
+            for a in (*rungs, d):
+                digest.update(np.ascontiguousarray(a).tobytes())
+    digest.update(np.array([which[id(r)] for r, _ in parts], dtype=np.int64).tobytes())
+    digest.update(repr(sorted((i, tuple(r)) for i, r in rows.items())).encode())
+    return LazyLadder(lambda: _ladder(parts, home, rows, remote, lim), digest.digest())
+
+
+def _ladder(
+    parts: list[Rungs],
     home: list[int],
     home_rungs: Mapping[int, tuple[ProfileRow, ...]],
     remote: range,
@@ -374,8 +402,8 @@ def _ladder(
     """Rung 0 is the limits pick everywhere; deeper rungs only where a module may degrade and
     its profile has smaller CPU rows for that node (padded with the smallest)."""
     depth = np.zeros(lim[0].shape, dtype=np.int64)
-    for i, blk in enumerate(blocks):
-        depth[i, remote.start :] = blk.depth
+    for i, (_, d) in enumerate(parts):
+        depth[i, remote.start :] = d
     for i, rows in home_rungs.items():
         depth[i, home[i]] = len(rows) - 1
     if not depth.any():
@@ -385,15 +413,15 @@ def _ladder(
     for c in range(3):
         lad = np.empty((*lim[c].shape, k))
         lad[:] = lim[c][:, :, None]  # rung 0 (and every rung where nothing degrades)
-        padded: dict[int, F64] = {}
-        for i, blk in enumerate(blocks):
-            if not blk.depth.any():
+        padded: dict[int, F64] = {}  # per block (instances of one block share its rungs)
+        for i, (rungs, d) in enumerate(parts):
+            if not d.any():
                 continue
-            got = padded.get(id(blk))
+            got = padded.get(id(rungs))
             if got is None:
-                r = blk.rungs[c]
+                r = rungs[c]
                 got = np.concatenate([r, np.repeat(r[:, -1:], k - r.shape[1], axis=1)], axis=1)
-                padded[id(blk)] = got
+                padded[id(rungs)] = got
             lad[i, remote.start :] = got
         for i, rows in home_rungs.items():
             lad[i, home[i]] = [v[c] for v in pad_rungs(rows, k)]

@@ -22,7 +22,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from fogfleet.api.v1alpha1.robotfleet import SchedulerSettings
-from fogfleet.domain.problem import Problem, freeze
+from fogfleet.domain.problem import LazyLadder, Problem, freeze
 from fogfleet.scheduling.heuristics import Fit
 
 __all__ = [
@@ -91,6 +91,9 @@ def fingerprint(problem: Problem, settings: SchedulerSettings) -> str:
         if isinstance(value, np.ndarray):
             h.update(f.name.encode())
             h.update(np.ascontiguousarray(value).tobytes())
+        elif isinstance(value, LazyLadder):  # what it is built from, without building it
+            h.update(f.name.encode())
+            h.update(value.digest)
         elif dataclasses.is_dataclass(value):
             for g in dataclasses.fields(value):
                 arr = getattr(value, g.name)

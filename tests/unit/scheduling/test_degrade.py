@@ -3,6 +3,7 @@ on its lowest-priority modules, never on hard real-time ones; other shortages st
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -142,3 +143,43 @@ def test_a_fleet_may_override_a_modules_priority(tmp_path: Path) -> None:
     sched = plan(q, _settings(q))
     assert sched.degraded and sched.levels is not None
     assert "object-pose-estimation" not in _degraded_modules(q, sched.levels)
+
+
+def test_a_plan_that_fits_never_builds_the_ladder_and_derived_problems_share_it(
+    tmp_path: Path,
+) -> None:
+    # the (I, N, K) arrays are most of a large fleet's problem: only a degrading plan reads them
+    p = _site(tmp_path, "16")
+    sched = plan(p, _settings(p))
+    assert sched.feasible and not sched.degraded
+    assert p.ladder_source is not None and not p.ladder_source.built
+    masked = replace(p, allowed=np.zeros_like(p.allowed))
+    ladder = masked.ladder
+    assert ladder is not None and p.ladder_source.built
+    assert p.ladder is ladder, "problems derived from one build share its ladder"
+    pose = next(i for i, inst in enumerate(p.instances) if inst.module == "object-pose-estimation")
+    j = int(p.home[pose])
+    # rung 0 is the limits pick, rung 1 the 1-core row of the profile
+    assert ladder.cpu[pose, j, 0] == p.limits.cpu_request[pose, j] == 2.0
+    assert ladder.cpu[pose, j, 1] == 1.0 and ladder.mean[pose, j, 1] == pytest.approx(0.38)
+
+
+def test_the_plan_fingerprint_follows_a_smaller_profiled_cpu(tmp_path: Path) -> None:
+    from fogfleet.scheduling.stickiness import fingerprint
+
+    modules = (WAREHOUSE / "modules.yaml").read_text()
+    row = "{hardwareType: default, cpu: 1, meanMillis: 380, stdMillis: 70}"
+    assert row in modules
+    for d in "abc":
+        (tmp_path / d).mkdir()
+    a = _site(tmp_path / "a", "16", modules=modules)
+    b = _site(tmp_path / "b", "16", modules=modules.replace(row, row.replace("380", "390")))
+    # the pick (2 cores) and the nominal row (4 cores) are the same: only the ladder differs
+    assert np.array_equal(a.limits.exe_mean, b.limits.exe_mean)
+    assert np.array_equal(a.nominal.exe_mean, b.nominal.exe_mean)
+    settings = _settings(a)
+    assert fingerprint(a, settings) != fingerprint(b, settings)
+    assert fingerprint(a, settings) == fingerprint(
+        _site(tmp_path / "c", "16", modules=modules), settings
+    )
+    assert a.ladder_source is not None and not a.ladder_source.built
