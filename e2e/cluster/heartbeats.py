@@ -18,7 +18,7 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import asdict
 
-from e2e.cluster.base import STATE_DIR, HarnessError, locked, log, wait_for
+from e2e.cluster.base import STATE_DIR, HarnessError, locked, log, port_is_free, wait_for
 from e2e.cluster.cluster import HEARTBEAT_LABEL, Cluster, _read_state
 from e2e.cluster.controlplane import Heartbeats, _argv, _wait_healthy
 from e2e.cluster.processes import _start, _stop
@@ -52,6 +52,7 @@ def _switch(to: Heartbeats) -> None:
     order = ("kwok", "kube-controller-manager") if shorter else _COMPONENTS
     for name in order:
         _stop(name)
+        _wait_port_free(name, ports[name])
         _start(name, *argv[name])
         _wait_healthy(name, ports)
         if name == "kwok" and shorter:
@@ -64,6 +65,14 @@ def _switch(to: Heartbeats) -> None:
     else:
         _FILE.write_text(json.dumps(asdict(to)) + "\n")
     log(f"fake-node Leases of {to.lease_seconds}s, NotReady after {to.grace_period}")
+
+
+def _wait_port_free(name: str, port: int) -> None:
+    """A stopped Go server may hold its port a moment after it counts as gone (its main thread is
+    a zombie while its other threads still close their sockets): a new one started then fails
+    to bind, and its health check passes against the old one (CI, 2026-11-26: the controller
+    manager was left down and every namespace's default ServiceAccount with it)."""
+    wait_for(f"{name}'s port {port} free", lambda: port_is_free(port), 30, interval=0.1)
 
 
 def _wait_renewed(cluster: Cluster, within: float, timeout: float) -> None:
