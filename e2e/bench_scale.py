@@ -1,6 +1,7 @@
 """``make bench-scale``: the operator at fleet scale on the local control plane (kwok nodes).
 
     .venv/bin/python -m e2e.bench_scale [--sizes 100,300,1000] [--out bench-scale.json]
+                                        [--operator-only]
 
 For each size n: n robots x 8 modules (the warehouse modules) on ceil(0.4 n) edge nodes - the
 stand-in benchmark's fleet shape (``synthetic_fleet``: 12 edge cores per robot on average) -
@@ -255,7 +256,9 @@ def robot_joins(
     return row
 
 
-def bench_size(kube: Kube, robots: int, token: str, logdir: Path, env: dict[str, str]) -> Obj:
+def bench_size(
+    kube: Kube, robots: int, token: str, logdir: Path, env: dict[str, str], plain_too: bool = True
+) -> Obj:
     spec = large_spec(robots, edges_for(robots))
     log(f"{spec.key}: {spec.pods} pods on {edges_for(robots)} edge nodes; load {loadavg()}")
     plain_ns = f"bench-{token}-scale-plain-{robots}"
@@ -263,16 +266,18 @@ def bench_size(kube: Kube, robots: int, token: str, logdir: Path, env: dict[str,
     row: Obj = {"robots": robots, "pods": spec.pods, "edges": edges_for(robots)}
     try:
         setup_cluster(kube, [spec])
-        plain = run_plain(kube, spec, plain_ns, timeout_for(spec.pods))
-        row["plainSeconds"] = plain["total_s"]
-        row["plainApplySeconds"] = plain["kubectl_s"]  # kubectl's own share of it
-        log(
-            f"{spec.key} plain: all Running {plain['total_s']:.1f}s (kubectl apply returned "
-            f"after {plain['kubectl_s']:.1f}s)"
-        )
-        delete_namespace(kube, plain_ns, timeout=timeout_for(spec.pods))
+        if plain_too:
+            plain = run_plain(kube, spec, plain_ns, timeout_for(spec.pods))
+            row["plainSeconds"] = plain["total_s"]
+            row["plainApplySeconds"] = plain["kubectl_s"]  # kubectl's own share of it
+            log(
+                f"{spec.key} plain: all Running {plain['total_s']:.1f}s (kubectl apply returned "
+                f"after {plain['kubectl_s']:.1f}s)"
+            )
+            delete_namespace(kube, plain_ns, timeout=timeout_for(spec.pods))
         row |= run_operator_size(kube, spec, op_ns, logdir, env)
-        row["ratio"] = (row["operatorSeconds"] - row["planningSeconds"]) / row["plainSeconds"]
+        if plain_too:
+            row["ratio"] = (row["operatorSeconds"] - row["planningSeconds"]) / row["plainSeconds"]
     except Exception as exc:  # keep the other sizes; the row says what failed
         log(f"{spec.key}: FAILED: {exc!r}")
         row["error"] = repr(exc)
@@ -335,6 +340,11 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--sizes", default="100,300,1000", help="robot counts, comma-separated")
     ap.add_argument("--out", default=str(ROOT / "bench-scale.json"))
     ap.add_argument("--operator-log-level", default="INFO", help="FOGFLEET_LOG_LEVEL")
+    ap.add_argument(
+        "--operator-only",
+        action="store_true",
+        help="skip the plain Deployments (no ratio): re-measure the operator's side alone",
+    )
     args = ap.parse_args(argv)
     sizes = [int(s) for s in args.sizes.split(",") if s]
     kube = connect()
@@ -347,7 +357,9 @@ def main(argv: list[str] | None = None) -> int:
     started = time.strftime("%Y-%m-%dT%H:%M:%S%z")
     env = {"FOGFLEET_LOG_LEVEL": args.operator_log_level}
     with heartbeats.relaxed() as beats:
-        rows = [bench_size(kube, n, token, logdir, env) for n in sizes]
+        rows = [
+            bench_size(kube, n, token, logdir, env, plain_too=not args.operator_only) for n in sizes
+        ]
     report = {
         "started": started,
         "command": " ".join([Path(sys.executable).name, "-m", "e2e.bench_scale", *sys.argv[1:]]),

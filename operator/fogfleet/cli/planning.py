@@ -11,6 +11,7 @@ from typing import Any
 
 import numpy as np
 
+from fogfleet.api.v1alpha1.robotfleet import PLACEMENT_LIST_LIMIT
 from fogfleet.domain.observed import Learnt
 from fogfleet.errors import InvalidSpec
 from fogfleet.scheduling.explain import degraded_message, infeasible_message, unplaced_reasons
@@ -241,6 +242,14 @@ def recorded_placement(problem: Any, doc: Any, source: str) -> tuple[Any, Any]:
         raise InvalidSpec(source, "", "not a saved plan or a RobotFleet with status")
     body = doc.get("status", doc) if "status" in doc else doc
     entries = body.get("placement") or []
+    if not entries and body.get("modulesPlaced"):
+        raise InvalidSpec(
+            source,
+            "status.placement",
+            f"lists none of the {body['modulesPlaced']} placed instances (a fleet of more than "
+            f"{PLACEMENT_LIST_LIMIT} instances is not listed in its status); save the plan with "
+            "`fogfleet plan --json` instead",
+        )
     # plain-Deployment schedulers run with nominal requests and no limits
     nominal = body.get("scheduler") in ("k8s-default", "onboard")
     with_limits = bool(body.get("withLimits", not nominal))

@@ -143,6 +143,9 @@ class Deps:
     metrics: MetricsPort = field(default_factory=NullMetrics)
     plans: dict[FleetKey, CachedPlan] = field(default_factory=dict)
     rendered: dict[FleetKey, Rendered] = field(default_factory=dict)  # for status refreshes
+    # where each fleet's instances stand, as its last status refresh found them (placement
+    # entries; a large fleet's status does not list them): the usage pass reads these
+    placements: dict[FleetKey, list[Obj]] = field(default_factory=dict)
     refs: References = field(default_factory=References)
     failures: dict[FleetKey, tuple[str, Exception]] = field(default_factory=dict)  # fp -> error
     # operator-wide defaults for scheduler fields a fleet leaves out (FOGFLEET_SCHEDULER_*)

@@ -11,7 +11,7 @@ from typing import Any
 
 import numpy as np
 
-from fogfleet.api.v1alpha1.robotfleet import RobotFleet, RobotFleetStatus
+from fogfleet.api.v1alpha1.robotfleet import PLACEMENT_LIST_LIMIT, RobotFleet, RobotFleetStatus
 from fogfleet.domain.problem import Problem
 from fogfleet.errors import DanglingReference, Infeasible, InvalidSpec
 from fogfleet.render.deployments import format_cpu, identity_of
@@ -33,37 +33,33 @@ from .status import (
     wire_keys,
 )
 
-__all__ = ["FLEET_STATUS_KEYS", "fleet_status", "plan_events", "report_failure"]
+__all__ = [
+    "FLEET_STATUS_KEYS",
+    "by_module",
+    "fleet_status",
+    "placement_entries",
+    "plan_events",
+    "report_failure",
+]
 
 log = logging.getLogger(__name__)
 FLEET_STATUS_KEYS = wire_keys(RobotFleetStatus)
 Obj = dict[str, Any]
 
 
-def fleet_status(
-    fleet: RobotFleet,
-    problem: Problem,
-    desired: list[Obj],
-    roll: Any,
-    stranded: set[int],
-    cached: CachedPlan | None,
-    planned: bool,
-    baseline: bool,
-    generation: int | None,
-    old: Obj,
-    links: LinkReport | None = None,
-    drift: DriftReport | None = None,
-) -> Obj:
-    names = [d["metadata"]["name"] for d in desired]
-    by_name = dict(zip(names, desired, strict=True))
+def placement_entries(
+    problem: Problem, desired: list[Obj], roll: Any, cached: CachedPlan | None, baseline: bool
+) -> list[Obj]:
+    """Where each rendered instance runs: the plan's node, or (k8s-default) the node
+    kube-scheduler bound its pod to; an instance not placed yet is left out."""
     placement: list[Obj] = []
-    tiers: Counter[str] = Counter()
     index = {(inst.robot, inst.module, inst.replica): i for i, inst in enumerate(problem.instances)}
-    for dname, dep in by_name.items():
+    alloc = problem.nominal if baseline else problem.limits
+    for dep in desired:
         ident = identity_of(dep)
         i = index.get(ident, -1) if ident else -1
         if baseline:
-            node = roll.bound.get(dname)
+            node = roll.bound.get(dep["metadata"]["name"])
             if node is None:
                 continue
             try:
@@ -75,8 +71,6 @@ def fleet_status(
                 continue
             j = int(cached.placement[i])
         nd = problem.nodes[j]
-        tiers[nd.tier.value] += 1
-        alloc = problem.nominal if baseline else problem.limits
         entry: Obj = {
             "robot": ident[0] if ident else "",
             "module": ident[1] if ident else "",
@@ -87,6 +81,38 @@ def fleet_status(
         if ident and not ident[0]:
             entry["replica"] = ident[2]
         placement.append(entry)
+    return placement
+
+
+def by_module(placement: list[Obj]) -> list[Obj]:
+    """``status.placementByModule``: per module, its instances per tier."""
+    counts: dict[str, Counter[str]] = {}
+    for entry in placement:
+        counts.setdefault(str(entry["module"]), Counter())[str(entry["tier"])] += 1
+    return [
+        {"module": m, **{t: c[t] for t in ("robot", "edge", "cloud")}}
+        for m, c in sorted(counts.items())
+    ]
+
+
+def fleet_status(
+    fleet: RobotFleet,
+    problem: Problem,
+    desired: list[Obj],
+    placement: list[Obj],
+    roll: Any,
+    stranded: set[int],
+    cached: CachedPlan | None,
+    planned: bool,
+    baseline: bool,
+    generation: int | None,
+    old: Obj,
+    links: LinkReport | None = None,
+    drift: DriftReport | None = None,
+) -> Obj:
+    """The status of a fleet whose instances stand where ``placement`` (placement_entries)
+    says; the per-instance list only up to PLACEMENT_LIST_LIMIT entries."""
+    tiers = Counter(str(entry["tier"]) for entry in placement)
     total = problem.n_instances
     stuck = [problem.reasons[i] for i in sorted(stranded)]
     waiting = [n for n in roll.waiting] + [n for n in roll.moving]
@@ -153,7 +179,8 @@ def fleet_status(
         "observedGeneration": generation,
         "conditions": merge_conditions(old.get("conditions") or [], conds),
         "scheduler": fleet.spec.scheduler.algorithm.value,
-        "placement": placement,
+        "placement": placement if len(placement) <= PLACEMENT_LIST_LIMIT else [],
+        "placementByModule": by_module(placement),
         "modulesPlaced": len(placement),
         "modulesTotal": total,
         "split": split_text(tiers),
@@ -197,6 +224,9 @@ def fleet_status(
         )
     elif baseline and len(placement) == len(desired) and placement:
         x = np.full(problem.n_instances, -1, dtype=np.int64)
+        index = {
+            (inst.robot, inst.module, inst.replica): i for i, inst in enumerate(problem.instances)
+        }
         for entry in placement:
             key = (str(entry["robot"]), str(entry["module"]), int(entry.get("replica", 0)))
             x[index[key]] = problem.node_index(entry["node"])

@@ -44,7 +44,7 @@ from .apply import apply_fleet, owned
 from .deps import CachedPlan, Deps, FleetKey, Rendered, fleet_key
 from .drift_report import drift_events, drift_report
 from .fleet_plan import plan_fleet
-from .fleet_status import fleet_status, plan_events, report_failure
+from .fleet_status import fleet_status, placement_entries, plan_events, report_failure
 from .inputs import current_placement, gather
 from .links import link_events, link_report
 from .observed import profile_corrections
@@ -80,6 +80,7 @@ def forget(deps: Deps, key: FleetKey) -> None:
     """The fleet is gone: drop its cache and references (its Deployments go with it)."""
     deps.plans.pop(key, None)
     deps.rendered.pop(key, None)
+    deps.placements.pop(key, None)
     deps.failures.pop(key, None)
     deps.links.pop(key, None)
     deps.standbys_active.pop(key, None)
@@ -304,6 +305,10 @@ def _finish(
     ns, name = fleet_key(body)
     pods = deps.kube.list_pods(ns, {LABEL_FLEET: label_value(name)})
     roll = rollout(rendered.desired, deployments, pods)
+    placement = placement_entries(
+        rendered.problem, rendered.desired, roll, rendered.plan, rendered.baseline
+    )
+    deps.placements[(ns, name)] = placement  # the usage pass reads it (controllers/usage.py)
     stranded = set(rendered.stranded)
     links = link_report(rendered, deps.links.get((ns, name)), deps.standbys_active.get((ns, name)))
     drift = drift_report(rendered, deps.drift.get((ns, name)))
@@ -311,6 +316,7 @@ def _finish(
         fleet,
         rendered.problem,
         rendered.desired,
+        placement,
         roll,
         stranded,
         rendered.plan,

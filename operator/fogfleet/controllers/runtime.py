@@ -41,6 +41,8 @@ ROLLOUT_QUIET_SECONDS = 0.5
 # last pod within ROLLOUT_QUIET_SECONDS plus one refresh).
 ROLLOUT_BUSY_MODULES = 20
 ROLLOUT_BUSY_MAX_WAIT_SECONDS = 5.0
+# a reconcile or usage pass slower than this is logged at INFO (the others at DEBUG)
+SLOW_SECONDS = 1.0
 Obj = dict[str, Any]
 
 
@@ -112,10 +114,14 @@ class Runtime:
             await self._usage_due.wait()
             await asyncio.sleep(self.queue.debounce)
             self._usage_due.clear()
+            t0 = time.perf_counter()
             try:
                 await self.call(reconcile_usage, self.deps)
             except FogfleetError as exc:  # the next change or drift tick retries
                 log.warning("Updating the usage status of modules and nodes failed: %s", exc)
+            took = time.perf_counter() - t0
+            if took > SLOW_SECONDS:
+                log.info("The usage pass over modules and nodes took %.0f ms", took * 1e3)
 
     async def _scaling(self, scaling: Any) -> None:
         from .scaling import reconcile_scaling
@@ -164,10 +170,12 @@ class Runtime:
         t0 = time.perf_counter()
         outcome = await self.call(reconcile, body, self.deps)
         self._waiting[key] = outcome.waiting
-        log.debug(
+        took = time.perf_counter() - t0
+        log.log(
+            logging.INFO if took > SLOW_SECONDS else logging.DEBUG,
             "Reconciled RobotFleet %s/%s in %.0f ms (%s): %s",
             *key,
-            (time.perf_counter() - t0) * 1e3,
+            took * 1e3,
             "ready" if outcome.ready else "not ready",
             outcome.message,
         )

@@ -1,9 +1,12 @@
 """Status of the shared kinds: which fleets use a SoftwareModule or a ComputeNode, and how many
 instances run where.
 
-Everything is derived from the plans actually deployed (every RobotFleet's
-``status.placement``), so it needs no state of its own and any replica of the operator can
-rebuild it. One pass (``reconcile_usage``) lists the fleets, modules, ComputeNodes and Nodes
+Everything is derived from the plans actually deployed: each fleet's placement as its last
+status refresh found it (``Deps.placements``), or, for a fleet this process has not reconciled
+yet, its ``status.placement`` (a fleet of more than ``PLACEMENT_LIST_LIMIT`` instances lists none
+there and counts from its first reconcile, seconds after the operator starts). So it needs no
+state of its own and any replica of the operator can rebuild it. One pass
+(``reconcile_usage``) lists the fleets, modules, ComputeNodes and Nodes
 and patches only the statuses that changed; each patch carries every field this pass owns
 (no ``None``), so a merge patch never leaves a stale value behind. The autoscaler owns
 ``status.scaling`` and the ``Scaling``/``MetricsUnavailable`` conditions of a module; this
@@ -55,11 +58,20 @@ class Usage:
         return sum(self.tiers.values())
 
 
-def _placements(fleets: Iterable[Mapping[str, Any]]) -> Iterable[tuple[str, str, Obj]]:
+Placements = Mapping[tuple[str, str], list[Obj]]
+
+
+def _placements(
+    fleets: Iterable[Mapping[str, Any]], known: Placements
+) -> Iterable[tuple[str, str, Obj]]:
     for fleet in fleets:
         meta = fleet.get("metadata") or {}
-        for entry in (fleet.get("status") or {}).get("placement") or []:
-            yield meta.get("namespace") or "default", meta.get("name", ""), entry
+        key = (meta.get("namespace") or "default", meta.get("name", ""))
+        entries = known.get(key)
+        if entries is None:
+            entries = (fleet.get("status") or {}).get("placement") or []
+        for entry in entries:
+            yield key[0], key[1], entry
 
 
 def _cores(value: Any) -> float:
@@ -69,10 +81,12 @@ def _cores(value: Any) -> float:
         return 0.0
 
 
-def usage_by_module(fleets: Iterable[Mapping[str, Any]]) -> dict[tuple[str, str], Usage]:
+def usage_by_module(
+    fleets: Iterable[Mapping[str, Any]], known: Placements | None = None
+) -> dict[tuple[str, str], Usage]:
     """(namespace, module) -> the fleets (by name, same namespace) placing it, per tier."""
     out: dict[tuple[str, str], Usage] = {}
-    for ns, fleet, entry in _placements(fleets):
+    for ns, fleet, entry in _placements(fleets, known or {}):
         use = out.setdefault((ns, str(entry.get("module", ""))), Usage())
         use.fleets.add(fleet)
         use.tiers[str(entry.get("tier", ""))] += 1
@@ -80,10 +94,12 @@ def usage_by_module(fleets: Iterable[Mapping[str, Any]]) -> dict[tuple[str, str]
     return out
 
 
-def usage_by_node(fleets: Iterable[Mapping[str, Any]]) -> dict[str, Usage]:
+def usage_by_node(
+    fleets: Iterable[Mapping[str, Any]], known: Placements | None = None
+) -> dict[str, Usage]:
     """Kubernetes Node name -> the fleets (``namespace/name``) placing instances on it."""
     out: dict[str, Usage] = {}
-    for ns, fleet, entry in _placements(fleets):
+    for ns, fleet, entry in _placements(fleets, known or {}):
         use = out.setdefault(str(entry.get("node", "")), Usage())
         use.fleets.add(f"{ns}/{fleet}")
         use.tiers[str(entry.get("tier", ""))] += 1
@@ -160,7 +176,8 @@ def reconcile_usage(deps: Deps) -> int:
     kube = deps.kube
     fleets = kube.list_fleets(None)
     patched = 0
-    by_module = usage_by_module(fleets)
+    known = dict(deps.placements)  # a snapshot: fleet reconciles replace entries meanwhile
+    by_module = usage_by_module(fleets, known)
     for module in kube.list_modules(None):
         meta = module.get("metadata") or {}
         ns, name = meta.get("namespace") or "default", meta.get("name", "")
@@ -170,7 +187,7 @@ def reconcile_usage(deps: Deps) -> int:
         if _differs(module.get("status") or {}, status):
             kube.patch_module_status(ns, name, status)
             patched += 1
-    by_node = usage_by_node(fleets)
+    by_node = usage_by_node(fleets, known)
     nodes = {(n.get("metadata") or {}).get("name", ""): n for n in kube.list_nodes()}
     for cn in kube.list_compute_nodes():
         meta = cn.get("metadata") or {}

@@ -15,9 +15,11 @@ from .observed import DriftSettings
 from .rules import CrossFieldRule, enforce
 
 __all__ = [
+    "PLACEMENT_LIST_LIMIT",
     "ChoiceRule",
     "DiscoveryRange",
     "ModuleMissStatus",
+    "ModulePlacement",
     "ModuleRef",
     "ObjectiveName",
     "ObjectiveValue",
@@ -277,6 +279,13 @@ class RobotFleetSpec(FogModel):
         return self
 
 
+# A RobotFleet must stay well below etcd's 1.5 MiB object limit, and its status is rewritten at
+# every step of a rollout: one placement entry is about 110 bytes of JSON, so a 1000-robot
+# fleet's 8000 made the object 0.9 MiB and each status patch took 0.6 s of the API server on an
+# idle bed. Beyond this many instances status.placement is left empty (placementByModule stays).
+PLACEMENT_LIST_LIMIT = 1000
+
+
 class PlacementEntry(FogModel):
     """Where one module instance runs."""
 
@@ -292,6 +301,19 @@ class PlacementEntry(FogModel):
     """CPU request = limit given to the instance, in cores."""
     replica: int | None = None
     """Replica index of a shared module."""
+
+
+class ModulePlacement(FogModel):
+    """How many instances of one module run on each tier."""
+
+    module: str
+    """The SoftwareModule."""
+    robot: int = 0
+    """Instances on the robots' own computers."""
+    edge: int = 0
+    """Instances on edge nodes."""
+    cloud: int = 0
+    """Instances in the cloud."""
 
 
 class ObjectiveValue(FogModel):
@@ -346,7 +368,12 @@ class RobotFleetStatus(FogModel):
     scheduler: str | None = None
     """The algorithm that made the plan."""
     placement: list[PlacementEntry] = Field(default_factory=list)
-    """Where every module instance runs."""
+    """Where every module instance runs, for fleets of up to 1000 instances. A larger fleet
+    lists none here (the object would approach etcd's 1.5 MiB limit and be rewritten on every
+    rollout step): read placementByModule, and each instance's node from its pods (`kubectl get
+    pods -l fogfleet.io/fleet=NAME -o wide`)."""
+    placement_by_module: list[ModulePlacement] = Field(default_factory=list)
+    """Per module, how many of its instances run on robots, edge nodes and in the cloud."""
     objectives: list[ObjectiveValue] = Field(default_factory=list)
     """The deployed plan's objective values."""
     predicted_miss_rate: float | None = None
