@@ -184,6 +184,29 @@ def test_changed_instances_names_only_the_changed_module() -> None:
     assert changed_instances(p0, p2) == want
 
 
+def test_changed_instances_finds_one_changed_cell_by_views_and_by_copies(monkeypatch) -> None:
+    """One instance's CPU request on one node, in a fleet a robot joined (rows and columns
+    shifted): the block-wise comparison and the gathered one both find exactly it."""
+    p0, _ = _running()
+    p1 = _joined()
+    old_rows = {inst: k for k, inst in enumerate(p0.instances)}
+    old_cols = {n.name for n in p0.nodes}
+    i, j = next(
+        (i, j)
+        for i, inst in reversed(list(enumerate(p1.instances)))
+        if inst in old_rows
+        for j in reversed(range(p1.n_nodes))
+        if p1.allowed[i, j] and p1.nodes[j].name in old_cols
+    )
+    cpu = p1.limits.cpu_request.copy()
+    cpu[i, j] *= 2
+    edited = dataclasses.replace(p1, limits=dataclasses.replace(p1.limits, cpu_request=freeze(cpu)))
+    assert changed_instances(p0, edited) == {i}
+    monkeypatch.setattr(incremental, "MAX_COMPARED_BLOCKS", 0)
+    assert changed_instances(p0, edited) == {i}
+    assert changed_instances(p0, p1) == set()
+
+
 def test_changed_instances_are_re_placed() -> None:
     """A changed instance is free even where it still fits: it may go to a better node."""
     p = _unchanged_rerun()
