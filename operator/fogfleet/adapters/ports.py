@@ -103,9 +103,14 @@ Listener = Callable[[str, Obj, Obj | None], None]
 class Watches(Protocol):
     """Watch-fed caches behind a KubePort (``adapters.watched.WatchedKube``)."""
 
-    def start(self, on_pod: Listener | None = None, on_deployment: Listener | None = None) -> None:
-        """Start watching fogfleet's Pods and Deployments (and what else the KubePort reads);
-        the listeners are called on a watch thread, not the event loop."""
+    def start(
+        self,
+        on_pod: Listener | None = None,
+        on_deployment: Listener | None = None,
+        on_node: Listener | None = None,
+    ) -> None:
+        """Start watching fogfleet's Pods and Deployments, the Nodes (and what else the
+        KubePort reads); the listeners are called on a watch thread, not the event loop."""
         ...
 
     def stop(self) -> None: ...

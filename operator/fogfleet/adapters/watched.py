@@ -112,9 +112,15 @@ class WatchedKube(KubeClient):
             *self.pods.values(),
         ]
 
-    def start(self, on_pod: OnEvent | None = None, on_deployment: OnEvent | None = None) -> None:
-        """Start every informer; ``on_pod`` and ``on_deployment`` hear each fogfleet Pod's and
-        Deployment's changes (on the informer's thread)."""
+    def start(
+        self,
+        on_pod: OnEvent | None = None,
+        on_deployment: OnEvent | None = None,
+        on_node: OnEvent | None = None,
+    ) -> None:
+        """Start every informer; ``on_pod``, ``on_deployment`` and ``on_node`` hear each
+        fogfleet Pod's and Deployment's and each Node's changes (on the informer's thread)."""
+        self.nodes.on_event = on_node
         for informer in self.pods.values():
             informer.on_event = on_pod
         for informer in self.deployments.values():

@@ -84,7 +84,12 @@ class Runtime:
             def on_deployment(kind: str, dep: Obj, old: Obj | None) -> None:
                 loop.call_soon_threadsafe(self.deployment_event, dep)
 
-            self.deps.watches.start(on_pod, on_deployment)
+            def on_node(kind: str, node: Obj, old: Obj | None) -> None:
+                # most Node events are kubelet heartbeats: dropped here, off the event loop
+                if kind == "DELETED" or old is None or node_signature(node) != node_signature(old):
+                    loop.call_soon_threadsafe(self.node_event, node, kind)
+
+            self.deps.watches.start(on_pod, on_deployment, on_node)
         self._loops.append(asyncio.create_task(self._drift(drift_seconds), name="fogfleet-drift"))
         self._loops.append(asyncio.create_task(self._usage(), name="fogfleet-usage"))
         self.usage_changed()

@@ -31,8 +31,8 @@ def register(registry: kopf.OperatorRegistry, settings: Settings) -> kopf.Operat
     kopf.on.delete(*FLEETS, registry=registry, optional=True)(robotfleet.fleet_deleted)
     kopf.on.event(GROUP, VERSION, SoftwareModule.PLURAL, registry=registry)(related.module_event)
     kopf.on.event(GROUP, VERSION, ComputeNode.PLURAL, registry=registry)(related.compute_node_event)
-    kopf.on.event("", "v1", "nodes", registry=registry)(related.node_event)
-    if not settings.watch_cache:  # else the runtime's own Deployment cache reports them
+    if not settings.watch_cache:  # else the runtime's own Node and Deployment caches report them
+        kopf.on.event("", "v1", "nodes", registry=registry)(related.node_event)
         kopf.on.event(
             "apps", "v1", "deployments", labels={LABEL_MANAGED_BY: MANAGER}, registry=registry
         )(related.deployment_event)

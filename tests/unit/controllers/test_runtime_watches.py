@@ -29,11 +29,13 @@ class FakeWatches:
     def __init__(self) -> None:
         self.listener = None
         self.deployments = None
+        self.nodes = None
         self.stopped = False
 
-    def start(self, on_pod=None, on_deployment=None) -> None:
+    def start(self, on_pod=None, on_deployment=None, on_node=None) -> None:
         self.listener = on_pod
         self.deployments = on_deployment
+        self.nodes = on_node
 
     def stop(self) -> None:
         self.stopped = True
@@ -111,3 +113,40 @@ def test_a_large_rollout_refreshes_its_status_less_often(waiting: int, cap: floa
 
     calls = asyncio.run(main())
     assert calls == [(KEY, rt.ROLLOUT_QUIET_SECONDS, cap)]
+
+
+def node(ready: bool, heartbeat: str) -> dict:
+    return {
+        "metadata": {"name": "edge-1"},
+        "status": {
+            "allocatable": {"cpu": "16", "memory": "64Gi"},
+            "conditions": [{"type": "Ready", "status": str(ready), "lastHeartbeatTime": heartbeat}],
+        },
+    }
+
+
+def test_node_heartbeats_stay_off_the_loop_and_a_node_going_not_ready_rechecks_its_fleets():
+    """The Node cache reports Nodes (kopf no longer watches them): a heartbeat changes nothing
+    planning reads and is dropped on the watch thread; a Node going NotReady re-checks the
+    fleets placing on it."""
+    watches = FakeWatches()
+
+    async def main() -> list[bool]:
+        runtime = Runtime(Deps(kube=object(), watches=watches), debounce=5.0)
+        runtime.deps.refs.record(KEY, {"edge-1"}, {"edge-1"}, {"m"}, False)
+        runtime.start_periodic(3600)
+        seen = []
+        for new, old in [
+            (node(True, "t1"), node(True, "t0")),
+            (node(False, "t2"), node(True, "t1")),
+        ]:
+            t = threading.Thread(target=watches.nodes, args=("MODIFIED", new, old))
+            t.start()
+            t.join()
+            for _ in range(20):
+                await asyncio.sleep(0.01)
+            seen.append(KEY in runtime.queue.pending())
+        await runtime.close()
+        return seen
+
+    assert asyncio.run(main()) == [False, True]
