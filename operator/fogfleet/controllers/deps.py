@@ -68,6 +68,7 @@ class Rendered:
 
     stamp: tuple[Any, ...]
     at: float  # time.monotonic() of the full reconcile
+    seconds: float  # how long it took (stamp.resync_overdue)
     problem: Problem
     desired: list[Obj]
     stranded: frozenset[int]
@@ -146,6 +147,7 @@ class Deps:
     # where each fleet's instances stand, as its last status refresh found them (placement
     # entries; a large fleet's status does not list them): the usage pass reads these
     placements: dict[FleetKey, list[Obj]] = field(default_factory=dict)
+    placement_changes: int = 0  # how many times one of them changed (the usage pass follows)
     refs: References = field(default_factory=References)
     failures: dict[FleetKey, tuple[str, Exception]] = field(default_factory=dict)  # fp -> error
     # operator-wide defaults for scheduler fields a fleet leaves out (FOGFLEET_SCHEDULER_*)
@@ -154,7 +156,9 @@ class Deps:
     retry_seconds: float = 10.0  # after DependencyUnavailable
     api_concurrency: int = 8  # a reconcile's independent writes (Deployments) in flight at once
     watches: Watches | None = None  # the caches behind ``kube``, when it reads from watches
-    full_reconcile_seconds: float = 60.0  # a status refresh never reuses an older render
+    # a render is re-done once older than this (or than stamp.RESYNC_COST_FACTOR times what
+    # it took; 0: every reconcile is a full pass)
+    full_reconcile_seconds: float = 60.0
     # the robots' links as measured (controllers/links.py), and the standbys computing now
     links: dict[FleetKey, dict[str, RobotLink]] = field(default_factory=dict)
     standbys_active: dict[FleetKey, frozenset[tuple[str, str]]] = field(default_factory=dict)

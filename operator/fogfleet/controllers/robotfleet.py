@@ -49,7 +49,7 @@ from .inputs import current_placement, gather
 from .links import link_events, link_report
 from .observed import profile_corrections
 from .profiling import PROFILING_POLL_SECONDS, profile_first, report_waiting
-from .stamp import input_stamp
+from .stamp import RESYNC_MAX_DEFER_SECONDS, input_stamp, resync_overdue
 from .status import (
     condition,
     merge_conditions,
@@ -157,14 +157,19 @@ def _reconcile(
     learnt = (tuple(sorted(corrections.items())), _profiled(raw_modules))
     stamp = (*input_stamp(body, raw_modules, compute_nodes, nodes, listed), measured, learnt)
     last = deps.rendered.pop(key, None)
-    if (
-        last is not None
-        and last.stamp == stamp
-        and time.monotonic() - last.at < deps.full_reconcile_seconds
-    ):
+    if last is not None and last.stamp == stamp:
         deps.rendered[key] = last
-        return _finish(body, fleet, deps, last, deployments, False, old_status, generation)
-    log.debug("RobotFleet %s/%s: inputs changed, full reconcile", ns, name)
+        overdue = resync_overdue(last.at, last.seconds, deps.full_reconcile_seconds)
+        outcome, old_status = _finish(
+            body, fleet, deps, last, deployments, False, old_status, generation
+        )
+        if overdue is None or (outcome.waiting and overdue < RESYNC_MAX_DEFER_SECONDS):
+            return outcome
+        deps.rendered.pop(key, None)  # a full pass that fails leaves nothing to reuse
+        log.debug("RobotFleet %s/%s: re-rendering a %.0f s old render", ns, name, overdue)
+    else:
+        log.debug("RobotFleet %s/%s: inputs changed, full reconcile", ns, name)
+    started = time.monotonic()
     inputs = gather(fleet, compute_nodes, raw_modules, nodes)
     modules = _modules_in(inputs.catalog, ns)
     # the variants the fleet's standbys run: a change to one (or its creation) re-plans it
@@ -254,6 +259,7 @@ def _reconcile(
     rendered = Rendered(
         (*input_stamp(body, raw_modules, compute_nodes, nodes, listed), measured, learnt),
         time.monotonic(),
+        time.monotonic() - started,
         problem,
         desired,
         frozenset(stranded),
@@ -280,7 +286,7 @@ def _reconcile(
         },
     )
     deps.rendered[key] = rendered
-    outcome = _finish(body, fleet, deps, rendered, deployments, planned, old_status, generation)
+    outcome, _ = _finish(body, fleet, deps, rendered, deployments, planned, old_status, generation)
     if planned and cached is not None:
         plan_events(deps, body, problem, cached)
     return replace(
@@ -300,15 +306,18 @@ def _finish(
     planned: bool,
     old_status: Obj,
     generation: int | None,
-) -> Outcome:
-    """The status from where the rendered Deployments stand (one patch, only if it changed)."""
+) -> tuple[Outcome, Obj]:
+    """The status from where the rendered Deployments stand (one patch, only if it changed),
+    and the fleet's status now."""
     ns, name = fleet_key(body)
     pods = deps.kube.list_pods(ns, {LABEL_FLEET: label_value(name)})
     roll = rollout(rendered.desired, deployments, pods)
     placement = placement_entries(
         rendered.problem, rendered.desired, roll, rendered.plan, rendered.baseline
     )
-    deps.placements[(ns, name)] = placement  # the usage pass reads it (controllers/usage.py)
+    if deps.placements.get((ns, name)) != placement:  # the usage pass reads it (usage.py)
+        deps.placements[(ns, name)] = placement
+        deps.placement_changes += 1
     stranded = set(rendered.stranded)
     links = link_report(rendered, deps.links.get((ns, name)), deps.standbys_active.get((ns, name)))
     drift = drift_report(rendered, deps.drift.get((ns, name)))
@@ -328,8 +337,10 @@ def _finish(
         drift,
     )
     ready = not roll.waiting and not roll.moving and not stranded
+    now_status = old_status
     if not same_status(old_status, status):
         deps.kube.patch_fleet_status(ns, name, status)
+        now_status = status
         for kind, reason, message in [
             *link_events(old_status.get("links") or [], links.entries),
             *drift_events(old_status.get("measured") or [], drift.entries),
@@ -343,13 +354,14 @@ def _finish(
                 "" if ready else "not ",
                 _ready_message(status),
             )
-    return Outcome(
+    outcome = Outcome(
         planned=planned,
         ready=ready,
         requeue_after=None if ready else deps.requeue_seconds,
         message=status["conditions"][0]["message"],
         waiting=len(roll.waiting) + len(roll.moving),
     )
+    return outcome, now_status
 
 
 def scaling_pools(modules: Iterable[Mapping[str, Any]]) -> dict[str, dict[str, int]]:

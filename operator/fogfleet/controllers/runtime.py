@@ -11,6 +11,7 @@ from __future__ import annotations
 import asyncio
 import functools
 import logging
+import math
 import time
 from collections.abc import Callable, Mapping
 from concurrent.futures import ThreadPoolExecutor
@@ -38,7 +39,9 @@ ROLLOUT_QUIET_SECONDS = 0.5
 # fleet's status at most every ROLLOUT_BUSY_MAX_WAIT_SECONDS instead of the queue's max_wait:
 # the status then says "waiting for 300" a little later, and the refreshes stop competing with
 # the control plane for CPU; the last modules still get the short wait (Ready follows the
-# last pod within ROLLOUT_QUIET_SECONDS plus one refresh).
+# last pod within ROLLOUT_QUIET_SECONDS plus one refresh), and so does a rollout that should
+# end within that cap at its pace (at 1000 robots the last 71 of 8000 pods started within one
+# 5 s wait, and Ready came up to 5 s after them).
 ROLLOUT_BUSY_MODULES = 20
 ROLLOUT_BUSY_MAX_WAIT_SECONDS = 5.0
 # a reconcile or usage pass slower than this is logged at INFO (the others at DEBUG)
@@ -59,6 +62,9 @@ class Runtime:
         self._generations: dict[tuple[str, str, str], Any] = {}
         self._nodes: dict[str, tuple[Any, ...]] = {}
         self._waiting: dict[FleetKey, int] = {}  # modules still rolling out, per fleet
+        # per fleet: when its rollout was last counted, and the seconds it needs at its pace
+        self._counted: dict[FleetKey, float] = {}
+        self._eta: dict[FleetKey, float] = {}
         # shared modules with spec.scaling, by (namespace, name): the scaling loop's work list
         self.scaled: dict[tuple[str, str], Obj] = {}
         self._loops: list[asyncio.Task[None]] = []
@@ -169,12 +175,15 @@ class Runtime:
         if body is None or (body.get("metadata") or {}).get("deletionTimestamp"):
             forget(self.deps, key)
             self._waiting.pop(key, None)
+            self._counted.pop(key, None)
+            self._eta.pop(key, None)
             self.queue.cancel(key)
             self.usage_changed()
             return None
         t0 = time.perf_counter()
+        moved = self.deps.placement_changes
         outcome = await self.call(reconcile, body, self.deps)
-        self._waiting[key] = outcome.waiting
+        self._count_rollout(key, outcome.waiting, time.monotonic())
         took = time.perf_counter() - t0
         log.log(
             logging.INFO if took > SLOW_SECONDS else logging.DEBUG,
@@ -184,7 +193,8 @@ class Runtime:
             "ready" if outcome.ready else "not ready",
             outcome.message,
         )
-        self.usage_changed()
+        if self.deps.placement_changes != moved:  # a refresh that found nothing new: no pass
+            self.usage_changed()
         return outcome
 
     # ------------------------------------------------------------------ fleets
@@ -276,6 +286,19 @@ class Runtime:
             )
         self._rollout_moved(pod)
 
+    def _count_rollout(self, key: FleetKey, waiting: int, now: float) -> None:
+        """Record a fleet's modules still rolling out, and when its rollout should end at the
+        pace since the last count (inf: no progress, or nothing to compare with)."""
+        before, then = self._waiting.get(key), self._counted.get(key)
+        self._waiting[key], self._counted[key] = waiting, now
+        done = (before - waiting) if before is not None else 0
+        if not waiting:
+            self._eta[key] = 0.0
+        elif done > 0 and then is not None and now > then:
+            self._eta[key] = waiting / (done / (now - then))
+        else:
+            self._eta[key] = math.inf
+
     def _rollout_moved(self, obj: Mapping[str, Any]) -> None:
         """Re-check the fleet of a Deployment or Pod: a status refresh, ROLLOUT_QUIET_SECONDS
         after the last such event (at most the queue's max_wait into a stream of them)."""
@@ -284,7 +307,10 @@ class Runtime:
         if fleet:
             key = (meta.get("namespace") or "default", fleet)
             if key in self.deps.refs.fleets():
-                busy = self._waiting.get(key, 0) > ROLLOUT_BUSY_MODULES
+                busy = (
+                    self._waiting.get(key, 0) > ROLLOUT_BUSY_MODULES
+                    and self._eta.get(key, math.inf) > ROLLOUT_BUSY_MAX_WAIT_SECONDS
+                )
                 self.queue.schedule_debounced(
                     key,
                     min(self.queue.debounce, ROLLOUT_QUIET_SECONDS),

@@ -150,3 +150,54 @@ def test_node_heartbeats_stay_off_the_loop_and_a_node_going_not_ready_rechecks_i
         return seen
 
     assert asyncio.run(main()) == [False, True]
+
+
+def test_the_usage_pass_follows_placements_not_every_refresh(kube, deps):
+    """A reconcile that leaves every placement as it was does not wake the usage pass (at
+    1000 robots it took 1.3 s after each of the rollout's refreshes); one that moves any
+    does."""
+    fleet = ("warehouse", "warehouse")
+
+    async def main() -> list[bool]:
+        runtime = Runtime(deps, debounce=5.0)
+        woke = []
+        for step in ("plan", "refresh", "pods run", "module moved"):
+            if step == "pods run":
+                kube.run_pods()
+            if step == "module moved":
+                deps.placements[fleet] = deps.placements[fleet][1:]  # as if one had moved
+            runtime._usage_due.clear()
+            await runtime._run(fleet)
+            woke.append(runtime._usage_due.is_set())
+        await runtime.close()
+        return woke
+
+    assert asyncio.run(main()) == [True, False, False, True]
+
+
+@pytest.mark.parametrize(
+    ("counts", "cap"),
+    [
+        ([(0.0, 300), (5.0, 100)], None),  # 100 left at 40/s: done within the cap
+        ([(0.0, 300), (5.0, 280)], 5.0),  # 280 left at 4/s: a long way to go
+        ([(0.0, 100), (5.0, 100)], 5.0),  # no progress: no estimate
+        ([(5.0, 100)], 5.0),  # one count: no pace yet
+    ],
+)
+def test_a_rollout_near_its_end_at_its_pace_gets_the_short_wait(counts, cap):
+    from fogfleet.controllers import runtime as rt
+
+    async def main() -> list[tuple]:
+        runtime = Runtime(Deps(kube=object()), debounce=5.0)
+        runtime.deps.refs.record(KEY, set(), set(), {"m"}, False)
+        for at, waiting in counts:
+            runtime._count_rollout(KEY, waiting, at)
+        calls: list[tuple] = []
+        runtime.queue.schedule_debounced = lambda key, quiet=None, max_wait=None: calls.append(  # type: ignore[method-assign]
+            (key, quiet, max_wait)
+        )
+        runtime.pod_event("MODIFIED", pod(True), pod(False))
+        await runtime.close()
+        return calls
+
+    assert asyncio.run(main()) == [(KEY, rt.ROLLOUT_QUIET_SECONDS, cap)]

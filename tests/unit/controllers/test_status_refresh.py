@@ -8,6 +8,7 @@ import pytest
 import fogfleet.controllers.robotfleet as robotfleet
 from fogfleet.controllers.robotfleet import reconcile
 from fogfleet.controllers.ros import is_ros_object
+from fogfleet.controllers.stamp import resync_overdue
 
 KEY = ("warehouse", "warehouse")
 
@@ -91,3 +92,38 @@ def test_a_failed_full_pass_leaves_nothing_to_reuse(kube, deps, builds):
     with pytest.raises(Exception, match="no-such-module"):
         run(kube, deps)
     assert KEY not in deps.rendered
+
+
+def test_a_rollout_puts_the_re_render_off_until_its_last_pod_runs(kube, deps, builds):
+    """An old render is re-done only once the refresh has found every module running (and
+    said Ready first): a re-render that began just before the last pod ran held Ready back."""
+    deps.full_reconcile_seconds = 0.0  # every render is due at once
+    run(kube, deps)
+    run(kube, deps)  # nothing runs yet: the rollout goes on, no re-render
+    assert builds[0] == 1 and ready(kube) == "False"
+    kube.run_pods()
+    patches = len(kube.status_patches)
+    out = run(kube, deps)
+    assert out.ready and builds[0] == 2
+    said = [p for p in kube.status_patches[patches:] if p.get("conditions")]
+    assert said and any(
+        c["type"] == "Ready" and c["status"] == "True" for c in said[0]["conditions"]
+    ), "the refresh says Ready before the re-render"
+    assert len(said) == 1, "the re-render finds nothing new to say"
+
+
+def test_a_rollout_that_never_ends_is_re_rendered_after_all(kube, deps, builds, monkeypatch):
+    monkeypatch.setattr(robotfleet, "RESYNC_MAX_DEFER_SECONDS", 0.0)
+    deps.full_reconcile_seconds = 0.0
+    run(kube, deps)
+    run(kube, deps)
+    assert builds[0] == 2
+
+
+def test_a_render_is_due_after_the_period_or_ten_times_what_it_took():
+    assert resync_overdue(at=0.0, took=1.0, period=60.0, now=59.0) is None
+    assert resync_overdue(at=0.0, took=1.0, period=60.0, now=61.0) == 1.0
+    # a 15 s full pass (1000 robots) is re-done every 150 s, not every minute
+    assert resync_overdue(at=0.0, took=15.0, period=60.0, now=100.0) is None
+    assert resync_overdue(at=0.0, took=15.0, period=60.0, now=160.0) == 10.0
+    assert resync_overdue(at=0.0, took=15.0, period=0.0, now=0.0) == 0.0
