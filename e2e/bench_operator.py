@@ -40,6 +40,7 @@ import json
 import os
 import secrets
 import statistics
+import subprocess
 import sys
 import tempfile
 import threading
@@ -570,8 +571,23 @@ def teardown_cluster(kube: Kube, namespaces: Sequence[str], operator_running: bo
                 except AssertionError as exc2:
                     log(f"cleanup: {exc2}")
     sel = f"{BENCH_LABEL}=true"
-    kube.kubectl("delete", "computenodes", "-l", sel, "--wait=true", check=False, timeout=120)
-    kube.kubectl("delete", "nodes", "-l", sel, "--wait=true", check=False, timeout=300)
+    for kind in ("computenodes", "nodes"):
+        # kubectl deletes one object per request: 1400 of them outlast a short --wait on a
+        # loaded API server, and a cleanup that raises would lose the measured row
+        try:
+            kube.kubectl("delete", kind, "-l", sel, "--wait=false", check=False, timeout=900)
+            kube.wait_for(
+                f"bench {kind} gone",
+                lambda kind=kind: (
+                    not kube.kubectl(
+                        "get", kind, "-l", sel, "-o", "name", check=False, timeout=120
+                    ).stdout.strip()
+                ),
+                timeout=900,
+                interval=5,
+            )
+        except (AssertionError, subprocess.TimeoutExpired) as exc:
+            log(f"cleanup: {kind}: {exc}")
     log("removed the bench namespaces, ComputeNodes and Nodes")
 
 

@@ -282,7 +282,10 @@ def bench_size(
         log(f"{spec.key}: FAILED: {exc!r}")
         row["error"] = repr(exc)
     finally:
-        teardown_cluster(kube, [plain_ns, op_ns])
+        try:
+            teardown_cluster(kube, [plain_ns, op_ns])
+        except Exception as exc:  # keep what was measured; the next run removes leftovers
+            log(f"{spec.key}: cleanup failed: {exc!r}")
     return row
 
 
