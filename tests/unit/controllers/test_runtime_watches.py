@@ -99,10 +99,20 @@ def test_a_large_rollout_refreshes_its_status_less_often(waiting: int, cap: floa
     the last few modules get the queue's short cap (Ready follows the last pod quickly)."""
     from fogfleet.controllers import runtime as rt
 
+    def count(runtime: Runtime) -> None:
+        runtime._waiting[KEY] = waiting
+
+    assert debounce_after_a_pod_event(count) == [(KEY, rt.ROLLOUT_QUIET_SECONDS, cap)]
+
+
+def debounce_after_a_pod_event(count) -> list[tuple]:
+    """How a Pod event of a known fleet schedules its refresh, after ``count(runtime)``
+    recorded the fleet's rollout: [(fleet, quiet, max_wait)]."""
+
     async def main() -> list[tuple]:
         runtime = Runtime(Deps(kube=object()), debounce=5.0)
         runtime.deps.refs.record(KEY, set(), set(), {"m"}, False)
-        runtime._waiting[KEY] = waiting
+        count(runtime)
         calls: list[tuple] = []
         runtime.queue.schedule_debounced = lambda key, quiet=None, max_wait=None: calls.append(  # type: ignore[method-assign]
             (key, quiet, max_wait)
@@ -111,8 +121,7 @@ def test_a_large_rollout_refreshes_its_status_less_often(waiting: int, cap: floa
         await runtime.close()
         return calls
 
-    calls = asyncio.run(main())
-    assert calls == [(KEY, rt.ROLLOUT_QUIET_SECONDS, cap)]
+    return asyncio.run(main())
 
 
 def node(ready: bool, heartbeat: str) -> dict:
@@ -187,17 +196,8 @@ def test_the_usage_pass_follows_placements_not_every_refresh(kube, deps):
 def test_a_rollout_near_its_end_at_its_pace_gets_the_short_wait(counts, cap):
     from fogfleet.controllers import runtime as rt
 
-    async def main() -> list[tuple]:
-        runtime = Runtime(Deps(kube=object()), debounce=5.0)
-        runtime.deps.refs.record(KEY, set(), set(), {"m"}, False)
+    def count(runtime: Runtime) -> None:
         for at, waiting in counts:
             runtime._count_rollout(KEY, waiting, at)
-        calls: list[tuple] = []
-        runtime.queue.schedule_debounced = lambda key, quiet=None, max_wait=None: calls.append(  # type: ignore[method-assign]
-            (key, quiet, max_wait)
-        )
-        runtime.pod_event("MODIFIED", pod(True), pod(False))
-        await runtime.close()
-        return calls
 
-    assert asyncio.run(main()) == [(KEY, rt.ROLLOUT_QUIET_SECONDS, cap)]
+    assert debounce_after_a_pod_event(count) == [(KEY, rt.ROLLOUT_QUIET_SECONDS, cap)]
