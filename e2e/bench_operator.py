@@ -258,11 +258,10 @@ class Watcher:
         Objects stay JSON dicts: the client's typed models cost milliseconds per Pod, and at
         8000 pods on this machine the watch fell 15 s behind the cluster it was timing."""
         from kubernetes import watch
+        from kubernetes.client.exceptions import ApiException
 
         def raw(*args: Any, **kwargs: Any) -> Any:  # no return annotation: dicts, not models
             return list_fn(*args, **kwargs)
-
-        from kubernetes.client.exceptions import ApiException
 
         while not self._stop:
             w: Any = watch.Watch()  # type: ignore[no-untyped-call]

@@ -145,9 +145,9 @@ class Deps:
     plans: dict[FleetKey, CachedPlan] = field(default_factory=dict)
     rendered: dict[FleetKey, Rendered] = field(default_factory=dict)  # for status refreshes
     # where each fleet's instances stand, as its last status refresh found them (placement
-    # entries; a large fleet's status does not list them): the usage pass reads these
+    # entries; a large fleet's status does not list them): the usage pass reads these. An
+    # entry is replaced only when it changed, so a new object means a new placement.
     placements: dict[FleetKey, list[Obj]] = field(default_factory=dict)
-    placement_changes: int = 0  # how many times one of them changed (the usage pass follows)
     refs: References = field(default_factory=References)
     failures: dict[FleetKey, tuple[str, Exception]] = field(default_factory=dict)  # fp -> error
     # operator-wide defaults for scheduler fields a fleet leaves out (FOGFLEET_SCHEDULER_*)

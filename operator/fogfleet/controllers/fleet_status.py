@@ -53,7 +53,7 @@ def placement_entries(
     """Where each rendered instance runs: the plan's node, or (k8s-default) the node
     kube-scheduler bound its pod to; an instance not placed yet is left out."""
     placement: list[Obj] = []
-    index = {(inst.robot, inst.module, inst.replica): i for i, inst in enumerate(problem.instances)}
+    index = _instance_index(problem)
     alloc = problem.nominal if baseline else problem.limits
     for dep in desired:
         ident = identity_of(dep)
@@ -82,6 +82,11 @@ def placement_entries(
             entry["replica"] = ident[2]
         placement.append(entry)
     return placement
+
+
+def _instance_index(problem: Problem) -> dict[tuple[str, str, int], int]:
+    """(robot, module, replica) -> the instance's row, as placement entries name it."""
+    return {(inst.robot, inst.module, inst.replica): i for i, inst in enumerate(problem.instances)}
 
 
 def by_module(placement: list[Obj]) -> list[Obj]:
@@ -224,9 +229,7 @@ def fleet_status(
         )
     elif baseline and len(placement) == len(desired) and placement:
         x = np.full(problem.n_instances, -1, dtype=np.int64)
-        index = {
-            (inst.robot, inst.module, inst.replica): i for i, inst in enumerate(problem.instances)
-        }
+        index = _instance_index(problem)
         for entry in placement:
             key = (str(entry["robot"]), str(entry["module"]), int(entry.get("replica", 0)))
             x[index[key]] = problem.node_index(entry["node"])

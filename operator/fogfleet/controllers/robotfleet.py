@@ -256,10 +256,11 @@ def _reconcile(
     # what we wrote (modules' and discovery servers' Deployments) is what the next stamp sees
     listed = [d for d in kube.list_deployments(ns, selector) if owned(d, body)]
     deployments = [d for d in listed if not is_ros_object(d)]
+    done = time.monotonic()
     rendered = Rendered(
         (*input_stamp(body, raw_modules, compute_nodes, nodes, listed), measured, learnt),
-        time.monotonic(),
-        time.monotonic() - started,
+        done,
+        done - started,
         problem,
         desired,
         frozenset(stranded),
@@ -316,8 +317,7 @@ def _finish(
         rendered.problem, rendered.desired, roll, rendered.plan, rendered.baseline
     )
     if deps.placements.get((ns, name)) != placement:  # the usage pass reads it (usage.py)
-        deps.placements[(ns, name)] = placement
-        deps.placement_changes += 1
+        deps.placements[(ns, name)] = placement  # replaced only when it changed
     stranded = set(rendered.stranded)
     links = link_report(rendered, deps.links.get((ns, name)), deps.standbys_active.get((ns, name)))
     drift = drift_report(rendered, deps.drift.get((ns, name)))

@@ -181,7 +181,7 @@ class Runtime:
             self.usage_changed()
             return None
         t0 = time.perf_counter()
-        moved = self.deps.placement_changes
+        before = self.deps.placements.get(key)
         outcome = await self.call(reconcile, body, self.deps)
         self._count_rollout(key, outcome.waiting, time.monotonic())
         took = time.perf_counter() - t0
@@ -193,7 +193,7 @@ class Runtime:
             "ready" if outcome.ready else "not ready",
             outcome.message,
         )
-        if self.deps.placement_changes != moved:  # a refresh that found nothing new: no pass
+        if self.deps.placements.get(key) is not before:  # nothing moved: no usage pass
             self.usage_changed()
         return outcome
 
