@@ -18,12 +18,15 @@ from numpy.typing import NDArray
 
 from fogfleet.domain.problem import Problem
 
+from .evaluation import Evaluation
+from .heuristics import Fit
 from .objectives import constraints, evaluate
 
 __all__ = ["MISS_OBJECTIVES", "polish", "tie_breakers"]
 
 MISS_OBJECTIVES = ("missRate", "missedCycles")
 POLISH_EVALUATIONS = 4000  # the polish is bounded by work (plans evaluated), not the clock
+ROOM_TOLERANCE = 1e-6  # looser than the constraints' 1e-9: rounding never refuses a move
 
 F64 = NDArray[np.float64]
 I64 = NDArray[np.int64]
@@ -63,10 +66,13 @@ def polish(problem: Problem, x: I64, names: Sequence[str]) -> tuple[I64, int]:
     moves = 0
     price = problem.cost
     remote = problem.tier > 0
-    for i in range(problem.n_instances):
+    fit = Fit(problem, problem.limits)
+    used = _requested(problem, x)
+    # only an off-board instance with another allowed node can move (on-board use is F1's
+    # business, not a tie-break); an incremental re-plan's fixed instances have one node
+    movable = (x >= 0) & remote[np.maximum(x, 0)] & (problem.allowed.sum(axis=1) > 1)
+    for i in map(int, np.flatnonzero(movable)):
         j = int(x[i])
-        if j < 0 or not remote[j]:
-            continue  # what runs on board stays: on-board use is F1's business, not a tie-break
         pref = problem.preferred[i] if problem.preferred is not None else None
         better = problem.allowed[i] & remote & (np.arange(problem.n_nodes) != j)
         if pref is not None and not pref[j]:
@@ -75,10 +81,14 @@ def polish(problem: Problem, x: I64, names: Sequence[str]) -> tuple[I64, int]:
             better &= price < price[j]
             if pref is not None:
                 better &= pref
-        for k in np.flatnonzero(better)[np.argsort(price[better], kind="stable")]:
+        ks = np.flatnonzero(better)[np.argsort(price[better], kind="stable")]
+        room = _has_room(fit, used, i, ks)
+        for k, fits in zip(ks, room, strict=True):
             if budget <= 0:
                 return x, moves
             budget -= 1
+            if not fits:
+                continue  # over a capacity of node k: ``constraints`` would say so too
             trial = x.copy()
             trial[i] = k
             if np.any(constraints(problem, trial[None, :], problem.limits) > 1e-9):
@@ -86,6 +96,28 @@ def polish(problem: Problem, x: I64, names: Sequence[str]) -> tuple[I64, int]:
             miss, rank = score(trial)
             if np.all(miss <= limit) and rank < base_rank:
                 x, base_rank = trial, rank
+                used = _requested(problem, x)
                 moves += 1
                 break
     return x, moves
+
+
+def _requested(problem: Problem, x: I64) -> F64:
+    """(N, 3) cpu requests, memory and gpus of plan ``x`` on every node, as the capacity
+    constraints count them."""
+    ev = Evaluation(problem, x[None, :], problem.limits)
+    return np.stack([ev.cpu_requested[0], ev.mem_requested[0], ev.gpu_requested[0]], axis=1)
+
+
+def _has_room(fit: Fit, used: F64, i: int, nodes: I64) -> NDArray[np.bool_]:
+    """Per node of ``nodes``: whether instance ``i`` fits there next to ``used``. A quick
+    necessary test of the capacity constraints (``Evaluation.node_constraints``, normalised
+    the same way with a looser tolerance): a move it refuses, the full check refuses too, so
+    skipping it changes no result, only the time (a polish of 1000 robots checked 600 plans
+    whole, 0.2 s)."""
+    if nodes.size == 0:
+        return np.zeros(0, dtype=bool)
+    need = fit.demand_at(np.full(nodes.size, i, dtype=np.int64), nodes)
+    cap = fit.cap[nodes]
+    over = (used[nodes] + need - cap) / np.maximum(cap, 1.0)
+    return np.asarray(np.all(over <= ROOM_TOLERANCE, axis=1))

@@ -121,3 +121,33 @@ def test_the_lexicographic_choice_takes_the_cheapest_plan_among_those_that_miss_
         tied = tied[col <= col.min() + 1e-6 + 1e-3 * abs(col.min())]
     chosen = evaluate(p, s.placement[None, :], p.limits)["cost"][0]
     assert chosen <= values["cost"][tied].min() + 1e-9
+
+
+def test_the_polish_quick_room_test_refuses_only_moves_the_constraints_refuse(
+    tmp_path: Path,
+) -> None:
+    """``_has_room`` skips a move without the whole-plan check; it may only skip moves that
+    check would refuse (else the polish would miss moves), and it must skip the overfull."""
+    from fogfleet.scheduling.heuristics import Fit
+    from fogfleet.scheduling.preference import _has_room, _requested
+
+    p = _site(tmp_path, price=1.0)
+    x = plan(p, SchedulerSettings(seed=1)).placement
+    fit, used = Fit(p, p.limits), _requested(p, x)
+    remote = np.flatnonzero(p.tier > 0)
+    refused = kept = 0
+    for i in np.flatnonzero(np.isin(x, remote)):
+        nodes = remote[p.allowed[i, remote] & (remote != x[i])]
+        for k, fits in zip(nodes, _has_room(fit, used, int(i), nodes), strict=True):
+            trial = x.copy()
+            trial[i] = k
+            whole = bool(np.all(constraints(p, trial[None, :], p.limits) <= 1e-9))
+            assert fits or not whole, f"instance {i} -> node {k}: refused but feasible"
+            refused += not fits
+            kept += fits
+    # a plan over a full cluster: a quick test that refuses nothing would not be tested here
+    used_full = used.copy()
+    used_full[remote] = fit.cap[remote]
+    anyone = int(np.flatnonzero(np.isin(x, remote))[0])
+    assert not _has_room(fit, used_full, anyone, remote).any()
+    assert kept > 0
