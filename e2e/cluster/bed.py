@@ -92,6 +92,7 @@ def _start_real_nodes(cluster: Cluster, real: list[realnodes.RealNode]) -> None:
             str(STATE_DIR),
             cluster.api_server,
             str(cluster.prometheus_targets_dir / "kubernetes-pods.json"),
+            *(node.name for node in real),
         ],
     )
     realnodes.start(real, f"https://{bednet.BRIDGE_IP}:{port}", images)

@@ -163,3 +163,22 @@ def test_scale_heartbeats_reach_kwok_and_the_controller_manager_only(
         json.dumps({"lease_seconds": 120, "grace_period": "120s"})
     )
     assert heartbeats.current() == heartbeats.SCALE
+
+
+def test_pod_discovery_lists_the_real_nodes_pods_from_the_watch_cache() -> None:
+    """One list per real node, served by the API server's cache (not a read of every pod
+    from etcd every two seconds); every Running pod only when no node is named."""
+    from urllib.parse import parse_qs, urlsplit
+
+    from e2e.cluster.poddiscovery import list_urls
+
+    urls = list_urls("https://127.0.0.1:6443", ["bed-robot-1", "bed-edge-1"])
+    queries = [parse_qs(urlsplit(u).query) for u in urls]
+    assert [q["fieldSelector"] for q in queries] == [
+        ["spec.nodeName=bed-robot-1,status.phase=Running"],
+        ["spec.nodeName=bed-edge-1,status.phase=Running"],
+    ]
+    assert all(q["resourceVersion"] == ["0"] for q in queries)
+    assert all(urlsplit(u).path == "/api/v1/pods" for u in urls)
+    (everything,) = list_urls("https://127.0.0.1:6443", [])
+    assert parse_qs(urlsplit(everything).query)["fieldSelector"] == ["status.phase=Running"]

@@ -74,6 +74,7 @@ class Outcome:
     requeue_after: float | None = None
     message: str = ""
     waiting: int = 0  # modules not yet running where planned (rolling out or moving)
+    unsettled: frozenset[str] = frozenset()  # their Deployments' names
 
 
 def forget(deps: Deps, key: FleetKey) -> None:
@@ -360,6 +361,7 @@ def _finish(
         requeue_after=None if ready else deps.requeue_seconds,
         message=status["conditions"][0]["message"],
         waiting=len(roll.waiting) + len(roll.moving),
+        unsettled=frozenset(roll.waiting).union(roll.moving),
     )
     return outcome, now_status
 

@@ -19,6 +19,7 @@ from typing import Any, TypeVar
 
 from fogfleet.api.labels import LABEL_FLEET
 from fogfleet.errors import FogfleetError
+from fogfleet.render.deployments import hash_annotation
 
 from .deps import Deps, FleetKey
 from .links import LinkDeps, measure_links
@@ -65,6 +66,8 @@ class Runtime:
         # per fleet: when its rollout was last counted, and the seconds it needs at its pace
         self._counted: dict[FleetKey, float] = {}
         self._eta: dict[FleetKey, float] = {}
+        # per fleet: the Deployments of its modules not yet running where planned (last refresh)
+        self._unsettled: dict[FleetKey, frozenset[str]] = {}
         # shared modules with spec.scaling, by (namespace, name): the scaling loop's work list
         self.scaled: dict[tuple[str, str], Obj] = {}
         self._loops: list[asyncio.Task[None]] = []
@@ -88,7 +91,7 @@ class Runtime:
                 loop.call_soon_threadsafe(self.pod_event, kind, pod, old)
 
             def on_deployment(kind: str, dep: Obj, old: Obj | None) -> None:
-                loop.call_soon_threadsafe(self.deployment_event, dep)
+                loop.call_soon_threadsafe(self.deployment_event, dep, kind, old)
 
             def on_node(kind: str, node: Obj, old: Obj | None) -> None:
                 # most Node events are kubelet heartbeats: dropped here, off the event loop
@@ -177,6 +180,7 @@ class Runtime:
             self._waiting.pop(key, None)
             self._counted.pop(key, None)
             self._eta.pop(key, None)
+            self._unsettled.pop(key, None)
             self.queue.cancel(key)
             self.usage_changed()
             return None
@@ -184,6 +188,7 @@ class Runtime:
         before = self.deps.placements.get(key)
         outcome = await self.call(reconcile, body, self.deps)
         self._count_rollout(key, outcome.waiting, time.monotonic())
+        self._unsettled[key] = outcome.unsettled
         took = time.perf_counter() - t0
         log.log(
             logging.INFO if took > SLOW_SECONDS else logging.DEBUG,
@@ -266,8 +271,25 @@ class Runtime:
         for key in self.deps.refs.using_node(name):
             self.queue.schedule_debounced(key)
 
-    def deployment_event(self, body: Mapping[str, Any]) -> None:
-        """A fleet's Deployment changed (rolled out, deleted by hand): re-check that fleet."""
+    def deployment_event(
+        self, body: Mapping[str, Any], kind: str | None = None, old: Mapping[str, Any] | None = None
+    ) -> None:
+        """A fleet's Deployment changed (rolled out, edited or deleted by hand): re-check that
+        fleet. A change of its status alone matters only to a module still rolling out (a
+        settled one becomes unsettled through its pods or its spec): kube-controller-manager
+        rewrites the status of every Deployment of a large rollout long after its pods run,
+        and at 1000 robots those writes alone kept the operator refreshing a Ready fleet
+        (~1.4 s of CPU every ~2 s)."""
+        if (
+            kind not in (None, "DELETED")
+            and old is not None
+            and _spec_state(body) == _spec_state(old)
+        ):
+            meta = body.get("metadata") or {}
+            fleet = (meta.get("labels") or {}).get(LABEL_FLEET)
+            unsettled = self._unsettled.get((meta.get("namespace") or "default", fleet or ""))
+            if unsettled is not None and meta.get("name") not in unsettled:
+                return
         self._rollout_moved(body)
 
     def pod_event(self, kind: str, pod: Mapping[str, Any], old: Mapping[str, Any] | None) -> None:
@@ -324,6 +346,18 @@ class Runtime:
             task.cancel()
         await self.queue.close()
         self.executor.shutdown(wait=False, cancel_futures=True)
+
+
+def _spec_state(dep: Mapping[str, Any]) -> tuple[Any, ...]:
+    """What of a Deployment is not status: its generation (bumped by any spec change), the
+    spec hash fogfleet rendered into it, its labels, and whether it is being deleted."""
+    meta = dep.get("metadata") or {}
+    return (
+        meta.get("generation"),
+        hash_annotation(dep),
+        tuple(sorted((meta.get("labels") or {}).items())),
+        meta.get("deletionTimestamp"),
+    )
 
 
 def _pod_state(pod: Mapping[str, Any]) -> tuple[bool, Any]:

@@ -201,3 +201,49 @@ def test_a_rollout_near_its_end_at_its_pace_gets_the_short_wait(counts, cap):
             runtime._count_rollout(KEY, waiting, at)
 
     assert debounce_after_a_pod_event(count) == [(KEY, rt.ROLLOUT_QUIET_SECONDS, cap)]
+
+
+def deployment(name: str, available: int, generation: int = 1, spec_hash: str = "h1") -> dict:
+    return {
+        "metadata": {
+            "name": name,
+            "namespace": "wh",
+            "generation": generation,
+            "labels": {"fogfleet.io/fleet": "fleet"},
+            "annotations": {"fogfleet.io/spec-hash": spec_hash},
+        },
+        "status": {"observedGeneration": generation, "availableReplicas": available},
+    }
+
+
+def deployment_rechecks(kind: str, new: dict, old: dict | None, unsettled: set[str] | None) -> bool:
+    async def main() -> bool:
+        runtime = Runtime(Deps(kube=object()), debounce=5.0)
+        runtime.deps.refs.record(KEY, set(), set(), {"m"}, False)
+        if unsettled is not None:  # what the fleet's last refresh left rolling out
+            runtime._unsettled[KEY] = frozenset(unsettled)
+        runtime.deployment_event(new, kind, old)
+        pending = KEY in runtime.queue.pending()
+        await runtime.close()
+        return pending
+
+    return asyncio.run(main())
+
+
+def test_a_deployment_status_write_rechecks_only_a_module_still_rolling_out():
+    status_write = ("MODIFIED", deployment("d-1", 1), deployment("d-1", 0))
+    assert deployment_rechecks(*status_write, unsettled={"d-1"})
+    # settled: kube-controller-manager catching up with pods that already run changes nothing
+    assert not deployment_rechecks(*status_write, unsettled={"d-2"})
+    assert not deployment_rechecks(*status_write, unsettled=set())
+    # a fleet not refreshed yet, or a kopf event without the old object: re-checked
+    assert deployment_rechecks(*status_write, unsettled=None)
+    assert deployment_rechecks("MODIFIED", deployment("d-1", 1), None, unsettled=set())
+
+
+def test_a_deployment_edited_added_or_deleted_rechecks_its_fleet_even_when_settled():
+    old = deployment("d-1", 1)
+    assert deployment_rechecks("MODIFIED", deployment("d-1", 1, generation=2), old, set())
+    assert deployment_rechecks("MODIFIED", deployment("d-1", 1, spec_hash="h2"), old, set())
+    assert deployment_rechecks("DELETED", old, old, set())
+    assert deployment_rechecks("ADDED", old, None, set())
