@@ -21,6 +21,7 @@ from fogfleet.api.v1alpha1.computenode import ComputeNode
 from fogfleet.api.v1alpha1.linkhealth import LinkHealth
 from fogfleet.api.v1alpha1.observed import DriftSettings
 from fogfleet.controllers.planning import CorePlanner
+from fogfleet.controllers.stamp import DeploymentStamps
 from fogfleet.domain.linkhealth import RobotLink
 from fogfleet.domain.network import Link
 from fogfleet.domain.observed import ModuleDrift
@@ -148,6 +149,8 @@ class Deps:
     # entries; a large fleet's status does not list them): the usage pass reads these. An
     # entry is replaced only when it changed, so a new object means a new placement.
     placements: dict[FleetKey, list[Obj]] = field(default_factory=dict)
+    # per fleet: its Deployments' part of the stamp, remembered object by object
+    deployment_stamps: dict[FleetKey, DeploymentStamps] = field(default_factory=dict)
     refs: References = field(default_factory=References)
     failures: dict[FleetKey, tuple[str, Exception]] = field(default_factory=dict)  # fp -> error
     # operator-wide defaults for scheduler fields a fleet leaves out (FOGFLEET_SCHEDULER_*)

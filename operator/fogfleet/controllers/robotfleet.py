@@ -49,7 +49,7 @@ from .inputs import current_placement, gather
 from .links import link_events, link_report
 from .observed import profile_corrections
 from .profiling import PROFILING_POLL_SECONDS, profile_first, report_waiting
-from .stamp import RESYNC_MAX_DEFER_SECONDS, input_stamp, resync_overdue
+from .stamp import RESYNC_MAX_DEFER_SECONDS, DeploymentStamps, input_stamp, resync_overdue
 from .status import (
     condition,
     merge_conditions,
@@ -82,6 +82,7 @@ def forget(deps: Deps, key: FleetKey) -> None:
     deps.plans.pop(key, None)
     deps.rendered.pop(key, None)
     deps.placements.pop(key, None)
+    deps.deployment_stamps.pop(key, None)
     deps.failures.pop(key, None)
     deps.links.pop(key, None)
     deps.standbys_active.pop(key, None)
@@ -156,7 +157,12 @@ def _reconcile(
     # modules' profiles corrected by what ran (controllers/observed.py)
     corrections = profile_corrections(raw_modules)
     learnt = (tuple(sorted(corrections.items())), _profiled(raw_modules))
-    stamp = (*input_stamp(body, raw_modules, compute_nodes, nodes, listed), measured, learnt)
+    remembered = deps.deployment_stamps.setdefault(key, DeploymentStamps())
+    stamp = (
+        *input_stamp(body, raw_modules, compute_nodes, nodes, listed, remembered),
+        measured,
+        learnt,
+    )
     last = deps.rendered.pop(key, None)
     if last is not None and last.stamp == stamp:
         deps.rendered[key] = last
@@ -259,7 +265,11 @@ def _reconcile(
     deployments = [d for d in listed if not is_ros_object(d)]
     done = time.monotonic()
     rendered = Rendered(
-        (*input_stamp(body, raw_modules, compute_nodes, nodes, listed), measured, learnt),
+        (
+            *input_stamp(body, raw_modules, compute_nodes, nodes, listed, remembered),
+            measured,
+            learnt,
+        ),
         done,
         done - started,
         problem,

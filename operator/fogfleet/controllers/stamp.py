@@ -22,7 +22,7 @@ fleet's Ready back by its whole length: the 14.7 s Ready lag at 1000 robots).
 from __future__ import annotations
 
 import time
-from collections.abc import Iterable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from typing import Any
 
 from fogfleet.render.deployments import hash_annotation
@@ -33,6 +33,7 @@ from .status import scaling_status
 __all__ = [
     "RESYNC_COST_FACTOR",
     "RESYNC_MAX_DEFER_SECONDS",
+    "DeploymentStamps",
     "input_stamp",
     "node_signature",
     "pools_signature",
@@ -85,14 +86,52 @@ def _deployment(dep: Mapping[str, Any]) -> tuple[Any, ...]:
     )
 
 
+class DeploymentStamps:
+    """The Deployments' part of a fleet's stamp, remembered between reconciles for the objects
+    listed again as the same object.
+
+    The watch caches replace a cached object on every event and never change one in place
+    (adapters/informer.py: readers treat the dicts as read-only), so an object listed again
+    is unchanged and its part of the stamp too; a list from the API server (no watch cache) is
+    all new objects and costs what it always did. At 1000 robots this part was half of a
+    status refresh: 9000 Deployments read again at every refresh (0.15-0.35 s of the 0.3-0.5 s
+    on a quiet machine)."""
+
+    def __init__(self) -> None:
+        self._seen: dict[int, tuple[Mapping[str, Any], tuple[Any, ...]]] = {}
+        self._last: tuple[Any, ...] | None = None
+
+    def __call__(self, deployments: Iterable[Mapping[str, Any]]) -> tuple[Any, ...]:
+        seen: dict[int, tuple[Mapping[str, Any], tuple[Any, ...]]] = {}
+        fresh = 0
+        for dep in deployments:
+            hit = self._seen.get(id(dep))
+            if hit is None or hit[0] is not dep:
+                hit = (dep, _deployment(dep))
+                fresh += 1
+            seen[id(dep)] = hit
+        if fresh or self._last is None or len(seen) != len(self._seen):
+            self._last = tuple(sorted(sig for _, sig in seen.values()))
+        self._seen = seen
+        return self._last
+
+
+def _deployments_part(deployments: Iterable[Mapping[str, Any]]) -> tuple[Any, ...]:
+    return tuple(sorted(_deployment(d) for d in deployments))
+
+
 def input_stamp(
     fleet: Mapping[str, Any],
     modules: Iterable[Mapping[str, Any]],
     compute_nodes: Iterable[Mapping[str, Any]],
     nodes: Iterable[Mapping[str, Any]],
     deployments: Iterable[Mapping[str, Any]],
+    deployment_stamps: Callable[[Iterable[Mapping[str, Any]]], tuple[Any, ...]] = (
+        _deployments_part
+    ),
 ) -> tuple[Any, ...]:
-    """Everything the full reconcile reads, without the rollout's progress (hashable)."""
+    """Everything the full reconcile reads, without the rollout's progress (hashable).
+    ``deployment_stamps``: a fleet's :class:`DeploymentStamps`, to remember that part."""
     meta = _meta(fleet)
     return (
         meta.get("uid"),
@@ -115,5 +154,5 @@ def input_stamp(
             )
         ),
         tuple(sorted((_meta(n).get("name"), *node_signature(n)) for n in nodes)),
-        tuple(sorted(_deployment(d) for d in deployments)),
+        deployment_stamps(deployments),
     )

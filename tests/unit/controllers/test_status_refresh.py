@@ -127,3 +127,49 @@ def test_a_render_is_due_after_the_period_or_ten_times_what_it_took():
     assert resync_overdue(at=0.0, took=15.0, period=60.0, now=100.0) is None
     assert resync_overdue(at=0.0, took=15.0, period=60.0, now=160.0) == 10.0
     assert resync_overdue(at=0.0, took=15.0, period=0.0, now=0.0) == 0.0
+
+
+def _dep(name: str, spec_hash: str, node: str) -> dict:
+    term = {"matchExpressions": [{"key": "kubernetes.io/hostname", "values": [node]}]}
+    return {
+        "metadata": {"name": name, "annotations": {"fogfleet.io/spec-hash": spec_hash}},
+        "spec": {
+            "template": {
+                "spec": {
+                    "affinity": {
+                        "nodeAffinity": {
+                            "requiredDuringSchedulingIgnoredDuringExecution": {
+                                "nodeSelectorTerms": [term]
+                            }
+                        }
+                    }
+                }
+            }
+        },
+    }
+
+
+def test_the_deployments_stamp_is_remembered_per_object_and_follows_every_replacement(
+    monkeypatch,
+):
+    from fogfleet.controllers import stamp
+
+    computed: list[str] = []
+    plain = stamp._deployment
+    monkeypatch.setattr(
+        stamp, "_deployment", lambda d: computed.append(d["metadata"]["name"]) or plain(d)
+    )
+    memo = stamp.DeploymentStamps()
+    deps = [_dep("a", "h1", "edge-1"), _dep("b", "h1", "edge-2")]
+    first = memo(deps)
+    assert first == stamp._deployments_part(deps)
+    computed.clear()
+    assert memo(list(deps)) == first and computed == []  # the same objects: nothing re-read
+    # the cache replaced b (re-bound to another node): only b is read again, and it shows
+    moved = [deps[0], _dep("b", "h1", "edge-3")]
+    computed.clear()
+    assert memo(moved) != first and computed == ["b"]
+    assert memo(moved) == stamp._deployments_part(moved)
+    # one gone, or a new object equal to the old one: the same stamp as computed afresh
+    assert memo(moved[:1]) == stamp._deployments_part(moved[:1])
+    assert memo([_dep("a", "h1", "edge-1")]) == stamp._deployments_part(moved[:1])
