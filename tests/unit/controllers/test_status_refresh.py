@@ -4,6 +4,7 @@ Deployments; any input the full pass reads sends it down the full pass again."""
 from __future__ import annotations
 
 import pytest
+from test_rollout import desired  # the same directory: pytest puts it on sys.path
 
 import fogfleet.controllers.robotfleet as robotfleet
 from fogfleet.controllers.robotfleet import reconcile
@@ -130,23 +131,7 @@ def test_a_render_is_due_after_the_period_or_ten_times_what_it_took():
 
 
 def _dep(name: str, spec_hash: str, node: str) -> dict:
-    term = {"matchExpressions": [{"key": "kubernetes.io/hostname", "values": [node]}]}
-    return {
-        "metadata": {"name": name, "annotations": {"fogfleet.io/spec-hash": spec_hash}},
-        "spec": {
-            "template": {
-                "spec": {
-                    "affinity": {
-                        "nodeAffinity": {
-                            "requiredDuringSchedulingIgnoredDuringExecution": {
-                                "nodeSelectorTerms": [term]
-                            }
-                        }
-                    }
-                }
-            }
-        },
-    }
+    return desired(name, (node,), spec_hash)
 
 
 def test_the_deployments_stamp_is_remembered_per_object_and_follows_every_replacement(
