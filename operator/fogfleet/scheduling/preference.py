@@ -70,7 +70,9 @@ def polish(problem: Problem, x: I64, names: Sequence[str]) -> tuple[I64, int]:
     used = _requested(problem, x)
     # only an off-board instance with another allowed node can move (on-board use is F1's
     # business, not a tie-break); an incremental re-plan's fixed instances have one node
-    movable = (x >= 0) & remote[np.maximum(x, 0)] & (problem.allowed.sum(axis=1) > 1)
+    at = np.maximum(x, 0)
+    others = problem.allowed.sum(axis=1) - problem.allowed[np.arange(problem.n_instances), at]
+    movable = (x >= 0) & remote[at] & (others > 0)
     for i in map(int, np.flatnonzero(movable)):
         j = int(x[i])
         pref = problem.preferred[i] if problem.preferred is not None else None
