@@ -18,9 +18,9 @@ from numpy.typing import NDArray
 
 from fogfleet.domain.problem import Problem
 
-from .evaluation import Evaluation
 from .heuristics import Fit
 from .objectives import constraints, evaluate
+from .stickiness import loads
 
 __all__ = ["MISS_OBJECTIVES", "polish", "tie_breakers"]
 
@@ -67,7 +67,7 @@ def polish(problem: Problem, x: I64, names: Sequence[str]) -> tuple[I64, int]:
     price = problem.cost
     remote = problem.tier > 0
     fit = Fit(problem, problem.limits)
-    used = _requested(problem, x)
+    used, _ = loads(problem, x)
     # only an off-board instance with another allowed node can move (on-board use is F1's
     # business, not a tie-break); an incremental re-plan's fixed instances have one node
     at = np.maximum(x, 0)
@@ -98,17 +98,10 @@ def polish(problem: Problem, x: I64, names: Sequence[str]) -> tuple[I64, int]:
             miss, rank = score(trial)
             if np.all(miss <= limit) and rank < base_rank:
                 x, base_rank = trial, rank
-                used = _requested(problem, x)
+                used, _ = loads(problem, x)
                 moves += 1
                 break
     return x, moves
-
-
-def _requested(problem: Problem, x: I64) -> F64:
-    """(N, 3) cpu requests, memory and gpus of plan ``x`` on every node, as the capacity
-    constraints count them."""
-    ev = Evaluation(problem, x[None, :], problem.limits)
-    return np.stack([ev.cpu_requested[0], ev.mem_requested[0], ev.gpu_requested[0]], axis=1)
 
 
 def _has_room(fit: Fit, used: F64, i: int, nodes: I64) -> NDArray[np.bool_]:

@@ -129,11 +129,12 @@ def test_the_polish_quick_room_test_refuses_only_moves_the_constraints_refuse(
     """``_has_room`` skips a move without the whole-plan check; it may only skip moves that
     check would refuse (else the polish would miss moves), and it must skip the overfull."""
     from fogfleet.scheduling.heuristics import Fit
-    from fogfleet.scheduling.preference import _has_room, _requested
+    from fogfleet.scheduling.preference import _has_room
+    from fogfleet.scheduling.stickiness import loads
 
     p = _site(tmp_path, price=1.0)
     x = plan(p, SchedulerSettings(seed=1)).placement
-    fit, used = Fit(p, p.limits), _requested(p, x)
+    fit, (used, _) = Fit(p, p.limits), loads(p, x)
     remote = np.flatnonzero(p.tier > 0)
     refused = kept = 0
     for i in np.flatnonzero(np.isin(x, remote)):
