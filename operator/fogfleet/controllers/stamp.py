@@ -22,7 +22,7 @@ fleet's Ready back by its whole length: the 14.7 s Ready lag at 1000 robots).
 from __future__ import annotations
 
 import time
-from collections.abc import Callable, Iterable, Mapping
+from collections.abc import Iterable, Mapping
 from typing import Any
 
 from fogfleet.render.deployments import hash_annotation
@@ -116,22 +116,16 @@ class DeploymentStamps:
         return self._last
 
 
-def _deployments_part(deployments: Iterable[Mapping[str, Any]]) -> tuple[Any, ...]:
-    return tuple(sorted(_deployment(d) for d in deployments))
-
-
 def input_stamp(
     fleet: Mapping[str, Any],
     modules: Iterable[Mapping[str, Any]],
     compute_nodes: Iterable[Mapping[str, Any]],
     nodes: Iterable[Mapping[str, Any]],
     deployments: Iterable[Mapping[str, Any]],
-    deployment_stamps: Callable[[Iterable[Mapping[str, Any]]], tuple[Any, ...]] = (
-        _deployments_part
-    ),
+    deployment_stamps: DeploymentStamps,
 ) -> tuple[Any, ...]:
-    """Everything the full reconcile reads, without the rollout's progress (hashable).
-    ``deployment_stamps``: a fleet's :class:`DeploymentStamps`, to remember that part."""
+    """Everything the full reconcile reads, without the rollout's progress (hashable);
+    ``deployment_stamps``: the fleet's, which remembers the Deployments' part."""
     meta = _meta(fleet)
     return (
         meta.get("uid"),
