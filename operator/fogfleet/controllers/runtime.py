@@ -285,10 +285,9 @@ class Runtime:
             and old is not None
             and _spec_state(body) == _spec_state(old)
         ):
-            meta = body.get("metadata") or {}
-            fleet = (meta.get("labels") or {}).get(LABEL_FLEET)
-            unsettled = self._unsettled.get((meta.get("namespace") or "default", fleet or ""))
-            if unsettled is not None and meta.get("name") not in unsettled:
+            key = _fleet_of(body)
+            unsettled = self._unsettled.get(key) if key is not None else None
+            if unsettled is not None and (body.get("metadata") or {}).get("name") not in unsettled:
                 return
         self._rollout_moved(body)
 
@@ -324,20 +323,17 @@ class Runtime:
     def _rollout_moved(self, obj: Mapping[str, Any]) -> None:
         """Re-check the fleet of a Deployment or Pod: a status refresh, ROLLOUT_QUIET_SECONDS
         after the last such event (at most the queue's max_wait into a stream of them)."""
-        meta = obj.get("metadata") or {}
-        fleet = (meta.get("labels") or {}).get(LABEL_FLEET)
-        if fleet:
-            key = (meta.get("namespace") or "default", fleet)
-            if key in self.deps.refs.fleets():
-                busy = (
-                    self._waiting.get(key, 0) > ROLLOUT_BUSY_MODULES
-                    and self._eta.get(key, math.inf) > ROLLOUT_BUSY_MAX_WAIT_SECONDS
-                )
-                self.queue.schedule_debounced(
-                    key,
-                    min(self.queue.debounce, ROLLOUT_QUIET_SECONDS),
-                    max(ROLLOUT_BUSY_MAX_WAIT_SECONDS, self.queue.max_wait) if busy else None,
-                )
+        key = _fleet_of(obj)
+        if key is not None and key in self.deps.refs.fleets():
+            busy = (
+                self._waiting.get(key, 0) > ROLLOUT_BUSY_MODULES
+                and self._eta.get(key, math.inf) > ROLLOUT_BUSY_MAX_WAIT_SECONDS
+            )
+            self.queue.schedule_debounced(
+                key,
+                min(self.queue.debounce, ROLLOUT_QUIET_SECONDS),
+                max(ROLLOUT_BUSY_MAX_WAIT_SECONDS, self.queue.max_wait) if busy else None,
+            )
 
     async def close(self) -> None:
         if self.deps.watches is not None:
@@ -346,6 +342,13 @@ class Runtime:
             task.cancel()
         await self.queue.close()
         self.executor.shutdown(wait=False, cancel_futures=True)
+
+
+def _fleet_of(obj: Mapping[str, Any]) -> FleetKey | None:
+    """The fleet a Deployment or Pod belongs to, by its fleet label (None: no fleet's)."""
+    meta = obj.get("metadata") or {}
+    fleet = (meta.get("labels") or {}).get(LABEL_FLEET)
+    return (meta.get("namespace") or "default", fleet) if fleet else None
 
 
 def _spec_state(dep: Mapping[str, Any]) -> tuple[Any, ...]:
