@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import asyncio
 import threading
+from collections.abc import Callable
 
 import pytest
 
@@ -41,18 +42,28 @@ class FakeWatches:
         self.stopped = True
 
 
-def scheduled_after(events: list[tuple[str, dict, dict | None]], known: bool = True) -> bool:
+def rechecked(feed: Callable[[Runtime], None], known: bool = True) -> bool:
+    """Whether the fleet KEY (known to the runtime, or not) is due for a re-check once
+    ``feed`` has given the runtime its events."""
+
     async def main() -> bool:
         runtime = Runtime(Deps(kube=object()), debounce=5.0)
         if known:
             runtime.deps.refs.record(KEY, set(), set(), {"m"}, False)
-        for kind, new, old in events:
-            runtime.pod_event(kind, new, old)
+        feed(runtime)
         pending = KEY in runtime.queue.pending()
         await runtime.close()
         return pending
 
     return asyncio.run(main())
+
+
+def scheduled_after(events: list[tuple[str, dict, dict | None]], known: bool = True) -> bool:
+    def feed(runtime: Runtime) -> None:
+        for kind, new, old in events:
+            runtime.pod_event(kind, new, old)
+
+    return rechecked(feed, known)
 
 
 def test_a_pod_turning_ready_moving_or_going_rechecks_its_fleet():
@@ -217,17 +228,12 @@ def deployment(name: str, available: int, generation: int = 1, spec_hash: str = 
 
 
 def deployment_rechecks(kind: str, new: dict, old: dict | None, unsettled: set[str] | None) -> bool:
-    async def main() -> bool:
-        runtime = Runtime(Deps(kube=object()), debounce=5.0)
-        runtime.deps.refs.record(KEY, set(), set(), {"m"}, False)
+    def feed(runtime: Runtime) -> None:
         if unsettled is not None:  # what the fleet's last refresh left rolling out
             runtime._unsettled[KEY] = frozenset(unsettled)
         runtime.deployment_event(new, kind, old)
-        pending = KEY in runtime.queue.pending()
-        await runtime.close()
-        return pending
 
-    return asyncio.run(main())
+    return rechecked(feed)
 
 
 def test_a_deployment_status_write_rechecks_only_a_module_still_rolling_out():
