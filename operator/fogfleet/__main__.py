@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import sys
 
-from fogfleet.cli import main
+from fogfleet.entry import main
 
 if __name__ == "__main__":
     sys.exit(main())
