@@ -75,6 +75,7 @@ class Outcome:
     message: str = ""
     waiting: int = 0  # modules not yet running where planned (rolling out or moving)
     unsettled: frozenset[str] = frozenset()  # their Deployments' names
+    status_write_seconds: float = 0.0  # spent patching the fleet's status
 
 
 def forget(deps: Deps, key: FleetKey) -> None:
@@ -349,8 +350,11 @@ def _finish(
     )
     ready = not roll.waiting and not roll.moving and not stranded
     now_status = old_status
+    written = 0.0
     if not same_status(old_status, status):
+        t0 = time.perf_counter()
         deps.kube.patch_fleet_status(ns, name, status)
+        written = time.perf_counter() - t0
         now_status = status
         for kind, reason, message in [
             *link_events(old_status.get("links") or [], links.entries),
@@ -372,6 +376,7 @@ def _finish(
         message=status["conditions"][0]["message"],
         waiting=len(roll.waiting) + len(roll.moving),
         unsettled=frozenset(roll.waiting).union(roll.moving),
+        status_write_seconds=written,
     )
     return outcome, now_status
 

@@ -17,7 +17,7 @@ from collections.abc import Callable, Mapping
 from concurrent.futures import ThreadPoolExecutor
 from typing import Any, TypeVar
 
-from fogfleet.api.labels import LABEL_FLEET
+from fogfleet.api.labels import LABEL_FLEET, LABEL_INSTANCE
 from fogfleet.errors import FogfleetError
 from fogfleet.render.deployments import hash_annotation
 
@@ -68,6 +68,8 @@ class Runtime:
         self._eta: dict[FleetKey, float] = {}
         # per fleet: the Deployments of its modules not yet running where planned (last refresh)
         self._unsettled: dict[FleetKey, frozenset[str]] = {}
+        # per fleet: which of those a Pod event has shown ready since, and when (monotonic)
+        self._shown_ready: dict[FleetKey, dict[str, float]] = {}
         # shared modules with spec.scaling, by (namespace, name): the scaling loop's work list
         self.scaled: dict[tuple[str, str], Obj] = {}
         self._loops: list[asyncio.Task[None]] = []
@@ -181,21 +183,28 @@ class Runtime:
             self._counted.pop(key, None)
             self._eta.pop(key, None)
             self._unsettled.pop(key, None)
+            self._shown_ready.pop(key, None)
             self.queue.cancel(key)
             self.usage_changed()
             return None
-        t0 = time.perf_counter()
+        t0, started = time.perf_counter(), time.monotonic()
         before = self.deps.placements.get(key)
         outcome = await self.call(reconcile, body, self.deps)
         self._count_rollout(key, outcome.waiting, time.monotonic())
         self._unsettled[key] = outcome.unsettled
+        # a pod shown ready while this ran may be missing from what it read: keep it
+        shown = self._shown_ready.get(key, {})
+        self._shown_ready[key] = {
+            name: at for name, at in shown.items() if at >= started and name in outcome.unsettled
+        }
         took = time.perf_counter() - t0
         log.log(
             logging.INFO if took > SLOW_SECONDS else logging.DEBUG,
-            "Reconciled RobotFleet %s/%s in %.0f ms (%s): %s",
+            "Reconciled RobotFleet %s/%s in %.0f ms (%s; status written in %.0f ms): %s",
             *key,
             took * 1e3,
             "ready" if outcome.ready else "not ready",
+            outcome.status_write_seconds * 1e3,
             outcome.message,
         )
         if self.deps.placements.get(key) is not before:  # nothing moved: no usage pass
@@ -305,7 +314,27 @@ class Runtime:
                 kind,
                 pod_ready(pod),
             )
+        if kind != "DELETED" and self._last_pod_ready(pod):
+            return
         self._rollout_moved(pod)
+
+    def _last_pod_ready(self, pod: Mapping[str, Any]) -> bool:
+        """Whether this ready Pod is the last its fleet waited for: since the last refresh,
+        every module that refresh left rolling out has shown a ready pod. Its fleet is then
+        re-checked at once instead of ROLLOUT_QUIET_SECONDS later, and Ready follows the last
+        pod by one refresh. A module still moving may also wait for its old pod to go; that
+        refresh then finds it unsettled, and the old pod's deletion re-checks it again."""
+        key = _fleet_of(pod)
+        unsettled = self._unsettled.get(key) if key is not None else None
+        name = ((pod.get("metadata") or {}).get("labels") or {}).get(LABEL_INSTANCE)
+        if key is None or not unsettled or name not in unsettled or not pod_ready(pod):
+            return False
+        shown = self._shown_ready.setdefault(key, {})
+        shown[name] = time.monotonic()
+        if len(shown) < len(unsettled) or key not in self.deps.refs.fleets():
+            return False
+        self.queue.schedule(key, 0.0)
+        return True
 
     def _count_rollout(self, key: FleetKey, waiting: int, now: float) -> None:
         """Record a fleet's modules still rolling out, and when its rollout should end at the

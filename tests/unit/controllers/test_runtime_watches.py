@@ -6,10 +6,12 @@ from __future__ import annotations
 import asyncio
 import threading
 from collections.abc import Callable
+from types import SimpleNamespace
 
 import pytest
 
 from fogfleet.controllers.deps import Deps
+from fogfleet.controllers.robotfleet import Outcome
 from fogfleet.controllers.runtime import Runtime
 
 KEY = ("wh", "fleet")
@@ -253,3 +255,81 @@ def test_a_deployment_edited_added_or_deleted_rechecks_its_fleet_even_when_settl
     assert deployment_rechecks("MODIFIED", deployment("d-1", 1, spec_hash="h2"), old, set())
     assert deployment_rechecks("DELETED", old, old, set())
     assert deployment_rechecks("ADDED", old, None, set())
+
+
+def module_pod(instance: str, ready: bool) -> dict:
+    out = pod(ready)
+    out["metadata"]["labels"]["fogfleet.io/instance"] = instance
+    return out
+
+
+def refreshes_after(unsettled: set[str], events: list[tuple[str, bool]]) -> list[tuple]:
+    """How each Pod event (instance, ready) of a fleet whose last refresh left ``unsettled``
+    rolling out schedules its re-check: ("now",) or ("debounced", quiet)."""
+
+    async def main() -> list[tuple]:
+        runtime = Runtime(Deps(kube=object()), debounce=5.0)
+        runtime.deps.refs.record(KEY, set(), set(), {"m"}, False)
+        runtime._unsettled[KEY] = frozenset(unsettled)
+        calls: list[tuple] = []
+        runtime.queue.schedule = lambda key, delay=None: calls.append(
+            ("now",) if delay == 0 else ("later", delay)
+        )  # type: ignore[method-assign]
+        runtime.queue.schedule_debounced = lambda key, quiet=None, max_wait=None: calls.append(  # type: ignore[method-assign]
+            ("debounced", quiet)
+        )
+        for instance, ready in events:
+            runtime.pod_event(
+                "MODIFIED", module_pod(instance, ready), module_pod(instance, not ready)
+            )
+        await runtime.close()
+        return calls
+
+    return asyncio.run(main())
+
+
+def test_the_last_pod_a_rollout_waits_for_rechecks_its_fleet_at_once():
+    from fogfleet.controllers import runtime as rt
+
+    quiet = ("debounced", rt.ROLLOUT_QUIET_SECONDS)
+    # d-1 and d-2 were rolling out: the first ready pod waits for more, the second is the last
+    assert refreshes_after({"d-1", "d-2"}, [("d-1", True), ("d-2", True)]) == [quiet, ("now",)]
+    # the same module twice, a settled module's pod, a pod going unready: not the last
+    assert refreshes_after({"d-1", "d-2"}, [("d-1", True), ("d-3", True), ("d-2", False)]) == [
+        quiet,
+        quiet,
+        quiet,
+    ]
+    # nothing was rolling out (or no refresh yet): every event takes the short wait
+    assert refreshes_after(set(), [("d-1", True)]) == [quiet]
+
+
+def test_a_refresh_keeps_the_ready_pods_shown_while_it_ran():
+    """A pod shown ready during a refresh may be missing from what the refresh read: it still
+    counts towards the last pod afterwards; one shown before the refresh began does not."""
+
+    async def main() -> set[str]:
+        runtime = Runtime(Deps(kube=SimpleNamespace(get_fleet=None)), debounce=5.0)
+        runtime.deps.refs.record(KEY, set(), set(), {"m"}, False)
+        runtime._unsettled[KEY] = frozenset({"d-1", "d-2", "d-3"})
+        runtime.pod_event("MODIFIED", module_pod("d-1", True), module_pod("d-1", False))
+        answers = iter(
+            [
+                {"metadata": {"name": "fleet", "namespace": "wh"}},  # the fleet, read
+                Outcome(unsettled=frozenset({"d-1", "d-2", "d-3"})),  # its refresh
+            ]
+        )
+
+        async def call(fn, *args):
+            answer = next(answers)
+            if isinstance(answer, Outcome):  # the refresh runs: d-2 turns ready meanwhile
+                runtime.pod_event("MODIFIED", module_pod("d-2", True), module_pod("d-2", False))
+            return answer
+
+        runtime.call = call  # type: ignore[method-assign]
+        await runtime._run(KEY)
+        kept = set(runtime._shown_ready[KEY])
+        await runtime.close()
+        return kept
+
+    assert asyncio.run(main()) == {"d-2"}
