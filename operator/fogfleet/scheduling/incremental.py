@@ -45,7 +45,7 @@ from fogfleet.domain.problem import Problem, freeze
 
 from .baselines import finish
 from .choice import non_dominated
-from .heuristics import Fit, uncontended_miss
+from .heuristics import Fit, best_uncontended_miss, uncontended_miss
 from .local import pareto_local_search
 from .preference import polish
 from .problem import PlacementProblem
@@ -256,7 +256,7 @@ def _neighbourhood(problem: Problem, fit: Fit, kept: I64, affected: B) -> B:
     hot = np.flatnonzero(regret > REGRET_RESOLUTION)
     regret[regret <= REGRET_RESOLUTION] = 0.0
     if hot.size:
-        regret[hot] -= uncontended_miss(problem, fit.allocation, idx[hot]).min(axis=1)
+        regret[hot] -= best_uncontended_miss(problem, fit.allocation, idx[hot])
     homes = problem.home[affected]
     sibling = np.isin(problem.home[idx], homes[homes >= 0])
     used, _ = loads(problem, kept)

@@ -247,3 +247,24 @@ def test_no_room_around_the_others_asks_for_a_full_plan() -> None:
     out = replan(starved, SETTINGS)
     assert out.schedule is None
     assert "do not fit" in out.reason or "more than 10%" in out.reason
+
+
+def test_the_best_uncontended_miss_is_the_minimum_over_the_allowed_nodes():
+    """``best_uncontended_miss`` skips the robots' computers an instance may not use; its
+    values are those of the whole (R, N) table's row minima, also where a robot's computer
+    is allowed to another robot's instance (as a node the fleet shares) or nothing is."""
+    from fogfleet.scheduling.heuristics import best_uncontended_miss, uncontended_miss
+
+    problem, _ = _running()
+    allowed = np.array(problem.allowed)
+    robots = np.flatnonzero(problem.tier == 0)
+    allowed[0, robots[-1]] = True  # another robot's computer
+    allowed[1, :] = False  # nowhere
+    allowed[2, :] = False
+    allowed[2, robots[-1]] = True  # only a robot's computer
+    p = dataclasses.replace(problem, allowed=freeze(allowed))
+    rows = np.arange(p.n_instances)
+    want = uncontended_miss(p, p.limits, rows).min(axis=1)
+    got = best_uncontended_miss(p, p.limits, rows)
+    np.testing.assert_array_equal(got, want)
+    assert got[1] == 1.0
