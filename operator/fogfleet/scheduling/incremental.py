@@ -20,7 +20,9 @@ and proposes moves the migration-margin rule then has to argue away. ``replan``:
    start where they run if it still fits, else on the node they prefer with room
    (``stickiness`` fill), and may go to their current node or any of their
    ``CANDIDATE_NODES`` most preferred nodes with room; a Pareto local search
-   (``local.pareto_local_search``, bounded by ``MAX_MOVES`` scored moves) improves that start
+   (``local.pareto_local_search``, bounded by ``MAX_MOVES`` scored moves, and by
+   ``MAX_MOVE_CELLS`` moves x nodes on a large cluster: a move costs a pass over the nodes)
+   improves that start
    and the fleet's choice rule picks from what it found, as ``solver.nsga2`` does.
 5. The result is *accepted* when it is feasible and its first objective is no worse than the
    ``reference`` (the deployed plan's value) by more than the migration margin (relative) or
@@ -57,6 +59,7 @@ __all__ = [
     "CANDIDATE_NODES",
     "MAX_AFFECTED_SHARE",
     "MAX_MOVES",
+    "MAX_MOVE_CELLS",
     "NEIGHBOURHOOD_SHARE",
     "Replan",
     "changed_instances",
@@ -71,6 +74,10 @@ MAX_AFFECTED_SHARE = 0.1  # more affected instances than this share: not local, 
 NEIGHBOURHOOD_SHARE = 0.01  # of the unaffected instances, freed around the affected ones
 CANDIDATE_NODES = 8  # nodes a free instance may try besides its current one
 MAX_MOVES = 4_000  # single-instance moves the local search scores at most
+# ... and at most this many moves x nodes: 4000 moves up to 750 nodes, 2141 at 1000 robots
+# (1401 nodes; 0.39-0.49 s instead of 0.56 s, the same plan after a robot joins and within
+# 0.02 % on every objective after an edge fails)
+MAX_MOVE_CELLS = 3_000_000
 # changed_instances compares views block by block up to this many blocks, else gathers copies
 MAX_COMPARED_BLOCKS = 4_096
 # miss probabilities closer than this count as equal when ranking the neighbourhood
@@ -203,7 +210,8 @@ def replan(
         return Replan(
             None, n_affected, int(free.sum()), "the start around the others is infeasible"
         )
-    X, F, _ = pareto_local_search(pp, X0, out["F"], max_moves=MAX_MOVES)
+    budget = min(MAX_MOVES, MAX_MOVE_CELLS // max(problem.n_nodes, 1))
+    X, F, _ = pareto_local_search(pp, X0, out["F"], max_moves=budget)
     full = pp.full(X)
     front = non_dominated(F)
     k, why = choose_plan(narrowed, full[front], F[front], names, settings)

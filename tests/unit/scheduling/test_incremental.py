@@ -268,3 +268,22 @@ def test_the_best_uncontended_miss_is_the_minimum_over_the_allowed_nodes():
     got = best_uncontended_miss(p, p.limits, rows)
     np.testing.assert_array_equal(got, want)
     assert got[1] == 1.0
+
+
+@pytest.mark.parametrize(("cells", "moves"), [(10**12, incremental.MAX_MOVES), (290, 10)])
+def test_the_local_search_scores_at_most_the_move_and_cell_budgets(monkeypatch, cells, moves):
+    """A move costs a pass over the nodes: on a cluster of many nodes the search scores at
+    most MAX_MOVE_CELLS // nodes moves (here 29 nodes), else MAX_MOVES."""
+    p1 = _joined()
+    assert p1.n_nodes == 29
+    asked: list[int] = []
+    search = incremental.pareto_local_search
+
+    def counting(*args, max_moves, **kwargs):
+        asked.append(max_moves)
+        return search(*args, max_moves=max_moves, **kwargs)
+
+    monkeypatch.setattr(incremental, "pareto_local_search", counting)
+    monkeypatch.setattr(incremental, "MAX_MOVE_CELLS", cells)
+    assert replan(p1, SETTINGS, reference=None).schedule is not None
+    assert asked == [moves]
