@@ -9,7 +9,8 @@
      ComputeNodes exist already) -> kopf -> NSGA-II plan -> server-side applied Deployments with
      a required node affinity -> kube-scheduler -> kwok -> every pod Running;
    * ``plain``: the same pods as plain Deployments (``render_fleet(..., baseline=True)``: the
-     taxonomy's allowed node set as affinity, nominal requests) applied with one
+     taxonomy's allowed node set as affinity, nominal requests) and the robots' ROS 2 discovery
+     servers the operator also runs (``plain_discovery``; since 2026-11-27) applied with one
      ``kubectl apply --server-side``; kube-scheduler alone decides.
 
    The clock starts just before ``kubectl apply`` and stops when a pod watch (started before the
@@ -207,6 +208,7 @@ def connect() -> Kube:
 # fleet has none): counting those made "all Running" fire while up to one module pod per robot
 # was still to come.
 MODULES_ONLY = f"{LABEL_COMPONENT}!={COMPONENT_DISCOVERY}"
+PLAIN_MANAGER = "fogfleet-bench-plain"
 
 
 class Watcher:
@@ -424,8 +426,24 @@ def run_operator(kube: Kube, spec: FleetSpec, ns: str, algorithm: str, timeout: 
     }
 
 
+def plain_discovery(problem: Any, fleet: Any) -> list[Obj]:
+    """The robots' Fast DDS discovery servers (a Service and a Deployment each) as the
+    operator runs them for ``fleet`` (none with ``spec.ros.enabled: false``): a plain ROS 2
+    fleet whose modules span nodes needs them too, so the plain baseline runs the same pods."""
+    from fogfleet.api.labels import LABEL_FLEET, LABEL_MANAGED_BY
+    from fogfleet.render.deployments import _dns, label_value
+    from fogfleet.render.ros import discovery_servers
+
+    if not fleet.spec.ros.enabled:
+        return []
+    labels = {LABEL_FLEET: label_value(problem.fleet), LABEL_MANAGED_BY: PLAIN_MANAGER}
+    servers = discovery_servers(problem, fleet.spec.ros, labels, [], _dns)
+    return [doc for _, service, deployment in servers for doc in (service, deployment)]
+
+
 def run_plain(kube: Kube, spec: FleetSpec, ns: str, timeout: float) -> Obj:
-    """The same pods as plain Deployments (k8s-default rendering), kube-scheduler alone."""
+    """The same pods as plain Deployments (k8s-default rendering) and the robots' discovery
+    servers, kube-scheduler alone; timed to the module pods, as the operator's fleet is."""
     from fogfleet.render.deployments import render_fleet
 
     create_namespace(kube, ns)
@@ -433,10 +451,12 @@ def run_plain(kube: Kube, spec: FleetSpec, ns: str, timeout: float) -> Obj:
     modules = {name: m for (_, name), m in cat.modules.items()}
     deps = render_fleet(problem, modules, None, baseline=True)
     assert len(deps) == spec.pods, len(deps)
+    # the servers first, as the operator writes them (controllers/ros.py before the modules)
+    docs = [*plain_discovery(problem, cat.fleets[0]), *deps]
     watcher = Watcher(kube, ns, spec.pods)
     try:
         t0 = time.monotonic()
-        server_side_apply(kube, deps, "fogfleet-bench-plain", timeout=timeout)
+        server_side_apply(kube, docs, PLAIN_MANAGER, timeout=timeout)
         t_applied = time.monotonic()
         watcher.wait(timeout)
     finally:
@@ -445,6 +465,7 @@ def run_plain(kube: Kube, spec: FleetSpec, ns: str, timeout: float) -> Obj:
     return {
         "total_s": watcher.all_running - t0,
         "kubectl_s": t_applied - t0,
+        "discovery_servers": sum(d["kind"] == "Deployment" for d in docs) - len(deps),
         "first_deployment_s": (watcher.first_dep or np.nan) - t0,
         "last_deployment_s": (watcher.last_dep or np.nan) - t0,
     }

@@ -7,8 +7,10 @@ For each size n: n robots x 8 modules (the warehouse modules) on ceil(0.4 n) edg
 stand-in benchmark's fleet shape (``synthetic_fleet``: 12 edge cores per robot on average) -
 every Node a kwok node, every ComputeNode a real object validated by the real API server:
 
-1. **plain**: the same pods as plain Deployments (``render_fleet(..., baseline=True)``), one
-   ``kubectl apply --server-side``, kube-scheduler alone: seconds from apply to all Running
+1. **plain**: the same pods as plain Deployments (``render_fleet(..., baseline=True)``) and
+   the robots' discovery servers (``bench_operator.plain_discovery``: the operator's fleet runs
+   them too), one ``kubectl apply --server-side``, kube-scheduler alone: seconds from apply to
+   all module pods Running
    (and ``plainApplySeconds``: when kubectl returned, having written every Deployment).
 2. **operator**: a fresh ``fogfleet run`` (so its peak RSS is this size's) serves a fresh
    namespace; the RobotFleet is applied: seconds to all Running, ``status.planningMillis``
@@ -270,6 +272,7 @@ def bench_size(
             plain = run_plain(kube, spec, plain_ns, timeout_for(spec.pods))
             row["plainSeconds"] = plain["total_s"]
             row["plainApplySeconds"] = plain["kubectl_s"]  # kubectl's own share of it
+            row["plainDiscoveryServers"] = plain["discovery_servers"]
             log(
                 f"{spec.key} plain: all Running {plain['total_s']:.1f}s (kubectl apply returned "
                 f"after {plain['kubectl_s']:.1f}s)"

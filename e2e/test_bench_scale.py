@@ -29,6 +29,7 @@ def test_a_small_fleet_goes_through_every_step_of_the_scale_benchmark(
     assert (row["robots"], row["pods"], row["edges"]) == (5, 40, 2)
     assert "error" not in row
     assert 0 < row["plainApplySeconds"] < row["plainSeconds"]
+    assert row["plainDiscoveryServers"] == 5  # the plain fleet runs the operator's pods too
     assert row["plainSeconds"] > 0 and row["operatorSeconds"] > row["planningSeconds"] > 0
     assert row["firstPlanSeconds"] == row["planningSeconds"]
     # Ready is seen after the last pod runs (a fleet Ready before its pods would be a lie)
