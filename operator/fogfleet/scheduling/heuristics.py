@@ -47,9 +47,9 @@ def uncontended_miss(
 def best_uncontended_miss(problem: Problem, allocation: Allocation, rows: NDArray[np.int64]) -> F64:
     """The lowest ``uncontended_miss`` of each instance ``rows`` over its allowed nodes (R,);
     1 where none is allowed. The same values as ``uncontended_miss(problem, allocation,
-    rows).min(axis=1)`` at a fraction of the work: every instance may use the shared (edge
-    and cloud) nodes, but of the robots' computers only its own, so the (R, N) table is
-    computed over the shared nodes only and the allowed robot pairs are added one by one
+    rows).min(axis=1)`` at a fraction of the work: an instance may use the shared (edge and
+    cloud) nodes but, of the robots' computers, usually only its own, so the table is computed
+    over the shared nodes and the allowed robot pairs, whichever they are, are added one by one
     (at 1000 robots 401 of 1401 columns: 2364 instances in 0.07 s instead of 0.11 s)."""
     rows = np.asarray(rows, dtype=np.int64)
     best = np.ones(len(rows))

@@ -22,8 +22,8 @@ and proposes moves the migration-margin rule then has to argue away. ``replan``:
    ``CANDIDATE_NODES`` most preferred nodes with room; a Pareto local search
    (``local.pareto_local_search``, bounded by ``MAX_MOVES`` scored moves, and by
    ``MAX_MOVE_CELLS`` moves x nodes on a large cluster: a move costs a pass over the nodes)
-   improves that start
-   and the fleet's choice rule picks from what it found, as ``solver.nsga2`` does.
+   improves that start and the fleet's choice rule picks from what it found, as
+   ``solver.nsga2`` does.
 5. The result is *accepted* when it is feasible and its first objective is no worse than the
    ``reference`` (the deployed plan's value) by more than the migration margin (relative) or
    ``stickiness.ABS_TOLERANCE`` (absolute); otherwise the caller plans the fleet in full.
@@ -75,8 +75,8 @@ NEIGHBOURHOOD_SHARE = 0.01  # of the unaffected instances, freed around the affe
 CANDIDATE_NODES = 8  # nodes a free instance may try besides its current one
 MAX_MOVES = 4_000  # single-instance moves the local search scores at most
 # ... and at most this many moves x nodes: 4000 moves up to 750 nodes, 2141 at 1000 robots
-# (1401 nodes; 0.39-0.49 s instead of 0.56 s, the same plan after a robot joins and within
-# 0.02 % on every objective after an edge fails)
+# (1401 nodes: the re-plan 0.37 s instead of 0.50 s, median of 7 with one BLAS thread; the
+# same plan after a robot joins, within 0.02 % on every objective after an edge fails)
 MAX_MOVE_CELLS = 3_000_000
 # changed_instances compares views block by block up to this many blocks, else gathers copies
 MAX_COMPARED_BLOCKS = 4_096
