@@ -210,8 +210,7 @@ def replan(
         return Replan(
             None, n_affected, int(free.sum()), "the start around the others is infeasible"
         )
-    budget = min(MAX_MOVES, MAX_MOVE_CELLS // max(problem.n_nodes, 1))
-    X, F, _ = pareto_local_search(pp, X0, out["F"], max_moves=budget)
+    X, F, _ = pareto_local_search(pp, X0, out["F"], max_moves=MAX_MOVES, max_cells=MAX_MOVE_CELLS)
     full = pp.full(X)
     front = non_dominated(F)
     k, why = choose_plan(narrowed, full[front], F[front], names, settings)

@@ -234,18 +234,19 @@ def pareto_local_search(
 
     The feasible moves of the archive members to explore are scored incrementally
     (``MoveEvaluator``), in batches of about ``CHUNK_CELLS`` moves x nodes. A move costs
-    about one pass over the nodes, so at most ``max_cells`` (moves x nodes) of work are done, unless
-    ``max_moves`` is given: ~180k moves on the warehouse fleet (it needs ~100k), ~14k on
-    100 robots x 40 edges. The result depends only on the inputs unless ``deadline`` (a
-    ``time.perf_counter`` value, checked between batches) cuts it short.
+    about one pass over the nodes, so at most ``max_cells`` (moves x nodes) of work are done,
+    and at most ``max_moves`` moves when it is given: by default ~180k moves on the warehouse
+    fleet (it needs ~100k), ~14k on 100 robots x 40 edges. The result depends only on the
+    inputs unless ``deadline`` (a ``time.perf_counter`` value, checked between batches) cuts
+    it short.
     The archive is bounded: beyond ``max_archive`` plans it keeps the most spread ones
     (NSGA-II's crowding distance, every objective's extremes included), so a sixth or seventh
     objective does not grow the front, and the planning time, by an order of magnitude.
     Returns the new archive (non-dominated, feasible) and the number of moves scored.
     """
     me = MoveEvaluator(pp)
-    if max_moves is None:
-        max_moves = max(max_cells // max(pp.fleet.n_nodes, 1), 1)
+    by_cells = max(max_cells // max(pp.fleet.n_nodes, 1), 1)
+    max_moves = by_cells if max_moves is None else min(max_moves, by_cells)
     X, F = _filter_front(np.asarray(X, dtype=np.int64), np.asarray(F, dtype=np.float64))
     todo = np.ones(len(X), dtype=bool)
     n_eval = 0
