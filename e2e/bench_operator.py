@@ -451,8 +451,9 @@ def run_plain(kube: Kube, spec: FleetSpec, ns: str, timeout: float) -> Obj:
     modules = {name: m for (_, name), m in cat.modules.items()}
     deps = render_fleet(problem, modules, None, baseline=True)
     assert len(deps) == spec.pods, len(deps)
+    servers = plain_discovery(problem, cat.fleets[0])
     # the servers first, as the operator writes them (controllers/ros.py before the modules)
-    docs = [*plain_discovery(problem, cat.fleets[0]), *deps]
+    docs = [*servers, *deps]
     watcher = Watcher(kube, ns, spec.pods)
     try:
         t0 = time.monotonic()
@@ -465,7 +466,7 @@ def run_plain(kube: Kube, spec: FleetSpec, ns: str, timeout: float) -> Obj:
     return {
         "total_s": watcher.all_running - t0,
         "kubectl_s": t_applied - t0,
-        "discovery_servers": sum(d["kind"] == "Deployment" for d in docs) - len(deps),
+        "discovery_servers": sum(d["kind"] == "Deployment" for d in servers),
         "first_deployment_s": (watcher.first_dep or np.nan) - t0,
         "last_deployment_s": (watcher.last_dep or np.nan) - t0,
     }
