@@ -92,7 +92,7 @@ bench-cluster: venv ## Operator benchmarks on the local control plane: apply-to-
 	$(BIN)/python e2e/bench_operator.py --runs 5
 
 bench-scale: venv cluster-tools ## The operator at 100, 300 and 1000 robots x 8 modules on kwok nodes: apply-to-Running vs plain, Ready lag, peak RSS, a robot joining; writes bench-scale.json
-	$(BIN)/python -m e2e.bench_scale --sizes $(or $(SIZES),100,300,1000)
+	$(BIN)/python -m e2e.bench_scale --sizes $(or $(SIZES),100,300,1000) --repeats $(or $(REPEATS),1)
 
 bench-real: venv cluster-tools images ## nsga2 vs kube-scheduler vs on-board on the bed's real nodes, measured and simulated (3 x 3 runs of 1 min warm-up + 3 min; needs `make cluster-up`; ~42 min)
 	$(BIN)/python -m e2e.realbench --window 180 --reps 3

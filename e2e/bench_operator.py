@@ -59,6 +59,7 @@ import numpy as np  # noqa: E402
 
 from e2e.cluster import harness  # noqa: E402
 from e2e.cluster.kube import Kube, guard_kubeconfig  # noqa: E402
+from e2e.cpu_meter import CpuMeter  # noqa: E402
 from e2e.operator_fixtures import CRDS, Operator, example_docs, of_kind  # noqa: E402
 from fogfleet.api.labels import LABEL_COMPONENT  # noqa: E402
 from fogfleet.render.ros import COMPONENT_DISCOVERY  # noqa: E402
@@ -441,9 +442,12 @@ def plain_discovery(problem: Any, fleet: Any) -> list[Obj]:
     return [doc for _, service, deployment in servers for doc in (service, deployment)]
 
 
-def run_plain(kube: Kube, spec: FleetSpec, ns: str, timeout: float) -> Obj:
+def run_plain(
+    kube: Kube, spec: FleetSpec, ns: str, timeout: float, meter: CpuMeter | None = None
+) -> Obj:
     """The same pods as plain Deployments (k8s-default rendering) and the robots' discovery
-    servers, kube-scheduler alone; timed to the module pods, as the operator's fleet is."""
+    servers, kube-scheduler alone; timed to the module pods, as the operator's fleet is
+    (``meter``: started at the apply, stopped when the last pod runs)."""
     from fogfleet.render.deployments import render_fleet
 
     create_namespace(kube, ns)
@@ -456,10 +460,14 @@ def run_plain(kube: Kube, spec: FleetSpec, ns: str, timeout: float) -> Obj:
     docs = [*servers, *deps]
     watcher = Watcher(kube, ns, spec.pods)
     try:
+        if meter is not None:
+            meter.start()
         t0 = time.monotonic()
         server_side_apply(kube, docs, PLAIN_MANAGER, timeout=timeout)
         t_applied = time.monotonic()
         watcher.wait(timeout)
+        if meter is not None:
+            meter.stop()
     finally:
         watcher.close()
     assert watcher.all_running is not None

@@ -1,7 +1,7 @@
 """``make bench-scale``: the operator at fleet scale on the local control plane (kwok nodes).
 
     .venv/bin/python -m e2e.bench_scale [--sizes 100,300,1000] [--out bench-scale.json]
-                                        [--operator-only]
+                                        [--operator-only] [--repeats 1]
 
 For each size n: n robots x 8 modules (the warehouse modules) on ceil(0.4 n) edge nodes - the
 stand-in benchmark's fleet shape (``synthetic_fleet``: 12 edge cores per robot on average) -
@@ -19,15 +19,24 @@ every Node a kwok node, every ComputeNode a real object validated by the real AP
    last pod Running.
 3. **one robot joins**: a new kwok Node and ComputeNode, then the fleet's ``spec.robots`` gains
    it: the re-plan's ``status.planningMillis``, the wall seconds from the patch until the fleet
-   is Ready with the robot's modules placed, and ``status.migrations`` (instances moved).
-4. **operator RSS**: ``VmHWM`` (peak, planning included) and ``VmRSS`` (what it holds once the
+   is Ready with the robot's modules placed, and ``status.migrations`` (instances moved). The
+   first joins as soon as the fleet is Ready, while kube-controller-manager still works
+   through the rollout's Deployment statuses on the same cores; a second (``settled*``) once
+   the control plane has used less than half a core for 10 s (``settleWaitSeconds``: how
+   long that took), as in a fleet that has been running a while.
+4. **CPU by part of the bed** (``plainCpuSeconds``, ``operatorCpuSeconds``): what etcd, the
+   API server, kube-controller-manager, kube-scheduler, kwok, the operator and the benchmark
+   itself used from apply to all Running, and the machine's busy seconds (``e2e/cpu_meter.py``).
+5. **operator RSS**: ``VmHWM`` (peak, planning included) and ``VmRSS`` (what it holds once the
    fleet is Ready again: caches, plans) of the operator process at the end of the size.
 
 Prints one table and writes ``bench-scale.json`` at the repository root (git-ignored):
 ``{"sizes": [{"robots", "pods", "plainSeconds", "operatorSeconds", "planningSeconds",
 "readyLagSeconds", "operatorPeakRssMiB", "firstPlanSeconds", "incrementalReplanSeconds",
 "incrementalMoved", ...}], "rssSlopes": [{"fromPods", "toPods", "peakMiBPer1000Pods"}]}``
-(the operator's peak RSS growth between consecutive sizes). The cluster's client rate limits
+(the operator's peak RSS growth between consecutive sizes). With ``--repeats n`` each size
+runs n times, plain and operator side by side in each, and its row holds the medians
+(``runs``: every run). The cluster's client rate limits
 are the harness's (raised for both paths, e2e/cluster/cluster.py); the fake nodes heartbeat
 as slowly as a large cluster's for the run (``cluster.heartbeats.relaxed``: 120 s Leases; the
 bed's 10 s ones, renewed every 2.5 s, cost hundreds of writes a second at hundreds of nodes
@@ -43,7 +52,9 @@ import datetime
 import itertools
 import json
 import math
+import os
 import secrets
+import statistics
 import sys
 import tempfile
 import threading
@@ -75,11 +86,16 @@ from e2e.bench_operator import (  # noqa: E402
 )
 from e2e.cluster import harness, heartbeats  # noqa: E402
 from e2e.cluster.kube import Kube  # noqa: E402
+from e2e.cpu_meter import CONTROL_PLANE, CpuMeter  # noqa: E402
 from e2e.operator_fixtures import Operator  # noqa: E402
 
 Obj = dict[str, Any]
 EDGES_PER_ROBOT = 0.4
 POLL_SECONDS = 0.2
+# the second robot joins once the control plane is this quiet (cores over the window)
+QUIET_CORES = 0.5
+QUIET_WINDOW_SECONDS = 10.0
+QUIET_MAX_SECONDS = 300.0
 MANAGER = "fogfleet-bench-scale"
 
 
@@ -156,10 +172,14 @@ def rss_mib(pid: int, field: str = "VmHWM") -> float:
     return float("nan")
 
 
-def joining_robot(spec: FleetSpec) -> tuple[Obj, Obj, str]:
-    """A new robot like the fleet's first: (its kwok Node, its ComputeNode, its name)."""
+def new_robot_name(spec: FleetSpec, k: int) -> str:
+    return f"bench-robot-{len(spec.fleet['spec']['robots']) + k}"
+
+
+def joining_robot(spec: FleetSpec, k: int = 1) -> tuple[Obj, Obj, str]:
+    """The k-th new robot, like the fleet's first: (its kwok Node, its ComputeNode, its name)."""
     robots = spec.fleet["spec"]["robots"]
-    name = f"bench-robot-{len(robots) + 1}"
+    name = new_robot_name(spec, k)
     template = next(c for c in spec.compute_nodes if c["metadata"]["name"] == robots[0])
     cn = copy.deepcopy(template)
     cn["metadata"] = {"name": name, "labels": {BENCH_LABEL: "true"}}
@@ -179,7 +199,7 @@ def joining_robot(spec: FleetSpec) -> tuple[Obj, Obj, str]:
 def run_operator_size(
     kube: Kube, spec: FleetSpec, ns: str, logdir: Path, env: dict[str, str]
 ) -> Obj:
-    op = Operator(kube.kubeconfig, [ns], logdir / f"operator-{spec.fleet_name}.log", env)
+    op = Operator(kube.kubeconfig, [ns], logdir / f"operator-{ns}.log", env)
     timeout = timeout_for(spec.pods)
     create_namespace(kube, ns)
     server_side_apply(kube, spec.modules_in(ns), MANAGER)
@@ -188,10 +208,13 @@ def run_operator_size(
     try:
         watcher = Watcher(kube, ns, spec.pods)
         poller = FleetPoller(kube, ns, spec.fleet_name, spec.pods)
+        meter = CpuMeter({"fogfleet": op.proc.pid, "benchmark": os.getpid()})
         try:
+            meter.start()
             t0 = time.monotonic()
             server_side_apply(kube, [spec.fleet_in(ns)], MANAGER, timeout=timeout)
             watcher.wait(timeout)
+            meter.stop()
             ready_at = poller.wait_ready(timeout)
         finally:
             watcher.close()
@@ -203,6 +226,7 @@ def run_operator_size(
             "firstPlanSeconds": (first.get("planningMillis") or 0) / 1e3,
             "readyLagSeconds": ready_at - watcher.all_running,
             "lastDeploymentSeconds": (watcher.last_dep or math.nan) - t0,
+            "operatorCpuSeconds": meter.seconds,
         }
         log(
             f"{spec.key} operator: all Running {row['operatorSeconds']:.1f}s, planning "
@@ -210,7 +234,10 @@ def run_operator_size(
             f"Running at {wall_clock(watcher.all_running)}, Ready seen at "
             f"{wall_clock(ready_at)}: compare with the operator's log)"
         )
-        row |= robot_joins(kube, spec, ns, poller, first, timeout)
+        row |= robot_joins(kube, spec, ns, poller, first, timeout, 1)
+        row["settleWaitSeconds"] = wait_quiet(kube)
+        settled = robot_joins(kube, spec, ns, poller, dict(poller.status), timeout, 2)
+        row |= {f"settled{k[0].upper()}{k[1:]}": v for k, v in settled.items()}
         poller.close()
         row["operatorPeakRssMiB"] = rss_mib(op.proc.pid)
         row["operatorRssAfterMiB"] = rss_mib(op.proc.pid, "VmRSS")
@@ -220,10 +247,35 @@ def run_operator_size(
         op.stop()
 
 
+def wait_quiet(kube: Kube, window: float = QUIET_WINDOW_SECONDS) -> float:
+    """Seconds until the control plane used less than ``QUIET_CORES`` over a ``window``
+    (kube-controller-manager works through thousands of Deployments' statuses for minutes
+    after their pods run), at most ``QUIET_MAX_SECONDS``."""
+    t0 = time.monotonic()
+    while time.monotonic() - t0 < QUIET_MAX_SECONDS:
+        meter = CpuMeter()
+        meter.start()
+        time.sleep(window)
+        used = sum(v for k, v in meter.stop().items() if k in CONTROL_PLANE) / window
+        if used < QUIET_CORES:
+            break
+    waited = time.monotonic() - t0
+    log(f"control plane below {QUIET_CORES} of a core after {waited:.0f}s")
+    return waited
+
+
 def robot_joins(
-    kube: Kube, spec: FleetSpec, ns: str, poller: FleetPoller, before: Obj, timeout: float
+    kube: Kube,
+    spec: FleetSpec,
+    ns: str,
+    poller: FleetPoller,
+    before: Obj,
+    timeout: float,
+    k: int,
 ) -> Obj:
-    node, cn, name = joining_robot(spec)
+    """The k-th new robot joins the fleet (its Node and ComputeNode first); the fleet's re-plan
+    and how long until it is Ready again."""
+    node, cn, name = joining_robot(spec, k)
     kube.apply([node])
     server_side_apply(kube, [cn], MANAGER)
     kube.wait_for(
@@ -234,9 +286,9 @@ def robot_joins(
         ),
         timeout=120,
     )
-    pods = spec.pods + len(spec.fleet["spec"]["modules"])
+    pods = spec.pods + k * len(spec.fleet["spec"]["modules"])
     poller.pods, poller.ready_at = pods, None
-    robots = [*spec.fleet["spec"]["robots"], name]
+    robots = [*spec.fleet["spec"]["robots"], *(new_robot_name(spec, n) for n in range(1, k + 1))]
     t0 = time.monotonic()
     kube.kubectl(
         "patch", "robotfleet", spec.fleet_name, "-n", ns, "--type=merge",
@@ -252,7 +304,7 @@ def robot_joins(
         "incrementalMoved": int(after.get("migrations") or 0),
     }
     log(
-        f"{spec.key} robot joins: re-plan {row['incrementalReplanSeconds']:.1f}s, Ready after "
+        f"{spec.key} robot {k} joins: re-plan {row['incrementalReplanSeconds']:.1f}s, Ready after "
         f"{row['joinToReadySeconds']:.1f}s, {row['incrementalMoved']} moved"
     )
     return row
@@ -269,8 +321,10 @@ def bench_size(
     try:
         setup_cluster(kube, [spec])
         if plain_too:
-            plain = run_plain(kube, spec, plain_ns, timeout_for(spec.pods))
+            meter = CpuMeter({"benchmark": os.getpid()})
+            plain = run_plain(kube, spec, plain_ns, timeout_for(spec.pods), meter)
             row["plainSeconds"] = plain["total_s"]
+            row["plainCpuSeconds"] = meter.seconds
             row["plainApplySeconds"] = plain["kubectl_s"]  # kubectl's own share of it
             row["plainDiscoveryServers"] = plain["discovery_servers"]
             log(
@@ -299,7 +353,8 @@ def format_rows(rows: list[Obj]) -> str:
 
     header = [
         "robots", "pods", "plain s", "operator s", "first plan s", "(op-plan)/plain",
-        "Ready lag s", "join re-plan s", "join->Ready s", "moved", "peak RSS MiB", "RSS after MiB",
+        "Ready lag s", "join re-plan s", "join->Ready s", "moved", "settled: re-plan s",
+        "join->Ready s", "peak RSS MiB", "RSS after MiB",
     ]  # fmt: skip
     columns = [
         ("plainSeconds", "{:.1f}"),
@@ -310,12 +365,67 @@ def format_rows(rows: list[Obj]) -> str:
         ("incrementalReplanSeconds", "{:.1f}"),
         ("joinToReadySeconds", "{:.1f}"),
         ("incrementalMoved", "{:d}"),
+        ("settledIncrementalReplanSeconds", "{:.1f}"),
+        ("settledJoinToReadySeconds", "{:.1f}"),
         ("operatorPeakRssMiB", "{:.0f}"),
         ("operatorRssAfterMiB", "{:.0f}"),
     ]
     lines = [[str(r["robots"]), str(r["pods"]), *(f(r, k, fm) for k, fm in columns)] for r in rows]
     errors = [f"{r['robots']} robots: {r['error']}" for r in rows if "error" in r]
     return "\n".join([table(lines, header), *errors])
+
+
+CPU_PARTS = ("machine", *CONTROL_PLANE, "fogfleet", "benchmark")
+
+
+def format_cpu(rows: list[Obj]) -> str:
+    """CPU seconds per part of the bed while each path rolled out (apply to all Running)."""
+    header = ["robots", "path", "wall s", *CPU_PARTS]
+    lines = []
+    for r in rows:
+        for path, wall_key, cpu_key in (
+            ("plain", "plainSeconds", "plainCpuSeconds"),
+            ("fogfleet", "operatorSeconds", "operatorCpuSeconds"),
+        ):
+            cpu = r.get(cpu_key)
+            if not isinstance(cpu, dict):
+                continue
+            wall = r.get(wall_key)
+            lines.append(
+                [
+                    str(r["robots"]),
+                    path,
+                    f"{wall:.1f}" if isinstance(wall, int | float) else "-",
+                    *(f"{cpu[k]:.1f}" if k in cpu else "-" for k in CPU_PARTS),
+                ]
+            )
+    return table(lines, header) if lines else ""
+
+
+def median_row(runs: list[Obj]) -> Obj:
+    """One size's row over repeated runs: each number the median over the runs that finished
+    (the ratio: the median of each run's own, plain and operator side by side), CPU seconds
+    per part likewise; ``runs`` keeps every run, ``error`` says which failed."""
+    done = [r for r in runs if "error" not in r]
+    if not done:
+        return runs[0] | {"runs": runs, "repeats": len(runs)}
+    row: Obj = dict(done[0])
+    for key, value in done[0].items():
+        if isinstance(value, int | float) and not isinstance(value, bool):
+            values = [r[key] for r in done if isinstance(r.get(key), int | float)]
+            row[key] = statistics.median(values)
+            if isinstance(value, int) and key != "robots":
+                row[key] = round(row[key])
+        elif isinstance(value, dict):
+            row[key] = {
+                k: round(statistics.median(r[key][k] for r in done if k in r.get(key, {})), 2)
+                for k in value
+            }
+    row |= {"runs": runs, "repeats": len(runs)}
+    failed = [r["error"] for r in runs if "error" in r]
+    if failed:
+        row["error"] = f"{len(failed)} of {len(runs)} runs failed: {failed[0]}"
+    return row
 
 
 def rss_slopes(rows: list[Obj]) -> list[Obj]:
@@ -351,6 +461,12 @@ def main(argv: list[str] | None = None) -> int:
         action="store_true",
         help="skip the plain Deployments (no ratio): re-measure the operator's side alone",
     )
+    ap.add_argument(
+        "--repeats",
+        type=int,
+        default=1,
+        help="runs per size, plain and operator side by side in each; the table shows medians",
+    )
     args = ap.parse_args(argv)
     sizes = [int(s) for s in args.sizes.split(",") if s]
     kube = connect()
@@ -364,7 +480,13 @@ def main(argv: list[str] | None = None) -> int:
     env = {"FOGFLEET_LOG_LEVEL": args.operator_log_level}
     with heartbeats.relaxed() as beats:
         rows = [
-            bench_size(kube, n, token, logdir, env, plain_too=not args.operator_only) for n in sizes
+            median_row(
+                [
+                    bench_size(kube, n, f"{token}{k}", logdir, env, not args.operator_only)
+                    for k in range(max(1, args.repeats))
+                ]
+            )
+            for n in sizes
         ]
     report = {
         "started": started,
@@ -379,6 +501,10 @@ def main(argv: list[str] | None = None) -> int:
     Path(args.out).write_text(json.dumps(report, indent=2) + "\n")
     print(f"fogfleet fleet-scale benchmark ({started}; load after: {loadavg()})")
     print(format_rows(rows))
+    cpu = format_cpu(rows)
+    if cpu:
+        print("CPU seconds from apply to all Running, by part of the bed:")
+        print(cpu)
     for sl in report["rssSlopes"]:
         print(
             f"operator peak RSS {sl['fromPods']} -> {sl['toPods']} pods: "
