@@ -72,16 +72,27 @@ class MoveEvaluator:
         self.pair_inst: I64 = pp.genes[g]
         self.pair_node: I64 = pp.table[g, np.concatenate([np.arange(c) for c in pp.counts])]
         # uncontended per-(instance, node) terms, computed as Evaluation does at slowdown 1,
-        # on the pairs only (moves never leave them): (I, N) tables, zero elsewhere
+        # on the pairs only (moves never leave them), looked up by the pair's key (instance x
+        # nodes + node) in sorted order: dense (I, N) tables were 2 x 115 MB at 1000 robots,
+        # for a few hundred pairs, and zero-filling them was most of a re-plan's setup
         i, j = self.pair_inst, self.pair_node
         a = fleet.activation[i]
         both = fleet.net_mean[i, j] + alloc.exe_mean[i, j]
         sd = np.sqrt(alloc.exe_std[i, j] ** 2 + fleet.net_std[i, j] ** 2)
         t = both / fleet.cycle[i]
-        self.miss = np.zeros((fleet.n_instances, fleet.n_nodes))
-        self.missed = np.zeros((fleet.n_instances, fleet.n_nodes))
-        self.miss[i, j] = a * miss_probability(both, sd, fleet.cycle[i])
-        self.missed[i, j] = a * np.where(t > 1.0, t, 0.0)
+        key = i * fleet.n_nodes + j
+        order = np.argsort(key, kind="stable")
+        self._keys: I64 = key[order]
+        self._miss: F64 = (a * miss_probability(both, sd, fleet.cycle[i]))[order]
+        self._missed: F64 = (a * np.where(t > 1.0, t, 0.0))[order]
+
+    def _pair_values(self, values: F64, inst: I64, node: I64) -> F64:
+        """``values`` (sorted like the pair keys) of the pairs (inst, node); 0 outside them."""
+        if not len(self._keys):
+            return np.zeros(len(inst))
+        key = inst * self.pp.fleet.n_nodes + node
+        pos = np.minimum(np.searchsorted(self._keys, key), len(self._keys) - 1)
+        return np.where(self._keys[pos] == key, values[pos], 0.0)
 
     def parents(self, fulls: I64) -> Evaluation:
         """The parents' whole evaluation (their per-node sums are what moves patch)."""
@@ -186,9 +197,12 @@ class MoveEvaluator:
         weight = ev.module_activation
         counted = (weight > 0).sum(axis=1)
         w_inst = weight[par, fleet.module_index[inst]] * counted[par]
-        change = (self.miss[inst, node] - q_par[par, inst]) / np.where(w_inst > 0, w_inst, 1.0)
+        miss_new = self._pair_values(self._miss, inst, node)
+        change = (miss_new - q_par[par, inst]) / np.where(w_inst > 0, w_inst, 1.0)
         out["missRate"] = ev.miss_rate()[par] + np.where(w_inst > 0, change, 0.0)
-        out["missedCycles"] = m_par.sum(axis=1)[par] - m_par[par, inst] + self.missed[inst, node]
+        out["missedCycles"] = (
+            m_par.sum(axis=1)[par] - m_par[par, inst] + self._pair_values(self._missed, inst, node)
+        )
         slow = np.flatnonzero(~fast)
         if slow.size:
             whole = Evaluation(

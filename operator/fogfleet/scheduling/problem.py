@@ -16,7 +16,7 @@ from fogfleet.domain.problem import Problem
 from .heuristics import Fit
 from .objectives import EVALUATORS, Evaluation, constraint_names
 
-__all__ = ["FIT_TOLERANCE", "RESOLUTION", "Candidates", "PlacementProblem"]
+__all__ = ["FIT_TOLERANCE", "RESOLUTION", "Candidates", "PlacementProblem", "allowed_table"]
 
 # Differences below these are noise to the search: a plan 1e-11 lower in missRate must not
 # stay on the front for that alone (it would crowd out plans that differ in what matters).
@@ -46,6 +46,29 @@ class Candidates:
     room: F64  # (I, W, 3) each node's capacity plus the tolerance a fit allows
     scale: F64  # (I, W, 3) each node's capacity, at least the tolerance (utilisation)
     pref: F64  # (I, W) the repair's preference (``Fit.pref``): low miss, low latency
+
+
+def allowed_table(allowed: NDArray[np.bool_], counts: I64, width: int) -> I64:
+    """table[g, k]: the k-th allowed node of row g, ascending, padded with its first
+    disallowed ones - a stable argsort of ``~allowed`` cut at ``width`` (>= every count),
+    built from the allowed entries instead: at 1000 robots the argsort sorted 14 M cells into
+    a 115 MB array for a table 8016 x a few wide. The padding lies in the first ``width``
+    columns, which hold at most the row's count of allowed nodes."""
+    n_rows = allowed.shape[0]
+    table = np.zeros((n_rows, width), dtype=np.int64)
+
+    def place(rows: I64, cols: I64, first: I64) -> None:
+        # cols of each row in order, from column first[row] of the table on, up to width
+        starts = np.searchsorted(rows, np.arange(n_rows))
+        at = first[rows] + np.arange(len(rows)) - starts[rows]
+        keep = at < width
+        table[rows[keep], at[keep]] = cols[keep]
+
+    rows, cols = np.nonzero(allowed)
+    place(rows, cols, np.zeros(n_rows, dtype=np.int64))
+    rows, cols = np.nonzero(~allowed[:, :width])
+    place(rows, cols, counts.astype(np.int64))
+    return table
 
 
 class PlacementProblem(PymooProblem):  # type: ignore[misc]
@@ -80,9 +103,7 @@ class PlacementProblem(PymooProblem):  # type: ignore[misc]
         allowed = problem.allowed[self.genes]
         self.counts: I64 = allowed.sum(axis=1).astype(np.int64)
         width = int(self.counts.max()) if len(self.genes) else 1
-        # table[g, k]: the k-th allowed node of gene g (padded with the first)
-        order = np.argsort(~allowed, axis=1, kind="stable")[:, :width]
-        self.table: I64 = order.astype(np.int64)
+        self.table: I64 = allowed_table(allowed, self.counts, width)
         n_constr = len(constraint_names(problem))
         super().__init__(
             n_var=len(self.genes),

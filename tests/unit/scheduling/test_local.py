@@ -15,7 +15,7 @@ from fogfleet.domain.problem import Problem
 from fogfleet.scheduling.choice import dominance
 from fogfleet.scheduling.local import MoveEvaluator, pareto_local_search
 from fogfleet.scheduling.objectives import EVALUATORS, Evaluation, constraints, evaluate
-from fogfleet.scheduling.problem import PlacementProblem
+from fogfleet.scheduling.problem import PlacementProblem, allowed_table
 from fogfleet.scheduling.solver import nsga2
 
 from .conftest import _warehouse
@@ -149,3 +149,37 @@ def test_local_search_is_deterministic() -> None:
     a = pareto_local_search(pp, X, F)
     b = pareto_local_search(pp, X.copy(), F.copy())
     assert np.array_equal(a[0], b[0]) and np.array_equal(a[1], b[1]) and a[2] == b[2]
+
+
+@settings(max_examples=200, deadline=None)
+@given(
+    st.integers(1, 25).flatmap(
+        lambda n: st.integers(1, 30).flatmap(
+            lambda m: st.lists(
+                st.lists(st.booleans(), min_size=m, max_size=m).filter(any),
+                min_size=n,
+                max_size=n,
+            )
+        )
+    )
+)
+def test_the_gene_table_is_the_stable_argsort_of_the_allowed_sets(rows: list[list[bool]]) -> None:
+    allowed = np.array(rows, dtype=bool)
+    counts = allowed.sum(axis=1)
+    width = int(counts.max())
+    want = np.argsort(~allowed, axis=1, kind="stable")[:, :width]
+    assert np.array_equal(allowed_table(allowed, counts, width), want)
+
+
+def test_the_uncontended_terms_are_looked_up_per_pair_and_zero_outside() -> None:
+    pp = PlacementProblem(_warehouse(), ["missRate", "missedCycles"])
+    me = MoveEvaluator(pp)
+    i, j = me.pair_inst, me.pair_node
+    dense = np.zeros((pp.fleet.n_instances, pp.fleet.n_nodes))
+    dense[i, j] = me._pair_values(me._miss, i, j)
+    assert np.count_nonzero(dense) > 0
+    # every (instance, node) cell: the pair's value, or 0 where the search cannot go
+    ii, jj = np.indices(dense.shape)
+    assert np.array_equal(me._pair_values(me._miss, ii.ravel(), jj.ravel()), dense.ravel())
+    outside = ~pp.fleet.allowed
+    assert outside.any() and np.all(dense[outside] == 0)
