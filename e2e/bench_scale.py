@@ -414,7 +414,7 @@ def median_row(runs: list[Obj]) -> Obj:
         if isinstance(value, int | float) and not isinstance(value, bool):
             values = [r[key] for r in done if isinstance(r.get(key), int | float)]
             row[key] = statistics.median(values)
-            if isinstance(value, int) and key != "robots":
+            if isinstance(value, int):  # counts stay counts
                 row[key] = round(row[key])
         elif isinstance(value, dict):
             row[key] = {

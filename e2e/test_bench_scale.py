@@ -90,6 +90,7 @@ def test_repeated_runs_give_each_number_as_a_median_and_keep_the_runs() -> None:
     ]  # fmt: skip
     row = bench_scale.median_row(runs)
     assert (row["robots"], row["ratio"], row["incrementalMoved"]) == (100, 1.0, 1)
+    assert isinstance(row["robots"], int) and isinstance(row["pods"], int)
     assert row["plainCpuSeconds"] == {"machine": 70.0, "kwok": 6.0}
     assert row["runs"] == runs and row["repeats"] == 4
     assert row["error"] == "1 of 4 runs failed: timeout"
