@@ -73,8 +73,9 @@ class MoveEvaluator:
         self.pair_node: I64 = pp.table[g, np.concatenate([np.arange(c) for c in pp.counts])]
         # uncontended per-(instance, node) terms, computed as Evaluation does at slowdown 1,
         # on the pairs only (moves never leave them), looked up by the pair's key (instance x
-        # nodes + node) in sorted order: dense (I, N) tables were 2 x 115 MB at 1000 robots,
-        # for a few hundred pairs, and zero-filling them was most of a re-plan's setup
+        # nodes + node) in sorted order: dense (I, N) tables were 2 x 115 MB at 1000 robots
+        # for ~8500 pairs in an incremental re-plan (one per fixed instance, a few per free one),
+        # and zero-filling them was most of its setup
         i, j = self.pair_inst, self.pair_node
         a = fleet.activation[i]
         both = fleet.net_mean[i, j] + alloc.exe_mean[i, j]
