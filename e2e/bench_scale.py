@@ -235,7 +235,7 @@ def run_operator_size(
             f"{wall_clock(ready_at)}: compare with the operator's log)"
         )
         row |= robot_joins(kube, spec, ns, poller, first, timeout, 1)
-        row["settleWaitSeconds"] = wait_quiet(kube)
+        row["settleWaitSeconds"] = wait_quiet()
         settled = robot_joins(kube, spec, ns, poller, dict(poller.status), timeout, 2)
         row |= {f"settled{k[0].upper()}{k[1:]}": v for k, v in settled.items()}
         poller.close()
@@ -247,7 +247,7 @@ def run_operator_size(
         op.stop()
 
 
-def wait_quiet(kube: Kube, window: float = QUIET_WINDOW_SECONDS) -> float:
+def wait_quiet(window: float = QUIET_WINDOW_SECONDS) -> float:
     """Seconds until the control plane used less than ``QUIET_CORES`` over a ``window``
     (kube-controller-manager works through thousands of Deployments' statuses for minutes
     after their pods run), at most ``QUIET_MAX_SECONDS``."""
