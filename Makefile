@@ -45,8 +45,8 @@ cluster-tools: venv ## Build (or reuse from ~/.cache/fogfleet) etcd, kube-*, kwo
 images: venv ## Build (or reuse from ~/.cache/fogfleet/images) the operator, workload, pause and busybox images without Docker
 	$(BIN)/python e2e/cluster/images.py build
 
-cluster-up: venv ## Start the local control plane (etcd, kube-apiserver, kcm, scheduler, kwok, Prometheus) on 127.0.0.1
-	$(BIN)/python e2e/cluster/harness.py up
+cluster-up: venv ## Start the local bed (control plane, Prometheus, kwok and real nodes) on 127.0.0.1; PROFILE=paper for the paper's real nodes
+	$(BIN)/python e2e/cluster/harness.py up --profile $(or $(PROFILE),default)
 
 cluster-down: venv ## Stop the local control plane and remove its state
 	$(BIN)/python e2e/cluster/harness.py down
@@ -94,8 +94,11 @@ bench-cluster: venv ## Operator benchmarks on the local control plane: apply-to-
 bench-scale: venv cluster-tools ## The operator at 100, 300 and 1000 robots x 8 modules on kwok nodes: apply-to-Running vs plain, Ready lag, peak RSS, a robot joining; writes bench-scale.json
 	$(BIN)/python -m e2e.bench_scale --sizes $(or $(SIZES),100,300,1000) --repeats $(or $(REPEATS),1)
 
-bench-real: venv cluster-tools images ## nsga2 vs kube-scheduler vs on-board on the bed's real nodes, measured and simulated (3 x 3 runs of 1 min warm-up + 3 min; needs `make cluster-up`; ~42 min)
-	$(BIN)/python -m e2e.realbench --window 180 --reps 3
+bench-real: venv cluster-tools images ## The paper's real experiment on the paper bed (started if not running): nsga2 x6 vs kube-scheduler x6 (+ on-board x2, nsga2-static x3), 90 s warm-up + 60 s windows; writes bench-real.json (~55 min)
+	$(BIN)/python -m e2e.realbench
+
+bench-real-report: venv ## Tables, docs/benchmarks/real-nodes.md and its plot from bench-real.json
+	$(BIN)/python -m e2e.realbench.report --json bench-real.json --docs docs/benchmarks/real-nodes.md --plot docs/benchmarks/real-nodes-perception.svg
 
 demo: venv ## Plan + simulate the warehouse fleet, then run it on the local control plane (operator, real kube-scheduler)
 	$(BIN)/fogfleet plan manifests/examples/warehouse
@@ -110,4 +113,4 @@ clean: ## Remove the virtualenv and caches in the repo
 	rm -rf $(VENV) .pytest_cache .mypy_cache .ruff_cache
 
 
-.PHONY: help venv lint unit test checkov images crds crds-check demo-offline bench-replan bench-cluster bench-scale bench-real cluster-tools cluster-up cluster-down cluster-status e2e e2e-k3d chart-lint bench demo clean
+.PHONY: help venv lint unit test checkov images crds crds-check demo-offline bench-replan bench-cluster bench-scale bench-real bench-real-report cluster-tools cluster-up cluster-down cluster-status e2e e2e-k3d chart-lint bench demo clean

@@ -127,23 +127,28 @@ def _stop_everything() -> None:
     _stop_all()
 
 
-def ensure_up(*, nodes: bool = True) -> Cluster:
-    """Start the bed unless it already runs healthy; return it.
+def ensure_up(*, nodes: bool = True, profile: str = realnodes.DEFAULT_PROFILE) -> Cluster:
+    """Start the bed unless it already runs healthy with ``profile``; return it.
 
-    The bed is the control plane, the real nodes of e2e/cluster/nodes.yaml (always) and, with
-    `nodes`, its fake nodes. A bed that was already running is left alone (a scale test may
-    have replaced the fake node set).
+    The bed is the control plane, the real nodes of the profile (``realnodes.PROFILES``;
+    ``default``: those of e2e/cluster/nodes.yaml) and, with `nodes`, the fake nodes of
+    nodes.yaml. A bed that was already running with the same profile is left alone (a scale
+    test may have replaced the fake node set); one with another profile is restarted.
     """
+    real = realnodes.profile_nodes(profile)  # an unknown profile fails before anything stops
     with locked():
         cluster = running()
         state = _read_state() or {}
-        if cluster is not None and state.get("versions") == load_versions():
-            log(f"already running and healthy: {cluster.api_server}")
+        same = state.get("versions") == load_versions()
+        if cluster is not None and same and cluster.profile == profile:
+            log(f"already running and healthy ({profile} bed): {cluster.api_server}")
             heartbeats.restore()  # a scale run that died may have left slow ones
             _refresh_images(cluster)
             return cluster
-        if cluster is not None:
+        if cluster is not None and not same:
             log(f"running with other versions than {VERSIONS_FILE.name}; restarting it")
+        elif cluster is not None:
+            log(f"running the {cluster.profile} bed; restarting it as the {profile} bed")
         if _read_state() is not None or any(_alive(c) for c in COMPONENTS):
             sick = [c for c in COMPONENTS if _alive(c) is None]
             log(f"found a stale or unhealthy cluster (down: {sick or 'none'}); restarting it")
@@ -151,11 +156,11 @@ def ensure_up(*, nodes: bool = True) -> Cluster:
         bednet.teardown()
         shutil.rmtree(STATE_DIR, ignore_errors=True)
         ensure_built()
-        fake, real = realnodes.split_manifest(NODES_FILE.read_text())
+        fake, _ = realnodes.split_manifest(NODES_FILE.read_text())
         t0 = time.monotonic()
         STATE_DIR.mkdir(parents=True)
         ports = _choose_ports()
-        _write_state(ports, "starting", [n.name for n in real])
+        _write_state(ports, "starting", [n.name for n in real], profile)
         _write_configs(ports)
         argv = _argv(ports)
         try:
@@ -190,10 +195,10 @@ def ensure_up(*, nodes: bool = True) -> Cluster:
                 if node.dir.exists():
                     log(realnodes.diagnose(node))
             _stop_everything()
-            _write_state(ports, "failed", [n.name for n in real])
+            _write_state(ports, "failed", [n.name for n in real], profile)
             raise
-        _write_state(ports, "running", [n.name for n in real])
-        log(f"cluster up in {time.monotonic() - t0:.1f}s ({len(real)} real nodes)")
+        _write_state(ports, "running", [n.name for n in real], profile)
+        log(f"cluster up in {time.monotonic() - t0:.1f}s ({profile} bed, {len(real)} real nodes)")
         return Cluster.from_state(_read_state() or {})  # with its real nodes and versions
 
 
@@ -249,7 +254,9 @@ def status() -> int:
         print("fogfleet e2e cluster: not created (run `harness.py up`)")
         return 1
     cluster = Cluster.from_state(state)
-    print(f"fogfleet e2e cluster: {state.get('phase')}  (state: {STATE_DIR})")
+    print(
+        f"fogfleet e2e cluster: {state.get('phase')}, {cluster.profile} bed  (state: {STATE_DIR})"
+    )
     print(f"{'component':<25} {'pid':>8} {'port':>6}  health")
     all_ok = True
     for name in COMPONENTS:

@@ -106,6 +106,7 @@ class Cluster:
     ports: Mapping[str, int]
     real_nodes: tuple[str, ...] = ()
     versions: Mapping[str, str] = field(default_factory=dict)
+    profile: str = "default"  # the bed profile (realnodes.PROFILES) it was started with
 
     @classmethod
     def from_state(cls, state: Mapping[str, Any]) -> Cluster:
@@ -113,6 +114,7 @@ class Cluster:
         return cls(
             real_nodes=tuple(state.get("real_nodes", ())),
             versions=dict(state.get("versions", {})),
+            profile=str(state.get("profile", "default")),
             state_dir=STATE_DIR,
             bin_dir=BIN_DIR,
             kubeconfig=KUBECONFIG,

@@ -287,9 +287,15 @@ def _write_configs(ports: Mapping[str, int]) -> None:
     run([BIN_DIR / "promtool", "check", "config", STATE_DIR / "prometheus.yml"])
 
 
-def _write_state(ports: Mapping[str, int], phase: str, real_nodes: list[str] | None = None) -> None:
+def _write_state(
+    ports: Mapping[str, int],
+    phase: str,
+    real_nodes: list[str] | None = None,
+    profile: str = "default",
+) -> None:
     state = {
         "phase": phase,
+        "profile": profile,
         "real_nodes": list(real_nodes or []),
         "ports": dict(ports),
         "versions": load_versions(),

@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """A real Kubernetes control plane for fogfleet's e2e tests, run as local processes (no Docker).
 
-    python e2e/cluster/harness.py build | up | down | status
+    python e2e/cluster/harness.py build | up [--profile default|paper] | down | status
     python e2e/cluster/harness.py nodes [--robots N --edges M --cloud K]
     python e2e/cluster/harness.py kubectl ARGS... | helm ARGS...
 
@@ -51,6 +51,7 @@ from e2e.cluster.base import (
 from e2e.cluster.bed import down, ensure_up, status
 from e2e.cluster.cluster import COMPONENTS, Cluster, running
 from e2e.cluster.fakenodes import NODES_FILE, create_nodes, generated_nodes, node_object
+from e2e.cluster.realnodes import DEFAULT_PROFILE, PROFILES
 from e2e.cluster.tools import TOOLS, GoToolchain, _staging_modules, ensure_built
 
 __all__ = [
@@ -118,7 +119,13 @@ def main(argv: list[str] | None = None) -> int:
     b = sub.add_parser("build", help="build or reuse the pinned tools")
     b.add_argument("--only", default=",".join(TOOLS), help=f"comma list of {','.join(TOOLS)}")
     b.add_argument("--force", action="store_true", help="rebuild even when cached")
-    sub.add_parser("up", help="start the control plane (idempotent)")
+    u = sub.add_parser("up", help="start the control plane (idempotent)")
+    u.add_argument(
+        "--profile",
+        default=DEFAULT_PROFILE,
+        choices=sorted(PROFILES),
+        help="which real nodes the bed runs (a running bed of another profile is restarted)",
+    )
     sub.add_parser("down", help="stop the control plane and remove its state")
     sub.add_parser("status", help="components, pids, ports, health")
     n = sub.add_parser("nodes", help="replace the fake nodes (default: nodes.yaml)")
@@ -139,7 +146,8 @@ def main(argv: list[str] | None = None) -> int:
         log(f"tools ready in {bin_dir} ({time.monotonic() - t0:.1f}s)")
         return 0
     if ns.cmd == "up":
-        cluster = ensure_up()
+        cluster = ensure_up(profile=ns.profile)
+        print(f"bed profile: {cluster.profile} ({', '.join(cluster.real_nodes)})")
         print(f"kubeconfig: {cluster.kubeconfig}")
         print(f"api server: {cluster.api_server}")
         print(f"prometheus: {cluster.prometheus_url}")

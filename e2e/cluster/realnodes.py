@@ -1,7 +1,8 @@
 """Real nodes: one containerd, one kubelet and one kube-proxy per node, each node a small host.
 
-A real node is declared in ``nodes.yaml`` beside the kwok nodes, as a Node document with the
-annotation ``fogfleet.io/e2e-real: "true"`` and its bed settings::
+A real node is declared in ``nodes.yaml`` beside the kwok nodes (the ``default`` bed profile)
+or in a profile's own file (``nodes-<profile>.yaml``, real nodes only: ``PROFILES``), as a
+Node document with the annotation ``fogfleet.io/e2e-real: "true"`` and its bed settings::
 
     fogfleet.io/e2e-cpu: 400m          # CFS quota of the node's cgroup (its share of this machine)
     fogfleet.io/e2e-memory: 1536Mi     # memory limit of the node's cgroup
@@ -48,6 +49,11 @@ PAUSE_IMAGE = "localhost/fogfleet/pause:3.10"
 CNI_BIN_DIR = "/usr/lib/cni"
 CTR = "ctr"
 NODES_DIR = STATE_DIR / "nodes"
+# Bed profiles: which real nodes a bed runs. ``default`` is the e2e suite's bed (nodes.yaml);
+# ``paper`` is the paper's real-robot experiment (IV-C) scaled by 15: two Raspberry Pi 4
+# robots and two unequal i9 edge servers (e2e/realbench/paper/nodes.yaml says how).
+PROFILES = {"default": NODES_FILE, "paper": HERE / "nodes-paper.yaml"}
+DEFAULT_PROFILE = "default"
 CREATED_MOUNTPOINTS = STATE_DIR / "created-mountpoints.json"
 # Paths containerd and the kubelet hard-code: private per node (tmpfs or a bind of its dir).
 TMPFS_PATHS = ("/run/containerd", "/run/netns")
@@ -135,13 +141,22 @@ def split_manifest(text: str) -> tuple[list[dict[str, Any]], list[RealNode]]:
     return fake, real
 
 
+def profile_nodes(profile: str) -> list[RealNode]:
+    """The real nodes of a bed profile (``PROFILES``); an unknown one is refused by name."""
+    if profile not in PROFILES:
+        raise HarnessError(f"unknown bed profile {profile!r}: one of {', '.join(PROFILES)}")
+    _, real = split_manifest(PROFILES[profile].read_text())
+    return real
+
+
 def declared(name: str) -> RealNode:
-    """The real node `name` as nodes.yaml declares it."""
-    _, real = split_manifest(NODES_FILE.read_text())
-    for node in real:
-        if node.name == name:
-            return node
-    raise HarnessError(f"nodes.yaml declares no real node {name!r}")
+    """The real node `name` as its profile's file declares it (node names are unique across
+    profiles, so the running bed's profile need not be known)."""
+    for profile in PROFILES:
+        for node in profile_nodes(profile):
+            if node.name == name:
+                return node
+    raise HarnessError(f"no bed profile declares a real node {name!r}")
 
 
 def set_link(node: RealNode, **change: float) -> LinkSpec:

@@ -1,12 +1,18 @@
-"""The paper's real-world comparison on the bed's real nodes (issue 12), and how far the
-simulator is from it.
+"""The paper's real-world experiment (multi-robot-edge-cloud-scheduling IV-C, issue 33) on the
+``paper`` bed's real nodes, and how far the simulator is from it.
 
-``python -m e2e.realbench`` (``make bench-real``) runs ``manifests/examples/warehouse-lite`` with
-each of ``nsga2``, ``k8s-default`` and ``onboard`` on the running bed, measures missed cycles
-from the workload's own counters in Prometheus over a fixed window, simulates the same
-placements with ``fogfleet.sim`` and prints both side by side.
+``python -m e2e.realbench`` (``make bench-real``) starts the paper bed when none runs, then runs
+the fleet of ``e2e/realbench/paper`` once per scheduled run (nsga2, kube-scheduler, on-board,
+nsga2 without the closed loop), measures missed cycles from the workload's own counters in
+Prometheus over a fixed window, simulates the placement each run really had with
+``fogfleet.sim`` and writes every run to ``bench-real.json``.
 
-* ``measure``: counter snapshots from Prometheus and miss rates over a window;
+* ``protocol``: the arms, the schedule (blocks, alternating order), timing and endpoint;
 * ``scenario``: the fleet's objects, moved into a run's namespace, and its offline Problem;
-* ``run``: one run on the cluster (apply, wait, warm up, measure, delete) and the CLI.
+* ``measure``: counter snapshots from Prometheus and miss rates over a window;
+* ``run``: one run on the cluster (apply, wait, warm up, measure, delete) and the CLI;
+* ``stats``: the bootstrap CI of the reduction and the exact Mann-Whitney test;
+* ``report``, ``plot``: the summary, tables, docs page and figure from bench-real.json;
+* ``modelcheck``: what the planner, the kube-scheduler emulation and the simulator predict
+  for the bed before it runs.
 """

@@ -12,7 +12,7 @@ from __future__ import annotations
 import math
 import statistics
 from collections.abc import Callable, Iterable, Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 from fogfleet.sim.simulator import fleet_miss_rate
@@ -55,10 +55,17 @@ class WindowRates:
 
     modules: dict[str, float]
     cycles: dict[str, int]
+    missed: dict[str, int] = field(default_factory=dict)
 
     @property
     def miss_rate(self) -> float:
         return fleet_miss_rate(self.modules)
+
+    def pooled(self, modules: Iterable[str]) -> tuple[int, int]:
+        """(missed, cycles) summed over ``modules``' instances (the paper's Fig. 9b metric
+        pools the perception modules' cycles)."""
+        names = [m for m in modules if m in self.cycles]
+        return sum(self.missed.get(m, 0) for m in names), sum(self.cycles[m] for m in names)
 
 
 def window_rates(before: Counts, after: Counts) -> WindowRates:
@@ -75,7 +82,9 @@ def window_rates(before: Counts, after: Counts) -> WindowRates:
             missed.get(module, 0.0) + after.missed.get(key, 0.0) - before.missed.get(key, 0.0)
         )
     rates = {m: (missed[m] / c if c > 0 else math.nan) for m, c in cycles.items()}
-    return WindowRates(rates, {m: int(c) for m, c in cycles.items()})
+    return WindowRates(
+        rates, {m: round(c) for m, c in cycles.items()}, {m: round(x) for m, x in missed.items()}
+    )
 
 
 def median_rates(runs: Iterable[Mapping[str, float]]) -> dict[str, float]:

@@ -1,4 +1,5 @@
-"""The benchmark's fleet: ``manifests/examples/warehouse-lite``, on the cluster and offline.
+"""The benchmark's fleet: ``e2e/realbench/paper`` (the paper's IV-C experiment on the ``paper``
+bed profile), on the cluster and offline.
 
 On the cluster every run gets its own namespace (a run never sees the previous run's pods or
 counters); offline the same objects give the Problem the simulator runs the measured
@@ -18,12 +19,13 @@ from fogfleet.cli.planning import recorded_placement
 from fogfleet.domain.build import build_problem
 from fogfleet.domain.problem import Allocation, Problem
 
-__all__ = ["EXAMPLE", "FLEET", "SCALE", "Scenario"]
+__all__ = ["EXAMPLE", "FLEET", "PROFILE", "SCALE", "Scenario"]
 
 ROOT = Path(__file__).resolve().parents[2]
-EXAMPLE = ROOT / "manifests" / "examples" / "warehouse-lite"
-FLEET = "warehouse-lite"
-SCALE = 15  # the factor nodes.yaml and modules.yaml divide the warehouse's CPU figures by
+EXAMPLE = Path(__file__).resolve().parent / "paper"
+FLEET = "paper"
+PROFILE = "paper"  # the bed profile whose real nodes the ComputeNodes describe
+SCALE = 15  # the factor nodes.yaml and modules.yaml divide the paper's CPU figures by
 
 Obj = dict[str, Any]
 
@@ -48,17 +50,32 @@ class Scenario:
         """The ComputeNodes (cluster-scoped; their names are the bed's real Nodes)."""
         return self.of_kind("ComputeNode")
 
-    def namespaced(self, namespace: str, scheduler: str, drift: Obj | None = None) -> list[Obj]:
+    def namespaced(
+        self, namespace: str, scheduler: str, drift: Obj | None = None, seed: int | None = None
+    ) -> list[Obj]:
         """The SoftwareModules and the RobotFleet in ``namespace``, planned by ``scheduler``
-        (with ``drift`` as its ``spec.drift``, if given)."""
+        (with ``drift`` as its ``spec.drift`` and ``seed`` as the planner's seed, if given)."""
         out = self.of_kind("SoftwareModule") + self.of_kind("RobotFleet")
         for d in out:
             d["metadata"]["namespace"] = namespace
             if d["kind"] == "RobotFleet":
                 d["spec"]["scheduler"]["algorithm"] = scheduler
+                if seed is not None:
+                    d["spec"]["scheduler"]["seed"] = seed
                 if drift is not None:
                     d["spec"]["drift"] = dict(drift)
         return out
+
+    def hardware(self) -> list[dict[str, str]]:
+        """The bed's nodes as bench-real.json names them: name, CPU, hardware type."""
+        return [
+            {
+                "name": n["metadata"]["name"],
+                "cpu": str(n["spec"]["capacity"]["cpu"]),
+                "hardwareType": n["spec"]["hardwareType"],
+            }
+            for n in self.nodes()
+        ]
 
     @property
     def instances(self) -> int:

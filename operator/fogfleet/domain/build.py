@@ -337,7 +337,13 @@ def build_problem(
         fleet=fleet.metadata.name,
         namespace=namespace,
         nodes=tuple(
-            NodeInfo(nd.metadata.name, nd.node_name, nd.spec.tier, nd.spec.hardware_type)
+            NodeInfo(
+                nd.metadata.name,
+                nd.node_name,
+                nd.spec.tier,
+                nd.spec.hardware_type,
+                parse_quantity(nd.spec.speed_factor),
+            )
             for nd in nodes
         ),
         instances=tuple(instances),

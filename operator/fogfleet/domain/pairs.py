@@ -31,7 +31,7 @@ from .taxonomy import may_degrade, must_stay_onboard
 if TYPE_CHECKING:
     from .observed import Learnt
 
-__all__ = ["Block", "Pair", "PairTable", "ProfileRow", "pad_rungs", "profile_rows"]
+__all__ = ["Block", "Pair", "PairTable", "ProfileRow", "pad_rungs", "profile_rows", "rows_for"]
 
 F64 = NDArray[np.float64]
 
@@ -72,11 +72,21 @@ class Block:
 
 def profile_rows(module: SoftwareModule, node: ComputeNode) -> list[ProfileRow]:
     """Fig. 3 rows for this node's hardware type; 'default' rows scaled by speedFactor."""
-    own = [r for r in module.spec.profile if r.hardware_type == node.spec.hardware_type]
+    return rows_for(module, node.spec.hardware_type, parse_quantity(node.spec.speed_factor))
+
+
+def rows_for(module: SoftwareModule, hardware_type: str, speed_factor: float) -> list[ProfileRow]:
+    """The module's rows on hardware ``hardware_type`` (Fig. 3): its own rows as declared, or
+    else the 'default' rows with every time divided by the node's ``speed_factor``.
+
+    The one place that decides which row a module runs with on a node: the planner's pairs and
+    the rendered pod (``render.ros``) both ask here, so a pod plays the rows it was planned
+    with."""
+    own = [r for r in module.spec.profile if r.hardware_type == hardware_type]
     scale = 1.0
     if not own:
         own = [r for r in module.spec.profile if r.hardware_type == "default"]
-        scale = 1.0 / max(parse_quantity(node.spec.speed_factor), 1e-6)
+        scale = 1.0 / max(speed_factor, 1e-6)
     rows = [
         ProfileRow(
             parse_cpu(r.cpu),

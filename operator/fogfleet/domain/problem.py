@@ -66,6 +66,8 @@ class NodeInfo:
     node_name: str  # Kubernetes Node name
     tier: Tier
     hardware_type: str
+    # spec.speedFactor: 'default' profile rows run this many times faster here (pairs.rows_for)
+    speed_factor: float = 1.0
 
 
 @dataclass(frozen=True)

@@ -228,6 +228,10 @@ def render_instance(
         # what its row needs (a degraded instance, Problem.with_levels: more than it is
         # guaranteed), with the fleet's headroom for bursts (SchedulerSettings.cpu_limit_percent)
         limit = use * cpu_limit_percent / 100
+        # never beyond what the node has for pods: more buys nothing, and a node whose CPU is
+        # a cgroup quota (cgroup v1 checks a child's quota against its parent's, as on the
+        # e2e bed's real nodes) refuses to start the container
+        limit = min(limit, max(float(problem.capacity[j, 0]), request))
         if limit > request:
             limits["cpu"] = format_cpu(limit)
         if gpu > 0:
@@ -264,7 +268,9 @@ def render_instance(
         tier=tier or "",
         node="" if baseline else node.node_name,
         hardware_type="" if baseline else node.hardware_type,
-        cpu=cpu if with_limits else "",
+        # the row it plays is the one it was planned to run: a degraded instance requests less
+        # than its row needs and bursts to it (its limit), as the planner and simulator have it
+        cpu=format_cpu(use) if with_limits else "",
         node_rows=None
         if with_limits
         else {problem.nodes[k].node_name: _nominal_row(problem, i, k) for k in nodes},
@@ -272,6 +278,7 @@ def render_instance(
         fallback=fallback if role else None,
         stands_in_for=inst.module if variant else "",
         remote_cycle_millis=float(problem.cycle[i]) * 1e3 if variant else None,
+        speed_factor=node.speed_factor,
     )
     metadata: dict[str, Any] = {
         "name": name,

@@ -24,6 +24,7 @@ from fogfleet.api.labels import LABEL_COMPONENT, LABEL_ROBOT
 from fogfleet.api.v1alpha1.fallback import Fallback
 from fogfleet.api.v1alpha1.robotfleet import RosSettings
 from fogfleet.api.v1alpha1.softwaremodule import ProfileEntry, SoftwareModule
+from fogfleet.domain.pairs import rows_for
 
 __all__ = [
     "COMPONENT_DISCOVERY",
@@ -111,11 +112,17 @@ def _env(pairs: Mapping[str, str]) -> list[dict[str, Any]]:
     return [{"name": k, "value": v} for k, v in pairs.items()]
 
 
-def _rows(module: SoftwareModule, hardware_type: str) -> list[dict[str, Any]]:
-    rows = [r for r in module.spec.profile if r.hardware_type == hardware_type] or [
-        r for r in module.spec.profile if r.hardware_type == "default"
+def _rows(module: SoftwareModule, hardware_type: str, speed_factor: float) -> list[dict[str, Any]]:
+    """The rows the pod plays on its node: the planner's own (``domain.pairs.rows_for``)."""
+    return [
+        {
+            "hardwareType": hardware_type or "default",
+            "cpu": f"{round(r.cpu * 1000, 3):g}m",
+            "meanMillis": round(r.mean * 1e3, 3),
+            "stdMillis": round(r.std * 1e3, 3),
+        }
+        for r in rows_for(module, hardware_type, speed_factor)
     ]
-    return [r.model_dump(by_alias=True, mode="json") for r in rows]
 
 
 def module_spec_json(
@@ -124,6 +131,7 @@ def module_spec_json(
     node_rows: Mapping[str, ProfileEntry] | None = None,
     fallback: Fallback | None = None,
     remote_cycle_millis: float | None = None,
+    speed_factor: float = 1.0,
 ) -> str:
     """What the workload needs of the module: cycle, activation, topics, its node's profile.
 
@@ -138,7 +146,7 @@ def module_spec_json(
         "cycleTimeMillis": spec.cycle_time_millis,
         "activationPercent": spec.activation_percent,
         "topics": spec.topics.model_dump(by_alias=True, mode="json"),
-        "profile": _rows(module, hardware_type),
+        "profile": _rows(module, hardware_type, speed_factor),
     }
     if node_rows:
         body["profileByNode"] = {n: [row.wire()] for n, row in sorted(node_rows.items())}
@@ -167,6 +175,7 @@ def module_env(
     fallback: Fallback | None = None,
     stands_in_for: str = "",
     remote_cycle_millis: float | None = None,
+    speed_factor: float = 1.0,
 ) -> list[dict[str, Any]]:
     """The environment fogfleet owns in a module container (ROS wiring + FOGFLEET_*).
 
@@ -186,7 +195,7 @@ def module_env(
         "FOGFLEET_HARDWARE_TYPE": hardware_type,
         "FOGFLEET_CPU": cpu,
         "FOGFLEET_MODULE_SPEC": module_spec_json(
-            module, hardware_type, node_rows, fallback, remote_cycle_millis
+            module, hardware_type, node_rows, fallback, remote_cycle_millis, speed_factor
         ),
     }
     if role:

@@ -102,8 +102,12 @@ def k8s_scores(
     return np.asarray(fit + balanced, dtype=np.int64)
 
 
-def k8s_default(problem: Problem, seed: int = 1) -> Schedule:
-    """kube-scheduler's default placement of the fleet's pods (see the module docstring)."""
+def k8s_default(
+    problem: Problem, seed: int = 1, order: NDArray[np.int64] | None = None
+) -> Schedule:
+    """kube-scheduler's default placement of the fleet's pods (see the module docstring);
+    ``order``: the instances in the order their pods reach the scheduler, if not the
+    fleet's own (a real cluster's order varies with the controllers' timing)."""
     t0 = time.perf_counter()
     rng = np.random.default_rng(seed)
     alloc_cpu = np.round(problem.capacity[:, 0] * 1000).astype(np.int64)
@@ -114,7 +118,7 @@ def k8s_default(problem: Problem, seed: int = 1) -> Schedule:
     used_gpu = np.zeros(problem.n_nodes, dtype=np.int64)
     x = np.full(problem.n_instances, -1, dtype=np.int64)
     pending: dict[int, str] = {}
-    for i in range(problem.n_instances):
+    for i in range(problem.n_instances) if order is None else (int(k) for k in order):
         if not problem.allowed[i].any():
             continue
         cpu = np.round(problem.nominal.cpu_request[i] * 1000).astype(np.int64)  # per node

@@ -74,6 +74,43 @@ def test_requests_are_the_planned_cpu_and_limits_leave_the_fleets_headroom(catal
     assert res["requests"] == res["limits"]  # Guaranteed, as in the paper
 
 
+def test_a_limit_never_exceeds_what_its_node_has_for_pods():
+    """The paper bed's 300m edge: segmentation planned at 267m would get a 534m limit, which a
+    node whose CPU is a cgroup quota refuses (runc: cpu.cfs_quota_us invalid argument)."""
+    catalog = load_paths([Path(__file__).resolve().parents[3] / "e2e" / "realbench" / "paper"])
+    problem = build_problem(catalog.fleets[0], catalog)
+    small = next(j for j, n in enumerate(problem.nodes) if n.name == "paper-edge-2")
+    seg = next(i for i, inst in enumerate(problem.instances) if inst.module == "scene-segmentation")
+    placement = np.full(problem.n_instances, -1)
+    placement[seg] = small
+    dep = render_fleet(problem, modules(catalog), placement)[0]
+    res = dep["spec"]["template"]["spec"]["containers"][0]["resources"]
+    assert res["requests"]["cpu"] == "267m"
+    assert res["limits"]["cpu"] == format_cpu(problem.capacity[small, 0]) == "270m"
+
+
+def test_a_degraded_instance_plays_the_row_it_was_planned_to_burst_to():
+    """Degraded one rung, segmentation is guaranteed 133m and may burst to the 267m its
+    deadline needs; planner and simulator run it at the 267m row (85 ms), so must the pod
+    (it played the 133m row, 145 ms of a 150 ms cycle, and missed 38 % on the paper bed)."""
+    catalog = load_paths([Path(__file__).resolve().parents[3] / "e2e" / "realbench" / "paper"])
+    problem = build_problem(catalog.fleets[0], catalog)
+    big = next(j for j, n in enumerate(problem.nodes) if n.name == "paper-edge-1")
+    seg = next(i for i, inst in enumerate(problem.instances) if inst.module == "scene-segmentation")
+    levels = np.zeros(problem.n_instances, dtype=np.int64)
+    levels[seg] = 1
+    degraded = problem.with_levels(levels)
+    placement = np.full(problem.n_instances, -1)
+    placement[seg] = big
+    dep = render_fleet(degraded, modules(catalog), placement)[0]
+    container = dep["spec"]["template"]["spec"]["containers"][0]
+    assert container["resources"]["requests"]["cpu"] == "133m"
+    assert container["resources"]["limits"]["cpu"] == "534m"
+    spec = WorkloadSpec.from_env({e["name"]: e.get("value", "") for e in container["env"]})
+    assert spec.row.cpu == pytest.approx(0.267)
+    assert spec.row.mean_s == pytest.approx(degraded.limits.exe_mean[seg, big]) == 0.085
+
+
 def test_unplaced_instances_get_no_deployment(catalog, problem):
     placement = first_allowed(problem)
     placement[3] = -1
@@ -199,3 +236,30 @@ def test_pods_pinned_to_a_robot_stay_while_it_is_cut_off_and_others_do_not(catal
         seen.add(x[i] in robots)
         assert forever == (taints if x[i] in robots else set()), dep["metadata"]["name"]
     assert seen == {True, False}
+
+
+def test_a_planned_pod_plays_the_rows_it_was_planned_with_on_a_faster_node(catalog, problem):
+    """On a node with ``speedFactor`` 1.25 and only 'default' rows, the planner divides every
+    time by 1.25 (``domain.pairs.rows_for``); the pod must play those times, not the declared
+    ones (it used to get the unscaled rows: other work than planned)."""
+    speed = {name: float(n.spec.speed_factor) for name, n in catalog.nodes.items()}
+    fast = [j for j, n in enumerate(problem.nodes) if speed[n.name] != 1.0]
+    assert fast, "the warehouse example has nodes with speedFactor 1.25"
+    placed = np.array(
+        [next((j for j in fast if problem.allowed[i, j]), -1) for i in range(problem.n_instances)]
+    )
+    assert (placed >= 0).sum() > 0
+    deps = render_fleet(problem, modules(catalog), placed)
+    by_instance = {identity_of(d): d for d in deps}
+    checked = 0
+    for i in np.flatnonzero(placed >= 0):
+        inst = problem.instances[i]
+        dep = by_instance[(inst.robot, inst.module, inst.replica)]
+        container = dep["spec"]["template"]["spec"]["containers"][0]
+        env = {e["name"]: e.get("value", "") for e in container["env"]}
+        spec = WorkloadSpec.from_env(env)
+        j = int(placed[i])
+        assert spec.row.mean_s == pytest.approx(problem.limits.exe_mean[i, j], rel=1e-6)
+        assert spec.row.std_s == pytest.approx(problem.limits.exe_std[i, j], rel=1e-6, abs=1e-9)
+        checked += 1
+    assert checked == int((placed >= 0).sum())

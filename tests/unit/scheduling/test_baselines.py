@@ -43,6 +43,13 @@ def test_k8s_default_fills_the_balanced_node_until_the_other_scores_higher() -> 
     assert s.with_limits is False and s.feasible
 
 
+def test_k8s_default_places_the_pods_in_the_order_they_reach_the_scheduler() -> None:
+    p = _two_edges()
+    assert k8s_default(p, seed=1, order=np.array([0, 1, 2])).placement.tolist() == [1, 1, 2]
+    # the same scoring with pod 2 first: pods 2 and 0 fill A, the last one goes to B
+    assert k8s_default(p, seed=1, order=np.array([2, 0, 1])).placement.tolist() == [1, 2, 1]
+
+
 def test_k8s_default_leaves_pods_pending_when_nothing_fits() -> None:
     p = _two_edges()
     from dataclasses import replace

@@ -1,0 +1,117 @@
+"""The benchmark's protocol, fixed before any result (issue 33): which arms run how often, in
+what order, for how long, and what is measured.
+
+* **Arms.** ``nsga2`` (the operator's plan, closed loop on; planner seeds 1..n), ``k8s-default``
+  (plain Deployments that kube-scheduler binds, a fresh namespace each run so each is a fresh
+  draw of its placement), ``onboard`` (every module on its robot) and ``nsga2-static`` (the
+  paper's a-priori GA: the first plan, no closed loop; reported, not in the target).
+* **Blocks.** Runs go in blocks; every block holds one run of each two-sided arm (``nsga2``,
+  ``k8s-default``) and the other arms' runs are spread evenly over the blocks. The order
+  inside a block alternates (forward in even blocks, reversed in odd ones), so no arm always
+  runs first, or always right after the same other arm.
+* **Timing.** A warm-up after the fleet is Ready (long enough for the closed loop's re-plan:
+  30 s measured + 10 s of drift, checked every 30 s), then one window between two counter
+  snapshots. A plan that changes inside the window fails the run; a failed run is recorded,
+  never dropped.
+* **Endpoint.** Primary: missed / cycles pooled over every human-pose-estimation and
+  scene-segmentation instance of the run (the paper's Fig. 9b metric). Secondary: the mean
+  over modules (the planner's and the simulator's figure), and each module's rate.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+
+__all__ = [
+    "ARMS",
+    "DEFAULT_RUNS",
+    "PERCEPTION",
+    "PRIMARY",
+    "STATIC",
+    "Protocol",
+    "ScheduledRun",
+    "parse_arms",
+]
+
+NSGA2, K8S, ONBOARD, STATIC = "nsga2", "k8s-default", "onboard", "nsga2-static"
+ARMS = (NSGA2, STATIC, K8S, ONBOARD)  # the order of every table
+DEFAULT_RUNS = {NSGA2: 6, K8S: 6, ONBOARD: 2, STATIC: 3}
+PRIMARY = "perception"
+PERCEPTION = ("human-pose-estimation", "scene-segmentation")
+
+
+@dataclass(frozen=True)
+class ScheduledRun:
+    """One run of the schedule: its arm, the planner seed, its block and place in the order."""
+
+    arm: str
+    seed: int  # nsga2: spec.scheduler.seed; every arm: the simulator's seed
+    block: int
+    position: int  # 0-based place in the whole schedule
+
+    @property
+    def algorithm(self) -> str:
+        """The RobotFleet's spec.scheduler.algorithm (nsga2-static plans with nsga2)."""
+        return NSGA2 if self.arm == STATIC else self.arm
+
+    @property
+    def closed_loop(self) -> bool:
+        return self.arm != STATIC
+
+
+@dataclass(frozen=True)
+class Protocol:
+    window_s: float = 60.0
+    warmup_s: float = 90.0
+    runs: Mapping[str, int] = field(default_factory=lambda: dict(DEFAULT_RUNS))
+
+    @property
+    def blocks(self) -> int:
+        return max(self.runs.values(), default=0)
+
+    def schedule(self) -> list[ScheduledRun]:
+        """Every run in the order it runs (see the module docstring)."""
+        n_blocks = self.blocks
+        members: list[list[str]] = [[] for _ in range(n_blocks)]
+        for arm in ARMS:
+            n = self.runs.get(arm, 0)
+            for k in range(n):  # spread evenly: block floor(k * blocks / n)
+                members[k * n_blocks // n].append(arm)
+        out: list[ScheduledRun] = []
+        seen: dict[str, int] = {}
+        for b, arms in enumerate(members):
+            for arm in arms if b % 2 == 0 else reversed(arms):
+                seen[arm] = seen.get(arm, 0) + 1
+                out.append(ScheduledRun(arm, seen[arm], b, len(out)))
+        return out
+
+    def as_json(self) -> dict[str, object]:
+        return {
+            "windowSeconds": self.window_s,
+            "warmupSeconds": self.warmup_s,
+            "arms": {a: self.runs[a] for a in ARMS if self.runs.get(a)},
+            "blocks": self.blocks,
+            "order": "blocks; inside a block forward in even blocks, reversed in odd ones",
+            "primaryEndpoint": PRIMARY,
+            "perceptionModules": list(PERCEPTION),
+        }
+
+
+def parse_arms(text: str) -> dict[str, int]:
+    """``nsga2=6,k8s-default=6`` -> runs per arm; an unknown arm or count names itself."""
+    out: dict[str, int] = {}
+    for part in (p.strip() for p in text.split(",") if p.strip()):
+        arm, _, count = part.partition("=")
+        if arm not in ARMS:
+            raise ValueError(f"--arms: unknown arm {arm!r}; choose from {', '.join(ARMS)}")
+        try:
+            n = int(count) if count else 1
+        except ValueError:
+            raise ValueError(f"--arms: {arm}={count!r} is not a whole number") from None
+        if n < 1:
+            raise ValueError(f"--arms: {arm}={n}: at least 1 run")
+        out[arm] = n
+    if not out:
+        raise ValueError("--arms: no arm given")
+    return out
