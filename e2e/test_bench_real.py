@@ -18,7 +18,8 @@ import pytest
 from e2e.cluster.harness import Cluster
 from e2e.realbench import report
 from e2e.realbench.protocol import PERCEPTION, PRIMARY, Protocol
-from e2e.realbench.run import connect, document, run_bench
+from e2e.realbench.record import document
+from e2e.realbench.run import connect, run_bench
 from e2e.realbench.scenario import Scenario
 
 pytestmark = [pytest.mark.e2e, pytest.mark.real, pytest.mark.paperbed, pytest.mark.timeout(900)]

@@ -34,7 +34,9 @@ __all__ = ["Predicted", "main", "predict"]
 Predicted = tuple[str, float, float, float]  # (label, perception, all modules, mean cores)
 
 
-def _simulated(problem: Problem, sched: Schedule, seconds: float, seed: int) -> tuple[float, ...]:
+def _simulated(
+    problem: Problem, sched: Schedule, seconds: float, seed: int
+) -> tuple[float, float, float]:
     p = problem.with_levels(sched.levels)
     r = simulate(
         p, sched.placement, p.allocation(sched.with_limits), seconds, seed, all_active=True

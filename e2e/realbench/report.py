@@ -4,10 +4,8 @@
     python -m e2e.realbench.report [--json bench-real.json]
         [--docs docs/benchmarks/real-nodes.md] [--plot docs/benchmarks/real-nodes-perception.svg]
 
-``summarise`` turns the runs into the document's "summary": per arm the medians over the
-completed runs (a failed run is listed, never counted), nsga2's reduction of k8s-default's
-primary-endpoint median with its bootstrap CI and one-sided Mann-Whitney p, and the issue's
-targets. ``table`` prints it for a terminal, ``markdown`` writes it for docs/, ``plot_svg``
+``summarise`` (``e2e.realbench.summary``) turns the runs into the document's "summary";
+``table`` prints it for a terminal, ``markdown`` writes it for docs/, ``plot_svg``
 (``e2e.realbench.plot``) draws every run. Everything shown is generated from the document.
 """
 
@@ -23,132 +21,24 @@ from pathlib import Path
 from typing import Any
 
 from e2e.realbench.plot import arm_order, completed, plot_svg, rate
-from e2e.realbench.protocol import K8S, NSGA2, ONBOARD, PERCEPTION, PRIMARY
-from e2e.realbench.stats import bootstrap_reduction_ci, mann_whitney_less, reduction
+from e2e.realbench.protocol import PERCEPTION, PRIMARY
+from e2e.realbench.summary import (
+    CONTROL,
+    ENDPOINTS,
+    LEVEL,
+    RESAMPLES,
+    SEED,
+    TARGETS,
+    TREATED,
+    simulator_agrees,
+    summarise,
+)
 
 __all__ = ["main", "markdown", "plot_svg", "simulator_agrees", "summarise", "table"]
 
 Run = Mapping[str, Any]
 Doc = Mapping[str, Any]
 Rows = list[list[str]]
-
-TREATED, CONTROL = NSGA2, K8S
-RESAMPLES, LEVEL, SEED = 10000, 0.95, 0
-ENDPOINTS = {
-    "perception": "missed / cycles pooled over every instance of {perception}",
-    "allModules": "the mean over modules of each module's missed / cycles",
-}
-TARGETS = {
-    "reductionAtLeast90": f"reduction {TREATED} vs {CONTROL} >= 90 %",
-    "pAtMost005": "one-sided Mann-Whitney p <= 0.05",
-    "sixRunsEach": f">= 6 completed runs of {TREATED} and of {CONTROL}",
-    "onboardWorst": f"{ONBOARD}'s median above {TREATED}'s and {CONTROL}'s",
-}
-
-
-def _safe(x: float | None) -> float | None:
-    """JSON has no NaN: None stands for "no figure"."""
-    return None if x is None or math.isnan(x) or math.isinf(x) else float(x)
-
-
-def _median(values: Sequence[float]) -> float | None:
-    return statistics.median(values) if values else None
-
-
-def _values(runs: Sequence[Run], arm: str, endpoint: str, kind: str = "measured") -> list[float]:
-    """The arm's completed runs' rates on the endpoint, in run order."""
-    mine = (r for r in runs if r["scheduler"] == arm and completed(r))
-    return [v for v in (rate(r, endpoint, kind) for r in mine) if v is not None]
-
-
-def simulator_agrees(measured: float | None, simulated: float | None) -> bool:
-    """Issue 12's agreement rule: within 25 % relative or 0.5 points, whichever is larger."""
-    if measured is None or simulated is None:
-        return False
-    return abs(measured - simulated) <= max(0.25 * measured, 0.005)
-
-
-def _endpoint(
-    runs: Sequence[Run], arms: Sequence[str], endpoint: str, primary: bool
-) -> dict[str, Any]:
-    block: dict[str, Any] = {}
-    for arm in arms:
-        values = _values(runs, arm, endpoint)
-        n = sum(1 for r in runs if r["scheduler"] == arm and completed(r))
-        block[arm] = {"median": _safe(_median(values)), "runs": n}
-        if primary:
-            block[arm]["values"] = values
-    return block
-
-
-def _comparison(treated: Sequence[float], control: Sequence[float]) -> dict[str, Any]:
-    if not treated or not control:
-        return {"reduction": None, "ci95": [None, None], "pValue": None}
-    lo, hi = bootstrap_reduction_ci(treated, control, resamples=RESAMPLES, level=LEVEL, seed=SEED)
-    return {
-        "reduction": _safe(reduction(statistics.median(treated), statistics.median(control))),
-        "ci95": [_safe(lo), _safe(hi)],
-        "pValue": mann_whitney_less(treated, control),
-    }
-
-
-def _modules(
-    runs: Sequence[Run], arms: Sequence[str]
-) -> dict[str, dict[str, dict[str, float | None]]]:
-    names: set[str] = set()
-    for r in filter(completed, runs):
-        for kind in ("measured", "simulated"):
-            names |= set(((r.get(kind) or {}).get("modules") or {}).keys())
-    return {
-        m: {
-            arm: {k: _safe(_median(_values(runs, arm, m, k))) for k in ("measured", "simulated")}
-            for arm in arms
-        }
-        for m in sorted(names)
-    }
-
-
-def _targets(
-    summary: Mapping[str, Any], primary: str, perception: Mapping[str, Any]
-) -> dict[str, Any]:
-    p = summary[primary]
-
-    def med(arm: str) -> float | None:
-        return p[arm]["median"] if arm in p else None
-
-    onboard, worse = med(ONBOARD), [med(TREATED), med(CONTROL)]
-    sim = summary["simulatedPerception"]
-    return {
-        "reductionAtLeast90": p["reduction"] is not None and p["reduction"] >= 0.90,
-        "pAtMost005": p["pValue"] is not None and p["pValue"] <= 0.05,
-        "sixRunsEach": all(p.get(a, {}).get("runs", 0) >= 6 for a in (TREATED, CONTROL)),
-        "onboardWorst": onboard is not None and all(m is not None and onboard > m for m in worse),
-        "simulatorAgrees": {
-            a: simulator_agrees(perception.get(a, {}).get("median"), sim.get(a))
-            for a in (TREATED, CONTROL)
-        },
-    }
-
-
-def summarise(runs: Sequence[Run], *, primary: str = PRIMARY) -> dict[str, Any]:
-    """bench-real.json's "summary": medians over each arm's completed runs (an arm with none
-    is left out), and on the ``primary`` endpoint the runs' values, nsga2's reduction of
-    k8s-default's median with its 95 % bootstrap CI and one-sided Mann-Whitney p, and the
-    targets. JSON-safe: None where a figure does not exist."""
-    arms = [a for a in arm_order(runs) if any(r["scheduler"] == a and completed(r) for r in runs)]
-    summary: dict[str, Any] = {
-        ep: _endpoint(runs, arms, ep, ep == primary)
-        for ep in dict.fromkeys(("perception", "allModules", primary))
-    }
-    summary[primary] |= _comparison(
-        _values(runs, TREATED, primary), _values(runs, CONTROL, primary)
-    )
-    summary["modules"] = _modules(runs, arms)
-    summary["simulatedPerception"] = {
-        a: _safe(_median(_values(runs, a, "perception", "simulated"))) for a in arms
-    }
-    summary["targets"] = _targets(summary, primary, summary["perception"])
-    return summary
 
 
 # --------------------------------------------------------------------------------------------
@@ -348,6 +238,28 @@ def _protocol(doc: Doc) -> list[str]:
     ]
 
 
+LOAD_HEADER = ["arm", "machine busy (cores)", "control plane (cores)"]
+CONTROL_PLANE = ("etcd", "kube-apiserver", "kube-controller-manager", "kube-scheduler", "kwok")
+
+
+def _load_rows(doc: Doc) -> Rows:
+    """Per arm, the medians over its runs' windows of the cores the whole machine and the
+    control plane kept busy (``cpuSeconds`` / window): the bed's headroom."""
+    rows = []
+    runs = doc.get("runs") or []
+    for arm in arm_order(runs):
+        busy, plane = [], []
+        for r in runs:
+            cpu, window = r.get("cpuSeconds") or {}, float(r.get("windowSeconds") or 0)
+            if r["scheduler"] != arm or "machine" not in cpu or window <= 0:
+                continue
+            busy.append(cpu["machine"] / window)
+            plane.append(sum(cpu.get(c, 0.0) for c in CONTROL_PLANE) / window)
+        if busy:
+            rows.append([arm, f"{statistics.median(busy):.2f}", f"{statistics.median(plane):.2f}"])
+    return rows
+
+
 def markdown(doc: Doc, *, plot_name: str) -> str:
     """The docs/benchmarks section of the run in ``doc``, every figure generated from it."""
     module_header, module_rows = _module_header_rows(doc)
@@ -355,6 +267,12 @@ def markdown(doc: Doc, *, plot_name: str) -> str:
     return "\n".join(
         [
             "## Real nodes: the paper's experiment (`make bench-real`)",
+            "",
+            "The paper's real-robot experiment (multi-robot-edge-cloud-scheduling IV-C) on real",
+            "kubelets and containerd: the fleet of `e2e/realbench/paper/` on the paper bed",
+            "(`make cluster-up PROFILE=paper`). `make bench-real` runs it (about an hour) and",
+            "writes `bench-real.json`; `make bench-real-report` generates this page and its figure",
+            "from that file. Rates are fractions of cycles missed, shown in percent.",
             "",
             _bed_line(doc),
             "",
@@ -381,6 +299,10 @@ def markdown(doc: Doc, *, plot_name: str) -> str:
             "### Modules: measured vs simulated (medians)",
             "",
             _md_table(module_header, module_rows),
+            "",
+            "### The bed's load over the windows (medians)",
+            "",
+            _md_table(LOAD_HEADER, _load_rows(doc)),
             "",
         ]
     )

@@ -26,15 +26,12 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
-import platform
 import secrets
 import shlex
 import sys
 import tempfile
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -46,17 +43,16 @@ from e2e.realbench import report
 from e2e.realbench.measure import WindowRates, snapshot, window_rates
 from e2e.realbench.protocol import (
     DEFAULT_RUNS,
-    PERCEPTION,
     PRIMARY,
     Protocol,
     ScheduledRun,
     parse_arms,
 )
-from e2e.realbench.scenario import FLEET, PROFILE, ROOT, SCALE, Scenario
+from e2e.realbench.record import RunResult, document
+from e2e.realbench.scenario import FLEET, PROFILE, ROOT, Scenario
 from fogfleet.controllers.observed import describe
 from fogfleet.domain.observed import Learnt
 from fogfleet.sim import simulate
-from fogfleet.sim.simulator import fleet_miss_rate
 
 __all__ = ["RunResult", "connect", "main", "run_bench"]
 
@@ -76,63 +72,6 @@ OBSERVE_INTERVAL_S = 5
 
 def log(msg: str) -> None:
     print(f"[bench-real {time.strftime('%H:%M:%S')}] {msg}", file=sys.stderr, flush=True)
-
-
-@dataclass
-class RunResult:
-    """One run as bench-real.json records it (``failed``: why it did not complete)."""
-
-    run: ScheduledRun
-    window_s: float
-    failed: str | None = None
-    measured: WindowRates | None = None
-    simulated: dict[str, float] | None = None  # per module
-    simulated_cycles: dict[str, int] | None = None
-    placement: dict[str, str] | None = None  # robot/module -> node
-    ready_s: float | None = None  # apply -> fleet Ready
-    corrected: tuple[str, ...] = ()  # what the closed loop learnt in the warm-up
-    cpu_seconds: dict[str, float] | None = None  # per part of the bed, over the window
-
-    def as_json(self) -> dict[str, Any]:
-        r = self.run
-        out: dict[str, Any] = {
-            "scheduler": r.arm,
-            "seed": r.seed,
-            "position": r.position,
-            "block": r.block,
-            "windowSeconds": self.window_s,
-            "failed": self.failed,
-            "placement": self.placement,
-            "readySeconds": None if self.ready_s is None else round(self.ready_s, 1),
-            "corrected": list(self.corrected),
-            "cpuSeconds": self.cpu_seconds,
-            "measured": None,
-            "simulated": None,
-        }
-        if self.measured is not None:
-            m = self.measured
-            missed, cycles = m.pooled(PERCEPTION)
-            out["measured"] = {
-                PRIMARY: {"missed": missed, "cycles": cycles, "missRate": _rate(missed, cycles)},
-                "modules": {
-                    k: {"missed": m.missed.get(k, 0), "cycles": c, "missRate": m.modules[k]}
-                    for k, c in sorted(m.cycles.items())
-                },
-                "allModules": m.miss_rate,
-            }
-        if self.simulated is not None and self.simulated_cycles is not None:
-            sim, n = self.simulated, self.simulated_cycles
-            pooled = sum(sim[k] * n[k] for k in PERCEPTION if k in n)
-            out["simulated"] = {
-                PRIMARY: {"missRate": _rate(pooled, sum(n.get(k, 0) for k in PERCEPTION))},
-                "modules": {k: {"missRate": v} for k, v in sorted(sim.items())},
-                "allModules": fleet_miss_rate(sim),
-            }
-        return out
-
-
-def _rate(missed: float, cycles: float) -> float | None:
-    return missed / cycles if cycles else None
 
 
 def _wait_counted(kube: Kube, cluster: harness.Cluster, ns: str, instances: int) -> None:
@@ -343,7 +282,7 @@ def run_bench(
     cluster: harness.Cluster,
     protocol: Protocol,
     workdir: Path,
-    on_run: Callable[[list[RunResult]], None] | None = None,
+    on_run: Callable[[list[RunResult]], object] | None = None,
 ) -> list[RunResult]:
     """Every run of the schedule on a running paper bed (the operator is started and stopped
     here); ``on_run`` sees the results after every run."""
@@ -378,35 +317,6 @@ def run_bench(
         finally:
             op.stop()
     return results
-
-
-def document(
-    results: Sequence[RunResult], protocol: Protocol, scenario: Scenario, command: str
-) -> dict[str, Any]:
-    """The bench-real.json document: the bed, the protocol, every run and the summary."""
-    runs = [r.as_json() for r in results]
-    return {
-        "date": time.strftime("%Y-%m-%d"),
-        "machine": machine(),
-        "command": command,
-        "bed": {"profile": PROFILE, "scale": SCALE, "nodes": scenario.hardware()},
-        "protocol": protocol.as_json(),
-        "primaryEndpoint": PRIMARY,
-        "runs": runs,
-        "summary": report.summarise(runs),
-    }
-
-
-def machine() -> str:
-    model = ""
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                model = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
-    return f"{os.cpu_count()} cores {model}, {platform.system()} {platform.release()}".strip()
 
 
 def main(argv: Sequence[str] | None = None) -> int:

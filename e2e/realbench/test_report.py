@@ -206,3 +206,18 @@ def test_the_cli_writes_the_docs_with_a_relative_figure_link(
     assert (docs.parent / "real-nodes-perception.svg").read_text().startswith("<svg")
     assert "](real-nodes-perception.svg)" in docs.read_text()
     assert "95.00 %" in capsys.readouterr().out
+
+
+def test_the_page_shows_where_the_perception_ran_and_the_beds_load() -> None:
+    runs = _runs()
+    runs[0]["placement"] = {
+        "r1/human-pose-estimation": "paper-edge-1",
+        "r1/scene-segmentation": "paper-robot-1",
+    }
+    runs[0]["cpuSeconds"] = {"machine": 90.0, "etcd": 3.0, "kube-apiserver": 6.0}
+    runs[1]["cpuSeconds"] = {"machine": 60.0, "etcd": 3.0, "kube-apiserver": 3.0}
+    page = markdown(_doc(runs), plot_name="p.svg")
+    assert "pose e1, seg r1" in page
+    # nsga2's two windows: 1.5 and 1.0 cores busy, 0.15 and 0.1 of it the control plane
+    assert "| nsga2 | 1.25 | 0.12 |" in page
+    assert "| k8s-default |" not in page.split("load over the windows")[1]  # no CPU recorded

@@ -35,6 +35,9 @@ class WorkloadMetrics:
         self, module: str, robot: str, tier: str, hardware_type: str = "", cpu: str = ""
     ) -> None:
         self.registry = CollectorRegistry()
+        # a cycle's count and its miss change together, and a scrape reads both at one moment:
+        # else a window between two scrapes could count a miss without its cycle (over 100 %)
+        self._cycle_lock = threading.Lock()
         ids = {"module": module, "robot": robot, "tier": tier}
         # what one cycle's work took, by where and with how much CPU it ran: what the operator
         # learns a module's real profile from (issue 10; controllers/observed.py)
@@ -150,9 +153,16 @@ class WorkloadMetrics:
         self._held_back.labels(**self._ids, topic=topic).inc()
 
     def cycle_done(self, seconds: float, limit: float) -> None:
-        self.cycle.observe(seconds)
-        if seconds > limit:
-            self.missed.inc()
+        with self._cycle_lock:
+            self.cycle.observe(seconds)
+            if seconds > limit:
+                self.missed.inc()
+
+    def exposition(self) -> bytes:
+        """The registry in Prometheus' text format, cycles and misses read at one moment."""
+        with self._cycle_lock:
+            body: bytes = generate_latest(self.registry)
+        return body
 
     def serve(self, host: str, port: int) -> ThreadingHTTPServer:
         metrics = self
@@ -168,7 +178,7 @@ class WorkloadMetrics:
 
             def do_GET(self) -> None:
                 if self.path.startswith("/metrics"):
-                    body, ctype = generate_latest(metrics.registry), CONTENT_TYPE_LATEST
+                    body, ctype = metrics.exposition(), CONTENT_TYPE_LATEST
                 elif self.path == "/healthz" and metrics.healthy:
                     body, ctype = b"ok\n", "text/plain"
                 else:
