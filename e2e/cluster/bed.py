@@ -149,7 +149,7 @@ def ensure_up(*, nodes: bool = True, profile: str = realnodes.DEFAULT_PROFILE) -
             log(f"running with other versions than {VERSIONS_FILE.name}; restarting it")
         elif cluster is not None:
             log(f"running the {cluster.profile} bed; restarting it as the {profile} bed")
-        if _read_state() is not None or any(_alive(c) for c in COMPONENTS):
+        elif _read_state() is not None or any(_alive(c) for c in COMPONENTS):
             sick = [c for c in COMPONENTS if _alive(c) is None]
             log(f"found a stale or unhealthy cluster (down: {sick or 'none'}); restarting it")
         _stop_everything()

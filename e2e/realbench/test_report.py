@@ -182,8 +182,8 @@ def test_the_figure_orders_columns_and_is_deterministic() -> None:
 def test_the_markdown_has_every_run_and_the_figure() -> None:
     runs = [*_runs(), _run("nsga2", 7, 0.9, failed="node-a | lost")]
     md = markdown(_doc(runs), plot_name="real-nodes-perception.svg")
-    assert md.startswith("## Real nodes: the paper's experiment (`make bench-real`)")
-    runs_section = md.split("### Runs")[1].split("###")[0]
+    assert md.startswith("# Real nodes: the paper's experiment (`make bench-real`)")
+    runs_section = md.split("\n## Runs")[1].split("\n## ")[0]
     run_rows = [line for line in runs_section.splitlines() if line.startswith("| ")]
     assert len(run_rows) == 1 + len(runs)  # the header and a row per run
     seeds = [(r["scheduler"], str(r["seed"])) for r in runs]
