@@ -210,7 +210,7 @@ def leftovers() -> list[str]:
     pids = cgroups.pids(f"/{cgroups.TOP}")
     if pids:
         found.append(f"processes in /{cgroups.TOP} cgroups: {sorted(pids)[:10]}")
-    for h in cgroups.hierarchies():
+    for h in cgroups.every_hierarchy():
         if (h / cgroups.TOP).exists():
             found.append(f"cgroup {h / cgroups.TOP}")
     netns = Path("/run/netns")

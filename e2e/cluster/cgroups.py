@@ -51,6 +51,17 @@ def hierarchies() -> list[Path]:
     return found
 
 
+def every_hierarchy() -> list[Path]:
+    """The v1 hierarchies and, on a hybrid host, the unified (cgroup2) one, where runc makes
+    each container's cgroup as well: what a stopped bed must leave empty."""
+    unified = [
+        Path(parts[1])
+        for parts in (line.split() for line in Path("/proc/self/mounts").read_text().splitlines())
+        if len(parts) >= 3 and parts[2] == "cgroup2" and parts[1].startswith(str(CGROUP_ROOT))
+    ]
+    return [*hierarchies(), *unified]
+
+
 def node_path(node: str, sub: str = "") -> str:
     """The cgroup path (same in every hierarchy) of a node, or of one of its parts."""
     return f"/{TOP}/{node}" + (f"/{sub}" if sub else "")
@@ -136,7 +147,7 @@ def kill_all(path: str, timeout: float = 10) -> int:
 
 def remove(path: str) -> None:
     """rmdir the tree below `path` in every hierarchy, deepest first (empty cgroups only)."""
-    for h in hierarchies():
+    for h in every_hierarchy():
         base = h / path.lstrip("/")
         if not base.exists():
             continue
