@@ -39,13 +39,19 @@ TOP_CPU_SHARES = 262_144
 SHARES_PER_CORE = 1024  # inside /fogfleet, a busy host is shared in proportion to node size
 
 
-def hierarchies() -> list[Path]:
-    """The mounted v1 hierarchies (cpu, memory, pids, ...), one directory each."""
+def _mounted(fstype: str) -> list[Path]:
+    """Mount points of ``fstype`` (``cgroup`` for v1, ``cgroup2``) under /sys/fs/cgroup."""
     found = []
     for line in Path("/proc/self/mounts").read_text().splitlines():
         parts = line.split()
-        if len(parts) >= 3 and parts[2] == "cgroup" and parts[1].startswith(str(CGROUP_ROOT)):
+        if len(parts) >= 3 and parts[2] == fstype and parts[1].startswith(str(CGROUP_ROOT)):
             found.append(Path(parts[1]))
+    return found
+
+
+def hierarchies() -> list[Path]:
+    """The mounted v1 hierarchies (cpu, memory, pids, ...), one directory each."""
+    found = _mounted("cgroup")
     if not found:
         raise HarnessError("no cgroup v1 hierarchies under /sys/fs/cgroup: real nodes need them")
     return found
@@ -54,12 +60,7 @@ def hierarchies() -> list[Path]:
 def every_hierarchy() -> list[Path]:
     """The v1 hierarchies and, on a hybrid host, the unified (cgroup2) one, where runc makes
     each container's cgroup as well: what a stopped bed must leave empty."""
-    unified = [
-        Path(parts[1])
-        for parts in (line.split() for line in Path("/proc/self/mounts").read_text().splitlines())
-        if len(parts) >= 3 and parts[2] == "cgroup2" and parts[1].startswith(str(CGROUP_ROOT))
-    ]
-    return [*hierarchies(), *unified]
+    return [*hierarchies(), *_mounted("cgroup2")]
 
 
 def node_path(node: str, sub: str = "") -> str:
