@@ -10,14 +10,13 @@ planner and the simulator report (``fogfleet.sim.simulator.fleet_miss_rate``).
 from __future__ import annotations
 
 import math
-import statistics
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
 from fogfleet.sim.simulator import fleet_miss_rate
 
-__all__ = ["Counts", "WindowRates", "median_rates", "snapshot", "window_rates"]
+__all__ = ["Counts", "WindowRates", "snapshot", "window_rates"]
 
 CYCLES = "fogfleet_cycle_time_seconds_count"
 MISSED = "fogfleet_missed_cycles_total"
@@ -85,14 +84,3 @@ def window_rates(before: Counts, after: Counts) -> WindowRates:
     return WindowRates(
         rates, {m: round(c) for m, c in cycles.items()}, {m: round(x) for m, x in missed.items()}
     )
-
-
-def median_rates(runs: Iterable[Mapping[str, float]]) -> dict[str, float]:
-    """Per key, the median over runs of the finite values (NaN if none)."""
-    values: dict[str, list[float]] = {}
-    for run in runs:
-        for k, v in run.items():
-            values.setdefault(k, [])
-            if not math.isnan(v):
-                values[k].append(v)
-    return {k: statistics.median(v) if v else math.nan for k, v in values.items()}

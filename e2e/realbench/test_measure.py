@@ -2,11 +2,9 @@
 
 from __future__ import annotations
 
-import math
-
 import pytest
 
-from e2e.realbench.measure import Counts, median_rates, snapshot, window_rates
+from e2e.realbench.measure import Counts, snapshot, window_rates
 
 
 def test_a_windows_rate_is_the_difference_of_two_snapshots_per_module() -> None:
@@ -43,8 +41,3 @@ def test_snapshot_sums_per_module_and_robot_in_the_namespace() -> None:
     counts = snapshot(query, "ns-1")
     assert counts.cycles == {("pose", "r1"): 7.0}
     assert all('namespace="ns-1"' in q and "sum by (module, robot)" in q for q in asked)
-
-
-def test_medians_skip_modules_that_ran_no_cycle() -> None:
-    runs = [{"a": 0.1, "b": math.nan}, {"a": 0.3, "b": 0.2}, {"a": 0.2, "b": math.nan}]
-    assert median_rates(runs) == {"a": pytest.approx(0.2), "b": pytest.approx(0.2)}
