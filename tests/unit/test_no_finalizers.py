@@ -29,3 +29,22 @@ def test_the_fleet_delete_handler_is_optional_and_no_timer_is_registered() -> No
     assert list(registry._spawning._handlers) == []  # timers and daemons imply finalizers
     deletes = [h for h in registry._changing._handlers if h.reason == "delete"]
     assert len(deletes) == 1 and deletes[0].requires_finalizer is False
+
+
+def _watched(registry: kopf.OperatorRegistry) -> set[str]:
+    return {
+        h.selector.plural or h.selector.any_name  # type: ignore[union-attr]
+        for sub in (registry._changing, registry._watching)
+        for h in sub._handlers
+        if getattr(h, "selector", None) is not None
+    }
+
+
+def test_with_the_watch_caches_kopf_watches_only_robotfleets() -> None:
+    """One watch per kind: the caches report SoftwareModules, ComputeNodes, Nodes and
+    Deployments; kopf would otherwise watch them a second time."""
+    assert _watched(register(kopf.OperatorRegistry(), Settings(watch_cache=True))) == {
+        "robotfleets"
+    }
+    without = _watched(register(kopf.OperatorRegistry(), Settings(watch_cache=False)))
+    assert without == {"robotfleets", "softwaremodules", "computenodes", "nodes", "deployments"}

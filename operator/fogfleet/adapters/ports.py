@@ -9,15 +9,10 @@ server rejects what we sent).
 
 from __future__ import annotations
 
-from collections.abc import Callable, Collection, Mapping
+from collections.abc import Callable, Mapping
 from typing import Any, Protocol
 
-from fogfleet.api.v1alpha1.robotfleet import SchedulerSettings
-from fogfleet.domain.problem import Problem
-from fogfleet.scheduling.incremental import Replan
-from fogfleet.scheduling.schedule import Schedule
-
-__all__ = ["KubePort", "Listener", "MetricsPort", "NullMetrics", "Planner", "Watches"]
+__all__ = ["KubePort", "Listener", "MetricsPort", "NullMetrics", "SeriesPort", "Watches"]
 
 Obj = dict[str, Any]
 
@@ -108,28 +103,24 @@ class Watches(Protocol):
         on_pod: Listener | None = None,
         on_deployment: Listener | None = None,
         on_node: Listener | None = None,
+        on_module: Listener | None = None,
+        on_compute_node: Listener | None = None,
     ) -> None:
-        """Start watching fogfleet's Pods and Deployments, the Nodes (and what else the
-        KubePort reads); the listeners are called on a watch thread, not the event loop."""
+        """Start watching fogfleet's Pods and Deployments, the Nodes, SoftwareModules and
+        ComputeNodes (one watch per kind: kopf then watches only RobotFleets); the listeners
+        are called on a watch thread, not the event loop."""
         ...
 
     def stop(self) -> None: ...
 
 
-class Planner(Protocol):
-    """The scheduling core, as the controller sees it."""
+class SeriesPort(Protocol):
+    """Prometheus, as the link and drift passes query it."""
 
-    def plan(self, problem: Problem, settings: SchedulerSettings) -> Schedule: ...
-
-    def replan(
-        self,
-        problem: Problem,
-        settings: SchedulerSettings,
-        changed: Collection[int],
-        reference: float | None,
-    ) -> Replan:
-        """Re-plan only what a small change affected (``scheduling.incremental.replan``); a
-        Replan without a schedule asks for ``plan``."""
+    def query_series(
+        self, promql: str, *, obj: str = "", field: str = ""
+    ) -> list[tuple[dict[str, str], float]]:
+        """Every series of an instant query with its labels (NaN values left out)."""
         ...
 
 

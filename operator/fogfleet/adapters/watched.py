@@ -117,10 +117,15 @@ class WatchedKube(KubeClient):
         on_pod: OnEvent | None = None,
         on_deployment: OnEvent | None = None,
         on_node: OnEvent | None = None,
+        on_module: OnEvent | None = None,
+        on_compute_node: OnEvent | None = None,
     ) -> None:
-        """Start every informer; ``on_pod``, ``on_deployment`` and ``on_node`` hear each
-        fogfleet Pod's and Deployment's and each Node's changes (on the informer's thread)."""
+        """Start every informer; the listeners hear each fogfleet Pod's and Deployment's and
+        each Node's, SoftwareModule's and ComputeNode's changes (on the informer's thread)."""
         self.nodes.on_event = on_node
+        self.compute_nodes.on_event = on_compute_node
+        for informer in self.modules.values():
+            informer.on_event = on_module
         for informer in self.pods.values():
             informer.on_event = on_pod
         for informer in self.deployments.values():

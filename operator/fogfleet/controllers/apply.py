@@ -13,13 +13,13 @@ from fogfleet.render.deployments import ROLE_STANDBY, hash_annotation, identity_
 from .deps import Deps
 from .parallel import run_all
 
-__all__ = ["apply_fleet", "owned"]
+__all__ = ["apply_fleet", "apply_step", "owned"]
 
 Obj = dict[str, Any]
 
 
-def owned(dep: Obj, fleet: Obj) -> bool:
-    uid = (fleet.get("metadata") or {}).get("uid")
+def owned(dep: Obj, uid: str | None) -> bool:
+    """Whether the fleet of ``uid`` owns ``dep`` (or either says nothing)."""
     refs = (dep.get("metadata") or {}).get("ownerReferences") or []
     return not uid or not refs or any(r.get("uid") == uid for r in refs)
 
@@ -59,3 +59,19 @@ def apply_fleet(
     run_all([functools.partial(kube.apply_deployment, d) for d in changed], deps.api_concurrency)
     run_all([functools.partial(kube.delete_deployment, ns, n) for n in stale], deps.api_concurrency)
     return len(changed), len(stale)
+
+
+def apply_step(
+    deps: Deps,
+    namespace: str,
+    fleet: str,
+    desired: list[Obj],
+    deployments: list[Obj],
+    problem: Problem,
+    stranded: frozenset[int],
+) -> tuple[int, int]:
+    """Apply the fleet's desired Deployments and count what changed (applied, pruned)."""
+    applied, pruned = apply_fleet(deps, namespace, desired, deployments, problem, set(stranded))
+    if applied or pruned:
+        deps.metrics.count_apply(fleet, applied, pruned)
+    return applied, pruned

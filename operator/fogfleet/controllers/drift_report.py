@@ -9,7 +9,7 @@ from typing import Any
 from fogfleet.api.timestamps import timestamp
 from fogfleet.domain.observed import ModuleDrift
 
-from .deps import Rendered
+from .state import DriftWatch
 
 __all__ = ["DriftReport", "drift_events", "drift_report"]
 
@@ -22,9 +22,10 @@ class DriftReport:
     condition: tuple[bool | None, str, str] | None  # Drift: status, reason, message
 
 
-def drift_report(rendered: Rendered, states: Mapping[str, ModuleDrift] | None) -> DriftReport:
+def drift_report(watch: DriftWatch | None, states: Mapping[str, ModuleDrift] | None) -> DriftReport:
     """``status.measured`` and the ``Drift`` condition (None: the fleet is not watched)."""
-    if rendered.drift is None or not rendered.drift.enabled or states is None:
+    settings = watch.settings if watch is not None else None
+    if settings is None or not settings.enabled or states is None:
         return DriftReport([], None)
     entries: list[Obj] = []
     for module, d in sorted(states.items()):

@@ -1,6 +1,7 @@
-"""A RobotFleet's status (Kubernetes API conventions) and Events, from the placement actually
+"""A RobotFleet's status as its model (Kubernetes API conventions), from the placement actually
 deployed and what the cluster shows: conditions keyed by type with CamelCase reasons and
-messages a person can act on, the placement table, the deployed plan's objective values.
+messages a person can act on, the placement table, the deployed plan's objective values; and
+the Events of a new plan. Pure: the status step (``status_step``) compares and writes.
 """
 
 from __future__ import annotations
@@ -13,23 +14,23 @@ import numpy as np
 
 from fogfleet.api.v1alpha1.robotfleet import PLACEMENT_LIST_LIMIT, RobotFleet, RobotFleetStatus
 from fogfleet.domain.problem import Problem
-from fogfleet.errors import DanglingReference, Infeasible, InvalidSpec
 from fogfleet.render.deployments import format_cpu, identity_of
 from fogfleet.scheduling import stickiness
+from fogfleet.scheduling.decision import Decision
 from fogfleet.scheduling.explain import degraded_message
 from fogfleet.scheduling.fallback import disconnected
 
-from .deps import CachedPlan, Deps, fleet_key
 from .drift_report import DriftReport
 from .links import LinkReport
+from .state import Rendered
 from .status import (
+    Rollout,
     complete,
     condition,
     finite,
     merge_conditions,
-    same_status,
     split_text,
-    typed,
+    wire,
     wire_keys,
 )
 
@@ -37,9 +38,10 @@ __all__ = [
     "FLEET_STATUS_KEYS",
     "by_module",
     "fleet_status",
+    "held_status",
     "placement_entries",
     "plan_events",
-    "report_failure",
+    "running_wire",
 ]
 
 log = logging.getLogger(__name__)
@@ -48,7 +50,7 @@ Obj = dict[str, Any]
 
 
 def placement_entries(
-    problem: Problem, desired: list[Obj], roll: Any, cached: CachedPlan | None, baseline: bool
+    problem: Problem, desired: list[Obj], roll: Rollout, cached: Decision | None, baseline: bool
 ) -> list[Obj]:
     """Where each rendered instance runs: the plan's node, or (k8s-default) the node
     kube-scheduler bound its pod to; an instance not placed yet is left out."""
@@ -102,194 +104,192 @@ def by_module(placement: list[Obj]) -> list[Obj]:
 
 def fleet_status(
     fleet: RobotFleet,
-    problem: Problem,
-    desired: list[Obj],
+    rendered: Rendered,
     placement: list[Obj],
-    roll: Any,
-    stranded: set[int],
-    cached: CachedPlan | None,
-    planned: bool,
-    baseline: bool,
+    roll: Rollout,
     generation: int | None,
     old: Obj,
     links: LinkReport | None = None,
     drift: DriftReport | None = None,
-) -> Obj:
+) -> RobotFleetStatus:
     """The status of a fleet whose instances stand where ``placement`` (placement_entries)
     says; the per-instance list only up to PLACEMENT_LIST_LIMIT entries."""
+    problem, plan = rendered.problem, rendered.plan
     tiers = Counter(str(entry["tier"]) for entry in placement)
-    total = problem.n_instances
-    stuck = [problem.reasons[i] for i in sorted(stranded)]
-    waiting = [n for n in roll.waiting] + [n for n in roll.moving]
-    ready = not waiting and not stranded
-    if ready:
-        ready_c = condition(
-            "Ready",
-            True,
-            "AllModulesRunning",
-            f"All {len(desired)} modules run where planned",
-            generation,
-        )
-    elif stranded:
-        ready_c = condition("Ready", False, "NodeUnavailable", "; ".join(stuck), generation)
-    else:
-        ready_c = condition(
-            "Ready",
-            False,
-            "RollingOut",
-            f"Waiting for {len(waiting)} of {len(desired)} modules to run where "
-            f"planned: {', '.join(sorted(waiting)[:10])}",
-            generation,
-        )
-    link_degraded = links.degraded if links is not None else None
-    if roll.moving or stranded or link_degraded:
-        msg = f"{len(roll.moving)} module(s) moving to their new node" if roll.moving else ""
-        msg = "; ".join(x for x in [link_degraded[1] if link_degraded else "", msg, *stuck] if x)
-        reason = (
-            "NodeUnavailable" if stranded else (link_degraded[0] if link_degraded else "Migrating")
-        )
-        degraded = condition("Degraded", True, reason, msg, generation)
-    elif problem.degraded and cached is not None:
-        degraded = condition(
-            "Degraded",
-            True,
-            "ShortOfCapacity",
-            degraded_message(problem, cached.placement),
-            generation,
-        )
-    else:
-        degraded = condition(
-            "Degraded", False, "AsPlanned", "Every module is where it was planned", generation
-        )
-    if baseline:
-        sched = condition(
+    conds = [
+        _ready(rendered, roll, generation),
+        _scheduled(rendered, placement, generation),
+        _degraded(rendered, roll, links, generation),
+    ]
+    if drift is not None and drift.condition is not None:
+        conds.append(condition("Drift", *drift.condition, generation))
+    parts: Obj = {
+        "observed_generation": generation,
+        "conditions": merge_conditions(old.get("conditions") or [], conds),
+        "scheduler": fleet.spec.scheduler.algorithm.value,
+        "placement": placement if len(placement) <= PLACEMENT_LIST_LIMIT else [],
+        "placement_by_module": by_module(placement),
+        "modules_placed": len(placement),
+        "modules_total": problem.n_instances,
+        "split": split_text(tiers),
+    }
+    if plan is not None and problem.fallback_rows.size and not rendered.baseline:
+        parts["fallbacks"] = _fallbacks(problem, plan.placement)
+    elif old.get("fallbacks"):
+        parts["fallbacks"] = []  # a merge patch would otherwise keep the stale list
+    if links is not None and links.entries:
+        parts["links"] = links.entries
+    elif old.get("links"):
+        parts["links"] = []
+    if drift is not None and drift.entries:
+        parts["measured"] = drift.entries
+    elif old.get("measured"):
+        parts["measured"] = []
+    parts.update(_plan_figures(rendered, placement))
+    return RobotFleetStatus(**parts)
+
+
+def _ready(rendered: Rendered, roll: Rollout, generation: int | None) -> Obj:
+    desired, stranded = rendered.desired, rendered.stranded
+    waiting = [*roll.waiting, *roll.moving]
+    if not waiting and not stranded:
+        message = f"All {len(desired)} modules run where planned"
+        return condition("Ready", True, "AllModulesRunning", message, generation)
+    if stranded:
+        stuck = "; ".join(rendered.problem.reasons[i] for i in sorted(stranded))
+        return condition("Ready", False, "NodeUnavailable", stuck, generation)
+    message = (
+        f"Waiting for {len(waiting)} of {len(desired)} modules to run where "
+        f"planned: {', '.join(sorted(waiting)[:10])}"
+    )
+    return condition("Ready", False, "RollingOut", message, generation)
+
+
+def _scheduled(rendered: Rendered, placement: list[Obj], generation: int | None) -> Obj:
+    desired, total = rendered.desired, rendered.problem.n_instances
+    if rendered.baseline:
+        return condition(
             "Scheduled",
             len(placement) == len(desired),
             "KubeScheduler",
             f"kube-scheduler bound {len(placement)} of {len(desired)} modules",
             generation,
         )
-    else:
-        sched = condition(
-            "Scheduled",
-            True,
-            "Planned",
-            f"Planned {total - len(stranded)} of {total} modules",
-            generation,
+    message = f"Planned {total - len(rendered.stranded)} of {total} modules"
+    return condition("Scheduled", True, "Planned", message, generation)
+
+
+def _degraded(
+    rendered: Rendered, roll: Rollout, links: LinkReport | None, generation: int | None
+) -> Obj:
+    problem, stranded = rendered.problem, rendered.stranded
+    link_degraded = links.degraded if links is not None else None
+    if roll.moving or stranded or link_degraded:
+        stuck = [problem.reasons[i] for i in sorted(stranded)]
+        msg = f"{len(roll.moving)} module(s) moving to their new node" if roll.moving else ""
+        msg = "; ".join(x for x in [link_degraded[1] if link_degraded else "", msg, *stuck] if x)
+        reason = (
+            "NodeUnavailable" if stranded else (link_degraded[0] if link_degraded else "Migrating")
         )
-    conds = [ready_c, sched, degraded]
-    if drift is not None and drift.condition is not None:
-        conds.append(condition("Drift", *drift.condition, generation))
-    status: Obj = {
-        "observedGeneration": generation,
-        "conditions": merge_conditions(old.get("conditions") or [], conds),
-        "scheduler": fleet.spec.scheduler.algorithm.value,
-        "placement": placement if len(placement) <= PLACEMENT_LIST_LIMIT else [],
-        "placementByModule": by_module(placement),
-        "modulesPlaced": len(placement),
-        "modulesTotal": total,
-        "split": split_text(tiers),
+        return condition("Degraded", True, reason, msg, generation)
+    if problem.degraded and rendered.plan is not None:
+        message = degraded_message(problem, rendered.plan.placement)
+        return condition("Degraded", True, "ShortOfCapacity", message, generation)
+    message = "Every module is where it was planned"
+    return condition("Degraded", False, "AsPlanned", message, generation)
+
+
+def _fallbacks(problem: Problem, placement: np.ndarray) -> list[Obj]:
+    return [
+        {
+            "robot": cut.robot,
+            "reservedCpu": format_cpu(cut.reserved_cpu),
+            "standbys": list(cut.standbys),
+            "stopped": list(cut.stopped),
+            "predictedMissRate": finite(cut.miss_rate),
+        }
+        for cut in disconnected(problem, placement)
+    ]
+
+
+def _plan_figures(rendered: Rendered, placement: list[Obj]) -> Obj:
+    """The deployed plan's figures; a k8s-default fleet's objectives once every module is
+    bound (evaluated where kube-scheduler put them)."""
+    plan, problem = rendered.plan, rendered.problem
+    if plan is not None:
+        objectives = plan.objectives
+        return {
+            "objectives": [
+                {"name": k, "value": finite(v)}
+                for k, v in objectives.items()
+                if finite(v) is not None
+            ],
+            "predicted_miss_rate": finite(objectives.get("missRate")),
+            "planning_millis": round(plan.schedule.duration_seconds * 1000),
+            "choice_reason": plan.choice_reason,
+            "migrations": plan.migrations,
+            "last_plan_time": plan.planned_at,
+        }
+    if not (rendered.baseline and placement and len(placement) == len(rendered.desired)):
+        return {}
+    x = np.full(problem.n_instances, -1, dtype=np.int64)
+    index = _instance_index(problem)
+    for entry in placement:
+        key = (str(entry["robot"]), str(entry["module"]), int(entry.get("replica", 0)))
+        x[index[key]] = problem.node_index(entry["node"])
+    values = stickiness.objective_values(problem, x, False, ["missRate", "missedCycles"])
+    return {
+        "objectives": [{"name": k, "value": finite(v)} for k, v in values.items()],
+        "predicted_miss_rate": finite(values.get("missRate")),
     }
-    if cached is not None and problem.fallback_rows.size and not baseline:
-        status["fallbacks"] = [
-            {
-                "robot": cut.robot,
-                "reservedCpu": format_cpu(cut.reserved_cpu),
-                "standbys": list(cut.standbys),
-                "stopped": list(cut.stopped),
-                "predictedMissRate": finite(cut.miss_rate),
-            }
-            for cut in disconnected(problem, cached.placement)
-        ]
-    elif old.get("fallbacks"):
-        status["fallbacks"] = []  # a merge patch would otherwise keep the stale list
-    if links is not None and links.entries:
-        status["links"] = links.entries
-    elif old.get("links"):
-        status["links"] = []
-    if drift is not None and drift.entries:
-        status["measured"] = drift.entries
-    elif old.get("measured"):
-        status["measured"] = []
-    if cached is not None:
-        objectives = cached.objectives
-        status.update(
-            {
-                "objectives": [
-                    {"name": k, "value": finite(v)}
-                    for k, v in objectives.items()
-                    if finite(v) is not None
-                ],
-                "predictedMissRate": finite(objectives.get("missRate")),
-                "planningMillis": round(cached.schedule.duration_seconds * 1000),
-                "choiceReason": cached.choice_reason,
-                "migrations": cached.migrations,
-                "lastPlanTime": cached.planned_at,
-            }
-        )
-    elif baseline and len(placement) == len(desired) and placement:
-        x = np.full(problem.n_instances, -1, dtype=np.int64)
-        index = _instance_index(problem)
-        for entry in placement:
-            key = (str(entry["robot"]), str(entry["module"]), int(entry.get("replica", 0)))
-            x[index[key]] = problem.node_index(entry["node"])
-        values = stickiness.objective_values(problem, x, False, ["missRate", "missedCycles"])
-        status["objectives"] = [{"name": k, "value": finite(v)} for k, v in values.items()]
-        status["predictedMissRate"] = finite(values.get("missRate"))
-    return complete(typed(RobotFleetStatus, status), FLEET_STATUS_KEYS)
 
 
-def plan_events(deps: Deps, body: Obj, problem: Problem, cached: CachedPlan) -> None:
+def held_status(generation: int | None, old: Obj, conditions: list[Obj], keep: str = "") -> Obj:
+    """The status of a fleet whose plan is held (paused, waiting for profiles, failed): its
+    new conditions merged into the old ones, the rest as it was. ``keep``: "others" keeps
+    every other old condition after them; "Degraded" keeps that one."""
+    old_conditions = old.get("conditions") or []
+    types = {c["type"] for c in conditions}
+    if keep == "others":
+        kept = [c for c in old_conditions if c.get("type") not in types]
+    elif keep:
+        kept = [c for c in old_conditions if c.get("type") == keep]
+    else:
+        kept = []
+    status = RobotFleetStatus(
+        observed_generation=generation,
+        conditions=merge_conditions(old_conditions, conditions) + kept,
+    )
+    return {**old, **wire(status)}
+
+
+def running_wire(status: RobotFleetStatus) -> Obj:
+    """A full status as written: every field the reconcile owns, absent ones as None, so the
+    merge patch removes a field it stopped writing."""
+    return complete(wire(status), FLEET_STATUS_KEYS)
+
+
+def plan_events(problem: Problem, cached: Decision) -> list[tuple[str, str, str]]:
+    """The Events of a decision made now: Planned, ShortOfCapacity, Migrated."""
     p = cached.placement
     split = Counter(problem.nodes[j].tier.value for j in p if j >= 0)
     miss = cached.objectives.get("missRate")
     miss_txt = (
         f"; predicted miss rate {miss * 100:.2f}%" if miss is not None and np.isfinite(miss) else ""
     )
-    deps.kube.emit_event(
-        body,
-        "Normal",
-        "Planned",
-        f"Planned {int((p >= 0).sum())} modules ({split['robot']} on board, "
-        f"{split['edge']} edge, {split['cloud']} cloud) with "
-        f"{cached.schedule.scheduler} in "
-        f"{cached.schedule.duration_seconds * 1000:.0f} ms{miss_txt}",
-    )
-    if problem.degraded:
-        deps.kube.emit_event(
-            body, "Warning", "ShortOfCapacity", degraded_message(problem, cached.placement)
-        )
-    if cached.moves:
-        deps.kube.emit_event(
-            body,
+    events = [
+        (
             "Normal",
-            "Migrated",
-            f"Moved {len(cached.moves)} running modules: {', '.join(cached.moves[:10])}",
+            "Planned",
+            f"Planned {int((p >= 0).sum())} modules ({split['robot']} on board, "
+            f"{split['edge']} edge, {split['cloud']} cloud) with "
+            f"{cached.schedule.scheduler} in "
+            f"{cached.schedule.duration_seconds * 1000:.0f} ms{miss_txt}",
         )
-
-
-def report_failure(
-    body: Obj, deps: Deps, old: Obj, generation: int | None, exc: InvalidSpec
-) -> None:
-    """Ready=False with the precise reason, one Event; nothing that runs is touched."""
-    ns, name = fleet_key(body)
-    deps.metrics.count_error(name, exc.reason)
-    msg = str(exc)
-    if isinstance(exc, DanglingReference):
-        msg += " (create it, or fix the reference)"
-    conds = [
-        condition("Ready", False, exc.reason, msg, generation),
-        condition("Scheduled", False, exc.reason, msg, generation),
     ]
-    keep = [c for c in old.get("conditions") or [] if c.get("type") == "Degraded"]
-    status = {
-        **old,
-        "observedGeneration": generation,
-        "conditions": merge_conditions(old.get("conditions") or [], conds) + keep,
-    }
-    if not same_status(old, status):
-        deps.kube.patch_fleet_status(ns, name, status)
-        deps.kube.emit_event(
-            body, "Warning", "PlanFailed" if isinstance(exc, Infeasible) else exc.reason, msg
-        )
-    log.warning("Failed to reconcile RobotFleet %s/%s: %s", ns, name, msg)
+    if problem.degraded:
+        events.append(("Warning", "ShortOfCapacity", degraded_message(problem, cached.placement)))
+    if cached.moves:
+        moved = f"Moved {len(cached.moves)} running modules: {', '.join(cached.moves[:10])}"
+        events.append(("Normal", "Migrated", moved))
+    return events

@@ -18,10 +18,14 @@ from __future__ import annotations
 import logging
 from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Any, Protocol
+from typing import Any
 
+from fogfleet.adapters.ports import SeriesPort
+from fogfleet.api.loader import Catalog
 from fogfleet.api.timestamps import timestamp
+from fogfleet.api.v1alpha1.common import Tier
 from fogfleet.api.v1alpha1.linkhealth import LinkState
+from fogfleet.api.v1alpha1.robotfleet import RobotFleet
 from fogfleet.domain.linkhealth import (
     LinkSample,
     RobotLink,
@@ -29,16 +33,19 @@ from fogfleet.domain.linkhealth import (
     judge,
     millis,
 )
+from fogfleet.domain.network import uplink
+from fogfleet.domain.problem import Problem
 from fogfleet.errors import DependencyUnavailable
 
-from .deps import Deps, FleetKey, Rendered
+from .deps import Deps
+from .state import FleetKey, LinkWatch
 
 __all__ = [
     "LinkDeps",
     "LinkReport",
-    "SeriesPort",
     "link_events",
     "link_report",
+    "link_watch",
     "measure_links",
 ]
 
@@ -53,14 +60,6 @@ ROUND_TRIP = (
 ACTIVE = 'max by (robot, module) (fogfleet_fallback_active{{namespace="{namespace}"}})'
 
 
-class SeriesPort(Protocol):
-    def query_series(
-        self, promql: str, *, obj: str = "", field: str = ""
-    ) -> list[tuple[dict[str, str], float]]:
-        """Every series of an instant query with its labels (NaN values left out)."""
-        ...
-
-
 @dataclass
 class LinkDeps:
     prometheus: SeriesPort
@@ -68,32 +67,43 @@ class LinkDeps:
     period_seconds: float = 10.0
 
 
+def link_watch(fleet: RobotFleet, problem: Problem, catalog: Catalog) -> LinkWatch:
+    """What the measurements need of a fleet's full pass: its robots' Nodes and declared
+    uplinks, its settings, its modules."""
+    robots = {
+        nd.name: (nd.node_name, uplink(catalog.nodes[nd.name].spec))
+        for nd in problem.nodes
+        if nd.tier is Tier.ROBOT and nd.name in catalog.nodes
+    }
+    modules = frozenset(m.name for m in fleet.spec.modules)
+    return LinkWatch(robots, fleet.spec.link_health, modules)
+
+
 def measure_links(deps: Deps, links: LinkDeps, now: float) -> set[FleetKey]:
     """One round of measurements for every monitored fleet; the fleets whose link states,
     planned links or active standbys changed (to be reconciled)."""
     fleets = {
-        key: r
-        for key, r in list(deps.rendered.items())
-        if r.robots and r.link_health is not None and r.link_health.monitor
+        s.key: (s, s.links.watch)
+        for s in deps.store.states()
+        if s.links.watch is not None and s.links.watch.monitored
     }
-    # a fleet being reconciled right now is briefly missing from ``rendered``: its link states
-    # stay (``robotfleet.forget`` drops them when the fleet goes)
     if not fleets:
         return set()
+    watches = {key: watch for key, (_, watch) in fleets.items() if watch is not None}
     try:
-        by_window = _samples(links, fleets)
+        by_window = _samples(links, watches)
         active = _active(links, {key[0] for key in fleets})
     except DependencyUnavailable as exc:
         log.warning("Measuring the robots' links failed (last states stand): %s", exc)
         return set()
     changed: set[FleetKey] = set()
-    for key, rendered in fleets.items():
-        assert rendered.link_health is not None
-        settings = rendered.link_health
+    for key, (state, watch) in fleets.items():
+        assert watch is not None and watch.settings is not None
+        settings = watch.settings
         samples = by_window[settings.window_seconds]
-        before = deps.links.get(key, {})
+        before = state.links.robots
         after: dict[str, RobotLink] = {}
-        for robot, (node, declared) in rendered.robots.items():
+        for robot, (node, declared) in watch.robots.items():
             sample = samples.get(node, LinkSample(None, None))
             verdict = judge(robot, sample, declared, settings)
             after[robot] = advance(
@@ -106,14 +116,14 @@ def measure_links(deps: Deps, links: LinkDeps, now: float) -> set[FleetKey]:
             )
             if before.get(robot) is None or before[robot].state is not after[robot].state:
                 log.info("RobotFleet %s/%s: link %s: %s", *key, after[robot].state, verdict.message)
-        robots = set(rendered.robots)
+        robots = set(watch.robots)
         standbys = frozenset(
-            (r, m) for ns, r, m in active if ns == key[0] and r in robots and m in rendered.modules
+            (r, m) for ns, r, m in active if ns == key[0] and r in robots and m in watch.modules
         )
-        deps.links[key] = after
-        if _summary(before) != _summary(after) or deps.standbys_active.get(key) != standbys:
+        state.links.robots = after
+        if _summary(before) != _summary(after) or state.links.standbys_active != standbys:
             changed.add(key)
-        deps.standbys_active[key] = standbys
+        state.links.standbys_active = standbys
     return changed
 
 
@@ -122,14 +132,14 @@ def _summary(links: Mapping[str, RobotLink]) -> dict[str, tuple[Any, ...]]:
 
 
 def _samples(
-    links: LinkDeps, fleets: Mapping[FleetKey, Rendered]
+    links: LinkDeps, fleets: Mapping[FleetKey, LinkWatch]
 ) -> dict[int, dict[str, LinkSample]]:
     """Per window length: node -> what Prometheus saw of it."""
     windows: dict[int, set[str]] = {}
-    for r in fleets.values():
-        assert r.link_health is not None
-        windows.setdefault(r.link_health.window_seconds, set()).update(
-            node for node, _ in r.robots.values()
+    for watch in fleets.values():
+        assert watch.settings is not None
+        windows.setdefault(watch.settings.window_seconds, set()).update(
+            node for node, _ in watch.robots.values()
         )
     out: dict[int, dict[str, LinkSample]] = {}
     for window, nodes in windows.items():
@@ -170,18 +180,18 @@ class LinkReport:
 
 
 def link_report(
-    rendered: Rendered,
+    watch: LinkWatch | None,
     links: Mapping[str, RobotLink] | None,
     standbys: frozenset[tuple[str, str]] | None,
 ) -> LinkReport:
     """``status.links`` and what the links make of the Degraded condition."""
-    if links is None or rendered.link_health is None or not rendered.link_health.monitor:
+    if links is None or watch is None or watch.settings is None or not watch.settings.monitor:
         return LinkReport([], None)
     active: dict[str, list[str]] = {}
     for robot, module in sorted(standbys or ()):
         active.setdefault(robot, []).append(module)
     entries: list[Obj] = []
-    for robot, (_, declared) in sorted(rendered.robots.items()):
+    for robot, (_, declared) in sorted(watch.robots.items()):
         rl = links.get(robot)
         if rl is None:
             continue

@@ -28,8 +28,12 @@ from dataclasses import dataclass
 from typing import Any
 
 from fogfleet import GROUP, VERSION
+from fogfleet.adapters.ports import SeriesPort
+from fogfleet.api.loader import Catalog, parse_object
 from fogfleet.api.timestamps import timestamp
 from fogfleet.api.v1alpha1.base import parse_cpu
+from fogfleet.api.v1alpha1.robotfleet import RobotFleet
+from fogfleet.api.v1alpha1.softwaremodule import SoftwareModule
 from fogfleet.domain.observed import (
     Learnt,
     ModuleDrift,
@@ -41,15 +45,19 @@ from fogfleet.domain.observed import (
     timings,
 )
 from fogfleet.domain.pairs import profile_rows
+from fogfleet.domain.problem import Problem
 from fogfleet.errors import DependencyUnavailable, FogfleetError
+from fogfleet.scheduling.decision import Decision
+from fogfleet.scheduling.objectives import module_miss_rates
 
-from .deps import Deps, FleetKey, Rendered
-from .links import SeriesPort
+from .deps import Deps
+from .state import DriftWatch, FleetKey, FleetState
 
 __all__ = [
     "ObservedDeps",
     "declared_rows",
     "describe",
+    "drift_watch",
     "observe",
     "profile_corrections",
     "read_observations",
@@ -83,26 +91,45 @@ class ObservedDeps:
     period_seconds: float = 30.0
 
 
+def drift_watch(
+    fleet: RobotFleet, problem: Problem, catalog: Catalog, decision: Decision | None
+) -> DriftWatch:
+    """What drift detection needs of a fleet's full pass: its settings, the plan's predicted
+    miss rate per module, one ComputeNode per hardware type (declared rows), the plan."""
+    names = {n.name for n in problem.nodes}
+    hardware = {
+        nd.spec.hardware_type: nd for nd in catalog.nodes.values() if nd.metadata.name in names
+    }
+    if decision is None:
+        return DriftWatch(fleet.spec.drift, {}, hardware, problem, None, "")
+    predicted = module_miss_rates(problem, decision.placement, decision.schedule.with_limits)
+    return DriftWatch(
+        fleet.spec.drift, predicted, hardware, problem, decision.placement, decision.plan_id
+    )
+
+
 def observe(deps: Deps, od: ObservedDeps, now: float) -> set[FleetKey]:
     """One round; the fleets whose measured state changed (to be reconciled)."""
     fleets = {
-        key: r
-        for key, r in list(deps.rendered.items())
-        if r.drift is not None and r.drift.enabled and r.predicted
+        s.key: (s, s.drift.watch)
+        for s in deps.store.states()
+        if s.drift.watch is not None and s.drift.watch.enabled
     }
     if not fleets:
         return set()
+    watches = {key: watch for key, (_, watch) in fleets.items() if watch is not None}
     changed: set[FleetKey] = set()
     try:
         by_ns: dict[str, dict[str, list[Observation]]] = {}
         for ns in sorted({k[0] for k in fleets}):
             window = max(
-                r.drift.window_seconds for k, r in fleets.items() if k[0] == ns and r.drift
+                w.settings.window_seconds for k, w in watches.items() if k[0] == ns and w.settings
             )
             by_ns[ns] = read_observations(od.prometheus, ns, window)
-            _write_observed(deps, ns, by_ns[ns], fleets, now)
-        for key, rendered in fleets.items():
-            if _fleet_round(deps, od, key, rendered, by_ns[key[0]], now):
+            _write_observed(deps, ns, by_ns[ns], watches, now)
+        for key, (state, watch) in fleets.items():
+            assert watch is not None
+            if _fleet_round(deps, od, state, watch, by_ns[key[0]], now):
                 changed.add(key)
     except DependencyUnavailable as exc:
         log.warning("Reading the modules' measured cycles failed (last states stand): %s", exc)
@@ -150,14 +177,14 @@ def _write_observed(
     deps: Deps,
     ns: str,
     observations: Mapping[str, list[Observation]],
-    fleets: Mapping[FleetKey, Rendered],
+    fleets: Mapping[FleetKey, DriftWatch],
     now: float,
 ) -> None:
     """status.observed of the namespace's modules that the fleets run and were measured."""
     hardware: dict[str, Any] = {}
-    for key, r in fleets.items():
+    for key, watch in fleets.items():
         if key[0] == ns:
-            hardware.update(r.hardware)
+            hardware.update(watch.hardware)
     modules = {str(m["metadata"]["name"]): m for m in deps.kube.list_modules(ns)}
     for name, rows in sorted(observations.items()):
         raw = modules.get(name)
@@ -193,9 +220,6 @@ def _write_observed(
 def declared_rows(raw: Mapping[str, Any], hardware: Mapping[str, Any]) -> dict[str, list[Any]]:
     """Hardware type -> the module's declared rows there (``hardware``: one ComputeNode per
     type, for the speed factor of 'default' rows)."""
-    from fogfleet.api.loader import parse_object
-    from fogfleet.api.v1alpha1.softwaremodule import SoftwareModule
-
     try:
         module = parse_object({k: v for k, v in raw.items() if k != "status"})
     except FogfleetError:
@@ -208,18 +232,17 @@ def declared_rows(raw: Mapping[str, Any], hardware: Mapping[str, Any]) -> dict[s
 def _fleet_round(
     deps: Deps,
     od: ObservedDeps,
-    key: FleetKey,
-    rendered: Rendered,
+    state: FleetState,
+    watch: DriftWatch,
     observations: Mapping[str, list[Observation]],
     now: float,
 ) -> bool:
-    settings = rendered.drift
+    key, settings, plan_id = state.key, watch.settings, watch.plan_id
     assert settings is not None
-    plan_id = rendered.plan.plan_id if rendered.plan is not None else ""
-    epoch = deps.drift_epoch.get(key)
-    before = deps.drift.get(key, {})
+    epoch = state.drift.epoch
+    before = state.drift.modules or {}
     if epoch is None or epoch[0] != plan_id:  # a new plan: its measures start now
-        deps.drift_epoch[key] = epoch = (plan_id, now, epoch[2] if epoch else None)
+        state.drift.epoch = epoch = (plan_id, now, epoch[2] if epoch else None)
         before = {}
     window = int(min(settings.window_seconds, now - epoch[1]))
     measured: dict[str, tuple[float, float]] = {}
@@ -229,7 +252,7 @@ def _fleet_round(
         cycles = _by_module(od, CYCLES.format(**args))
         measured = {m: (missed.get(m, 0.0) / n, n) for m, n in cycles.items() if n >= 1}
     after: dict[str, ModuleDrift] = {}
-    for module, predicted in sorted(rendered.predicted.items()):
+    for module, predicted in sorted(watch.predicted.items()):
         rate, n = measured.get(module, (None, 0.0))
         prev = before.get(module)
         bad = drifting(predicted, rate, float(settings.margin_percent))
@@ -242,9 +265,9 @@ def _fleet_round(
         for m, d in after.items()
         if drift_due(d.since, now, settings.for_seconds, epoch[2], settings.min_interval_seconds)
     ]
-    if due and _adopt(deps, key, rendered, due, after, observations, now):
-        deps.drift_epoch[key] = (plan_id, epoch[1], now)
-    deps.drift[key] = after
+    if due and _adopt(deps, key, watch, due, after, observations, now):
+        state.drift.epoch = (plan_id, epoch[1], now)
+    state.drift.modules = after
     return _summary(before) != _summary(after)
 
 
@@ -259,7 +282,7 @@ def _summary(states: Mapping[str, ModuleDrift]) -> dict[str, tuple[Any, ...]]:
 def _adopt(
     deps: Deps,
     key: FleetKey,
-    rendered: Rendered,
+    watch: DriftWatch,
     modules: list[str],
     states: Mapping[str, ModuleDrift],
     observations: Mapping[str, list[Observation]],
@@ -269,7 +292,7 @@ def _adopt(
     fleets) and, since the fleet re-plans anyway, of its other measured modules: one drift
     re-plan per ``minIntervalSeconds`` learns all that was measured, not the first module to
     drift alone (a module missing a little less would wait out the interval)."""
-    assert rendered.drift is not None
+    assert watch.settings is not None
     raws = {str(m["metadata"]["name"]): m for m in deps.kube.list_modules(key[0])}
     adopted = False
     others = [m for m in sorted(states) if m not in modules]
@@ -281,12 +304,10 @@ def _adopt(
         if raw is None or not obs:
             continue
         timing = (
-            timings(rendered.problem, rendered.plan.placement, name)
-            if rendered.plan is not None
-            else {}
+            timings(watch.problem, watch.placement, name) if watch.placement is not None else {}
         )
         factors = correction(
-            obs, declared_rows(raw, rendered.hardware), rendered.drift.prior_cycles, timing
+            obs, declared_rows(raw, watch.hardware), watch.settings.prior_cycles, timing
         )
         if not factors:
             continue

@@ -42,15 +42,13 @@ from fogfleet.domain.profiling import (
 from fogfleet.errors import FogfleetError
 from fogfleet.render.profiling import profiling_selector, render_profiling_job
 
-from .deps import Deps, fleet_key
-from .status import condition, merge_conditions, same_status
+from .deps import Deps
 
 __all__ = [
     "PROFILING_POLL_SECONDS",
     "Waiting",
     "advance_profiling",
     "profile_first",
-    "report_waiting",
 ]
 
 PROFILING_POLL_SECONDS = 5.0  # a fleet waiting for Jobs looks again this often
@@ -91,34 +89,6 @@ def profile_first(
     waiting = advance_profiling(deps, needs, by_name, raw)
     recorded = any((r.get("status") or {}).get("profiling") != before[n] for n, r in raw.items())
     return waiting, recorded and not waiting
-
-
-def report_waiting(
-    body: Obj, deps: Deps, old: Obj, generation: int | None, waiting: Waiting
-) -> str:
-    """Ready and Scheduled False while the fleet waits for profiles (nothing that runs is
-    touched); an Event when that starts or its reason changes. Returns the message."""
-    ns, name = fleet_key(body)
-    reason = "ProfilingFailed" if waiting.failed else "ProfilingPending"
-    message = waiting.message
-    new = [
-        condition("Ready", False, reason, message, generation),
-        condition("Scheduled", False, reason, message, generation),
-    ]
-    conditions = old.get("conditions") or []
-    keep = [c for c in conditions if c.get("type") not in {"Ready", "Scheduled"}]
-    status = {
-        **old,
-        "observedGeneration": generation,
-        "conditions": merge_conditions(conditions, new) + keep,
-    }
-    if not same_status(old, status):
-        deps.kube.patch_fleet_status(ns, name, status)
-        was = next((c.get("reason") for c in conditions if c.get("type") == "Ready"), None)
-        if was != reason:
-            deps.kube.emit_event(body, "Warning" if waiting.failed else "Normal", reason, message)
-            log.info("RobotFleet %s/%s waits for profiles: %s", ns, name, message)
-    return message
 
 
 def advance_profiling(

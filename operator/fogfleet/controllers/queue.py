@@ -14,19 +14,23 @@ Errors of background runs are logged, counted and retried with an exponential ba
 (``backoff_delay``: the retry delay doubling per failure in a row, up to five minutes); a
 success resets it. kopf's handler retries use the same schedule.
 
-One lock per fleet: two reconciles of the same fleet never overlap.
+One lock per fleet: two reconciles of the same fleet never overlap. ``forget(key)`` drops
+everything the queue holds for a fleet that is gone (its timer, burst, failure count and lock;
+the lock once its last holder or waiter leaves), as kopf's queueing drops a resource's worker
+and its stream when the resource is deleted.
 """
 
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import logging
-from collections.abc import Awaitable, Callable
+from collections.abc import AsyncIterator, Awaitable, Callable
 
 from fogfleet.errors import DependencyUnavailable, InvalidSpec
 
-from .deps import FleetKey
-from .robotfleet import Outcome
+from .outcome import Outcome
+from .state import FleetKey
 
 __all__ = ["DEFAULT_MAX_WAIT_SECONDS", "MAX_BACKOFF_SECONDS", "ReconcileQueue", "backoff_delay"]
 
@@ -61,13 +65,42 @@ class ReconcileQueue:
         self._timers: dict[FleetKey, asyncio.Task[None]] = {}
         self._failures: dict[FleetKey, int] = {}  # failed background runs in a row
         self._burst: dict[FleetKey, float] = {}  # when the pending debounced burst began
+        self._users: dict[FleetKey, int] = {}  # holders and waiters of each fleet's lock
+        self._forgotten: set[FleetKey] = set()  # locks to drop once their users left
 
-    def _lock(self, key: FleetKey) -> asyncio.Lock:
-        return self._locks.setdefault(key, asyncio.Lock())
+    @contextlib.asynccontextmanager
+    async def _locked(self, key: FleetKey) -> AsyncIterator[None]:
+        """Hold the fleet's lock; the last user of a forgotten fleet's lock drops it."""
+        lock = self._locks.setdefault(key, asyncio.Lock())
+        self._users[key] = self._users.get(key, 0) + 1
+        try:
+            async with lock:
+                yield
+        finally:
+            self._users[key] -= 1
+            if not self._users[key]:
+                del self._users[key]
+                if key in self._forgotten:
+                    self._forgotten.discard(key)
+                    self._locks.pop(key, None)
+
+    def forget(self, key: FleetKey) -> None:
+        """The fleet is gone: drop its timer, burst, failures and (once unused) its lock."""
+        self.cancel(key)
+        self._failures.pop(key, None)
+        if key in self._users:
+            self._forgotten.add(key)
+        else:
+            self._locks.pop(key, None)
+
+    def held(self) -> set[FleetKey]:
+        """The fleets the queue holds anything for (a lock, a timer or failures)."""
+        return set(self._locks) | set(self._timers) | set(self._failures)
 
     async def run_now(self, key: FleetKey) -> Outcome | None:
         self.cancel(key)
-        async with self._lock(key):
+        self._forgotten.discard(key)  # a fleet created again under the same name
+        async with self._locked(key):
             outcome = await self.runner(key)
         self._follow_up(key, outcome)
         return outcome
@@ -105,7 +138,7 @@ class ReconcileQueue:
             del self._timers[key]
         outcome: Outcome | None = None
         try:
-            async with self._lock(key):
+            async with self._locked(key):
                 outcome = await self.runner(key)
         except InvalidSpec as exc:
             log.info("Left RobotFleet %s/%s as is: %s", *key, exc)

@@ -24,9 +24,12 @@ from fogfleet.render.deployments import hash_annotation
 from .deps import Deps, FleetKey
 from .links import LinkDeps, measure_links
 from .observed import ObservedDeps, observe, profile_corrections
+from .outcome import Outcome
 from .queue import ReconcileQueue
-from .robotfleet import Outcome, forget, reconcile
+from .robotfleet import reconcile
+from .scaling import reconcile_scaling
 from .stamp import node_signature, pools_signature
+from .state import FleetState
 from .status import pod_ready
 from .usage import reconcile_usage
 
@@ -60,16 +63,10 @@ class Runtime:
             retry=deps.retry_seconds,
             on_error=lambda key, reason: deps.metrics.count_error(key[1], reason),
         )
+        self.store = deps.store  # every fleet's state (its rollout progress among it)
+        # the change filters: what was last seen of each related object
         self._generations: dict[tuple[str, str, str], Any] = {}
         self._nodes: dict[str, tuple[Any, ...]] = {}
-        self._waiting: dict[FleetKey, int] = {}  # modules still rolling out, per fleet
-        # per fleet: when its rollout was last counted, and the seconds it needs at its pace
-        self._counted: dict[FleetKey, float] = {}
-        self._eta: dict[FleetKey, float] = {}
-        # per fleet: the Deployments of its modules not yet running where planned (last refresh)
-        self._unsettled: dict[FleetKey, frozenset[str]] = {}
-        # per fleet: which of those a Pod event has shown ready since, and when (monotonic)
-        self._shown_ready: dict[FleetKey, dict[str, float]] = {}
         # shared modules with spec.scaling, by (namespace, name): the scaling loop's work list
         self.scaled: dict[tuple[str, str], Obj] = {}
         self._loops: list[asyncio.Task[None]] = []
@@ -100,7 +97,14 @@ class Runtime:
                 if kind == "DELETED" or old is None or node_signature(node) != node_signature(old):
                     loop.call_soon_threadsafe(self.node_event, node, kind)
 
-            self.deps.watches.start(on_pod, on_deployment, on_node)
+            def on_module(kind: str, module: Obj, old: Obj | None) -> None:
+                loop.call_soon_threadsafe(self.module_event, module, kind)
+
+            def on_compute_node(kind: str, cn: Obj, old: Obj | None) -> None:
+                loop.call_soon_threadsafe(self.compute_node_event, cn, kind)
+
+            # one watch per kind: these caches report the kinds kopf then does not watch
+            self.deps.watches.start(on_pod, on_deployment, on_node, on_module, on_compute_node)
         self._loops.append(asyncio.create_task(self._drift(drift_seconds), name="fogfleet-drift"))
         self._loops.append(asyncio.create_task(self._usage(), name="fogfleet-usage"))
         self.usage_changed()
@@ -116,7 +120,7 @@ class Runtime:
     async def _drift(self, seconds: float) -> None:
         while True:
             await asyncio.sleep(seconds)
-            for key in sorted(self.deps.refs.fleets()):
+            for key in sorted(self.store.fleets()):
                 self.queue.schedule_debounced(key)
             self.usage_changed()
 
@@ -140,8 +144,6 @@ class Runtime:
                 log.info("The usage pass over modules and nodes took %.0f ms", took * 1e3)
 
     async def _scaling(self, scaling: Any) -> None:
-        from .scaling import reconcile_scaling
-
         while True:
             await asyncio.sleep(scaling.period_seconds)
             for key, body in sorted(self.scaled.items()):
@@ -178,24 +180,20 @@ class Runtime:
     async def _run(self, key: FleetKey) -> Outcome | None:
         body = await self.call(self.deps.kube.get_fleet, *key)
         if body is None or (body.get("metadata") or {}).get("deletionTimestamp"):
-            forget(self.deps, key)
-            self._waiting.pop(key, None)
-            self._counted.pop(key, None)
-            self._eta.pop(key, None)
-            self._unsettled.pop(key, None)
-            self._shown_ready.pop(key, None)
-            self.queue.cancel(key)
-            self.usage_changed()
+            self._forget(key)
             return None
         t0, started = time.perf_counter(), time.monotonic()
-        before = self.deps.placements.get(key)
+        state = self.store.state(key)
+        before = state.placement
         outcome = await self.call(reconcile, body, self.deps)
+        progress = state.rollout
         self._count_rollout(key, outcome.waiting, time.monotonic())
-        self._unsettled[key] = outcome.unsettled
+        progress.unsettled = outcome.unsettled
         # a pod shown ready while this ran may be missing from what it read: keep it
-        shown = self._shown_ready.get(key, {})
-        self._shown_ready[key] = {
-            name: at for name, at in shown.items() if at >= started and name in outcome.unsettled
+        progress.shown_ready = {
+            name: at
+            for name, at in progress.shown_ready.items()
+            if at >= started and name in outcome.unsettled
         }
         took = time.perf_counter() - t0
         log.log(
@@ -207,9 +205,15 @@ class Runtime:
             outcome.status_write_seconds * 1e3,
             outcome.message,
         )
-        if self.deps.placements.get(key) is not before:  # nothing moved: no usage pass
+        if state.placement is not before:  # nothing moved: no usage pass
             self.usage_changed()
         return outcome
+
+    def _forget(self, key: FleetKey) -> None:
+        """The fleet is gone: its state, and its lock and timers in the queue, go."""
+        self.store.forget(key)
+        self.queue.forget(key)
+        self.usage_changed()
 
     # ------------------------------------------------------------------ fleets
     async def reconcile_fleet(self, namespace: str, name: str) -> Outcome | None:
@@ -217,9 +221,7 @@ class Runtime:
 
     async def delete_fleet(self, namespace: str, name: str) -> None:
         """Delete the fleet's Deployments now (the garbage collector would, via ownerReferences)."""
-        key = (namespace, name)
-        self.queue.cancel(key)
-        forget(self.deps, key)
+        self._forget((namespace, name))
         deps = await self.call(self.deps.kube.list_deployments, namespace, {LABEL_FLEET: name})
         for dep in deps:
             await self.call(self.deps.kube.delete_deployment, namespace, dep["metadata"]["name"])
@@ -252,7 +254,7 @@ class Runtime:
         if self._changed("SoftwareModule", body, event_type, (pools_signature(body), learnt)):
             self.usage_changed()
             meta = body.get("metadata") or {}
-            for key in self.deps.refs.using_module(
+            for key in self.store.using_module(
                 meta.get("namespace") or "default", meta.get("name", "")
             ):
                 self.queue.schedule_debounced(key)
@@ -260,7 +262,7 @@ class Runtime:
     def compute_node_event(self, body: Mapping[str, Any], event_type: str | None) -> None:
         if self._changed("ComputeNode", body, event_type):
             self.usage_changed()
-            for key in self.deps.refs.using_compute_node(
+            for key in self.store.using_compute_node(
                 (body.get("metadata") or {}).get("name", "")
             ):
                 self.queue.schedule_debounced(key)
@@ -277,7 +279,7 @@ class Runtime:
             if before == sig or (event_type is None and before is None):
                 return
         self.usage_changed()
-        for key in self.deps.refs.using_node(name):
+        for key in self.store.using_node(name):
             self.queue.schedule_debounced(key)
 
     def deployment_event(
@@ -294,8 +296,8 @@ class Runtime:
             and old is not None
             and _spec_state(body) == _spec_state(old)
         ):
-            key = _fleet_of(body)
-            unsettled = self._unsettled.get(key) if key is not None else None
+            state = self._state_of(body)
+            unsettled = state.rollout.unsettled if state is not None else None
             if unsettled is not None and (body.get("metadata") or {}).get("name") not in unsettled:
                 return
         self._rollout_moved(body)
@@ -324,42 +326,50 @@ class Runtime:
         re-checked at once instead of ROLLOUT_QUIET_SECONDS later, and Ready follows the last
         pod by one refresh. A module still moving may also wait for its old pod to go; that
         refresh then finds it unsettled, and the old pod's deletion re-checks it again."""
-        key = _fleet_of(pod)
-        unsettled = self._unsettled.get(key) if key is not None else None
+        state = self._state_of(pod)
+        unsettled = state.rollout.unsettled if state is not None else None
         name = ((pod.get("metadata") or {}).get("labels") or {}).get(LABEL_INSTANCE)
-        if key is None or not unsettled or name not in unsettled or not pod_ready(pod):
+        if state is None or not unsettled or name not in unsettled or not pod_ready(pod):
             return False
-        shown = self._shown_ready.setdefault(key, {})
+        shown = state.rollout.shown_ready
         shown[name] = time.monotonic()
-        if len(shown) < len(unsettled) or key not in self.deps.refs.fleets():
+        if len(shown) < len(unsettled) or state.references is None:
             return False
-        self.queue.schedule(key, 0.0)
+        self.queue.schedule(state.key, 0.0)
         return True
+
+    def _state_of(self, obj: Mapping[str, Any]) -> FleetState | None:
+        """The state of the fleet a Deployment or Pod belongs to (None: no fleet's, or one
+        this process does not know)."""
+        key = _fleet_of(obj)
+        return self.store.get(key) if key is not None else None
 
     def _count_rollout(self, key: FleetKey, waiting: int, now: float) -> None:
         """Record a fleet's modules still rolling out, and when its rollout should end at the
         pace since the last count (inf: no progress, or nothing to compare with)."""
-        before, then = self._waiting.get(key), self._counted.get(key)
-        self._waiting[key], self._counted[key] = waiting, now
+        progress = self.store.state(key).rollout
+        before, then = progress.waiting, progress.counted
+        progress.waiting, progress.counted = waiting, now
         done = (before - waiting) if before is not None else 0
         if not waiting:
-            self._eta[key] = 0.0
+            progress.eta = 0.0
         elif done > 0 and then is not None and now > then:
-            self._eta[key] = waiting / (done / (now - then))
+            progress.eta = waiting / (done / (now - then))
         else:
-            self._eta[key] = math.inf
+            progress.eta = math.inf
 
     def _rollout_moved(self, obj: Mapping[str, Any]) -> None:
         """Re-check the fleet of a Deployment or Pod: a status refresh, ROLLOUT_QUIET_SECONDS
         after the last such event (at most the queue's max_wait into a stream of them)."""
-        key = _fleet_of(obj)
-        if key is not None and key in self.deps.refs.fleets():
-            busy = (
-                self._waiting.get(key, 0) > ROLLOUT_BUSY_MODULES
-                and self._eta.get(key, math.inf) > ROLLOUT_BUSY_MAX_WAIT_SECONDS
+        state = self._state_of(obj)
+        if state is not None and state.references is not None:
+            progress = state.rollout
+            eta = math.inf if progress.eta is None else progress.eta
+            busy = (progress.waiting or 0) > ROLLOUT_BUSY_MODULES and (
+                eta > ROLLOUT_BUSY_MAX_WAIT_SECONDS
             )
             self.queue.schedule_debounced(
-                key,
+                state.key,
                 min(self.queue.debounce, ROLLOUT_QUIET_SECONDS),
                 max(ROLLOUT_BUSY_MAX_WAIT_SECONDS, self.queue.max_wait) if busy else None,
             )

@@ -30,7 +30,7 @@ __all__ = [
     "same_status",
     "scaling_status",
     "split_text",
-    "typed",
+    "wire",
     "wire_keys",
     "without_transition_times",
 ]
@@ -49,12 +49,12 @@ def wire_keys(model: type[BaseModel]) -> tuple[str, ...]:
     return tuple(f.alias or name for name, f in model.model_fields.items())
 
 
-def typed(model: type[BaseModel], status: Obj) -> Obj:
-    """``status`` checked against its kind's status model (the one the CRD is generated from)
-    before it is written: a controller bug fails here, naming the field, not in the API
-    server's pruning."""
-    model.model_validate({k: v for k, v in status.items() if v is not None})
-    return status
+def wire(status: BaseModel) -> Obj:
+    """A status model as it is written: the fields its writer set, camelCase (a None set
+    removes the field in a merge patch). Each writer builds its part as the model and
+    serialises it here, once."""
+    out: Obj = status.model_dump(by_alias=True, exclude_unset=True, mode="json")
+    return out
 
 
 def complete(status: Obj, keys: Iterable[str]) -> Obj:

@@ -2,7 +2,7 @@
 instances run where.
 
 Everything is derived from the plans actually deployed: each fleet's placement as its last
-status refresh found it (``Deps.placements``), or, for a fleet this process has not reconciled
+status refresh found it (``FleetState.placement``), or, for a fleet this process has not reconciled
 yet, its ``status.placement`` (a fleet of more than ``PLACEMENT_LIST_LIMIT`` instances lists none
 there and counts from its first reconcile, seconds after the operator starts). So it needs no
 state of its own and any replica of the operator can rebuild it. One pass
@@ -30,7 +30,7 @@ from fogfleet.domain.taxonomy import classify
 
 from .deps import Deps
 from .inputs import node_health
-from .status import condition, merge_conditions, split_text, typed, without_transition_times
+from .status import condition, merge_conditions, split_text, wire, without_transition_times
 
 __all__ = [
     "Usage",
@@ -117,14 +117,14 @@ def _offloadable(module: Mapping[str, Any]) -> str | None:
 def module_status(module: Mapping[str, Any], usage: Usage | None) -> Obj:
     """The part of a SoftwareModule's status this pass owns."""
     use = usage or Usage()
-    status = {
-        "observedGeneration": (module.get("metadata") or {}).get("generation"),
-        "offloadable": _offloadable(module),
-        "fleets": sorted(use.fleets),
-        "instances": use.instances,
-        "split": split_text(use.tiers),
-    }
-    return typed(SoftwareModuleStatus, status)
+    status = SoftwareModuleStatus(
+        observed_generation=(module.get("metadata") or {}).get("generation"),
+        offloadable=_offloadable(module),
+        fleets=sorted(use.fleets),
+        instances=use.instances,
+        split=split_text(use.tiers),
+    )
+    return wire(status)
 
 
 def compute_node_status(
@@ -146,17 +146,17 @@ def compute_node_status(
     conditions = merge_conditions(
         (compute_node.get("status") or {}).get("conditions") or [], [ready]
     )
-    status = {
-        "observedGeneration": generation,
-        "conditions": conditions,
-        "ready": not health,
-        "allocatableCpu": str(alloc.get("cpu", "")),
-        "allocatableMemory": str(alloc.get("memory", "")),
-        "fleets": sorted(use.fleets),
-        "instances": use.instances,
-        "cpuPlanned": format_cores(use.cpu),
-    }
-    return typed(ComputeNodeStatus, status)
+    status = ComputeNodeStatus(
+        observed_generation=generation,
+        conditions=conditions,
+        ready=not health,
+        allocatable_cpu=str(alloc.get("cpu", "")),
+        allocatable_memory=str(alloc.get("memory", "")),
+        fleets=sorted(use.fleets),
+        instances=use.instances,
+        cpu_planned=format_cores(use.cpu),
+    )
+    return wire(status)
 
 
 def _differs(old: Mapping[str, Any], new: Mapping[str, Any]) -> bool:
@@ -176,7 +176,8 @@ def reconcile_usage(deps: Deps) -> int:
     kube = deps.kube
     fleets = kube.list_fleets(None)
     patched = 0
-    known = dict(deps.placements)  # a snapshot: fleet reconciles replace entries meanwhile
+    # a snapshot: fleet reconciles replace entries meanwhile
+    known = {s.key: s.placement for s in deps.store.states() if s.placement is not None}
     by_module = usage_by_module(fleets, known)
     for module in kube.list_modules(None):
         meta = module.get("metadata") or {}

@@ -29,11 +29,12 @@ def register(registry: kopf.OperatorRegistry, settings: Settings) -> kopf.Operat
     # the drift re-check and scaling are the runtime's own loops (lifecycle.startup), since
     # kopf timers would put a finalizer on every fleet and scaled module.
     kopf.on.delete(*FLEETS, registry=registry, optional=True)(robotfleet.fleet_deleted)
+    if settings.watch_cache:
+        return registry  # one watch per kind: the runtime's caches report the other kinds
     kopf.on.event(GROUP, VERSION, SoftwareModule.PLURAL, registry=registry)(related.module_event)
     kopf.on.event(GROUP, VERSION, ComputeNode.PLURAL, registry=registry)(related.compute_node_event)
-    if not settings.watch_cache:  # else the runtime's own Node and Deployment caches report them
-        kopf.on.event("", "v1", "nodes", registry=registry)(related.node_event)
-        kopf.on.event(
-            "apps", "v1", "deployments", labels={LABEL_MANAGED_BY: MANAGER}, registry=registry
-        )(related.deployment_event)
+    kopf.on.event("", "v1", "nodes", registry=registry)(related.node_event)
+    kopf.on.event(
+        "apps", "v1", "deployments", labels={LABEL_MANAGED_BY: MANAGER}, registry=registry
+    )(related.deployment_event)
     return registry

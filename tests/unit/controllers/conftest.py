@@ -11,8 +11,8 @@ import pytest
 import yaml
 
 from fogfleet.api.v1alpha1.robotfleet import SchedulerSettings
-from fogfleet.controllers.planning import CorePlanner
 from fogfleet.domain.problem import Problem
+from fogfleet.scheduling.decision import CorePlanner
 from fogfleet.scheduling.incremental import Replan
 from fogfleet.scheduling.schedule import Schedule
 

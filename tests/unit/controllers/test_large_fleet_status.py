@@ -82,7 +82,7 @@ def test_usage_counts_a_large_fleet_from_what_its_reconcile_found(
 def test_simulating_a_status_without_its_placement_says_why(kube, deps, monkeypatch):
     monkeypatch.setattr(fleet_status, "PLACEMENT_LIST_LIMIT", 3)
     settle(kube, deps)
-    problem = deps.rendered[KEY].problem
+    problem = deps.store.state(KEY).rendered.problem
     with pytest.raises(InvalidSpec) as err:
         recorded_placement(problem, copy.deepcopy(kube.fleets[KEY]), "fleet.yaml")
     assert err.value.field == "status.placement" and "fogfleet plan --json" in str(err.value)

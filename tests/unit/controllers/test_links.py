@@ -2,13 +2,14 @@
 
 from __future__ import annotations
 
+import dataclasses
 from typing import Any
 
 import pytest
 
-import fogfleet.controllers.robotfleet as robotfleet
+import fogfleet.controllers.fleet_plan as fleet_plan
 from fogfleet.controllers.links import LinkDeps, link_events, measure_links
-from fogfleet.controllers.robotfleet import forget, reconcile
+from fogfleet.controllers.robotfleet import reconcile
 from fogfleet.errors import DependencyUnavailable
 
 KEY = ("warehouse", "warehouse")
@@ -47,13 +48,13 @@ def prom() -> FakePrometheus:
 def builds(monkeypatch: pytest.MonkeyPatch) -> list[Any]:
     """The measured links each full pass built its problem with."""
     seen: list[Any] = []
-    real = robotfleet.build_problem
+    real = fleet_plan.build_problem
 
     def recording(*args: Any, **kwargs: Any) -> Any:
         seen.append(dict(args[4]) if len(args) > 4 else {})
         return real(*args, **kwargs)
 
-    monkeypatch.setattr(robotfleet, "build_problem", recording)
+    monkeypatch.setattr(fleet_plan, "build_problem", recording)
     return seen
 
 
@@ -120,7 +121,7 @@ def test_a_slow_link_re_plans_its_robot_with_the_measure_and_moves_back_when_sta
     measure(deps, prom, 0)
     prom.round_trip["robot-1"] = 1.0  # 500 ms one way: every offloaded cycle misses
     assert measure(deps, prom, 10) == set()  # slow for less than a window (30 s): held
-    assert deps.links[KEY]["robot-1"].state.value == "Healthy"
+    assert deps.store.state(KEY).links.robots["robot-1"].state.value == "Healthy"
     assert measure(deps, prom, 40) == {KEY}
     run(kube, deps)
     assert builds[-1].keys() == {"robot-1"}
@@ -194,7 +195,7 @@ def test_prometheus_down_keeps_the_last_states(kube, deps, prom) -> None:
     measure(deps, prom, 30)  # slow for a whole window
     prom.down = True
     assert measure(deps, prom, 40) == set()
-    assert deps.links[KEY]["robot-1"].state.value == "Degraded"
+    assert deps.store.state(KEY).links.robots["robot-1"].state.value == "Degraded"
 
 
 def test_a_fleet_that_does_not_monitor_its_links_is_not_measured(kube, deps, prom) -> None:
@@ -212,12 +213,13 @@ def test_a_fleet_in_the_middle_of_a_reconcile_keeps_its_links_until_forgotten(
     prom.round_trip["robot-1"] = 1.0
     measure(deps, prom, 0)
     measure(deps, prom, 30)
-    rendered = deps.rendered.pop(KEY)  # what a reconcile in another thread does for a moment
+    state = deps.store.state(KEY)
+    state.rendered = None  # what a reconcile in another thread does for a moment
     measure(deps, prom, 40)
-    assert deps.links[KEY]["robot-1"].state.value == "Degraded"
-    deps.rendered[KEY] = rendered
-    forget(deps, KEY)  # the fleet is gone
-    assert KEY not in deps.links and KEY not in deps.standbys_active
+    assert state.links.robots["robot-1"].state.value == "Degraded"
+    deps.store.forget(KEY)  # the fleet is gone
+    assert deps.store.get(KEY) is None
+    assert measure(deps, prom, 50) == set()
 
 
 def test_link_events_report_changes_not_first_healthy_states() -> None:
@@ -233,10 +235,10 @@ def test_link_events_report_changes_not_first_healthy_states() -> None:
 
 def test_dots_in_node_names_are_escaped_for_the_regex_and_for_promql(kube, deps, prom) -> None:
     run(kube, deps)
-    robot, node = next(iter(deps.rendered[KEY].robots.items()))
-    rendered = deps.rendered[KEY]
-    deps.rendered[KEY] = type(rendered)(
-        **{**rendered.__dict__, "robots": {robot: ("robot-1.site.example", node[1])}}
-    )
+    state = deps.store.state(KEY)
+    assert state.links.watch is not None
+    robot, node = next(iter(state.links.watch.robots.items()))
+    robots = {robot: ("robot-1.site.example", node[1])}
+    state.links.watch = dataclasses.replace(state.links.watch, robots=robots)
     measure(deps, prom, 0)
     assert 'up{node=~"robot-1\\\\.site\\\\.example"}' in prom.queries[0]

@@ -136,15 +136,15 @@ def test_lasting_drift_corrects_the_profile_once_and_the_fleet_re_plans(kube, de
     assert ("Warning", "ProfileCorrected") in {e[:2] for e in kube.events}
     run(kube, deps)  # the module's watch event would do this
     assert deps.planner.calls + deps.planner.replans > plans, "planned with the learnt profile"
-    assert deps.rendered[KEY].problem.nominal.exe_mean.max() > 0
+    assert deps.store.state(KEY).rendered.problem.nominal.exe_mean.max() > 0
     # a new plan: its measures start again (nothing measured at once) ...
-    predicted = deps.rendered[KEY].predicted[MODULE]
+    predicted = deps.store.state(KEY).drift.watch.predicted[MODULE]
     prom.exec[(MODULE, hw, cpu)] = (900.0, 6 * mean)
     prom.missed = {MODULE: 1000.0 * min(1.0, predicted + 0.5)}  # still far above the plan
     observe(deps, od, 180.0)
-    assert deps.drift[KEY][MODULE].measured is None
+    assert deps.store.state(KEY).drift.modules[MODULE].measured is None
     observe(deps, od, 260.0)
-    assert deps.drift[KEY][MODULE].since == 260.0
+    assert deps.store.state(KEY).drift.modules[MODULE].since == 260.0
     # ... and however long it drifts, no second correction within minIntervalSeconds
     observe(deps, od, 330.0)
     (again,) = kube.modules[("warehouse", MODULE)]["status"]["profileCorrection"]
@@ -195,14 +195,14 @@ def test_misses_beside_a_work_as_declared_teach_the_cycles_noise(kube, deps, pro
     observe(deps, od, 100.0)
     (row,) = kube.modules[("warehouse", MODULE)]["status"]["observed"]
     assert (row["cycles"], row["missedPercent"]) == (2000.0, 20.0)
-    before = deps.rendered[KEY].problem
+    before = deps.store.state(KEY).rendered.problem
     observe(deps, od, 170.0)
     (fix,) = kube.modules[("warehouse", MODULE)]["status"]["profileCorrection"]
     assert fix["factor"] == pytest.approx(1.0, abs=1e-3)
     assert fix["noiseMillis"] > 1.0
     assert "ms noise" in next(e for e in kube.events if e[1] == "ProfileCorrected")[2]
     run(kube, deps)
-    after = deps.rendered[KEY].problem
+    after = deps.store.state(KEY).rendered.problem
     mine = [i for i, inst in enumerate(after.instances) if inst.module == MODULE]
     h = [j for j, n in enumerate(after.nodes) if n.hardware_type == hw]
     # every row of the type now has the noise in its std, so the model predicts misses there

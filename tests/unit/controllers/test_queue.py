@@ -6,8 +6,8 @@ import asyncio
 import itertools
 from collections.abc import Awaitable, Callable
 
+from fogfleet.controllers.outcome import Outcome
 from fogfleet.controllers.queue import ReconcileQueue
-from fogfleet.controllers.robotfleet import Outcome
 
 
 def test_a_burst_of_triggers_makes_one_reconcile() -> None:
@@ -156,3 +156,31 @@ def test_a_longer_max_wait_per_call_holds_a_stream_back() -> None:
 
     end = asyncio.run(main())
     assert len(runs) == 1 and runs[0] >= end, (runs, end)
+
+
+def test_forgetting_a_fleet_drops_its_lock_timer_and_failures() -> None:
+    """A deleted fleet leaves nothing in the queue, even when it is forgotten while its lock
+    is held (the reconcile that found it gone)."""
+    gone = ("ns", "gone")
+    held: list[set[tuple[str, str]]] = []
+
+    async def runner(key: tuple[str, str]) -> Outcome | None:
+        if key == gone:
+            q.forget(key)  # what Runtime._forget does from inside the run
+            held.append(q.held())
+            return None
+        raise RuntimeError("broken")  # a failure count and a retry timer
+
+    async def main() -> set[tuple[str, str]]:
+        q.schedule(("ns", "failing"), 0.0)
+        await asyncio.sleep(0.05)
+        assert ("ns", "failing") in q.held()
+        q.forget(("ns", "failing"))
+        await q.run_now(gone)
+        left = q.held()
+        await q.close()
+        return left
+
+    q = ReconcileQueue(runner, debounce=0.01, retry=60.0)
+    assert asyncio.run(main()) == set()
+    assert held == [{gone}]  # while held, the lock stays (a waiter could be queued on it)

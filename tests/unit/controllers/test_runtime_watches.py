@@ -11,8 +11,9 @@ from types import SimpleNamespace
 import pytest
 
 from fogfleet.controllers.deps import Deps
-from fogfleet.controllers.robotfleet import Outcome
+from fogfleet.controllers.outcome import Outcome
 from fogfleet.controllers.runtime import Runtime
+from fogfleet.controllers.state import References
 
 KEY = ("wh", "fleet")
 
@@ -28,6 +29,13 @@ def pod(ready: bool, node: str = "edge-1", fleet: str = "fleet") -> dict:
     }
 
 
+def record(runtime: Runtime, key, compute_nodes: set[str], modules: set[str]) -> None:
+    """What a reconcile records of the fleet's references."""
+    runtime.deps.store.state(key).references = References(
+        frozenset(compute_nodes), frozenset(compute_nodes), frozenset(modules), False
+    )
+
+
 class FakeWatches:
     def __init__(self) -> None:
         self.listener = None
@@ -35,10 +43,14 @@ class FakeWatches:
         self.nodes = None
         self.stopped = False
 
-    def start(self, on_pod=None, on_deployment=None, on_node=None) -> None:
+    def start(
+        self, on_pod=None, on_deployment=None, on_node=None, on_module=None, on_compute_node=None
+    ) -> None:
         self.listener = on_pod
         self.deployments = on_deployment
         self.nodes = on_node
+        self.modules = on_module
+        self.compute_nodes = on_compute_node
 
     def stop(self) -> None:
         self.stopped = True
@@ -51,7 +63,7 @@ def rechecked(feed: Callable[[Runtime], None], known: bool = True) -> bool:
     async def main() -> bool:
         runtime = Runtime(Deps(kube=object()), debounce=5.0)
         if known:
-            runtime.deps.refs.record(KEY, set(), set(), {"m"}, False)
+            record(runtime, KEY, set(), {"m"})
         feed(runtime)
         pending = KEY in runtime.queue.pending()
         await runtime.close()
@@ -87,7 +99,7 @@ def test_the_caches_start_with_the_loops_and_their_events_reach_the_loop(listene
 
     async def main() -> bool:
         runtime = Runtime(Deps(kube=object(), watches=watches), debounce=5.0)
-        runtime.deps.refs.record(KEY, set(), set(), {"m"}, False)
+        record(runtime, KEY, set(), {"m"})
         runtime.start_periodic(3600)
         call = getattr(watches, listener)
         assert call is not None
@@ -106,6 +118,40 @@ def test_the_caches_start_with_the_loops_and_their_events_reach_the_loop(listene
     assert asyncio.run(main()) and watches.stopped
 
 
+@pytest.mark.parametrize(
+    ("listener", "obj"),
+    [
+        ("modules", {"metadata": {"name": "m", "namespace": KEY[0], "generation": 2}}),
+        ("compute_nodes", {"metadata": {"name": "edge-1", "generation": 2}}),
+    ],
+)
+def test_the_caches_report_modules_and_compute_nodes_one_watch_per_kind(listener, obj):
+    """With the caches on, kopf does not watch these kinds: the caches' events re-check the
+    fleets that use the object."""
+    watches = FakeWatches()
+
+    async def main() -> bool:
+        runtime = Runtime(Deps(kube=object(), watches=watches), debounce=5.0)
+        record(runtime, KEY, {"edge-1"}, {"m"})
+        runtime.start_periodic(3600)
+        old = {"metadata": {**obj["metadata"], "generation": 1}}
+        runtime._changed(  # what the first listing recorded of it
+            "SoftwareModule" if listener == "modules" else "ComputeNode", old, None
+        )
+        t = threading.Thread(target=getattr(watches, listener), args=("MODIFIED", obj, old))
+        t.start()
+        t.join()
+        for _ in range(100):
+            if KEY in runtime.queue.pending():
+                break
+            await asyncio.sleep(0.01)
+        pending = KEY in runtime.queue.pending()
+        await runtime.close()
+        return pending
+
+    assert asyncio.run(main())
+
+
 @pytest.mark.parametrize(("waiting", "cap"), [(100, 5.0), (5, None), (0, None)])
 def test_a_large_rollout_refreshes_its_status_less_often(waiting: int, cap: float | None):
     """Many modules still rolling out: Pod events wait up to ROLLOUT_BUSY_MAX_WAIT_SECONDS;
@@ -113,7 +159,7 @@ def test_a_large_rollout_refreshes_its_status_less_often(waiting: int, cap: floa
     from fogfleet.controllers import runtime as rt
 
     def count(runtime: Runtime) -> None:
-        runtime._waiting[KEY] = waiting
+        runtime.store.state(KEY).rollout.waiting = waiting
 
     assert debounce_after_a_pod_event(count) == [(KEY, rt.ROLLOUT_QUIET_SECONDS, cap)]
 
@@ -124,7 +170,7 @@ def debounce_after_a_pod_event(count) -> list[tuple]:
 
     async def main() -> list[tuple]:
         runtime = Runtime(Deps(kube=object()), debounce=5.0)
-        runtime.deps.refs.record(KEY, set(), set(), {"m"}, False)
+        record(runtime, KEY, set(), {"m"})
         count(runtime)
         calls: list[tuple] = []
         runtime.queue.schedule_debounced = lambda key, quiet=None, max_wait=None: calls.append(  # type: ignore[method-assign]
@@ -155,7 +201,7 @@ def test_node_heartbeats_stay_off_the_loop_and_a_node_going_not_ready_rechecks_i
 
     async def main() -> list[bool]:
         runtime = Runtime(Deps(kube=object(), watches=watches), debounce=5.0)
-        runtime.deps.refs.record(KEY, {"edge-1"}, {"edge-1"}, {"m"}, False)
+        record(runtime, KEY, {"edge-1"}, {"m"})
         runtime.start_periodic(3600)
         seen = []
         for new, old in [
@@ -187,7 +233,8 @@ def test_the_usage_pass_follows_placements_not_every_refresh(kube, deps):
             if step == "pods run":
                 kube.run_pods()
             if step == "module moved":
-                deps.placements[fleet] = deps.placements[fleet][1:]  # as if one had moved
+                state = deps.store.state(fleet)
+                state.placement = state.placement[1:]  # as if one had moved
             runtime._usage_due.clear()
             await runtime._run(fleet)
             woke.append(runtime._usage_due.is_set())
@@ -232,7 +279,7 @@ def deployment(name: str, available: int, generation: int = 1, spec_hash: str = 
 def deployment_rechecks(kind: str, new: dict, old: dict | None, unsettled: set[str] | None) -> bool:
     def feed(runtime: Runtime) -> None:
         if unsettled is not None:  # what the fleet's last refresh left rolling out
-            runtime._unsettled[KEY] = frozenset(unsettled)
+            runtime.store.state(KEY).rollout.unsettled = frozenset(unsettled)
         runtime.deployment_event(new, kind, old)
 
     return rechecked(feed)
@@ -269,8 +316,8 @@ def refreshes_after(unsettled: set[str], events: list[tuple[str, bool]]) -> list
 
     async def main() -> list[tuple]:
         runtime = Runtime(Deps(kube=object()), debounce=5.0)
-        runtime.deps.refs.record(KEY, set(), set(), {"m"}, False)
-        runtime._unsettled[KEY] = frozenset(unsettled)
+        record(runtime, KEY, set(), {"m"})
+        runtime.store.state(KEY).rollout.unsettled = frozenset(unsettled)
         calls: list[tuple] = []
         runtime.queue.schedule = lambda key, delay=None: calls.append(
             ("now",) if delay == 0 else ("later", delay)
@@ -310,8 +357,8 @@ def test_a_refresh_keeps_the_ready_pods_shown_while_it_ran():
 
     async def main() -> set[str]:
         runtime = Runtime(Deps(kube=SimpleNamespace(get_fleet=None)), debounce=5.0)
-        runtime.deps.refs.record(KEY, set(), set(), {"m"}, False)
-        runtime._unsettled[KEY] = frozenset({"d-1", "d-2", "d-3"})
+        record(runtime, KEY, set(), {"m"})
+        runtime.store.state(KEY).rollout.unsettled = frozenset({"d-1", "d-2", "d-3"})
         runtime.pod_event("MODIFIED", module_pod("d-1", True), module_pod("d-1", False))
         answers = iter(
             [
@@ -328,7 +375,7 @@ def test_a_refresh_keeps_the_ready_pods_shown_while_it_ran():
 
         runtime.call = call  # type: ignore[method-assign]
         await runtime._run(KEY)
-        kept = set(runtime._shown_ready[KEY])
+        kept = set(runtime.store.state(KEY).rollout.shown_ready)
         await runtime.close()
         return kept
 

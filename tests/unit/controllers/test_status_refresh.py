@@ -6,6 +6,7 @@ from __future__ import annotations
 import pytest
 from test_rollout import desired  # the same directory: pytest puts it on sys.path
 
+import fogfleet.controllers.fleet_plan as fleet_plan
 import fogfleet.controllers.robotfleet as robotfleet
 from fogfleet.controllers.robotfleet import reconcile
 from fogfleet.controllers.ros import is_ros_object
@@ -18,13 +19,13 @@ KEY = ("warehouse", "warehouse")
 def builds(monkeypatch):
     """How many times the full pass built the problem."""
     count = [0]
-    real = robotfleet.build_problem
+    real = fleet_plan.build_problem
 
     def counting(*args, **kwargs):
         count[0] += 1
         return real(*args, **kwargs)
 
-    monkeypatch.setattr(robotfleet, "build_problem", counting)
+    monkeypatch.setattr(fleet_plan, "build_problem", counting)
     return count
 
 
@@ -87,12 +88,12 @@ def test_a_render_older_than_the_full_reconcile_period_is_not_reused(kube, deps,
 
 def test_a_failed_full_pass_leaves_nothing_to_reuse(kube, deps, builds):
     run(kube, deps)
-    assert KEY in deps.rendered
+    assert deps.store.state(KEY).rendered is not None
     kube.fleets[KEY]["spec"]["modules"].append({"name": "no-such-module"})
     kube.fleets[KEY]["metadata"]["generation"] = 2
     with pytest.raises(Exception, match="no-such-module"):
         run(kube, deps)
-    assert KEY not in deps.rendered
+    assert deps.store.state(KEY).rendered is None
 
 
 def test_a_rollout_puts_the_re_render_off_until_its_last_pod_runs(kube, deps, builds):

@@ -28,7 +28,7 @@ def _with_variant(kube: Any) -> None:
 def test_the_variant_is_a_reference_and_its_standby_runs_its_image(kube, deps) -> None:
     _with_variant(kube)
     reconcile(kube.get_fleet(*KEY), deps)
-    assert KEY in deps.refs.using_module("warehouse", LITE)
+    assert KEY in deps.store.using_module("warehouse", LITE)
     standbys = [
         d
         for d in kube.deployments.values()
@@ -52,4 +52,4 @@ def test_a_missing_variant_is_reported_and_becomes_a_reference(kube, deps) -> No
     ready = next(c for c in kube.fleets[KEY]["status"]["conditions"] if c["type"] == "Ready")
     assert ready["status"] == "False" and "spec.fallback.variant" in ready["message"]
     # creating it later re-plans the fleet (the runtime asks the reference index)
-    assert KEY in deps.refs.using_module("warehouse", LITE)
+    assert KEY in deps.store.using_module("warehouse", LITE)

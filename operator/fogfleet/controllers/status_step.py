@@ -1,0 +1,158 @@
+"""The status step: the one writer of a RobotFleet's status.
+
+Compute, compare, write on change (as cert-manager's readiness controller does): the status is
+built as its model (``fleet_status``), compared with the one the fleet has apart from
+timestamps, and patched once when it differs; the Events that go with the change follow. A
+fleet whose plan is held (paused, waiting for profiles, invalid) gets its conditions the same
+way (``hold``).
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from typing import Any
+
+from fogfleet.api.labels import LABEL_FLEET
+from fogfleet.errors import DanglingReference, Infeasible, InvalidSpec
+from fogfleet.render.deployments import label_value
+
+from .deps import Deps
+from .drift_report import drift_events, drift_report
+from .fleet_status import fleet_status, held_status, placement_entries, running_wire
+from .links import link_events, link_report
+from .observe import FleetInputs, FleetObject
+from .outcome import Outcome
+from .state import FleetState, Rendered
+from .status import condition, rollout, same_status
+
+__all__ = ["hold", "paused", "refresh", "report_failure", "waiting_for_profiles"]
+
+log = logging.getLogger(__name__)
+Obj = dict[str, Any]
+
+
+def refresh(
+    deps: Deps, state: FleetState, inputs: FleetInputs, rendered: Rendered, planned: bool
+) -> tuple[Outcome, Obj]:
+    """The status from where the rendered Deployments stand (one patch, only if it changed),
+    and the fleet's status now."""
+    obj = inputs.obj
+    ns, name = obj.key
+    pods = deps.kube.list_pods(ns, {LABEL_FLEET: label_value(name)})
+    roll = rollout(rendered.desired, inputs.deployments, pods)
+    placement = placement_entries(
+        rendered.problem, rendered.desired, roll, rendered.plan, rendered.baseline
+    )
+    if state.placement != placement:  # the usage pass reads it (usage.py)
+        state.placement = placement  # replaced only when it changed
+    links = link_report(state.links.watch, state.links.robots, state.links.standbys_active)
+    drift = drift_report(state.drift.watch, state.drift.modules)
+    status = running_wire(
+        fleet_status(
+            inputs.fleet, rendered, placement, roll, obj.generation, obj.old_status, links, drift
+        )
+    )
+    ready = not roll.waiting and not roll.moving and not rendered.stranded
+    events = [
+        *link_events(obj.old_status.get("links") or [], links.entries),
+        *drift_events(obj.old_status.get("measured") or [], drift.entries),
+    ]
+    written = _write(deps, obj, status, events)
+    if written is not None and ready != _is_ready(obj.old_status):
+        log.info(
+            "RobotFleet %s/%s is %sReady: %s",
+            ns,
+            name,
+            "" if ready else "not ",
+            _condition_message(status, "Ready"),
+        )
+    outcome = Outcome(
+        planned=planned,
+        ready=ready,
+        requeue_after=None if ready else deps.requeue_seconds,
+        message=_condition_message(status, "Ready"),
+        waiting=len(roll.waiting) + len(roll.moving),
+        unsettled=frozenset(roll.waiting).union(roll.moving),
+        status_write_seconds=written or 0.0,
+    )
+    return outcome, (status if written is not None else obj.old_status)
+
+
+def hold(
+    deps: Deps,
+    obj: FleetObject,
+    conditions: list[Obj],
+    keep: str = "",
+    event: tuple[str, str, str] | None = None,
+) -> bool:
+    """Write the held fleet's conditions (nothing that runs is touched); ``event`` goes with a
+    change. Returns whether the status changed."""
+    status = held_status(obj.generation, obj.old_status, conditions, keep)
+    return _write(deps, obj, status, [event] if event else []) is not None
+
+
+def paused(deps: Deps, obj: FleetObject) -> Outcome:
+    message = "spec.paused is true: nothing is planned or changed until it is false"
+    hold(deps, obj, [condition("Scheduled", False, "Paused", message, obj.generation)])
+    return Outcome(message="paused")
+
+
+def report_failure(deps: Deps, obj: FleetObject, exc: InvalidSpec) -> None:
+    """Ready=False with the precise reason, one Event; nothing that runs is touched."""
+    ns, name = obj.key
+    deps.metrics.count_error(name, exc.reason)
+    msg = str(exc)
+    if isinstance(exc, DanglingReference):
+        msg += " (create it, or fix the reference)"
+    conditions = [
+        condition("Ready", False, exc.reason, msg, obj.generation),
+        condition("Scheduled", False, exc.reason, msg, obj.generation),
+    ]
+    reason = "PlanFailed" if isinstance(exc, Infeasible) else exc.reason
+    hold(deps, obj, conditions, keep="Degraded", event=("Warning", reason, msg))
+    log.warning("Failed to reconcile RobotFleet %s/%s: %s", ns, name, msg)
+
+
+def _write(
+    deps: Deps, obj: FleetObject, status: Obj, events: list[tuple[str, str, str]]
+) -> float | None:
+    """Patch ``status`` when it differs from the fleet's, then post ``events``; the seconds
+    the patch took (None: nothing changed)."""
+    if same_status(obj.old_status, status):
+        return None
+    t0 = time.perf_counter()
+    deps.kube.patch_fleet_status(*obj.key, status)
+    took = time.perf_counter() - t0
+    for kind, reason, message in events:
+        deps.kube.emit_event(obj.involved, kind, reason, message)
+    return took
+
+
+def _is_ready(status: Obj) -> bool:
+    return any(
+        c.get("type") == "Ready" and c.get("status") == "True"
+        for c in status.get("conditions") or []
+    )
+
+
+def _condition_message(status: Obj, type_: str) -> str:
+    return next(
+        (str(c.get("message")) for c in status.get("conditions") or [] if c.get("type") == type_),
+        "",
+    )
+
+
+def waiting_for_profiles(deps: Deps, obj: FleetObject, message: str, failed: bool) -> None:
+    """Ready and Scheduled False while the fleet waits for profiles (nothing that runs is
+    touched); an Event when that starts or its reason changes."""
+    reason = "ProfilingFailed" if failed else "ProfilingPending"
+    conditions = [
+        condition("Ready", False, reason, message, obj.generation),
+        condition("Scheduled", False, reason, message, obj.generation),
+    ]
+    old = obj.old_status.get("conditions") or []
+    was = next((c.get("reason") for c in old if c.get("type") == "Ready"), None)
+    event = ("Warning" if failed else "Normal", reason, message) if was != reason else None
+    if hold(deps, obj, conditions, keep="others", event=event) and event is not None:
+        log.info("RobotFleet %s/%s waits for profiles: %s", *obj.key, message)

@@ -1,0 +1,192 @@
+"""Which plan a fleet gets: plan (or re-plan what changed), check it, keep what runs.
+
+``decide`` is the one place that turns a planning problem into the placement the operator
+deploys:
+
+1. an incremental re-plan of only what changed since the last decision (NSGA-II fleets planned
+   before and not degraded; ``incremental.replan``), else a whole-fleet plan (``solver.plan``);
+2. the plan must place every placeable instance and hold (F1-F3 constraints; paper IV-A),
+   else ``Infeasible`` explains it by node and resource;
+3. the migration-margin rule keeps running modules where they are unless the new plan is
+   better by the margin (``stickiness.keep_running``);
+4. the objectives reported are those of the placement deployed, not of the solver's proposal.
+
+The controller keeps the returned ``Decision`` by fingerprint and recomputes nothing.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import time
+from collections.abc import Collection, Mapping
+from dataclasses import dataclass, field
+from typing import Protocol
+
+import numpy as np
+from numpy.typing import NDArray
+
+from fogfleet.api.timestamps import timestamp
+from fogfleet.api.v1alpha1.robotfleet import SchedulerName, SchedulerSettings
+from fogfleet.domain.problem import Problem
+from fogfleet.errors import Infeasible
+
+from . import stickiness
+from .explain import infeasible_message
+from .incremental import Replan, changed_instances, replan
+from .schedule import Schedule
+from .solver import plan
+
+__all__ = ["CorePlanner", "Decision", "Planner", "decide", "fingerprint", "with_defaults"]
+
+
+class Planner(Protocol):
+    """The solver, as a decision uses it (tests count or steer its calls)."""
+
+    def plan(self, problem: Problem, settings: SchedulerSettings) -> Schedule: ...
+
+    def replan(
+        self,
+        problem: Problem,
+        settings: SchedulerSettings,
+        changed: Collection[int],
+        reference: float | None,
+    ) -> Replan:
+        """Re-plan only what a small change affected (``incremental.replan``); a Replan
+        without a schedule asks for ``plan``."""
+        ...
+
+
+class CorePlanner:
+    """The Planner over :func:`solver.plan` and :func:`incremental.replan`."""
+
+    def plan(self, problem: Problem, settings: SchedulerSettings) -> Schedule:
+        return plan(problem, settings)
+
+    def replan(
+        self,
+        problem: Problem,
+        settings: SchedulerSettings,
+        changed: Collection[int],
+        reference: float | None,
+    ) -> Replan:
+        return replan(problem, settings, changed=changed, reference=reference)
+
+
+@dataclass(frozen=True)
+class Decision:
+    """The plan deployed for one set of planning inputs (``fingerprint``)."""
+
+    fingerprint: str
+    schedule: Schedule
+    placement: NDArray[np.int64]  # what was chosen (after the migration-margin rule)
+    plan_id: str
+    migrations: int
+    choice_reason: str
+    planned_at: str
+    moves: tuple[str, ...] = ()  # "robot-1/module edge-1->edge-2" for the Migrated Event
+    objectives: dict[str, float] = field(default_factory=dict)
+    """The objectives of ``placement`` (the plan deployed), not of the solver's proposal."""
+    incremental: bool = False  # re-planned only what changed
+    why_full: str = ""  # why a fleet planned before was planned in full ("" for a first plan)
+    seconds: float = 0.0  # wall time of the planning
+    cpu_seconds: float = 0.0  # this thread's CPU time of it (beside the wall: what it waited)
+
+
+def with_defaults(given: SchedulerSettings, defaults: Mapping[str, int]) -> SchedulerSettings:
+    """The fleet's scheduler settings, with operator-wide defaults for the fields it leaves
+    out (FOGFLEET_SCHEDULER_*)."""
+    missing = {k: v for k, v in defaults.items() if k not in given.model_fields_set}
+    return given.model_copy(update=missing) if missing else given
+
+
+def fingerprint(problem: Problem, settings: SchedulerSettings) -> str:
+    """The planning inputs' fingerprint: same fingerprint, same decision."""
+    return stickiness.fingerprint(problem, settings)
+
+
+def decide(
+    planner: Planner,
+    problem: Problem,
+    settings: SchedulerSettings,
+    *,
+    fleet: str,
+    fp: str,
+    before: NDArray[np.int64],
+    last: Decision | None = None,
+    last_problem: Problem | None = None,
+) -> Decision:
+    """The placement to deploy (see the module docstring). ``before`` is where instances
+    run now (-1: nowhere); ``last``/``last_problem`` the previous decision and the problem it
+    was made for (then only what changed is re-planned). Raises ``Infeasible`` naming
+    ``RobotFleet/<fleet>``."""
+    t0, cpu0 = time.perf_counter(), time.thread_time()
+    schedule, why_full = _incremental(planner, problem, settings, last, last_problem)
+    incremental = schedule is not None
+    if schedule is None:
+        schedule = planner.plan(problem, settings)
+    seconds, cpu = time.perf_counter() - t0, time.thread_time() - cpu0
+    placement = np.asarray(schedule.placement, dtype=np.int64)
+    # a degraded plan's CPU amounts, feasibility and figures hold for the degraded problem
+    problem = problem.with_levels(schedule.levels)
+    with_limits = schedule.with_limits  # False: onboard, planned for the nominal allocation
+    # instances with no node left (stranded: their node is down) stay unplaced; every other
+    # one must be placed and the plan must hold
+    placeable = problem.allowed.any(axis=1)
+    unplaced = bool((placement[placeable] < 0).any())
+    if unplaced or not stickiness.feasible(problem, placement, with_limits):
+        message = infeasible_message(problem, placement, schedule.reasons)
+        raise Infeasible(f"RobotFleet/{fleet}", "spec", message)
+    stick = stickiness.keep_running(problem, placement, settings, with_limits)
+    chosen = stick.placement
+    plan_id = hashlib.sha256(f"{fp}:{chosen.tobytes().hex()}".encode()).hexdigest()[:12]
+    reason = schedule.choice_reason
+    if stick.kept_current or stick.migrations:
+        reason = f"{reason}; {stick.reason}" if reason else stick.reason
+    moves = tuple(
+        f"{problem.label(i)} {problem.nodes[before[i]].name}->{problem.nodes[chosen[i]].name}"
+        for i in range(problem.n_instances)
+        if before[i] >= 0 and chosen[i] >= 0 and chosen[i] != before[i]
+    )
+    objectives = (
+        dict(schedule.objectives)
+        if np.array_equal(chosen, placement)
+        else stickiness.objective_values(problem, chosen, with_limits, list(schedule.objectives))
+    )
+    return Decision(
+        fp,
+        schedule,
+        chosen,
+        plan_id,
+        len(moves),
+        reason,
+        timestamp(),
+        moves,
+        objectives,
+        incremental,
+        why_full,
+        seconds,
+        cpu,
+    )
+
+
+def _incremental(
+    planner: Planner,
+    problem: Problem,
+    settings: SchedulerSettings,
+    last: Decision | None,
+    last_problem: Problem | None,
+) -> tuple[Schedule | None, str]:
+    """The incremental re-plan of a fleet planned before by NSGA-II (not degraded: a degraded
+    plan's CPU amounts are chosen for the whole fleet), or None and why the whole fleet is
+    planned instead ("" for a first plan)."""
+    if last is None or last_problem is None:
+        return None, ""
+    if not settings.incremental or SchedulerName(settings.algorithm) is not SchedulerName.NSGA2:
+        return None, ""
+    if last.schedule.degraded:
+        return None, "the deployed plan is degraded"
+    first = str(settings.objectives[0])
+    result = planner.replan(
+        problem, settings, changed_instances(last_problem, problem), last.objectives.get(first)
+    )
+    return result.schedule, result.reason
