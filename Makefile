@@ -31,7 +31,7 @@ lint: venv ## ruff, mypy (strict on the pure core) and import-linter contracts
 unit: venv ## Unit tests (pure core, CLI, render; no cluster)
 	$(BIN)/pytest tests -q
 
-test: venv lint crds-check docs-check cluster-tools unit chart-lint checkov images e2e ## Everything CI runs: lint, CRD drift, unit tests, chart lint, checkov, e2e on the local bed (real and kwok nodes)
+test: venv lint crds-check docs-check cluster-tools unit chart-lint checkov images e2e ## Everything CI runs: lint, CRD drift, docs check, unit tests, chart lint, checkov, e2e on the local bed (real and kwok nodes)
 
 crds: venv ## Write the CRD YAML in crds/ from the pydantic models
 	$(BIN)/fogfleet crds --out crds
