@@ -31,13 +31,16 @@ lint: venv ## ruff, mypy (strict on the pure core) and import-linter contracts
 unit: venv ## Unit tests (pure core, CLI, render; no cluster)
 	$(BIN)/pytest tests -q
 
-test: venv lint crds-check cluster-tools unit chart-lint checkov images e2e ## Everything CI runs: lint, CRD drift, unit tests, chart lint, checkov, e2e on the local bed (real and kwok nodes)
+test: venv lint crds-check docs-check cluster-tools unit chart-lint checkov images e2e ## Everything CI runs: lint, CRD drift, docs check, unit tests, chart lint, checkov, e2e on the local bed (real and kwok nodes)
 
 crds: venv ## Write the CRD YAML in crds/ from the pydantic models
 	$(BIN)/fogfleet crds --out crds
 
 crds-check: venv ## Fail when crds/ drifts from the models
 	$(BIN)/fogfleet crds --check crds
+
+docs-check: venv ## Fail when README.md or docs/ name a missing file, anchor, make target or CLI flag
+	$(BIN)/python tests/docs/check_docs.py
 
 cluster-tools: venv ## Build (or reuse from ~/.cache/fogfleet) etcd, kube-*, kwok, helm and Prometheus
 	$(BIN)/python e2e/cluster/harness.py build
