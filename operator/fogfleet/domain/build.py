@@ -20,8 +20,7 @@ from fogfleet.errors import DanglingReference, InvalidSpec
 
 from .fallback import standbys
 from .network import Link, uplink
-from .observed import Learnt
-from .pairs import Block, Pair, PairTable, ProfileRow, pad_rungs
+from .pairs import Block, Pair, PairTable, pad_rungs
 from .problem import (
     TIER_CODE,
     Allocation,
@@ -32,6 +31,7 @@ from .problem import (
     Problem,
     freeze,
 )
+from .rows import Learnt, ProfileRow
 from .taxonomy import module_priority
 
 __all__ = ["build_problem", "resolve_nodes"]

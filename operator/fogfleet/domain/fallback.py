@@ -29,8 +29,9 @@ from fogfleet.api.v1alpha1.softwaremodule import (
 )
 from fogfleet.errors import DanglingReference, InvalidSpec
 
-from .pairs import ProfileRow, profile_rows
+from .pairs import profile_rows
 from .problem import F64, Instance, freeze
+from .rows import ProfileRow
 
 __all__ = [
     "Standbys",

@@ -14,7 +14,7 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -26,21 +26,12 @@ from fogfleet.api.v1alpha1.softwaremodule import SoftwareModule, auto_profiled
 
 from .network import LOCAL, Link, path
 from .problem import EXEC_SHARE_OF_CYCLE
+from .rows import Learnt, ProfileRow
 from .taxonomy import may_degrade, must_stay_onboard
 
-if TYPE_CHECKING:
-    from .observed import Learnt
-
-__all__ = ["Block", "Pair", "PairTable", "ProfileRow", "pad_rungs", "profile_rows", "rows_for"]
+__all__ = ["Block", "Pair", "PairTable", "pad_rungs", "profile_rows", "rows_for"]
 
 F64 = NDArray[np.float64]
-
-
-@dataclass(frozen=True)
-class ProfileRow:
-    cpu: float
-    mean: float
-    std: float
 
 
 @dataclass(frozen=True)
