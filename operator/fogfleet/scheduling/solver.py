@@ -12,6 +12,7 @@ from numpy.typing import NDArray
 from pymoo.operators.selection.tournament import TournamentSelection
 
 from fogfleet.api.v1alpha1.base import parse_quantity
+from fogfleet.api.v1alpha1.objectives import MISS_OBJECTIVES
 from fogfleet.api.v1alpha1.robotfleet import SchedulerName, SchedulerSettings
 from fogfleet.domain.problem import Problem
 
@@ -36,7 +37,7 @@ from .operators import (
     GeneCrossover,
     GeneMutation,
 )
-from .preference import MISS_OBJECTIVES, polish, tie_breakers
+from .preference import polish, tie_breakers
 from .problem import PlacementProblem
 from .schedule import Schedule
 

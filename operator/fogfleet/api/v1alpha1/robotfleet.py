@@ -11,6 +11,7 @@ from .base import FogModel, Number, PosInt, refuse_duplicates
 from .common import Condition, LabelSelector, Name, ObjectMeta, Tier
 from .fallback import Fallback, FallbackMode
 from .linkhealth import LinkHealth, RobotLinkStatus
+from .objectives import DEFAULT_OBJECTIVES, ObjectiveName
 from .observed import DriftSettings
 from .rules import CrossFieldRule, enforce
 
@@ -21,7 +22,7 @@ __all__ = [
     "ModuleMissStatus",
     "ModulePlacement",
     "ModuleRef",
-    "ObjectiveName",
+    "ObjectiveName",  # from .objectives, the registry
     "ObjectiveValue",
     "ObjectiveWeight",
     "PlacementEntry",
@@ -43,19 +44,6 @@ class SchedulerName(StrEnum):
     ONBOARD = "onboard"
     RANDOM = "random"
     EXACT = "exact"
-
-
-class ObjectiveName(StrEnum):
-    """F1-F4 of multi-robot-edge-cloud-scheduling (eq. 1-6) plus the extensions."""
-
-    ONBOARD = "onboard"  # F1, eq. 1
-    RESERVE = "reserve"  # F2, eq. 2
-    BALANCE = "balance"  # F3, eq. 3
-    MISSED_CYCLES = "missedCycles"  # F4, eq. 6
-    MISS_RATE = "missRate"  # predicted fraction of missed cycles
-    COST = "cost"
-    ENERGY = "energy"
-    MIGRATIONS = "migrations"  # instances a plan moves off the node they run on (issue 10)
 
 
 class ChoiceRule(StrEnum):
@@ -124,13 +112,7 @@ class SchedulerSettings(FogModel):
     algorithm: SchedulerName = SchedulerName.NSGA2
     """The planner."""
     objectives: list[ObjectiveName] = Field(
-        default_factory=lambda: [
-            ObjectiveName.MISS_RATE,
-            ObjectiveName.MISSED_CYCLES,
-            ObjectiveName.ONBOARD,
-            ObjectiveName.RESERVE,
-            ObjectiveName.BALANCE,
-        ],
+        default_factory=lambda: list(DEFAULT_OBJECTIVES),
         min_length=1,
         max_length=len(ObjectiveName),
         description="Objectives, in priority order for the lexicographic choice. Default: "
