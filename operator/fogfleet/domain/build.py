@@ -169,14 +169,7 @@ def build_problem(
                 f"SoftwareModule {namespace}/{ref.name} does not exist",
             )
         ov = ref.overrides
-        cycle = (
-            parse_quantity(
-                ov.cycle_time_millis
-                if ov.cycle_time_millis is not None
-                else mod.spec.cycle_time_millis
-            )
-            / 1e3
-        )
+        cycle = mod.spec.cycle_seconds if ov.cycle_seconds is None else ov.cycle_seconds
         if cycle <= 0:
             raise InvalidSpec(
                 obj, f"spec.modules[{k}].overrides.cycleTimeMillis", "must be greater than zero"

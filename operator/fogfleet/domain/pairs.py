@@ -19,7 +19,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from fogfleet.api.v1alpha1.base import parse_cpu, parse_quantity
+from fogfleet.api.v1alpha1.base import parse_cpu, parse_millis, parse_quantity
 from fogfleet.api.v1alpha1.common import Tier
 from fogfleet.api.v1alpha1.computenode import ComputeNode
 from fogfleet.api.v1alpha1.softwaremodule import SoftwareModule, auto_profiled
@@ -81,8 +81,8 @@ def rows_for(module: SoftwareModule, hardware_type: str, speed_factor: float) ->
     rows = [
         ProfileRow(
             parse_cpu(r.cpu),
-            parse_quantity(r.mean_millis) / 1e3 * scale,
-            parse_quantity(r.std_millis) / 1e3 * scale,
+            parse_millis(r.mean_millis) * scale,
+            parse_millis(r.std_millis) * scale,
         )
         for r in own
     ]

@@ -7,7 +7,7 @@ from typing import Annotated, ClassVar, Literal
 
 from pydantic import Field, model_validator
 
-from .base import FogModel, Number, PosInt, refuse_duplicates
+from .base import FogModel, Number, PosInt, parse_millis, refuse_duplicates
 from .common import Condition, LabelSelector, Name, ObjectMeta, Tier
 from .fallback import Fallback, FallbackMode
 from .linkhealth import LinkHealth, RobotLinkStatus
@@ -77,6 +77,11 @@ class ModuleOverrides(FogModel):
     preferredTiers and the fleet's)."""
     priority: Annotated[int, Field(ge=1, le=1000)] | None = None
     """The module's priority in this fleet (1-1000; see SoftwareModule spec.priority)."""
+
+    @property
+    def cycle_seconds(self) -> float | None:
+        """``cycleTimeMillis`` in seconds; None where the module's own applies."""
+        return None if self.cycle_time_millis is None else parse_millis(self.cycle_time_millis)
 
     @model_validator(mode="after")
     def _unique(self) -> ModuleOverrides:
