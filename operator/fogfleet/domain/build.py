@@ -130,7 +130,7 @@ def _pool_tiers(
     return out
 
 
-class Resolved(NamedTuple):
+class _Resolved(NamedTuple):
     """One of the fleet's modules with its overrides applied."""
 
     module: SoftwareModule
@@ -153,7 +153,7 @@ class _Instances:
     tier of the pool it counts in (None: any allowed tier)."""
 
     instances: list[Instance]
-    module: list[Resolved]
+    module: list[_Resolved]
     home: list[int]
     pool_tier: list[Tier | None]
 
@@ -274,10 +274,10 @@ def build_problem(
 
 def _resolve_modules(
     fleet: RobotFleet, catalog: Catalog, namespace: str
-) -> tuple[list[Resolved], _Wants]:
+) -> tuple[list[_Resolved], _Wants]:
     """The fleet's modules with their overrides applied, and what each asks for."""
     obj = f"RobotFleet/{fleet.metadata.name}"
-    modules: list[Resolved] = []
+    modules: list[_Resolved] = []
     wants = _Wants({}, {})
     for k, ref in enumerate(fleet.spec.modules):
         mod = catalog.module(namespace, ref.name)
@@ -294,7 +294,7 @@ def _resolve_modules(
                 obj, f"spec.modules[{k}].overrides.cycleTimeMillis", "must be greater than zero"
             )
         act = (ov.activation_percent or mod.spec.activation_percent) / 100.0
-        modules.append(Resolved(mod, cycle, act, ov.replicas or mod.spec.replicas))
+        modules.append(_Resolved(mod, cycle, act, ov.replicas or mod.spec.replicas))
         name = mod.metadata.name
         wants.priority[name] = ov.priority if ov.priority is not None else module_priority(mod.spec)
         if ov.preferred_tiers is not None:
@@ -305,7 +305,7 @@ def _resolve_modules(
 
 
 def _expand_instances(
-    modules: list[Resolved],
+    modules: list[_Resolved],
     robots: list[ComputeNode],
     nodes: list[ComputeNode],
     current: Mapping[tuple[str, str, int], str] | None,
@@ -319,7 +319,7 @@ def _expand_instances(
         node_tier[nd.metadata.name] = node_tier[nd.node_name] = nd.spec.tier
     out = _Instances([], [], [], [])
 
-    def add(instance: Instance, resolved: Resolved, home: int, tier: Tier | None) -> None:
+    def add(instance: Instance, resolved: _Resolved, home: int, tier: Tier | None) -> None:
         out.instances.append(instance)
         out.module.append(resolved)
         out.home.append(home)

@@ -173,10 +173,10 @@ def _constraints(problem: Problem, pi: I64, pj: I64) -> LinearConstraint:
     return LinearConstraint(A, np.concatenate(lo), np.concatenate(hi))
 
 
-Rows = list[tuple[sp.csr_matrix, F64, F64]]  # (matrix, lower bounds, upper bounds)
+_Rows = list[tuple[sp.csr_matrix, F64, F64]]  # (matrix, lower bounds, upper bounds)
 
 
-def _capacity_rows(problem: Problem, pi: I64, pj: I64) -> Rows:
+def _capacity_rows(problem: Problem, pi: I64, pj: I64) -> _Rows:
     """Per resource: each node's requests within its capacity, and (the reserve) z at least
     each node's utilisation u_j^r / L_j^r."""
     alloc = problem.limits
@@ -190,7 +190,7 @@ def _capacity_rows(problem: Problem, pi: I64, pj: I64) -> Rows:
     demand = [np.where(held, d - share[:, r], d) for r, d in enumerate(demand)]
     reserve = problem.fallback_reserve(alloc)
     z = sp.csr_matrix((-np.ones(n_n), (np.arange(n_n), np.full(n_n, n_pairs))), shape=(n_n, nv))
-    out: Rows = []
+    out: _Rows = []
     for r in range(3):
         # rows in units of the node's capacity (memory in bytes would span 1e9 and make
         # HiGHS numerically fragile: it has reported this feasible model as infeasible)
@@ -209,7 +209,7 @@ def _capacity_rows(problem: Problem, pi: I64, pj: I64) -> Rows:
     return out
 
 
-def _uplink_rows(problem: Problem, pi: I64, pj: I64) -> Rows:
+def _uplink_rows(problem: Problem, pi: I64, pj: I64) -> _Rows:
     """Each robot's off-board traffic within ``UPLINK_SHARE`` of its uplink."""
     n_pairs = len(pi)
     cols = np.arange(n_pairs)
