@@ -28,8 +28,9 @@ from .labels import LABEL_PART_OF, MANAGER
 from .schema import QUANTITY_PATTERN, CrdGenerationError, convert, deep_update, node_at
 from .v1alpha1.computenode import ComputeNode, ComputeNodeSpec
 from .v1alpha1.fallback import Fallback
+from .v1alpha1.objectives import ObjectiveName
 from .v1alpha1.podtemplate import OWNED_POD_FIELDS
-from .v1alpha1.robotfleet import ObjectiveName, RobotFleet, RobotFleetSpec, SchedulerSettings
+from .v1alpha1.robotfleet import RobotFleet, RobotFleetSpec, SchedulerSettings
 from .v1alpha1.softwaremodule import SoftwareModule, SoftwareModuleSpec
 
 __all__ = [

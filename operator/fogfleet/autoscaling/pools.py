@@ -7,7 +7,7 @@ percentile, the setup time of a new replica and the robot round trip to its tier
 
 from __future__ import annotations
 
-from fogfleet.api.v1alpha1.base import parse_quantity
+from fogfleet.api.v1alpha1.base import parse_millis
 from fogfleet.api.v1alpha1.common import Tier
 from fogfleet.api.v1alpha1.softwaremodule import SoftwareModule
 from fogfleet.domain.network import DEFAULT_UPLINK, path
@@ -29,7 +29,7 @@ def service_rate(module: SoftwareModule) -> float:
     rows = [r for r in module.spec.profile if r.hardware_type == "default"] or list(
         module.spec.profile
     )
-    means = sorted(parse_quantity(r.mean_millis) / 1e3 for r in rows)
+    means = sorted(parse_millis(r.mean_millis) for r in rows)
     return 1.0 / means[len(means) // 2]
 
 
@@ -46,12 +46,8 @@ def pools_for(module: SoftwareModule) -> list[Pool]:
     mu = service_rate(module)
     pct = (spec.slo.percentile if spec.slo else 95) / 100.0
     # without an SLO (CPU scaling) the module's cycle time is the response-time target
-    target = (
-        spec.slo.target_millis / 1e3
-        if spec.slo
-        else parse_quantity(module.spec.cycle_time_millis) / 1e3
-    )
-    setup = (spec.setup_millis or 0) / 1e3
+    target = parse_millis(spec.slo.target_millis) if spec.slo else module.spec.cycle_seconds
+    setup = parse_millis(spec.setup_millis or 0)
     if not spec.pools:
         return [Pool(ALL, spec.min_replicas, spec.max_replicas, mu, target, pct, setup, 0.0, True)]
     out = []
@@ -62,9 +58,9 @@ def pools_for(module: SoftwareModule) -> list[Pool]:
                 spec.min_replicas if p.min_replicas is None else p.min_replicas,
                 p.max_replicas,
                 mu,
-                p.slo_target_millis / 1e3 if p.slo_target_millis else target,
+                parse_millis(p.slo_target_millis) if p.slo_target_millis else target,
                 pct,
-                (p.setup_millis / 1e3) if p.setup_millis is not None else setup,
+                parse_millis(p.setup_millis) if p.setup_millis is not None else setup,
                 _round_trip(Tier(p.tier.value)),
                 p.private_allowed,
             )

@@ -21,8 +21,9 @@ from fogfleet.api.loader import Catalog
 from fogfleet.api.v1alpha1.robotfleet import RobotFleet
 from fogfleet.controllers.observed import declared_rows, read_observations
 from fogfleet.controllers.observed import describe as say
-from fogfleet.domain.observed import Learnt, correction
+from fogfleet.domain.observed import correction
 from fogfleet.domain.problem import Allocation, Problem
+from fogfleet.domain.rows import Learnt
 
 __all__ = ["learnt_corrections", "under_corrections"]
 

@@ -12,7 +12,7 @@ from typing import Any
 import numpy as np
 
 from fogfleet.api.v1alpha1.robotfleet import PLACEMENT_LIST_LIMIT
-from fogfleet.domain.observed import Learnt
+from fogfleet.domain.rows import Learnt
 from fogfleet.errors import InvalidSpec
 from fogfleet.scheduling.explain import degraded_message, infeasible_message, unplaced_reasons
 from fogfleet.scheduling.objectives import module_miss_rates

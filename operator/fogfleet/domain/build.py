@@ -5,7 +5,9 @@ allocations of IV-B, eq. 4's transfer times per instance and node)."""
 from __future__ import annotations
 
 import hashlib
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import numpy as np
 from numpy.typing import NDArray
@@ -20,8 +22,7 @@ from fogfleet.errors import DanglingReference, InvalidSpec
 
 from .fallback import standbys
 from .network import Link, uplink
-from .observed import Learnt
-from .pairs import Block, Pair, PairTable, ProfileRow, pad_rungs
+from .pairs import Block, Pair, PairTable, pad_rungs
 from .problem import (
     TIER_CODE,
     Allocation,
@@ -32,6 +33,7 @@ from .problem import (
     Problem,
     freeze,
 )
+from .rows import Learnt, ProfileRow
 from .taxonomy import module_priority
 
 __all__ = ["build_problem", "resolve_nodes"]
@@ -128,6 +130,68 @@ def _pool_tiers(
     return out
 
 
+class _Resolved(NamedTuple):
+    """One of the fleet's modules with its overrides applied."""
+
+    module: SoftwareModule
+    cycle: float  # seconds
+    activation: float  # share of time active, 0-1
+    replicas: int
+
+
+@dataclass(frozen=True)
+class _Wants:
+    """What the fleet's modules ask for beyond their resources, by module name."""
+
+    tiers: dict[str, list[Tier]]  # preferred tiers (override, module, fleet)
+    priority: dict[str, int]  # priority (override, module, taxonomy)
+
+
+@dataclass(frozen=True)
+class _Instances:
+    """The instances to place, aligned: each one's module, home robot (-1: shared) and the
+    tier of the pool it counts in (None: any allowed tier)."""
+
+    instances: list[Instance]
+    module: list[_Resolved]
+    home: list[int]
+    pool_tier: list[Tier | None]
+
+
+@dataclass
+class _Grid:
+    """Per (instance, node): may it run there, its transfer time and, for the limits and
+    nominal allocations, its CPU and execution time; per instance its off-board traffic and
+    why it fits nowhere; the blocks and home rungs the degradation ladder is built from."""
+
+    allowed: NDArray[np.bool_]
+    net_mean: F64
+    net_std: F64
+    traffic: F64
+    lim: tuple[F64, F64, F64]  # the limits pick's cpu, mean, std
+    nom: tuple[F64, F64, F64, F64]  # the nominal allocation's request, use, mean, std
+    reasons: dict[int, str] = field(default_factory=dict)
+    blocks: list[Block] = field(default_factory=list)
+    home_rungs: dict[int, tuple[ProfileRow, ...]] = field(default_factory=dict)
+
+    @classmethod
+    def empty(cls, i_count: int, n: int) -> _Grid:
+        def zeros() -> F64:
+            return np.zeros((i_count, n))
+
+        def inf() -> F64:
+            return np.full((i_count, n), np.inf)
+
+        return cls(
+            allowed=np.zeros((i_count, n), dtype=bool),
+            net_mean=zeros(),
+            net_std=zeros(),
+            traffic=np.zeros(i_count),
+            lim=(zeros(), inf(), zeros()),
+            nom=(zeros(), zeros(), inf(), zeros()),
+        )
+
+
 def build_problem(
     fleet: RobotFleet,
     catalog: Catalog,
@@ -147,19 +211,74 @@ def build_problem(
     link measured worse than declared, ``domain.linkhealth``). ``corrections`` corrects the
     declared profile rows of a (module, hardware type) (learnt from what ran: a factor and the
     cycle's noise, ``domain.observed``)."""
-    obj = f"RobotFleet/{fleet.metadata.name}"
     namespace = fleet.metadata.namespace or "default"
     robots, others = resolve_nodes(fleet, catalog)
     nodes = robots + others
-    n = len(nodes)
     caps = np.array([_capacity(nd) for nd in nodes], dtype=np.float64)
     measured = measured_links or {}
     links = [measured.get(nd.metadata.name) or uplink(nd.spec) for nd in nodes]
-    robot_index = {nd.metadata.name: j for j, nd in enumerate(robots)}
+    modules, wants = _resolve_modules(fleet, catalog, namespace)
+    inst = _expand_instances(modules, robots, nodes, current, pools)
+    grid = _fill_grid(inst, PairTable(nodes, caps, links, corrections), links, len(robots))
+    held = standbys(
+        fleet,
+        catalog,
+        modules,
+        inst.instances,
+        inst.home,
+        robots,
+        grid.allowed,
+        grid.lim,
+        grid.home_rungs,
+    )
+    remote = range(len(robots), len(nodes))
+    lim_req, lim_exe, lim_std = grid.lim
+    nom_req, nom_use, nom_exe, nom_std = grid.nom
+    return Problem(
+        fallback=held.keep,
+        fallback_row=held.row,
+        fallback_variant=held.variant,
+        fallback_cycle=held.cycle,
+        fallback_need=held.need,
+        preferred=_preferred(nodes, inst.instances, wants.tiers),
+        priority=freeze(
+            np.array([wants.priority[i.module] for i in inst.instances], dtype=np.int64)
+        ),
+        ladder_source=_lazy_ladder(grid.blocks, inst.home, grid.home_rungs, remote, grid.lim),
+        fleet=fleet.metadata.name,
+        namespace=namespace,
+        nodes=tuple(_node_info(nd) for nd in nodes),
+        instances=tuple(inst.instances),
+        tier=freeze(np.array([TIER_CODE[nd.spec.tier] for nd in nodes], dtype=np.int64)),
+        capacity=freeze(caps),
+        cost=freeze(np.array([parse_quantity(nd.spec.cost_per_core_hour) for nd in nodes])),
+        power=freeze(_power(nodes)),
+        uplink_bandwidth=freeze(np.array([lk.bandwidth for lk in links])),
+        home=freeze(np.array(inst.home, dtype=np.int64)),
+        allowed=freeze(grid.allowed),
+        activation=freeze(np.array([m.activation for m in inst.module])),
+        cycle=freeze(np.array([m.cycle for m in inst.module])),
+        memory=freeze(_per_instance(inst, lambda m: parse_memory(m.spec.resources.memory))),
+        gpu=freeze(_per_instance(inst, lambda m: float(m.spec.resources.gpu))),
+        net_mean=freeze(grid.net_mean),
+        net_std=freeze(grid.net_std),
+        traffic=freeze(grid.traffic),
+        limits=Allocation(freeze(lim_req), lim_req, freeze(lim_exe), freeze(lim_std), True),
+        nominal=Allocation(
+            freeze(nom_req), freeze(nom_use), freeze(nom_exe), freeze(nom_std), False
+        ),
+        current=freeze(_current_nodes(nodes, inst.instances, current, grid.allowed)),
+        reasons=grid.reasons,
+    )
 
-    modules: list[tuple[SoftwareModule, float, float, int]] = []
-    wishes: dict[str, list[Tier]] = {}  # module -> preferred tiers (override, module, fleet)
-    priorities: dict[str, int] = {}  # module -> priority (override, module, taxonomy)
+
+def _resolve_modules(
+    fleet: RobotFleet, catalog: Catalog, namespace: str
+) -> tuple[list[_Resolved], _Wants]:
+    """The fleet's modules with their overrides applied, and what each asks for."""
+    obj = f"RobotFleet/{fleet.metadata.name}"
+    modules: list[_Resolved] = []
+    wants = _Wants({}, {})
     for k, ref in enumerate(fleet.spec.modules):
         mod = catalog.module(namespace, ref.name)
         if mod is None:
@@ -169,133 +288,151 @@ def build_problem(
                 f"SoftwareModule {namespace}/{ref.name} does not exist",
             )
         ov = ref.overrides
-        cycle = (
-            parse_quantity(
-                ov.cycle_time_millis
-                if ov.cycle_time_millis is not None
-                else mod.spec.cycle_time_millis
-            )
-            / 1e3
-        )
+        cycle = mod.spec.cycle_seconds if ov.cycle_seconds is None else ov.cycle_seconds
         if cycle <= 0:
             raise InvalidSpec(
                 obj, f"spec.modules[{k}].overrides.cycleTimeMillis", "must be greater than zero"
             )
         act = (ov.activation_percent or mod.spec.activation_percent) / 100.0
-        replicas = ov.replicas or mod.spec.replicas
-        modules.append((mod, cycle, act, replicas))
-        priorities[mod.metadata.name] = (
-            ov.priority if ov.priority is not None else module_priority(mod.spec)
-        )
+        modules.append(_Resolved(mod, cycle, act, ov.replicas or mod.spec.replicas))
+        name = mod.metadata.name
+        wants.priority[name] = ov.priority if ov.priority is not None else module_priority(mod.spec)
         if ov.preferred_tiers is not None:
-            wishes[mod.metadata.name] = ov.preferred_tiers
+            wants.tiers[name] = ov.preferred_tiers
         else:
-            wishes[mod.metadata.name] = mod.spec.preferred_tiers or fleet.spec.preferred_tiers
+            wants.tiers[name] = mod.spec.preferred_tiers or fleet.spec.preferred_tiers
+    return modules, wants
 
+
+def _expand_instances(
+    modules: list[_Resolved],
+    robots: list[ComputeNode],
+    nodes: list[ComputeNode],
+    current: Mapping[tuple[str, str, int], str] | None,
+    pools: Mapping[str, Mapping[str, int]] | None,
+) -> _Instances:
+    """One instance per robot of a per-robot module, one per replica of a shared one (its
+    replicas counted into the autoscaler's pools, ``_pool_tiers``)."""
+    robot_index = {nd.metadata.name: j for j, nd in enumerate(robots)}
     node_tier: dict[str, Tier] = {}
     for nd in nodes:
         node_tier[nd.metadata.name] = node_tier[nd.node_name] = nd.spec.tier
-    instances: list[Instance] = []
-    inst_mod: list[tuple[SoftwareModule, float, float]] = []
-    home: list[int] = []
-    pool_tier: list[Tier | None] = []
-    for mod, cycle, act, replicas in modules:
+    out = _Instances([], [], [], [])
+
+    def add(instance: Instance, resolved: _Resolved, home: int, tier: Tier | None) -> None:
+        out.instances.append(instance)
+        out.module.append(resolved)
+        out.home.append(home)
+        out.pool_tier.append(tier)
+
+    for resolved in modules:
+        mod = resolved.module
         if mod.spec.scope is Scope.PER_ROBOT:
             for robot in robots:
-                instances.append(Instance(robot.metadata.name, mod.metadata.name, 0))
-                inst_mod.append((mod, cycle, act))
-                home.append(robot_index[robot.metadata.name])
-                pool_tier.append(None)
+                name = robot.metadata.name
+                add(Instance(name, mod.metadata.name, 0), resolved, robot_index[name], None)
         else:
             running = {
                 r: node_tier[n]
                 for (robot, m, r), n in (current or {}).items()
                 if not robot and m == mod.metadata.name and n in node_tier
             }
-            tiers = _pool_tiers(pools.get(mod.metadata.name) if pools else None, replicas, running)
-            for r, tier in enumerate(tiers):
-                instances.append(Instance("", mod.metadata.name, r))
-                inst_mod.append((mod, cycle, act))
-                home.append(-1)
-                pool_tier.append(tier)
-    i_count = len(instances)
+            pool = pools.get(mod.metadata.name) if pools else None
+            for r, tier in enumerate(_pool_tiers(pool, resolved.replicas, running)):
+                add(Instance("", mod.metadata.name, r), resolved, -1, tier)
+    return out
 
-    allowed = np.zeros((i_count, n), dtype=bool)
-    net_mean = np.zeros((i_count, n))
-    net_std = np.zeros((i_count, n))
-    traffic = np.zeros(i_count)
-    # the limits pick's cpu, mean, std; the nominal allocation's request, use, mean, std
-    lim = (np.zeros((i_count, n)), np.full((i_count, n), np.inf), np.zeros((i_count, n)))
-    nom = (
-        np.zeros((i_count, n)),
-        np.zeros((i_count, n)),
-        np.full((i_count, n), np.inf),
-        np.zeros((i_count, n)),
+
+def _mean_link(links: list[Link]) -> Link:
+    """The mean of the robots' uplinks: what shared replicas, which talk to the whole fleet,
+    are planned with."""
+    return Link(
+        latency=float(np.mean([lk.latency for lk in links])),
+        jitter=float(np.mean([lk.jitter for lk in links])),
+        bandwidth=float(np.mean([lk.bandwidth for lk in links])),
+        loss=float(np.mean([lk.loss for lk in links])),
     )
-    reasons: dict[int, str] = {}
-    # Shared replicas talk to the fleet: use the mean robot uplink.
-    mean_robot = Link(
-        latency=float(np.mean([links[j].latency for j in range(len(robots))])),
-        jitter=float(np.mean([links[j].jitter for j in range(len(robots))])),
-        bandwidth=float(np.mean([links[j].bandwidth for j in range(len(robots))])),
-        loss=float(np.mean([links[j].loss for j in range(len(robots))])),
-    )
-    table = PairTable(nodes, caps, links, corrections)
-    remote = range(len(robots), n)  # edge and cloud nodes: one block per module and link
-    blocks: list[Block] = []
-    home_rungs: dict[int, tuple[ProfileRow, ...]] = {}
-    for i, (inst, (mod, cycle, _act), h) in enumerate(zip(instances, inst_mod, home, strict=True)):
+
+
+def _fill_grid(inst: _Instances, table: PairTable, links: list[Link], n_robots: int) -> _Grid:
+    """Each instance's pair with its home robot, then its block over every edge and cloud
+    node (one block per module and link, ``PairTable.block``)."""
+    n = len(links)
+    grid = _Grid.empty(len(inst.instances), n)
+    mean_robot = _mean_link(links[:n_robots])
+    remote = range(n_robots, n)  # edge and cloud nodes: one block per module and link
+    for i, (instance, resolved, h) in enumerate(
+        zip(inst.instances, inst.module, inst.home, strict=True)
+    ):
+        mod, cycle, tier = resolved.module, resolved.cycle, inst.pool_tier[i]
         why: list[str] = []
         if h >= 0:
-            own = table.pair(mod, cycle, pool_tier[i], h, h, links[h])
+            own = table.pair(mod, cycle, tier, h, h, links[h])
             if isinstance(own, Pair):
-                allowed[i, h] = True
-                net_mean[i, h], net_std[i, h] = own.net_mean, own.net_std
-                for arr, v in zip(lim, (own.pick.cpu, own.pick.mean, own.pick.std), strict=True):
-                    arr[i, h] = v
-                nominal = (
-                    parse_cpu(mod.spec.resources.cpu),
-                    own.top.cpu,
-                    own.top.mean,
-                    own.top.std,
-                )
-                for arr, v in zip(nom, nominal, strict=True):
-                    arr[i, h] = v
-                if own.rungs:
-                    home_rungs[i] = own.rungs
+                _set_home_pair(grid, i, h, own, parse_cpu(mod.spec.resources.cpu))
             elif own is not None:
                 why.append(own)
-        blk = table.block(mod, cycle, pool_tier[i], remote, links[h] if h >= 0 else mean_robot)
-        blocks.append(blk)
-        allowed[i, remote.start :] = blk.allowed
-        net_mean[i, remote.start :] = blk.net_mean
-        net_std[i, remote.start :] = blk.net_std
-        for arr, row in zip((*lim, *nom), (*blk.lim, *blk.nom), strict=True):
-            arr[i, remote.start :] = row
-        if blk.allowed.any():
-            traffic[i] = blk.bits
+        blk = table.block(mod, cycle, tier, remote, links[h] if h >= 0 else mean_robot)
+        _set_block(grid, i, remote.start, blk)
         why += blk.why
-        if not allowed[i].any():
+        if not grid.allowed[i].any():
             where = "; ".join(why) if why else "no node in the fleet can host it"
-            reasons[i] = (
-                f"{inst.robot + '/' if inst.robot else ''}{inst.module} fits nowhere: {where}"
-            )
-    lim_req, lim_exe, lim_std = lim
-    nom_req, nom_use, nom_exe, nom_std = nom
+            who = f"{instance.robot + '/' if instance.robot else ''}{instance.module}"
+            grid.reasons[i] = f"{who} fits nowhere: {where}"
+    return grid
 
-    cur = np.full(i_count, -1, dtype=np.int64)
-    if current:
-        by_name: dict[str, list[int]] = {}
-        for j, nd in enumerate(nodes):
-            for key in dict.fromkeys((nd.metadata.name, nd.node_name)):
-                by_name.setdefault(key, []).append(j)
-        for i, inst in enumerate(instances):
-            node_name = current.get((inst.robot, inst.module, inst.replica))
-            for j in by_name.get(node_name, []) if node_name is not None else []:
-                if allowed[i, j]:
-                    cur[i] = j
 
-    power = np.zeros((n, 4))
+def _set_home_pair(grid: _Grid, i: int, h: int, own: Pair, nominal_request: float) -> None:
+    """Instance ``i`` may run on its robot ``h``: what it gets there."""
+    grid.allowed[i, h] = True
+    grid.net_mean[i, h], grid.net_std[i, h] = own.net_mean, own.net_std
+    for arr, v in zip(grid.lim, (own.pick.cpu, own.pick.mean, own.pick.std), strict=True):
+        arr[i, h] = v
+    nominal = (nominal_request, own.top.cpu, own.top.mean, own.top.std)
+    for arr, v in zip(grid.nom, nominal, strict=True):
+        arr[i, h] = v
+    if own.rungs:
+        grid.home_rungs[i] = own.rungs
+
+
+def _set_block(grid: _Grid, i: int, start: int, blk: Block) -> None:
+    """Instance ``i``'s row over the edge and cloud nodes (columns ``start:``)."""
+    grid.blocks.append(blk)
+    grid.allowed[i, start:] = blk.allowed
+    grid.net_mean[i, start:] = blk.net_mean
+    grid.net_std[i, start:] = blk.net_std
+    for arr, row in zip((*grid.lim, *grid.nom), (*blk.lim, *blk.nom), strict=True):
+        arr[i, start:] = row
+    if blk.allowed.any():
+        grid.traffic[i] = blk.bits
+
+
+def _current_nodes(
+    nodes: list[ComputeNode],
+    instances: list[Instance],
+    current: Mapping[tuple[str, str, int], str] | None,
+    allowed: NDArray[np.bool_],
+) -> NDArray[np.int64]:
+    """The node each instance runs on now (by ComputeNode or Node name), -1 where none or
+    where it may not run any more."""
+    cur = np.full(len(instances), -1, dtype=np.int64)
+    if not current:
+        return cur
+    by_name: dict[str, list[int]] = {}
+    for j, nd in enumerate(nodes):
+        for key in dict.fromkeys((nd.metadata.name, nd.node_name)):
+            by_name.setdefault(key, []).append(j)
+    for i, inst in enumerate(instances):
+        node_name = current.get((inst.robot, inst.module, inst.replica))
+        for j in by_name.get(node_name, []) if node_name is not None else []:
+            if allowed[i, j]:
+                cur[i] = j
+    return cur
+
+
+def _power(nodes: list[ComputeNode]) -> F64:
+    """Per node: battery Wh, idle W, W per core, W per Mbps of radio (0 where undeclared)."""
+    power = np.zeros((len(nodes), 4))
     for j, nd in enumerate(nodes):
         p = nd.spec.power
         if p is not None:
@@ -305,68 +442,40 @@ def build_problem(
                 parse_quantity(p.per_core_watts),
                 parse_quantity(p.radio_watts_per_mbps),
             ]
+    return power
 
-    mem = (
-        np.array([parse_memory(m.spec.resources.memory) for m, _, _ in inst_mod])
-        if inst_mod
-        else np.zeros(0)
-    )
-    gpu = (
-        np.array([float(m.spec.resources.gpu) for m, _, _ in inst_mod]) if inst_mod else np.zeros(0)
-    )
-    preferred = None
-    if any(wishes.values()):
-        tiers = [nd.spec.tier for nd in nodes]
-        names = list(dict.fromkeys(inst.module for inst in instances))
-        by_module = np.array(
-            [[not wishes[m] or t in wishes[m] for t in tiers] for m in names], dtype=bool
-        ).reshape(len(names), n)
-        which = {m: k for k, m in enumerate(names)}
-        rows = np.array([which[inst.module] for inst in instances], dtype=np.int64)
-        preferred = freeze(by_module[rows].reshape(i_count, n))
-    held = standbys(fleet, catalog, modules, instances, home, robots, allowed, lim, home_rungs)
-    return Problem(
-        fallback=held.keep,
-        fallback_row=held.row,
-        fallback_variant=held.variant,
-        fallback_cycle=held.cycle,
-        fallback_need=held.need,
-        preferred=preferred,
-        priority=freeze(np.array([priorities[inst.module] for inst in instances], dtype=np.int64)),
-        ladder_source=_lazy_ladder(blocks, home, home_rungs, remote, lim),
-        fleet=fleet.metadata.name,
-        namespace=namespace,
-        nodes=tuple(
-            NodeInfo(
-                nd.metadata.name,
-                nd.node_name,
-                nd.spec.tier,
-                nd.spec.hardware_type,
-                parse_quantity(nd.spec.speed_factor),
-            )
-            for nd in nodes
-        ),
-        instances=tuple(instances),
-        tier=freeze(np.array([TIER_CODE[nd.spec.tier] for nd in nodes], dtype=np.int64)),
-        capacity=freeze(caps),
-        cost=freeze(np.array([parse_quantity(nd.spec.cost_per_core_hour) for nd in nodes])),
-        power=freeze(power),
-        uplink_bandwidth=freeze(np.array([lk.bandwidth for lk in links])),
-        home=freeze(np.array(home, dtype=np.int64)),
-        allowed=freeze(allowed),
-        activation=freeze(np.array([a for _, _, a in inst_mod])),
-        cycle=freeze(np.array([c for _, c, _ in inst_mod])),
-        memory=freeze(mem),
-        gpu=freeze(gpu),
-        net_mean=freeze(net_mean),
-        net_std=freeze(net_std),
-        traffic=freeze(traffic),
-        limits=Allocation(freeze(lim_req), lim_req, freeze(lim_exe), freeze(lim_std), True),
-        nominal=Allocation(
-            freeze(nom_req), freeze(nom_use), freeze(nom_exe), freeze(nom_std), False
-        ),
-        current=freeze(cur),
-        reasons=reasons,
+
+def _per_instance(inst: _Instances, value: Callable[[SoftwareModule], float]) -> F64:
+    """A module's ``value`` for each instance of it."""
+    if not inst.module:
+        return np.zeros(0)
+    return np.array([value(m.module) for m in inst.module])
+
+
+def _preferred(
+    nodes: list[ComputeNode], instances: list[Instance], wishes: Mapping[str, list[Tier]]
+) -> NDArray[np.bool_] | None:
+    """(I, N): is the node in a tier the instance's module prefers (every node where it
+    states no preference); None when no module states one."""
+    if not any(wishes.values()):
+        return None
+    tiers = [nd.spec.tier for nd in nodes]
+    names = list(dict.fromkeys(inst.module for inst in instances))
+    by_module = np.array(
+        [[not wishes[m] or t in wishes[m] for t in tiers] for m in names], dtype=bool
+    ).reshape(len(names), len(nodes))
+    which = {m: k for k, m in enumerate(names)}
+    rows = np.array([which[inst.module] for inst in instances], dtype=np.int64)
+    return freeze(by_module[rows].reshape(len(instances), len(nodes)))
+
+
+def _node_info(nd: ComputeNode) -> NodeInfo:
+    return NodeInfo(
+        nd.metadata.name,
+        nd.node_name,
+        nd.spec.tier,
+        nd.spec.hardware_type,
+        parse_quantity(nd.spec.speed_factor),
     )
 
 

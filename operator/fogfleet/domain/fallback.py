@@ -17,7 +17,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from fogfleet.api.loader import Catalog
-from fogfleet.api.v1alpha1.base import parse_cpu, parse_memory, parse_quantity
+from fogfleet.api.v1alpha1.base import parse_cpu, parse_memory
 from fogfleet.api.v1alpha1.computenode import ComputeNode
 from fogfleet.api.v1alpha1.fallback import STANDING_BY, Fallback, FallbackMode
 from fogfleet.api.v1alpha1.robotfleet import RobotFleet, RobotFleetSpec
@@ -29,8 +29,9 @@ from fogfleet.api.v1alpha1.softwaremodule import (
 )
 from fogfleet.errors import DanglingReference, InvalidSpec
 
-from .pairs import ProfileRow, profile_rows
+from .pairs import profile_rows
 from .problem import F64, Instance, freeze
+from .rows import ProfileRow
 
 __all__ = [
     "Standbys",
@@ -174,7 +175,7 @@ def standbys(
                     f"{robots[h].spec.hardware_type} (robot {robots[h].metadata.name}) nor a "
                     "default row: its standby could not run there",
                 )
-            cycle[i] = parse_quantity(variant.spec.cycle_time_millis) / 1e3
+            cycle[i] = variant.spec.cycle_seconds
             need[i] = (
                 parse_memory(variant.spec.resources.memory),
                 float(variant.spec.resources.gpu),

@@ -36,7 +36,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, replace
 
-from fogfleet.api.v1alpha1.base import parse_quantity
+from fogfleet.api.v1alpha1.base import parse_millis, parse_quantity
 from fogfleet.api.v1alpha1.linkhealth import LinkHealth, LinkState
 
 from .network import Link
@@ -78,7 +78,7 @@ class Verdict:
 def latency_limit(declared: Link, settings: LinkHealth) -> float:
     """Seconds of one-way latency above which the link is degraded."""
     factor = parse_quantity(settings.latency_factor)
-    return factor * declared.latency + parse_quantity(settings.latency_margin_millis) / 1e3
+    return factor * declared.latency + parse_millis(settings.latency_margin_millis)
 
 
 def judge(robot: str, sample: LinkSample, declared: Link, settings: LinkHealth) -> Verdict:

@@ -10,7 +10,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from fogfleet.api.v1alpha1.base import parse_quantity
+from fogfleet.api.v1alpha1.base import parse_mbps, parse_millis, parse_quantity
 from fogfleet.api.v1alpha1.common import Tier
 from fogfleet.api.v1alpha1.computenode import ComputeNodeSpec, LinkType
 
@@ -42,9 +42,9 @@ def uplink(spec: ComputeNodeSpec) -> Link:
         if link.type is LinkType.LOOPBACK:
             continue
         return Link(
-            latency=parse_quantity(link.latency_millis) / 1e3,
-            jitter=parse_quantity(link.jitter_millis) / 1e3,
-            bandwidth=max(parse_quantity(link.bandwidth_mbps) * 1e6, 1.0),
+            latency=parse_millis(link.latency_millis),
+            jitter=parse_millis(link.jitter_millis),
+            bandwidth=max(parse_mbps(link.bandwidth_mbps), 1.0),
             loss=parse_quantity(link.loss_percent) / 100.0,
         )
     return DEFAULT_UPLINK[spec.tier]

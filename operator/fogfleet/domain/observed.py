@@ -51,12 +51,12 @@ from statistics import NormalDist
 import numpy as np
 from numpy.typing import NDArray
 
-from .pairs import ProfileRow
 from .problem import Problem
+from .rows import Learnt, ProfileRow
 
 __all__ = [
     "Z95",
-    "Learnt",
+    "Learnt",  # from .rows, still imported from here by controllers.observed
     "ModuleDrift",
     "Observation",
     "Timing",
@@ -88,19 +88,6 @@ class Observation:
     def std(self) -> float:
         """From the 95th percentile, as if the tail were normal (a histogram has no std)."""
         return max(0.0, (self.p95 - self.mean) / Z95)
-
-
-@dataclass(frozen=True)
-class Learnt:
-    """A module's declared rows on one hardware type as what ran corrects them."""
-
-    factor: float = 1.0
-    noise: float = 0.0  # seconds: std of what a cycle takes besides its work and transfer
-
-    def row(self, r: ProfileRow) -> ProfileRow:
-        """The declared row ``r`` corrected: mean and std times the factor, the noise added
-        to the std (independent normal terms)."""
-        return ProfileRow(r.cpu, r.mean * self.factor, math.hypot(r.std * self.factor, self.noise))
 
 
 @dataclass(frozen=True)

@@ -14,33 +14,24 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
-from fogfleet.api.v1alpha1.base import parse_cpu, parse_quantity
+from fogfleet.api.v1alpha1.base import parse_cpu, parse_millis, parse_quantity
 from fogfleet.api.v1alpha1.common import Tier
 from fogfleet.api.v1alpha1.computenode import ComputeNode
 from fogfleet.api.v1alpha1.softwaremodule import SoftwareModule, auto_profiled
 
 from .network import LOCAL, Link, path
 from .problem import EXEC_SHARE_OF_CYCLE
+from .rows import Learnt, ProfileRow
 from .taxonomy import may_degrade, must_stay_onboard
 
-if TYPE_CHECKING:
-    from .observed import Learnt
-
-__all__ = ["Block", "Pair", "PairTable", "ProfileRow", "pad_rungs", "profile_rows", "rows_for"]
+__all__ = ["Block", "Pair", "PairTable", "pad_rungs", "profile_rows", "rows_for"]
 
 F64 = NDArray[np.float64]
-
-
-@dataclass(frozen=True)
-class ProfileRow:
-    cpu: float
-    mean: float
-    std: float
 
 
 @dataclass(frozen=True)
@@ -90,8 +81,8 @@ def rows_for(module: SoftwareModule, hardware_type: str, speed_factor: float) ->
     rows = [
         ProfileRow(
             parse_cpu(r.cpu),
-            parse_quantity(r.mean_millis) / 1e3 * scale,
-            parse_quantity(r.std_millis) / 1e3 * scale,
+            parse_millis(r.mean_millis) * scale,
+            parse_millis(r.std_millis) * scale,
         )
         for r in own
     ]

@@ -34,7 +34,7 @@ from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
-from fogfleet.api.v1alpha1.base import parse_cpu, status_part
+from fogfleet.api.v1alpha1.base import format_millicores, parse_cpu, status_part
 from fogfleet.api.v1alpha1.common import Tier
 from fogfleet.api.v1alpha1.computenode import ComputeNode
 from fogfleet.api.v1alpha1.profiling import ProfiledRow, ProfilingStatus
@@ -53,7 +53,7 @@ __all__ = [
     "current_rows",
     "edge_cases",
     "fit_profile",
-    "format_millicores",
+    "format_millicores",  # from api base, still imported from here by controllers.profiling
     "grid_for",
     "module_spec_hash",
     "needed_profiles",
@@ -81,11 +81,6 @@ class Fit:
 
     error_percent: float | None  # the middle measured limit predicted from the ends (None: < 3)
     rows: tuple[ProfiledRow, ...]
-
-
-def format_millicores(cores: float) -> str:
-    """A CPU limit as the label and status show it: "100m"."""
-    return f"{round(cores * 1000)}m"
 
 
 def module_spec_hash(module: SoftwareModule) -> str:

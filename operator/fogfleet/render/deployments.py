@@ -181,6 +181,18 @@ def _nominal_row(problem: Problem, i: int, j: int) -> ProfileEntry:
     )
 
 
+@dataclass(frozen=True)
+class _Amounts:
+    """What one instance's Deployment asks for on its node: CPU request and the CPU its row
+    uses (cores), memory (bytes), GPUs; ``variant``: a standby running a variant module."""
+
+    request: float
+    use: float
+    memory: float
+    gpu: float
+    variant: bool
+
+
 def render_instance(
     problem: Problem,
     i: int,
@@ -207,8 +219,63 @@ def render_instance(
     inst = problem.instances[i]
     name = deployment_name(problem.fleet, inst, role)
     with_limits = with_limits and not baseline
-    alloc = problem.limits if with_limits else problem.nominal
     j = nodes[0]
+    amounts = _amounts(problem, i, j, with_limits, role, fallback)
+    resources = _resources(problem, j, amounts, with_limits, cpu_limit_percent)
+    tier = "" if baseline else problem.nodes[j].tier.value
+    selector = {LABEL_FLEET: label_value(problem.fleet), LABEL_INSTANCE: name}
+    labels, annotations = _labels_and_annotations(inst, selector, tier, role)
+    pod_annotations = dict(annotations)
+    port = scrape_port(module.spec.template)
+    if port:
+        pod_annotations |= {"prometheus.io/scrape": "true", "prometheus.io/port": str(port)}
+    node = problem.nodes[j]
+    owned_env = module_env(
+        wiring,
+        fleet=problem.fleet,
+        robot=inst.robot,
+        module=module,
+        tier=tier or "",
+        node="" if baseline else node.node_name,
+        hardware_type="" if baseline else node.hardware_type,
+        # the row it plays is the one it was planned to run: a degraded instance requests less
+        # than its row needs and bursts to it (its limit), as the planner and simulator have it
+        cpu=format_cpu(amounts.use) if with_limits else "",
+        node_rows=None
+        if with_limits
+        else {problem.nodes[k].node_name: _nominal_row(problem, i, k) for k in nodes},
+        role=role,
+        fallback=fallback if role else None,
+        stands_in_for=inst.module if amounts.variant else "",
+        remote_cycle_millis=float(problem.cycle[i]) * 1e3 if amounts.variant else None,
+        speed_factor=node.speed_factor,
+    )
+    pod_spec = module_pod_spec(
+        module,
+        container_name=_dns(module.metadata.name)[:MAX_NAME] or "module",
+        affinity=node_affinity([problem.nodes[k].node_name for k in nodes]),
+        resources=resources,
+        owned_env=owned_env,
+    )
+    if tier == "robot":
+        stay_on_robot(pod_spec)
+    metadata = _metadata(name, problem.namespace, labels, annotations, owner)
+    dep = _deployment(metadata, selector, labels, pod_annotations, pod_spec)
+    annotations[ANNOTATION_SPEC_HASH] = spec_hash(dep)
+    # the pods carry it too: a running pod of the current spec is then known from the pod
+    # alone, without waiting for the Deployment's status (the fleet's Ready condition)
+    pod_annotations[ANNOTATION_SPEC_HASH] = annotations[ANNOTATION_SPEC_HASH]
+    if plan_id:
+        annotations[ANNOTATION_PLAN] = plan_id
+    return dep
+
+
+def _amounts(
+    problem: Problem, i: int, j: int, with_limits: bool, role: str, fallback: Fallback | None
+) -> _Amounts:
+    """Instance ``i``'s amounts on node ``j`` under the allocation its plan was made for; a
+    standby's are its share of its robot's reserve (a variant's: its own row and needs)."""
+    alloc = problem.limits if with_limits else problem.nominal
     request, use = float(alloc.cpu_request[i, j]), float(alloc.cpu_use[i, j])
     mem, gpu = float(problem.memory[i]), float(problem.gpu[i])
     variant = role == ROLE_STANDBY and fallback is not None and fallback.variant is not None
@@ -219,26 +286,40 @@ def render_instance(
             request = use = float(problem.fallback_row[i, 0])
             if problem.fallback_need is not None:
                 mem, gpu = (float(v) for v in problem.fallback_need[i])
-    cpu = format_cpu(request)
-    memory = str(int(np.ceil(mem)))
-    requests: dict[str, str] = {"cpu": cpu, "memory": memory}
+    return _Amounts(request, use, mem, gpu, variant)
+
+
+def _resources(
+    problem: Problem, j: int, amounts: _Amounts, with_limits: bool, cpu_limit_percent: int
+) -> dict[str, Any]:
+    """The container's requests and, planned with limits, its limits."""
+    request = amounts.request
+    requests: dict[str, str] = {
+        "cpu": format_cpu(request),
+        "memory": str(int(np.ceil(amounts.memory))),
+    }
     resources: dict[str, Any] = {"requests": requests}
     if with_limits:
         limits = dict(requests)
         # what its row needs (a degraded instance, Problem.with_levels: more than it is
         # guaranteed), with the fleet's headroom for bursts (SchedulerSettings.cpu_limit_percent)
-        limit = use * cpu_limit_percent / 100
+        limit = amounts.use * cpu_limit_percent / 100
         # never beyond what the node has for pods: more buys nothing, and a node whose CPU is
         # a cgroup quota (cgroup v1 checks a child's quota against its parent's, as on the
         # e2e bed's real nodes) refuses to start the container
         limit = min(limit, max(float(problem.capacity[j, 0]), request))
         if limit > request:
             limits["cpu"] = format_cpu(limit)
-        if gpu > 0:
-            limits["nvidia.com/gpu"] = str(int(gpu))
+        if amounts.gpu > 0:
+            limits["nvidia.com/gpu"] = str(int(amounts.gpu))
         resources["limits"] = limits
-    tier = "" if baseline else problem.nodes[j].tier.value
-    selector = {LABEL_FLEET: label_value(problem.fleet), LABEL_INSTANCE: name}
+    return resources
+
+
+def _labels_and_annotations(
+    inst: Instance, selector: Mapping[str, str], tier: str, role: str
+) -> tuple[dict[str, str], dict[str, str]]:
+    """The Deployment's (and its pods') labels, and its annotations naming the instance."""
     labels = {
         **selector,
         LABEL_MANAGED_BY: MANAGER,
@@ -255,34 +336,20 @@ def render_instance(
     if role == ROLE_STANDBY:
         labels[LABEL_COMPONENT] = COMPONENT_STANDBY
         annotations[ANNOTATION_ROLE] = ROLE_STANDBY
-    pod_annotations = dict(annotations)
-    port = scrape_port(module.spec.template)
-    if port:
-        pod_annotations |= {"prometheus.io/scrape": "true", "prometheus.io/port": str(port)}
-    node = problem.nodes[j]
-    owned_env = module_env(
-        wiring,
-        fleet=problem.fleet,
-        robot=inst.robot,
-        module=module,
-        tier=tier or "",
-        node="" if baseline else node.node_name,
-        hardware_type="" if baseline else node.hardware_type,
-        # the row it plays is the one it was planned to run: a degraded instance requests less
-        # than its row needs and bursts to it (its limit), as the planner and simulator have it
-        cpu=format_cpu(use) if with_limits else "",
-        node_rows=None
-        if with_limits
-        else {problem.nodes[k].node_name: _nominal_row(problem, i, k) for k in nodes},
-        role=role,
-        fallback=fallback if role else None,
-        stands_in_for=inst.module if variant else "",
-        remote_cycle_millis=float(problem.cycle[i]) * 1e3 if variant else None,
-        speed_factor=node.speed_factor,
-    )
+    return labels, annotations
+
+
+def _metadata(
+    name: str,
+    namespace: str,
+    labels: dict[str, str],
+    annotations: dict[str, str],
+    owner: Owner | None,
+) -> dict[str, Any]:
+    """The Deployment's metadata, owned by its RobotFleet when ``owner`` is given."""
     metadata: dict[str, Any] = {
         "name": name,
-        "namespace": problem.namespace,
+        "namespace": namespace,
         "labels": labels,
         "annotations": annotations,
     }
@@ -297,16 +364,18 @@ def render_instance(
                 "blockOwnerDeletion": True,
             }
         ]
-    pod_spec = module_pod_spec(
-        module,
-        container_name=_dns(module.metadata.name)[:MAX_NAME] or "module",
-        affinity=node_affinity([problem.nodes[k].node_name for k in nodes]),
-        resources=resources,
-        owned_env=owned_env,
-    )
-    if tier == "robot":
-        stay_on_robot(pod_spec)
-    dep: dict[str, Any] = {
+    return metadata
+
+
+def _deployment(
+    metadata: dict[str, Any],
+    selector: Mapping[str, str],
+    labels: dict[str, str],
+    pod_annotations: dict[str, str],
+    pod_spec: dict[str, Any],
+) -> dict[str, Any]:
+    """One replica, rolled over with ``maxUnavailable: 1``."""
+    return {
         "apiVersion": "apps/v1",
         "kind": "Deployment",
         "metadata": metadata,
@@ -324,13 +393,6 @@ def render_instance(
             },
         },
     }
-    annotations[ANNOTATION_SPEC_HASH] = spec_hash(dep)
-    # the pods carry it too: a running pod of the current spec is then known from the pod
-    # alone, without waiting for the Deployment's status (the fleet's Ready condition)
-    pod_annotations[ANNOTATION_SPEC_HASH] = annotations[ANNOTATION_SPEC_HASH]
-    if plan_id:
-        annotations[ANNOTATION_PLAN] = plan_id
-    return dep
 
 
 def render_fleet(

@@ -25,8 +25,8 @@ from fogfleet.api.labels import (
     LABEL_PROFILE_SPEC,
     MANAGER,
 )
+from fogfleet.api.v1alpha1.base import format_millicores
 from fogfleet.api.v1alpha1.softwaremodule import SoftwareModule
-from fogfleet.domain.profiling import format_millicores
 from fogfleet.render.deployments import label_value, node_affinity
 from fogfleet.render.podtemplate import module_pod_spec
 from fogfleet.render.ros import module_env, stay_on_robot

@@ -31,8 +31,9 @@ from fogfleet.domain.problem import Problem
 
 from .bench import synthetic_fleet
 from .incremental import changed_instances, replan
+from .objectives import objective_values
 from .solver import plan
-from .stickiness import keep_running, mask_unavailable, objective_values
+from .stickiness import keep_running, mask_unavailable
 
 __all__ = ["EDGES_PER_ROBOT", "replan_rows"]
 

@@ -19,6 +19,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.special import ndtr
 
+from fogfleet.api.v1alpha1.base import MBPS
 from fogfleet.domain.problem import Allocation, Problem
 
 __all__ = ["NODE_SUMS", "UPLINK_SHARE", "Evaluation", "miss_probability"]
@@ -350,7 +351,7 @@ class Evaluation:
     def energy(self) -> F64:
         pw = self.problem.power[self.robots]
         watts = pw[None, :, 1] + pw[None, :, 2] * self.cpu_expected[:, self.robots]
-        watts = watts + pw[None, :, 3] * self.offboard_traffic[:, self.robots] / 1e6
+        watts = watts + pw[None, :, 3] * self.offboard_traffic[:, self.robots] / MBPS
         return np.asarray(watts.sum(axis=1), dtype=np.float64)
 
     def node_constraints(self) -> F64:

@@ -25,6 +25,7 @@ import scipy.sparse as sp
 from numpy.typing import NDArray
 from scipy.optimize import Bounds, LinearConstraint, milp
 
+from fogfleet.api.v1alpha1.objectives import ObjectiveName
 from fogfleet.domain.problem import Problem
 from fogfleet.errors import Infeasible, InvalidSpec
 
@@ -34,11 +35,13 @@ from .objectives import UPLINK_SHARE, evaluate
 __all__ = ["DEFAULT_WEIGHTS", "MAX_PAIRS", "ExactResult", "scalarised", "solve_exact"]
 
 DEFAULT_WEIGHTS: dict[str, float] = {
-    "missRate": 100.0,
-    "missedCycles": 1.0,
-    "onboard": 1.0,
-    "reserve": 1.0,
+    ObjectiveName.MISS_RATE.value: 100.0,
+    ObjectiveName.MISSED_CYCLES.value: 1.0,
+    ObjectiveName.ONBOARD.value: 1.0,
+    ObjectiveName.RESERVE.value: 1.0,
 }
+F64 = NDArray[np.float64]
+I64 = NDArray[np.int64]
 MAX_PAIRS = 5000  # binary variables the exact solver accepts (the warehouse fleet has ~250)
 
 
@@ -61,7 +64,7 @@ def scalarised(
     total = 0.0
     for name, wk in w.items():
         v = float(vals[name][0])
-        total += wk * (v / n_r if name == "onboard" else v)
+        total += wk * (v / n_r if name == ObjectiveName.ONBOARD.value else v)
     return total
 
 
@@ -84,8 +87,7 @@ def solve_exact(
             "spec.scheduler.weights",
             f"the exact solver cannot linearise {', '.join(sorted(unknown))}",
         )
-    alloc = problem.limits
-    pi, pj = np.nonzero(problem.allowed)
+    pi, pj = np.nonzero(problem.allowed)  # the binaries: one per allowed (instance, node)
     n_pairs = len(pi)
     if n_pairs > max_pairs and not relax:
         raise InvalidSpec(
@@ -94,7 +96,32 @@ def solve_exact(
             f"exact planning is limited to {max_pairs} (instance, node) pairs; "
             f"this fleet has {n_pairs}",
         )
-    n_i, n_n = problem.n_instances, problem.n_nodes
+    nv = n_pairs + 1  # and z, the peak utilisation (reserve)
+    res = milp(
+        _costs(problem, w, pi, pj),
+        constraints=_constraints(problem, pi, pj),
+        integrality=np.append(np.zeros(n_pairs) if relax else np.ones(n_pairs), 0),
+        bounds=Bounds(np.zeros(nv), np.append(np.ones(n_pairs), np.inf)),
+        options={"time_limit": time_limit, "mip_rel_gap": 1e-6, "disp": False},
+    )
+    if res.x is None:
+        raise Infeasible(
+            f"RobotFleet/{problem.fleet}",
+            "spec",
+            f"the exact solver found no feasible plan ({res.message})",
+        )
+    xv = np.asarray(res.x[:n_pairs])
+    placement = np.full(problem.n_instances, -1, dtype=np.int64)
+    if not relax:
+        chosen = xv > 0.5
+        placement[pi[chosen]] = pj[chosen]
+    bound = float(getattr(res, "mip_dual_bound", res.fun) if not relax else res.fun)
+    return ExactResult(placement, float(res.fun), bound, str(res.message), relax)
+
+
+def _costs(problem: Problem, w: Mapping[str, float], pi: I64, pj: I64) -> F64:
+    """The cost of each pair's binary in S, then z's (the reserve weight)."""
+    alloc = problem.limits
     n_r = max(int((problem.tier == 0).sum()), 1)
     genes = np.flatnonzero(problem.allowed.any(axis=1))
     a = problem.activation
@@ -117,21 +144,44 @@ def solve_exact(
         0.0,
     )
     c = (
-        w.get("missRate", 0.0) * share[pi] * q
-        + w.get("missedCycles", 0.0) * a[pi] * np.where(tau > 1.0, tau, 0.0)
-        + w.get("onboard", 0.0) * f1 / n_r
+        w.get(ObjectiveName.MISS_RATE.value, 0.0) * share[pi] * q
+        + w.get(ObjectiveName.MISSED_CYCLES.value, 0.0) * a[pi] * np.where(tau > 1.0, tau, 0.0)
+        + w.get(ObjectiveName.ONBOARD.value, 0.0) * f1 / n_r
     )
-    c = np.append(c, w.get("reserve", 0.0))  # z
+    return np.append(c, w.get(ObjectiveName.RESERVE.value, 0.0))  # z
+
+
+def _constraints(problem: Problem, pi: I64, pj: I64) -> LinearConstraint:
+    """Each placeable instance on exactly one node; every node within its capacity, and z at
+    least its utilisation; every robot's off-board traffic within its uplink share."""
+    n_pairs = len(pi)
     nv = n_pairs + 1
     cols = np.arange(n_pairs)
-    rows: list[sp.csr_matrix] = []
-    lo: list[NDArray[np.float64]] = []
-    hi: list[NDArray[np.float64]] = []
-    # each placeable instance on exactly one node
+    genes = np.flatnonzero(problem.allowed.any(axis=1))
     pos = np.searchsorted(genes, pi)
-    rows.append(sp.csr_matrix((np.ones(n_pairs), (pos, cols)), shape=(len(genes), nv)))
-    lo.append(np.ones(len(genes)))
-    hi.append(np.ones(len(genes)))
+    rows: list[sp.csr_matrix] = [
+        sp.csr_matrix((np.ones(n_pairs), (pos, cols)), shape=(len(genes), nv))
+    ]
+    lo: list[F64] = [np.ones(len(genes))]
+    hi: list[F64] = [np.ones(len(genes))]
+    for block in (_capacity_rows(problem, pi, pj), _uplink_rows(problem, pi, pj)):
+        for m, low, high in block:
+            rows.append(m)
+            lo.append(low)
+            hi.append(high)
+    A = sp.vstack(rows, format="csr")
+    return LinearConstraint(A, np.concatenate(lo), np.concatenate(hi))
+
+
+_Rows = list[tuple[sp.csr_matrix, F64, F64]]  # (matrix, lower bounds, upper bounds)
+
+
+def _capacity_rows(problem: Problem, pi: I64, pj: I64) -> _Rows:
+    """Per resource: each node's requests within its capacity, and (the reserve) z at least
+    each node's utilisation u_j^r / L_j^r."""
+    alloc = problem.limits
+    n_n, n_pairs = problem.n_nodes, len(pi)
+    nv, cols, cap = n_pairs + 1, np.arange(n_pairs), problem.capacity
     demand = [alloc.cpu_request[pi, pj], problem.memory[pi], problem.gpu[pi]]
     # a fallback's share at home is its robot's reserve, held whatever the plan (a constant);
     # on board the instance adds only the rest
@@ -140,6 +190,7 @@ def solve_exact(
     demand = [np.where(held, d - share[:, r], d) for r, d in enumerate(demand)]
     reserve = problem.fallback_reserve(alloc)
     z = sp.csr_matrix((-np.ones(n_n), (np.arange(n_n), np.full(n_n, n_pairs))), shape=(n_n, nv))
+    out: _Rows = []
     for r in range(3):
         # rows in units of the node's capacity (memory in bytes would span 1e9 and make
         # HiGHS numerically fragile: it has reported this feasible model as infeasible)
@@ -147,47 +198,27 @@ def solve_exact(
         scale = np.where(has, 1.0 / np.where(has, cap[:, r], 1.0), 1.0)
         m = sp.csr_matrix((demand[r] * scale[pj], (pj, cols)), shape=(n_n, nv))
         m.eliminate_zeros()
-        rows.append(m)
         held_r = reserve[:, r] * scale
-        lo.append(np.full(n_n, -np.inf))
-        hi.append(np.where(has, 1.0, 0.0) - held_r)
+        out.append((m, np.full(n_n, -np.inf), np.where(has, 1.0, 0.0) - held_r))
         if r < 2 or has.any():
             # reserve: u_j^r / L_j^r - z <= 0
             mr = (m + z)[np.flatnonzero(has)]
-            rows.append(sp.csr_matrix(mr))
-            lo.append(np.full(mr.shape[0], -np.inf))
-            hi.append(-held_r[np.flatnonzero(has)])
+            out.append(
+                (sp.csr_matrix(mr), np.full(mr.shape[0], -np.inf), -held_r[np.flatnonzero(has)])
+            )
+    return out
+
+
+def _uplink_rows(problem: Problem, pi: I64, pj: I64) -> _Rows:
+    """Each robot's off-board traffic within ``UPLINK_SHARE`` of its uplink."""
+    n_pairs = len(pi)
+    cols = np.arange(n_pairs)
     robots = np.flatnonzero(problem.tier == 0)
     off = (problem.home[pi] >= 0) & (pj != problem.home[pi])
     ridx = np.searchsorted(robots, problem.home[pi])
     limit = UPLINK_SHARE * problem.uplink_bandwidth[robots]
     mu = sp.csr_matrix(
         (problem.traffic[pi][off] / limit[ridx[off]], (ridx[off], cols[off])),
-        shape=(len(robots), nv),
+        shape=(len(robots), n_pairs + 1),
     )
-    rows.append(mu)
-    lo.append(np.full(len(robots), -np.inf))
-    hi.append(np.ones(len(robots)))
-    A = sp.vstack(rows, format="csr")
-    integrality = np.append(np.zeros(n_pairs) if relax else np.ones(n_pairs), 0)
-    bounds = Bounds(np.zeros(nv), np.append(np.ones(n_pairs), np.inf))
-    res = milp(
-        c,
-        constraints=LinearConstraint(A, np.concatenate(lo), np.concatenate(hi)),
-        integrality=integrality,
-        bounds=bounds,
-        options={"time_limit": time_limit, "mip_rel_gap": 1e-6, "disp": False},
-    )
-    if res.x is None:
-        raise Infeasible(
-            f"RobotFleet/{problem.fleet}",
-            "spec",
-            f"the exact solver found no feasible plan ({res.message})",
-        )
-    xv = np.asarray(res.x[:n_pairs])
-    placement = np.full(n_i, -1, dtype=np.int64)
-    if not relax:
-        chosen = xv > 0.5
-        placement[pi[chosen]] = pj[chosen]
-    bound = float(getattr(res, "mip_dual_bound", res.fun) if not relax else res.fun)
-    return ExactResult(placement, float(res.fun), bound, str(res.message), relax)
+    return [(mu, np.full(len(robots), -np.inf), np.ones(len(robots)))]

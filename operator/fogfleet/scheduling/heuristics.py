@@ -14,7 +14,7 @@ from numpy.typing import NDArray
 from fogfleet.api.v1alpha1.robotfleet import SchedulerSettings
 from fogfleet.domain.problem import Allocation, Problem
 
-from .objectives import UPLINK_SHARE, miss_probability
+from .objectives import UPLINK_SHARE, feasible, miss_probability, objective_values
 from .schedule import Schedule
 
 __all__ = ["Fit", "best_uncontended_miss", "greedy", "greedy_schedule", "uncontended_miss"]
@@ -194,8 +194,6 @@ def greedy(
 def greedy_schedule(problem: Problem, settings: SchedulerSettings) -> Schedule:
     """The first feasible of the greedy plans (best-fit, spread, on-board), as a Schedule: a
     fast deterministic planner for tests and for a first answer."""
-    from .stickiness import feasible, objective_values
-
     t0 = time.perf_counter()
     names = [o.value for o in settings.objectives]
     for style in ("best-fit", "spread", "onboard"):

@@ -6,17 +6,25 @@ instance contributes nothing) and returns ``(P,)`` values to be minimised. Per-n
 ``np.bincount`` over the flattened population (offset ``p * N``), so there is no Python loop over
 plans. ``evaluate`` shares the intermediate arrays between objectives.
 
-The per-node load model they share is ``evaluation.Evaluation``.
+The per-node load model they share is ``evaluation.Evaluation``. ``REGISTRY`` pairs each
+objective of the API's registry (``api.v1alpha1.objectives``: name, label, unit, direction,
+resolution) with its functions; every other table of objectives is read from it.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
 
-from fogfleet.api.v1alpha1.robotfleet import ObjectiveName
+from fogfleet.api.v1alpha1.objectives import (
+    OBJECTIVE_SPECS,
+    Direction,
+    ObjectiveName,
+    ObjectiveSpec,
+)
 from fogfleet.domain.problem import Allocation, Problem
 
 from .evaluation import NODE_SUMS, UPLINK_SHARE, Evaluation, miss_probability
@@ -26,19 +34,23 @@ __all__ = [
     "NODE_OBJECTIVES",
     "NODE_SUMS",
     "OBJECTIVES",
+    "REGISTRY",
     "UPLINK_SHARE",
     "Evaluation",
+    "Objective",
     "balance",
     "constraint_names",
     "constraints",
     "cost",
     "energy",
     "evaluate",
+    "feasible",
     "migrations",
     "missRate",
     "miss_probability",
     "missedCycles",
     "module_miss_rates",
+    "objective_values",
     "onboard",
     "reserve",
 ]
@@ -115,6 +127,27 @@ def constraints(problem: Problem, X: NDArray[np.integer], allocation: Allocation
     return Evaluation(problem, X, allocation).constraints()
 
 
+def objective_values(
+    problem: Problem, x: NDArray[np.integer], with_limits: bool, names: Sequence[str]
+) -> dict[str, float]:
+    """The named objectives of one plan ``x`` (I,) under the limits or nominal allocation."""
+    out = evaluate(
+        problem,
+        np.asarray(x, dtype=np.int64)[None, :],
+        problem.allocation(with_limits),
+        list(names),
+    )
+    return {k: float(v[0]) for k, v in out.items()}
+
+
+def feasible(problem: Problem, x: NDArray[np.integer], with_limits: bool = True) -> bool:
+    """Every hard constraint of the plan holds (capacity, uplink, gene spaces)."""
+    g = constraints(
+        problem, np.asarray(x, dtype=np.int64)[None, :], problem.allocation(with_limits)
+    )
+    return bool(np.all(g <= 1e-9))
+
+
 def constraint_names(problem: Problem) -> list[str]:
     """Column labels of ``constraints``."""
     names = [f"{r}:{nd.name}" for r in ("cpu", "memory", "gpu") for nd in problem.nodes]
@@ -122,31 +155,54 @@ def constraint_names(problem: Problem) -> list[str]:
     return [*names, "geneSpace"]
 
 
-# The API's ObjectiveName is the registry; every objective the CRD accepts is evaluated here.
-EVALUATORS: dict[str, Callable[[Evaluation], F64]] = {
-    ObjectiveName.ONBOARD.value: Evaluation.onboard,
-    ObjectiveName.RESERVE.value: Evaluation.reserve,
-    ObjectiveName.BALANCE.value: Evaluation.balance,
-    ObjectiveName.MISSED_CYCLES.value: Evaluation.missed_cycles,
-    ObjectiveName.MISS_RATE.value: Evaluation.miss_rate,
-    ObjectiveName.COST.value: Evaluation.cost,
-    ObjectiveName.ENERGY.value: Evaluation.energy,
-    ObjectiveName.MIGRATIONS.value: Evaluation.migrations,
-}
+ObjectiveFunction = Callable[[Problem, NDArray[np.integer], Allocation], F64]
 
+
+@dataclass(frozen=True)
+class Objective:
+    """One objective of the registry: what it measures (``ObjectiveSpec``: name, label, unit,
+    direction, resolution) and how it is computed, from a shared ``Evaluation`` (``of``) or
+    standalone (``function``)."""
+
+    spec: ObjectiveSpec
+    of: Callable[[Evaluation], F64]
+    function: ObjectiveFunction
+    per_node: bool = False  # follows from per-node sums alone (``Evaluation.of_node_sums``)
+
+    @property
+    def name(self) -> str:
+        return self.spec.name.value
+
+
+def _objective(
+    name: ObjectiveName, of: Callable[[Evaluation], F64], fn: ObjectiveFunction, per_node: bool
+) -> tuple[str, Objective]:
+    return name.value, Objective(OBJECTIVE_SPECS[name.value], of, fn, per_node)
+
+
+# The registry: every objective the API accepts (``api.v1alpha1.objectives``), with its functions.
+REGISTRY: dict[str, Objective] = dict(
+    [
+        _objective(ObjectiveName.ONBOARD, Evaluation.onboard, onboard, True),
+        _objective(ObjectiveName.RESERVE, Evaluation.reserve, reserve, True),
+        _objective(ObjectiveName.BALANCE, Evaluation.balance, balance, True),
+        _objective(ObjectiveName.MISSED_CYCLES, Evaluation.missed_cycles, missedCycles, False),
+        _objective(ObjectiveName.MISS_RATE, Evaluation.miss_rate, missRate, False),
+        _objective(ObjectiveName.COST, Evaluation.cost, cost, True),
+        _objective(ObjectiveName.ENERGY, Evaluation.energy, energy, True),
+        _objective(ObjectiveName.MIGRATIONS, Evaluation.migrations, migrations, False),
+    ]
+)
+if list(REGISTRY) != list(OBJECTIVE_SPECS):  # pragma: no cover - a programming error
+    raise RuntimeError("scheduling.objectives.REGISTRY must cover OBJECTIVE_SPECS, in order")
+if any(o.spec.direction is not Direction.MINIMISE for o in REGISTRY.values()):  # pragma: no cover
+    raise RuntimeError("the search minimises: negate an objective to maximise in its function")
+
+# Views of the registry for the callers that want one column of it.
+EVALUATORS: dict[str, Callable[[Evaluation], F64]] = {n: o.of for n, o in REGISTRY.items()}
+OBJECTIVES: dict[str, ObjectiveFunction] = {n: o.function for n, o in REGISTRY.items()}
 # The per-node objectives: what ``Evaluation.of_node_sums`` supports (from ``NODE_SUMS``).
-NODE_OBJECTIVES = ("onboard", "reserve", "balance", "cost", "energy")
-
-OBJECTIVES: dict[str, Callable[[Problem, NDArray[np.integer], Allocation], F64]] = {
-    ObjectiveName.ONBOARD.value: onboard,
-    ObjectiveName.RESERVE.value: reserve,
-    ObjectiveName.BALANCE.value: balance,
-    ObjectiveName.MISSED_CYCLES.value: missedCycles,
-    ObjectiveName.MISS_RATE.value: missRate,
-    ObjectiveName.COST.value: cost,
-    ObjectiveName.ENERGY.value: energy,
-    ObjectiveName.MIGRATIONS.value: migrations,
-}
+NODE_OBJECTIVES: tuple[str, ...] = tuple(n for n, o in REGISTRY.items() if o.per_node)
 
 
 def evaluate(

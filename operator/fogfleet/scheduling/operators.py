@@ -7,6 +7,7 @@ is a function of its seed. Every operator keeps each gene inside its allowed set
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -90,61 +91,92 @@ def repair_plans(pp: PlacementProblem, x: I64) -> I64:
     An instance with no allowed node that has room stays (the plan stays infeasible).
     ``x`` is (P, I) and is modified in place.
     """
-    fleet, f = pp.fleet, pp.fit
-    P, N = x.shape[0], fleet.n_nodes
-    valid = x >= 0
-    xc = np.where(valid, x, 0)
-    rows_i = np.arange(fleet.n_instances)[None, :]
-    flat = (xc + N * np.arange(P)[:, None]).ravel()
-    used = np.repeat(f.reserve[None], P, axis=0)  # robots' fallback reserves first
-    for r in range(3):
-        w = np.where(valid, f.demand[rows_i, xc, r], 0.0).ravel()
-        used[:, :, r] += np.bincount(flat, weights=w, minlength=P * N).reshape(P, N)
-    home = fleet.home
-    off = valid & (home[None, :] >= 0) & (xc != home[None, :])
-    hflat = (np.where(home >= 0, home, 0)[None, :] + N * np.arange(P)[:, None]).ravel()
-    tw = np.where(off, fleet.traffic[None, :], 0.0).ravel()
-    up = np.bincount(hflat, weights=tw, minlength=P * N).reshape(P, N)
-    lim = np.where(f.robots, f.uplink, np.inf)
-    over_node = np.any(used > f.cap[None] + _EPS, axis=2)
-    over_up = up > lim[None, :] + _EPS
-    if not over_node.any() and not over_up.any():
+    loads = _Loads.of(pp, x)
+    if not loads.over_node.any() and not loads.over_up.any():
         return x
-    n_i = fleet.n_instances
-    c = pp.candidates
-    h_of = np.where(home >= 0, home, 0)
     # Moves only go to nodes with room and only lower uplink use, so an instance that is not
     # on an overloaded node (or a robot with its uplink over) now never will be. A second
-    # pass, smallest requests first, fills what the first pass left. Each plan walks the
-    # order on its own: a step moves, in every plan at once, the next instance (from that
-    # plan's position in the order) that sits on an overloaded node, so the number of steps
-    # is the number of such instances of the worst plan, not the number of instances.
-    for order in (f.order, f.order[::-1]):
-        active = np.flatnonzero(over_node.any(axis=1) | over_up.any(axis=1))
+    # pass, smallest requests first, fills what the first pass left.
+    for order in (pp.fit.order, pp.fit.order[::-1]):
+        _RepairPass(pp, x, loads, order).run()
+    return x
+
+
+@dataclass
+class _Loads:
+    """What a population of plans puts on each node and uplink (P, N), kept up to date as the
+    repair moves instances."""
+
+    used: NDArray[np.float64]  # (P, N, 3) requested cpu, memory, gpus (fallback reserves too)
+    up: NDArray[np.float64]  # (P, N) off-board traffic of each robot
+    lim: NDArray[np.float64]  # (N,) the uplink limit of each robot, inf for other nodes
+    over_node: NDArray[np.bool_]  # (P, N) a node over its capacity
+    over_up: NDArray[np.bool_]  # (P, N) a robot over its uplink limit
+
+    @classmethod
+    def of(cls, pp: PlacementProblem, x: I64) -> _Loads:
+        fleet, f = pp.fleet, pp.fit
+        P, N = x.shape[0], fleet.n_nodes
+        valid = x >= 0
+        xc = np.where(valid, x, 0)
+        rows_i = np.arange(fleet.n_instances)[None, :]
+        flat = (xc + N * np.arange(P)[:, None]).ravel()
+        used = np.repeat(f.reserve[None], P, axis=0)  # robots' fallback reserves first
+        for r in range(3):
+            w = np.where(valid, f.demand[rows_i, xc, r], 0.0).ravel()
+            used[:, :, r] += np.bincount(flat, weights=w, minlength=P * N).reshape(P, N)
+        home = fleet.home
+        off = valid & (home[None, :] >= 0) & (xc != home[None, :])
+        hflat = (np.where(home >= 0, home, 0)[None, :] + N * np.arange(P)[:, None]).ravel()
+        tw = np.where(off, fleet.traffic[None, :], 0.0).ravel()
+        counts = np.bincount(hflat, weights=tw, minlength=P * N).reshape(P, N)
+        up = np.asarray(counts, dtype=np.float64)  # float64 already (weights): for mypy
+        lim = np.where(f.robots, f.uplink, np.inf)
+        over_node = np.any(used > f.cap[None] + _EPS, axis=2)
+        over_up = up > lim[None, :] + _EPS
+        return cls(used, up, lim, over_node, over_up)
+
+
+class _RepairPass:
+    """One pass of the repair over the instances in ``order``.
+
+    Each plan walks the order on its own: a step moves, in every plan at once, the next
+    instance (from that plan's position in the order) that sits on an overloaded node, so the
+    number of steps is the number of such instances of the worst plan, not the number of
+    instances."""
+
+    def __init__(self, pp: PlacementProblem, x: I64, loads: _Loads, order: I64) -> None:
+        self.pp, self.x, self.loads, self.order = pp, x, loads, order
+        home = pp.fleet.home
+        self.home_col = np.where(home >= 0, home, 0)  # an instance's robot, 0 if shared
+        self.h_ord = home[order][None, :]
+        self.hc_ord = self.home_col[order][None, :]
+        self.robot_ord = self.h_ord >= 0
+        self.x_ord = x[:, order]  # the plans in this pass's order, kept in step with x
+        # (P, I) in ``order``: a plan's row changes only when the plan moves an instance
+        self.bad_all = np.zeros((x.shape[0], pp.fleet.n_instances), dtype=bool)
+
+    def bad_of(self, rows: I64) -> NDArray[np.bool_]:
+        """(rows, I) in ``order``: the instance sits on an overloaded node or is off board on
+        a robot whose uplink is over."""
+        xs = self.x_ord[rows]
+        v = xs >= 0
+        xc = np.where(v, xs, 0)
+        b = self.loads.over_node[rows[:, None], xc]
+        ou = self.loads.over_up[rows]
+        if ou.any():  # rare: only a robot's uplink over
+            away = self.robot_ord & (xc != self.h_ord)
+            b |= away & ou[np.arange(len(rows))[:, None], self.hc_ord]
+        return np.asarray(b & v, dtype=bool)
+
+    def run(self) -> None:
+        loads, order = self.loads, self.order
+        active = np.flatnonzero(loads.over_node.any(axis=1) | loads.over_up.any(axis=1))
         pos = np.zeros(active.size, dtype=np.int64)
-        h_ord = home[order][None, :]
-        hc_ord = h_of[order][None, :]
-        robot_ord = h_ord >= 0
-        k_ord = np.arange(n_i)[None, :]
-        x_ord = x[:, order]  # the plans in this pass's order, kept in step with x
-
-        def bad_of(rows: I64) -> NDArray[np.bool_]:
-            """(rows, I) in ``order``: the instance sits on an overloaded node or is off
-            board on a robot whose uplink is over."""
-            xs = x_ord[rows]  # noqa: B023
-            v = xs >= 0
-            xc = np.where(v, xs, 0)
-            b = over_node[rows[:, None], xc]
-            ou = over_up[rows]
-            if ou.any():  # rare: only a robot's uplink over
-                b |= robot_ord & (xc != h_ord) & ou[np.arange(len(rows))[:, None], hc_ord]  # noqa: B023
-            return np.asarray(b & v, dtype=bool)
-
-        # a plan's row changes only when the plan moves an instance
-        bad_all = np.zeros((P, n_i), dtype=bool)
-        bad_all[active] = bad_of(active)
+        k_ord = np.arange(self.pp.fleet.n_instances)[None, :]
+        self.bad_all[active] = self.bad_of(active)
         while active.size:
-            bad = bad_all[active] & (k_ord >= pos[:, None])
+            bad = self.bad_all[active] & (k_ord >= pos[:, None])
             has = bad.any(axis=1)
             active, bad = active[has], bad[has]
             if active.size == 0:
@@ -152,66 +184,68 @@ def repair_plans(pp: PlacementProblem, x: I64) -> I64:
             k = np.argmax(bad, axis=1)
             pos = k + 1
             i = order[k]
-            ar = np.arange(active.size)
-            cur = x[active, i]
-            # candidate targets: i's allowed nodes, ascending (padded with the first), so
-            # argmin breaks ties towards the lowest node index as over all nodes
-            cand = c.node[i]  # (A, W)
-            d = c.demand[i]  # (A, W, 3)
-            after = used[active[:, None], cand] + d
-            at_cur = cand == cur[:, None]
-            after = np.where(at_cur[:, :, None], after - d, after)
-            room = _all3(after <= c.room[i])
-            h = home[i]
-            hc = h_of[i]
-            tr = fleet.traffic[i]
-            limited = (h >= 0) & (tr > 0)
-            if limited.any():
-                up_base = up[active, hc] - tr * (cur != h)
-                off_ok = up_base + tr <= lim[hc] + _EPS
-                room &= ~limited[:, None] | off_ok[:, None] | (cand == h[:, None])
-            util = _max3(after / c.scale[i])
-            score = np.where(room, c.pref[i] + REPAIR_SPREAD * util, np.inf)
-            jj = np.argmin(score, axis=1)
-            j = cand[ar, jj]
-            ok = np.isfinite(score[ar, jj]) & (j != cur)
-            if not ok.any():
-                continue
-            rows, cur, j, i, h, hc, tr, k = (
-                active[ok],
-                cur[ok],
-                j[ok],
-                i[ok],
-                h[ok],
-                hc[ok],
-                tr[ok],
-                k[ok],
+            cur = self.x[active, i]
+            j, ok = self.targets(active, i, cur)
+            if ok.any():
+                self.move(active[ok], cur[ok], j[ok], i[ok], k[ok])
+
+    def targets(self, active: I64, i: I64, cur: I64) -> tuple[I64, NDArray[np.bool_]]:
+        """For each active plan, the best node with room for its instance ``i`` (lowest miss
+        probability and latency, then the emptier node) and whether it is a move at all."""
+        fleet, c, loads = self.pp.fleet, self.pp.candidates, self.loads
+        ar = np.arange(active.size)
+        # candidate targets: i's allowed nodes, ascending (padded with the first), so
+        # argmin breaks ties towards the lowest node index as over all nodes
+        cand = c.node[i]  # (A, W)
+        d = c.demand[i]  # (A, W, 3)
+        after = loads.used[active[:, None], cand] + d
+        at_cur = cand == cur[:, None]
+        after = np.where(at_cur[:, :, None], after - d, after)
+        room = _all3(after <= c.room[i])
+        h = fleet.home[i]
+        hc = self.home_col[i]
+        tr = fleet.traffic[i]
+        limited = (h >= 0) & (tr > 0)
+        if limited.any():
+            up_base = loads.up[active, hc] - tr * (cur != h)
+            off_ok = up_base + tr <= loads.lim[hc] + _EPS
+            room &= ~limited[:, None] | off_ok[:, None] | (cand == h[:, None])
+        util = _max3(after / c.scale[i])
+        score = np.where(room, c.pref[i] + REPAIR_SPREAD * util, np.inf)
+        jj = np.argmin(score, axis=1)
+        j = cand[ar, jj]
+        ok = np.isfinite(score[ar, jj]) & (j != cur)
+        return j, ok
+
+    def move(self, rows: I64, cur: I64, j: I64, i: I64, k: I64) -> None:
+        """Move instance ``i`` (position ``k`` in the order) from ``cur`` to ``j`` in plans
+        ``rows``; update the loads and the rows whose overloads changed."""
+        fleet, f, loads = self.pp.fleet, self.pp.fit, self.loads
+        h, hc, tr = fleet.home[i], self.home_col[i], fleet.traffic[i]
+        loads.used[rows, cur] -= f.demand[i, cur]
+        loads.used[rows, j] += f.demand[i, j]
+        robot = h >= 0
+        changed = np.zeros(rows.size, dtype=bool)
+        if robot.any():
+            rr = rows[robot]
+            loads.up[rr, hc[robot]] += tr[robot] * (
+                (j[robot] != h[robot]).astype(float) - (cur[robot] != h[robot]).astype(float)
             )
-            used[rows, cur] -= f.demand[i, cur]
-            used[rows, j] += f.demand[i, j]
-            robot = h >= 0
-            changed = np.zeros(rows.size, dtype=bool)
-            if robot.any():
-                rr = rows[robot]
-                up[rr, hc[robot]] += tr[robot] * (
-                    (j[robot] != h[robot]).astype(float) - (cur[robot] != h[robot]).astype(float)
-                )
-                was = over_up[rr, hc[robot]]
-                over_up[rr] = up[rr] > lim[None, :] + _EPS
-                changed[robot] = was != over_up[rr, hc[robot]]
-            x[rows, i] = j
-            x_ord[rows, k] = j
-            # only the two nodes of a move change (j had room: it stays within capacity)
-            was = over_node[rows, cur]
-            over_node[rows, cur] = _any3(used[rows, cur] > f.cap[cur] + _EPS)
-            over_node[rows, j] = _any3(used[rows, j] > f.cap[j] + _EPS)
-            changed |= was != over_node[rows, cur]
-            # the moved instance now sits on a node with room and within its robot's uplink;
-            # the others' rows only change where a node or an uplink stopped being over
-            bad_all[rows, k] = False
-            if changed.any():
-                bad_all[rows[changed]] = bad_of(rows[changed])
-    return x
+            was = loads.over_up[rr, hc[robot]]
+            loads.over_up[rr] = loads.up[rr] > loads.lim[None, :] + _EPS
+            changed[robot] = was != loads.over_up[rr, hc[robot]]
+        self.x[rows, i] = j
+        self.x_ord[rows, k] = j
+        # only the two nodes of a move change (j had room: it stays within capacity)
+        was = loads.over_node[rows, cur]
+        loads.over_node[rows, cur] = _any3(loads.used[rows, cur] > f.cap[cur] + _EPS)
+        loads.over_node[rows, j] = _any3(loads.used[rows, j] > f.cap[j] + _EPS)
+        changed |= was != loads.over_node[rows, cur]
+        # the moved instance now sits on a node with room and within its robot's uplink;
+        # the others' rows only change where a node or an uplink stopped being over
+        self.bad_all[rows, k] = False
+        if changed.any():
+            self.bad_all[rows[changed]] = self.bad_of(rows[changed])
 
 
 def _all3(b: NDArray[np.bool_]) -> NDArray[np.bool_]:

@@ -16,15 +16,15 @@ from collections.abc import Sequence
 import numpy as np
 from numpy.typing import NDArray
 
+from fogfleet.api.v1alpha1.objectives import MISS_OBJECTIVES, ObjectiveName
 from fogfleet.domain.problem import Problem
 
 from .heuristics import Fit
 from .objectives import constraints, evaluate
 from .stickiness import loads
 
-__all__ = ["MISS_OBJECTIVES", "polish", "tie_breakers"]
+__all__ = ["polish", "tie_breakers"]
 
-MISS_OBJECTIVES = ("missRate", "missedCycles")
 POLISH_EVALUATIONS = 4000  # the polish is bounded by work (plans evaluated), not the clock
 ROOM_TOLERANCE = 1e-6  # looser than the constraints' 1e-9: rounding never refuses a move
 
@@ -40,8 +40,9 @@ def tie_breakers(problem: Problem, plans: I64, names: Sequence[str]) -> dict[str
         rows = np.arange(problem.n_instances)[None, :]
         off = ~problem.preferred[rows, np.maximum(plans, 0)] & (plans >= 0)
         out["offPreferred"] = off.sum(axis=1).astype(np.float64)
-    if "cost" not in names and problem.cost.any():
-        out["cost"] = evaluate(problem, plans, problem.limits, ("cost",))["cost"]
+    cost = ObjectiveName.COST.value
+    if cost not in names and problem.cost.any():
+        out[cost] = evaluate(problem, plans, problem.limits, (cost,))[cost]
     return out
 
 

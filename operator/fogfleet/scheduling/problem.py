@@ -11,6 +11,7 @@ import numpy as np
 from numpy.typing import NDArray
 from pymoo.core.problem import Problem as PymooProblem
 
+from fogfleet.api.v1alpha1.objectives import OBJECTIVE_SPECS
 from fogfleet.domain.problem import Problem
 
 from .heuristics import Fit
@@ -21,13 +22,7 @@ __all__ = ["FIT_TOLERANCE", "RESOLUTION", "Candidates", "PlacementProblem", "all
 # Differences below these are noise to the search: a plan 1e-11 lower in missRate must not
 # stay on the front for that alone (it would crowd out plans that differ in what matters).
 RESOLUTION: dict[str, float] = {
-    "missRate": 1e-5,
-    "missedCycles": 1e-4,
-    "onboard": 1e-4,
-    "reserve": 1e-4,
-    "balance": 1e-4,
-    "cost": 1e-4,
-    "energy": 1e-3,
+    n: s.resolution for n, s in OBJECTIVE_SPECS.items() if s.resolution > 0
 }
 
 I64 = NDArray[np.int64]

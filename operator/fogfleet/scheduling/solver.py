@@ -11,7 +11,8 @@ import numpy as np
 from numpy.typing import NDArray
 from pymoo.operators.selection.tournament import TournamentSelection
 
-from fogfleet.api.v1alpha1.base import parse_quantity
+from fogfleet.api.v1alpha1.base import parse_millis, parse_quantity
+from fogfleet.api.v1alpha1.objectives import MISS_OBJECTIVES
 from fogfleet.api.v1alpha1.robotfleet import SchedulerName, SchedulerSettings
 from fogfleet.domain.problem import Problem
 
@@ -36,7 +37,7 @@ from .operators import (
     GeneCrossover,
     GeneMutation,
 )
-from .preference import MISS_OBJECTIVES, polish, tie_breakers
+from .preference import polish, tie_breakers
 from .problem import PlacementProblem
 from .schedule import Schedule
 
@@ -135,7 +136,7 @@ def nsga2(
     if pp.n_var == 0:
         x = np.full(problem.n_instances, -1, dtype=np.int64)
         return finish(problem, "nsga2", x, True, t0, "no instance has a node it may run on")
-    budget = settings.time_budget_millis / 1000.0
+    budget = parse_millis(settings.time_budget_millis)
     log_space = float(np.log(pp.counts.astype(np.float64)).sum())  # log: no overflow
     exhaustive = not paper and log_space <= np.log(ENUMERATE_LIMIT)
     if exhaustive:

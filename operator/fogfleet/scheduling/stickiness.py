@@ -23,17 +23,20 @@ from numpy.typing import NDArray
 
 from fogfleet.api.v1alpha1.robotfleet import SchedulerSettings
 from fogfleet.domain.problem import LazyLadder, Problem, freeze
-from fogfleet.scheduling.heuristics import Fit
+
+from .evaluation import Evaluation
+from .heuristics import Fit
+from .objectives import feasible, objective_values
 
 __all__ = [
     "Stickiness",
-    "feasible",
+    "feasible",  # from .objectives, still used here by controllers/
     "fill_around",
     "fingerprint",
     "keep_running",
     "loads",
     "mask_unavailable",
-    "objective_values",
+    "objective_values",  # from .objectives, still used here by controllers/
     "release_overloads",
     "release_robots",
 ]
@@ -42,30 +45,6 @@ log = logging.getLogger(__name__)
 I64 = NDArray[np.int64]
 # Below this absolute difference two objective values count as equal (miss rates near zero).
 ABS_TOLERANCE = 1e-3
-
-
-def objective_values(
-    problem: Problem, x: I64, with_limits: bool, names: Sequence[str]
-) -> dict[str, float]:
-    from fogfleet.scheduling.objectives import evaluate
-
-    out = evaluate(
-        problem,
-        np.asarray(x, dtype=np.int64)[None, :],
-        problem.allocation(with_limits),
-        list(names),
-    )
-    return {k: float(v[0]) for k, v in out.items()}
-
-
-def feasible(problem: Problem, x: I64, with_limits: bool = True) -> bool:
-    """Every hard constraint of the plan holds (capacity, uplink, gene spaces)."""
-    from fogfleet.scheduling.objectives import constraints
-
-    g = constraints(
-        problem, np.asarray(x, dtype=np.int64)[None, :], problem.allocation(with_limits)
-    )
-    return bool(np.all(g <= 1e-9))
 
 
 def fingerprint(problem: Problem, settings: SchedulerSettings) -> str:
@@ -181,8 +160,6 @@ def _better(
 def loads(problem: Problem, x: I64) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """Requested (cpu, memory, gpu) per node and off-board traffic per robot of plan ``x``,
     from the one per-node load model (``evaluation.Evaluation``) the objectives use."""
-    from fogfleet.scheduling.evaluation import Evaluation
-
     ev = Evaluation(problem, np.asarray(x, dtype=np.int64)[None, :], problem.limits)
     used = np.stack([ev.cpu_requested[0], ev.mem_requested[0], ev.gpu_requested[0]], axis=1)
     return used, ev.offboard_traffic[0]

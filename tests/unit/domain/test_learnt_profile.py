@@ -10,7 +10,6 @@ import pytest
 from fogfleet.api.loader import load_paths
 from fogfleet.domain.build import build_problem
 from fogfleet.domain.observed import (
-    Learnt,
     Observation,
     Timing,
     correction,
@@ -20,7 +19,7 @@ from fogfleet.domain.observed import (
     drifting,
     timings,
 )
-from fogfleet.domain.pairs import ProfileRow
+from fogfleet.domain.rows import Learnt, ProfileRow
 from fogfleet.scheduling.evaluation import miss_probability
 
 ROWS = [ProfileRow(0.1, 0.040, 0.004), ProfileRow(0.2, 0.020, 0.002)]

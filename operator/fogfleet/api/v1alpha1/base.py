@@ -18,6 +18,7 @@ from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, ValidationEr
 from pydantic.alias_generators import to_camel
 
 __all__ = [
+    "MBPS",
     "CpuQuantity",
     "FogModel",
     "MemoryQuantity",
@@ -26,8 +27,11 @@ __all__ = [
     "PosInt",
     "Quantity",
     "format_cores",
+    "format_millicores",
     "parse_cpu",
+    "parse_mbps",
     "parse_memory",
+    "parse_millis",
     "parse_quantity",
     "refuse_duplicates",
     "status_part",
@@ -111,6 +115,24 @@ def _parse_quantity_text(value: str) -> float:
 def parse_cpu(value: str | float) -> float:
     """CPU quantity in cores."""
     return parse_quantity(value)
+
+
+def parse_millis(value: str | float) -> float:
+    """A ``...Millis`` quantity in seconds (the unit every model of the core computes in)."""
+    return parse_quantity(value) / 1e3
+
+
+MBPS = 1e6  # bit/s in one Mbps
+
+
+def parse_mbps(value: str | float) -> float:
+    """A ``...Mbps`` quantity in bit/s."""
+    return parse_quantity(value) * MBPS
+
+
+def format_millicores(cores: float) -> str:
+    """Cores as whole millicores, always with the suffix: "100m" (labels, status, keys)."""
+    return f"{round(cores * 1000)}m"
 
 
 def format_cores(cores: float) -> str:

@@ -23,7 +23,7 @@ from typing import Annotated, Literal
 
 from pydantic import Field, model_validator
 
-from .base import FogModel, Quantity, parse_cpu, refuse_duplicates
+from .base import FogModel, Quantity, format_millicores, parse_cpu, refuse_duplicates
 
 __all__ = [
     "DEFAULT_PROFILING_CPUS",
@@ -66,7 +66,7 @@ class Profiling(FogModel):
         for k, cpu in enumerate(self.cpus):
             if parse_cpu(cpu) <= 0:
                 raise ValueError(f"profiling.cpus[{k}]: must be greater than zero")
-        refuse_duplicates([f"{round(parse_cpu(c) * 1000)}m" for c in self.cpus], "profiling.cpus")
+        refuse_duplicates([format_millicores(parse_cpu(c)) for c in self.cpus], "profiling.cpus")
         return self
 
 

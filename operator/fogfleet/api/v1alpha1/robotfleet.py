@@ -7,10 +7,11 @@ from typing import Annotated, ClassVar, Literal
 
 from pydantic import Field, model_validator
 
-from .base import FogModel, Number, PosInt, refuse_duplicates
+from .base import FogModel, Number, PosInt, parse_millis, refuse_duplicates
 from .common import Condition, LabelSelector, Name, ObjectMeta, Tier
 from .fallback import Fallback, FallbackMode
 from .linkhealth import LinkHealth, RobotLinkStatus
+from .objectives import DEFAULT_OBJECTIVES, ObjectiveName
 from .observed import DriftSettings
 from .rules import CrossFieldRule, enforce
 
@@ -21,7 +22,7 @@ __all__ = [
     "ModuleMissStatus",
     "ModulePlacement",
     "ModuleRef",
-    "ObjectiveName",
+    "ObjectiveName",  # from .objectives, the registry
     "ObjectiveValue",
     "ObjectiveWeight",
     "PlacementEntry",
@@ -43,19 +44,6 @@ class SchedulerName(StrEnum):
     ONBOARD = "onboard"
     RANDOM = "random"
     EXACT = "exact"
-
-
-class ObjectiveName(StrEnum):
-    """F1-F4 of multi-robot-edge-cloud-scheduling (eq. 1-6) plus the extensions."""
-
-    ONBOARD = "onboard"  # F1, eq. 1
-    RESERVE = "reserve"  # F2, eq. 2
-    BALANCE = "balance"  # F3, eq. 3
-    MISSED_CYCLES = "missedCycles"  # F4, eq. 6
-    MISS_RATE = "missRate"  # predicted fraction of missed cycles
-    COST = "cost"
-    ENERGY = "energy"
-    MIGRATIONS = "migrations"  # instances a plan moves off the node they run on (issue 10)
 
 
 class ChoiceRule(StrEnum):
@@ -89,6 +77,11 @@ class ModuleOverrides(FogModel):
     preferredTiers and the fleet's)."""
     priority: Annotated[int, Field(ge=1, le=1000)] | None = None
     """The module's priority in this fleet (1-1000; see SoftwareModule spec.priority)."""
+
+    @property
+    def cycle_seconds(self) -> float | None:
+        """``cycleTimeMillis`` in seconds; None where the module's own applies."""
+        return None if self.cycle_time_millis is None else parse_millis(self.cycle_time_millis)
 
     @model_validator(mode="after")
     def _unique(self) -> ModuleOverrides:
@@ -124,13 +117,7 @@ class SchedulerSettings(FogModel):
     algorithm: SchedulerName = SchedulerName.NSGA2
     """The planner."""
     objectives: list[ObjectiveName] = Field(
-        default_factory=lambda: [
-            ObjectiveName.MISS_RATE,
-            ObjectiveName.MISSED_CYCLES,
-            ObjectiveName.ONBOARD,
-            ObjectiveName.RESERVE,
-            ObjectiveName.BALANCE,
-        ],
+        default_factory=lambda: list(DEFAULT_OBJECTIVES),
         min_length=1,
         max_length=len(ObjectiveName),
         description="Objectives, in priority order for the lexicographic choice. Default: "

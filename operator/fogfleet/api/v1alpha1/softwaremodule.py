@@ -13,7 +13,16 @@ from typing import Annotated, ClassVar, Literal
 
 from pydantic import Field, model_validator
 
-from .base import FogModel, NonNegInt, Number, PosInt, Quantity, parse_quantity, refuse_duplicates
+from .base import (
+    FogModel,
+    NonNegInt,
+    Number,
+    PosInt,
+    Quantity,
+    parse_millis,
+    parse_quantity,
+    refuse_duplicates,
+)
 from .common import Condition, ObjectMeta, Tier
 from .computenode import DeviceType
 from .fallback import STANDING_BY, Fallback
@@ -281,6 +290,11 @@ class SoftwareModuleSpec(FogModel):
     """What runs when the module is offloaded and its robot's link fails: onboard keeps a
     standby on the robot (its on-board share reserved) that takes over on its own; variant
     keeps a standby running a lighter variant module. Unset: the fleet's spec.fallback."""
+
+    @property
+    def cycle_seconds(self) -> float:
+        """``cycleTimeMillis`` in seconds, the unit of the planner, simulator and autoscaler."""
+        return parse_millis(self.cycle_time_millis)
 
     @model_validator(mode="after")
     def _check(self) -> SoftwareModuleSpec:
