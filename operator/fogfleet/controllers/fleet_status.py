@@ -12,13 +12,14 @@ from typing import Any
 
 import numpy as np
 
+from fogfleet.api.v1alpha1.objectives import ObjectiveName
 from fogfleet.api.v1alpha1.robotfleet import PLACEMENT_LIST_LIMIT, RobotFleet, RobotFleetStatus
 from fogfleet.domain.problem import Problem
 from fogfleet.render.deployments import format_cpu, identity_of
-from fogfleet.scheduling import stickiness
 from fogfleet.scheduling.decision import Decision
 from fogfleet.scheduling.explain import degraded_message
 from fogfleet.scheduling.fallback import disconnected
+from fogfleet.scheduling.objectives import objective_values
 
 from .drift_report import DriftReport
 from .links import LinkReport
@@ -224,7 +225,7 @@ def _plan_figures(rendered: Rendered, placement: list[Obj]) -> Obj:
                 for k, v in objectives.items()
                 if finite(v) is not None
             ],
-            "predicted_miss_rate": finite(objectives.get("missRate")),
+            "predicted_miss_rate": finite(objectives.get(ObjectiveName.MISS_RATE)),
             "planning_millis": round(plan.schedule.duration_seconds * 1000),
             "choice_reason": plan.choice_reason,
             "migrations": plan.migrations,
@@ -237,10 +238,11 @@ def _plan_figures(rendered: Rendered, placement: list[Obj]) -> Obj:
     for entry in placement:
         key = (str(entry["robot"]), str(entry["module"]), int(entry.get("replica", 0)))
         x[index[key]] = problem.node_index(entry["node"])
-    values = stickiness.objective_values(problem, x, False, ["missRate", "missedCycles"])
+    names = [ObjectiveName.MISS_RATE, ObjectiveName.MISSED_CYCLES]
+    values = objective_values(problem, x, False, [str(n) for n in names])
     return {
         "objectives": [{"name": k, "value": finite(v)} for k, v in values.items()],
-        "predicted_miss_rate": finite(values.get("missRate")),
+        "predicted_miss_rate": finite(values.get(ObjectiveName.MISS_RATE)),
     }
 
 
@@ -273,7 +275,7 @@ def plan_events(problem: Problem, cached: Decision) -> list[tuple[str, str, str]
     """The Events of a decision made now: Planned, ShortOfCapacity, Migrated."""
     p = cached.placement
     split = Counter(problem.nodes[j].tier.value for j in p if j >= 0)
-    miss = cached.objectives.get("missRate")
+    miss = cached.objectives.get(ObjectiveName.MISS_RATE)
     miss_txt = (
         f"; predicted miss rate {miss * 100:.2f}%" if miss is not None and np.isfinite(miss) else ""
     )

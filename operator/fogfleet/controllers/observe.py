@@ -20,7 +20,7 @@ from fogfleet.api.v1alpha1.softwaremodule import SoftwareModule
 from fogfleet.domain.fallback import variant_names
 from fogfleet.domain.linkhealth import planned_links
 from fogfleet.domain.network import Link
-from fogfleet.domain.observed import Learnt
+from fogfleet.domain.rows import Learnt
 from fogfleet.errors import InvalidSpec
 from fogfleet.render.deployments import Owner, label_value
 

@@ -35,7 +35,6 @@ from fogfleet.api.v1alpha1.base import parse_cpu
 from fogfleet.api.v1alpha1.robotfleet import RobotFleet
 from fogfleet.api.v1alpha1.softwaremodule import SoftwareModule
 from fogfleet.domain.observed import (
-    Learnt,
     ModuleDrift,
     Observation,
     correction,
@@ -46,6 +45,7 @@ from fogfleet.domain.observed import (
 )
 from fogfleet.domain.pairs import profile_rows
 from fogfleet.domain.problem import Problem
+from fogfleet.domain.rows import Learnt
 from fogfleet.errors import DependencyUnavailable, FogfleetError
 from fogfleet.scheduling.decision import Decision
 from fogfleet.scheduling.objectives import module_miss_rates

@@ -22,7 +22,7 @@ from fogfleet import API_VERSION
 from fogfleet.api.labels import LABEL_PROFILE_CPU
 from fogfleet.api.loader import Catalog
 from fogfleet.api.timestamps import timestamp
-from fogfleet.api.v1alpha1.base import parse_cpu
+from fogfleet.api.v1alpha1.base import format_millicores, parse_cpu
 from fogfleet.api.v1alpha1.common import Tier
 from fogfleet.api.v1alpha1.computenode import ComputeNode
 from fogfleet.api.v1alpha1.profiling import ProfilingRun, ProfilingStatus
@@ -33,7 +33,6 @@ from fogfleet.domain.profiling import (
     Measurement,
     edge_cases,
     fit_profile,
-    format_millicores,
     grid_for,
     module_spec_hash,
     needed_profiles,

@@ -262,9 +262,7 @@ class Runtime:
     def compute_node_event(self, body: Mapping[str, Any], event_type: str | None) -> None:
         if self._changed("ComputeNode", body, event_type):
             self.usage_changed()
-            for key in self.store.using_compute_node(
-                (body.get("metadata") or {}).get("name", "")
-            ):
+            for key in self.store.using_compute_node((body.get("metadata") or {}).get("name", "")):
                 self.queue.schedule_debounced(key)
 
     def node_event(self, body: Mapping[str, Any], event_type: str | None) -> None:

@@ -56,7 +56,6 @@ from .rows import Learnt, ProfileRow
 
 __all__ = [
     "Z95",
-    "Learnt",  # from .rows, still imported from here by controllers.observed
     "ModuleDrift",
     "Observation",
     "Timing",

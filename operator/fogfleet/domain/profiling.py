@@ -53,7 +53,6 @@ __all__ = [
     "current_rows",
     "edge_cases",
     "fit_profile",
-    "format_millicores",  # from api base, still imported from here by controllers.profiling
     "grid_for",
     "module_spec_hash",
     "needed_profiles",

@@ -33,6 +33,7 @@ from fogfleet.errors import Infeasible
 from . import stickiness
 from .explain import infeasible_message
 from .incremental import Replan, changed_instances, replan
+from .objectives import feasible, objective_values
 from .schedule import Schedule
 from .solver import plan
 
@@ -133,7 +134,7 @@ def decide(
     # one must be placed and the plan must hold
     placeable = problem.allowed.any(axis=1)
     unplaced = bool((placement[placeable] < 0).any())
-    if unplaced or not stickiness.feasible(problem, placement, with_limits):
+    if unplaced or not feasible(problem, placement, with_limits):
         message = infeasible_message(problem, placement, schedule.reasons)
         raise Infeasible(f"RobotFleet/{fleet}", "spec", message)
     stick = stickiness.keep_running(problem, placement, settings, with_limits)
@@ -150,7 +151,7 @@ def decide(
     objectives = (
         dict(schedule.objectives)
         if np.array_equal(chosen, placement)
-        else stickiness.objective_values(problem, chosen, with_limits, list(schedule.objectives))
+        else objective_values(problem, chosen, with_limits, list(schedule.objectives))
     )
     return Decision(
         fp,

@@ -30,13 +30,11 @@ from .objectives import feasible, objective_values
 
 __all__ = [
     "Stickiness",
-    "feasible",  # from .objectives, still used here by controllers/
     "fill_around",
     "fingerprint",
     "keep_running",
     "loads",
     "mask_unavailable",
-    "objective_values",  # from .objectives, still used here by controllers/
     "release_overloads",
     "release_robots",
 ]
