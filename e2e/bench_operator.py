@@ -168,7 +168,7 @@ def warehouse_spec() -> FleetSpec:
 def large_spec(robots: int, edges: int, seed: int = 1) -> FleetSpec:
     """``synthetic_fleet`` (warehouse robots, 12 edge cores per robot on average) renamed to
     bench-robot-k / bench-edge-k."""
-    from fogfleet.scheduling.bench import synthetic_fleet
+    from fogfleet.bench.scheduling import synthetic_fleet
 
     cat, fl = synthetic_fleet(robots, edges, seed)
     rename = {r: f"bench-robot-{k + 1}" for k, r in enumerate(fl.spec.robots)}

@@ -1,7 +1,7 @@
 """Re-planning benchmark (``fogfleet bench replan``, ``make bench-replan``): a change to a
 running fleet planned in full vs incrementally (``incremental.replan``).
 
-Per size, the synthetic warehouse (``bench.synthetic_fleet``: n robots x 8 modules on
+Per size, the synthetic warehouse (``scheduling.synthetic_fleet``: n robots x 8 modules on
 ceil(0.4 n) edge nodes, the proportions ``make bench-scale`` uses) is planned once by NSGA-II
 with the operator's default settings; that plan runs. Then two changes, each re-planned both
 ways and passed through the migration-margin rule (``stickiness.keep_running``) as the
@@ -26,13 +26,12 @@ from typing import Any
 import numpy as np
 
 from fogfleet.api.v1alpha1.robotfleet import SchedulerSettings
+from fogfleet.bench.scheduling import synthetic_fleet
 from fogfleet.domain.build import build_problem
 from fogfleet.domain.problem import Problem
-
-from .bench import synthetic_fleet
-from .incremental import changed_instances, replan
-from .solver import plan
-from .stickiness import keep_running, mask_unavailable, objective_values
+from fogfleet.scheduling.incremental import changed_instances, replan
+from fogfleet.scheduling.solver import plan
+from fogfleet.scheduling.stickiness import keep_running, mask_unavailable, objective_values
 
 __all__ = ["EDGES_PER_ROBOT", "replan_rows"]
 

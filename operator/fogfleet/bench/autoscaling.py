@@ -201,64 +201,60 @@ class _Pool:
             self.last_t = t
 
 
-def simulate(workload: Workload, setup: _Setup, seed: int = 0) -> dict[str, float]:
-    """Run one policy over the workload; returns the metrics of :data:`METRICS`."""
-    rng = np.random.default_rng([seed, 1])  # only for which busy replica finishes first
-    pools = [_Pool(p, ready=5) for p in setup.pools]
-    tiers: list[Tier] = [p.tier for p in setup.pools]
-    mus = [p.service_rate for p in setup.pools]
-    delays = [p.network_delay_seconds for p in setup.pools]
-    reserve = setup.reserve
-    arrival, private, target, work = (
-        workload.arrival,
-        workload.private,
-        workload.target,
-        workload.work,
-    )
-    n = len(arrival)
-    events: list[tuple[float, int, int, int]] = []  # (time, seq, kind, tier); 0=departure 1=ready
-    seq = 0
-    rejected_p = rejected_n = late = accepted = 0
-    offered = [0, 0]  # cumulative private, normal arrivals
-    rate_history: deque[tuple[float, int, int]] = deque([(0.0, 0, 0)])
-    state = ScalerState()
-    cpu_marks = [(0.0, 0.0, 0.0)] * len(pools)
-    cpu_history: list[deque[tuple[float, float, float]]] = [deque([m]) for m in cpu_marks]
-    start_of: dict[int, float] = {}
-    next_tick = setup.period_seconds
+class _Simulation:
+    """One policy's run over a workload: the event queue, the pools and the scaler's state.
 
-    def begin(pi: int, req: int, t: float) -> None:
-        nonlocal seq
-        seq += 1
-        start_of[req] = t
-        heapq.heappush(events, (t + work[req] / mus[pi], seq, 0, pi))
-        in_service[pi].append(req)
+    Events are ``(time, seq, kind, tier)``, kind 0 a departure and 1 a replica becoming ready;
+    ``seq`` keeps simultaneous events in the order they were scheduled.
+    """
 
-    in_service: list[list[int]] = [[] for _ in pools]
+    def __init__(self, workload: Workload, setup: _Setup, seed: int) -> None:
+        self.rng = np.random.default_rng([seed, 1])  # only for which busy replica finishes first
+        self.workload = workload
+        self.setup = setup
+        self.pools = [_Pool(p, ready=5) for p in setup.pools]
+        self.tiers: list[Tier] = [p.tier for p in setup.pools]
+        self.mus = [p.service_rate for p in setup.pools]
+        self.delays = [p.network_delay_seconds for p in setup.pools]
+        self.events: list[tuple[float, int, int, int]] = []
+        self.seq = 0
+        self.rejected_p = self.rejected_n = self.late = self.accepted = 0
+        self.offered = [0, 0]  # cumulative private, normal arrivals
+        self.rate_history: deque[tuple[float, int, int]] = deque([(0.0, 0, 0)])
+        self.state = ScalerState()
+        self.cpu_history: list[deque[tuple[float, float, float]]] = [
+            deque([(0.0, 0.0, 0.0)]) for _ in self.pools
+        ]
+        self.in_service: list[list[int]] = [[] for _ in self.pools]
+        self.next_tick = setup.period_seconds
 
-    def depart(pi: int, t: float) -> None:
-        nonlocal late, accepted
-        pool = pools[pi]
+    def begin(self, pi: int, req: int, t: float) -> None:
+        self.seq += 1
+        heapq.heappush(self.events, (t + self.workload.work[req] / self.mus[pi], self.seq, 0, pi))
+        self.in_service[pi].append(req)
+
+    def depart(self, pi: int, t: float) -> None:
+        pool = self.pools[pi]
         pool.advance(t)
         # Service is memoryless: each running request is equally likely to finish first.
-        running = in_service[pi]
-        j = int(rng.integers(len(running))) if len(running) > 1 else 0
+        running = self.in_service[pi]
+        j = int(self.rng.integers(len(running))) if len(running) > 1 else 0
         req = running[j]
         running[j] = running[-1]
         running.pop()
-        response = t - arrival[req] + delays[pi]
-        accepted += 1
-        late += response > target[req]
+        response = t - self.workload.arrival[req] + self.delays[pi]
+        self.accepted += 1
+        self.late += response > self.workload.target[req]
         pool.responses.append((t, response))
-        if pool.draining and rng.random() < pool.draining / (pool.draining + pool.busy):
+        if pool.draining and self.rng.random() < pool.draining / (pool.draining + pool.busy):
             pool.draining -= 1
         elif pool.queue:
-            begin(pi, pool.queue.popleft(), t)
+            self.begin(pi, pool.queue.popleft(), t)
         else:
             pool.busy -= 1
 
-    def became_ready(pi: int, t: float) -> None:
-        pool = pools[pi]
+    def became_ready(self, pi: int, t: float) -> None:
+        pool = self.pools[pi]
         pool.advance(t)
         if not pool.starting or pool.starting[0] > t + 1e-9:
             return  # this start was cancelled
@@ -267,18 +263,17 @@ def simulate(workload: Workload, setup: _Setup, seed: int = 0) -> dict[str, floa
         pool.recent_ready.append(t)
         if pool.queue:
             pool.busy += 1
-            begin(pi, pool.queue.popleft(), t)
+            self.begin(pi, pool.queue.popleft(), t)
 
-    def resize(pi: int, replicas: int, t: float) -> None:
-        nonlocal seq
-        pool = pools[pi]
+    def resize(self, pi: int, replicas: int, t: float) -> None:
+        pool = self.pools[pi]
         pool.advance(t)
         have = pool.ready + len(pool.starting)
         for _ in range(replicas - have):
-            seq += 1
+            self.seq += 1
             ready_at = t + pool.cfg.setup_seconds
             pool.starting.append(ready_at)
-            heapq.heappush(events, (ready_at, seq, 1, pi))
+            heapq.heappush(self.events, (ready_at, self.seq, 1, pi))
         drop = have - replicas
         while drop > 0 and pool.starting:
             pool.starting.pop()  # newest first
@@ -291,107 +286,132 @@ def simulate(workload: Workload, setup: _Setup, seed: int = 0) -> dict[str, floa
             pool.busy -= drop
             pool.draining += drop
 
-    def snapshot(t: float) -> MetricsSnapshot:
-        rate_history.append((t, offered[0], offered[1]))
-        while rate_history[0][0] < t - RATE_WINDOW_SECONDS - 1e-9:
-            rate_history.popleft()
-        t0, p0, n0 = rate_history[0]
-        span = max(t - t0, 1e-9)
-        out = []
-        for pi, pool in enumerate(pools):
-            pool.advance(t)
-            hist = cpu_history[pi]
-            hist.append((t, pool.busy_area, pool.ready_area))
-            while hist[0][0] < t - CPU_WINDOW_SECONDS - 1e-9:
-                hist.popleft()
-            _, b0, r0 = hist[0]
-            cpu = (pool.busy_area - b0) / (pool.ready_area - r0) if pool.ready_area > r0 else None
-            while pool.recent_ready and pool.recent_ready[0] < t - CPU_WINDOW_SECONDS:
-                pool.recent_ready.popleft()
-            while pool.responses and pool.responses[0][0] < t - SLO_WINDOW_SECONDS:
-                pool.responses.popleft()
-            slo = (
-                float(np.quantile([r for _, r in pool.responses], 0.9)) if pool.responses else None
-            )
-            out.append(
-                TierMetrics(
-                    pool.cfg.name,
-                    replicas=pool.ready + len(pool.starting),
-                    ready_replicas=max(0, pool.ready - len(pool.recent_ready)),
-                    cpu_utilization=cpu,
-                    slo_value_seconds=slo,
-                )
-            )
-        return MetricsSnapshot(t, tuple(out), (offered[0] - p0) / span, (offered[1] - n0) / span)
+    def _tier_metrics(self, pi: int, pool: _Pool, t: float) -> TierMetrics:
+        pool.advance(t)
+        hist = self.cpu_history[pi]
+        hist.append((t, pool.busy_area, pool.ready_area))
+        while hist[0][0] < t - CPU_WINDOW_SECONDS - 1e-9:
+            hist.popleft()
+        _, b0, r0 = hist[0]
+        cpu = (pool.busy_area - b0) / (pool.ready_area - r0) if pool.ready_area > r0 else None
+        while pool.recent_ready and pool.recent_ready[0] < t - CPU_WINDOW_SECONDS:
+            pool.recent_ready.popleft()
+        while pool.responses and pool.responses[0][0] < t - SLO_WINDOW_SECONDS:
+            pool.responses.popleft()
+        slo = float(np.quantile([r for _, r in pool.responses], 0.9)) if pool.responses else None
+        return TierMetrics(
+            pool.cfg.name,
+            replicas=pool.ready + len(pool.starting),
+            ready_replicas=max(0, pool.ready - len(pool.recent_ready)),
+            cpu_utilization=cpu,
+            slo_value_seconds=slo,
+        )
 
-    def tick(t: float) -> None:
-        nonlocal state
-        decision, state = decide(
-            setup.policy, snapshot(t), setup.pools, state, behavior=setup.behavior
+    def snapshot(self, t: float) -> MetricsSnapshot:
+        self.rate_history.append((t, self.offered[0], self.offered[1]))
+        while self.rate_history[0][0] < t - RATE_WINDOW_SECONDS - 1e-9:
+            self.rate_history.popleft()
+        t0, p0, n0 = self.rate_history[0]
+        span = max(t - t0, 1e-9)
+        tiers = tuple(self._tier_metrics(pi, pool, t) for pi, pool in enumerate(self.pools))
+        return MetricsSnapshot(
+            t, tiers, (self.offered[0] - p0) / span, (self.offered[1] - n0) / span
+        )
+
+    def tick(self, t: float) -> None:
+        setup = self.setup
+        decision, self.state = decide(
+            setup.policy, self.snapshot(t), setup.pools, self.state, behavior=setup.behavior
         )
         for pi, pool in enumerate(setup.pools):
-            resize(pi, decision.replicas[pool.name], t)
+            self.resize(pi, decision.replicas[pool.name], t)
 
-    for req in range(n):
-        t = float(arrival[req])
+    def _pop_event(self) -> None:
+        t_event, _, kind, pi = heapq.heappop(self.events)
+        (self.depart if kind == 0 else self.became_ready)(pi, t_event)
+
+    def catch_up(self, t: float) -> None:
+        """Every scaler tick and event up to the arrival at ``t``, in time order."""
         while True:
-            t_event = events[0][0] if events else math.inf
-            if next_tick <= t and next_tick <= t_event:
-                tick(next_tick)
-                next_tick += setup.period_seconds
+            t_event = self.events[0][0] if self.events else math.inf
+            if self.next_tick <= t and self.next_tick <= t_event:
+                self.tick(self.next_tick)
+                self.next_tick += self.setup.period_seconds
             elif t_event <= t:
-                _, _, kind, pi = heapq.heappop(events)
-                (depart if kind == 0 else became_ready)(pi, t_event)
+                self._pop_event()
             else:
                 break
-        is_private = bool(private[req])
-        offered[0 if is_private else 1] += 1
-        chosen = None
-        for pi, pool in enumerate(pools):
-            tier = tiers[pi]
+
+    def _route(self, req: int, is_private: bool) -> int | None:
+        """The first tier whose estimate meets the request's target (None: rejected)."""
+        for pi, pool in enumerate(self.pools):
+            tier = self.tiers[pi]
             if is_private and not tier.accepts_private:
                 continue
             ahead = pool.busy + len(pool.queue)
             if not is_private and tier.accepts_private:
-                ahead += reserve
-            estimate = estimate_response_seconds(ahead, pool.ready, mus[pi], delays[pi])
-            if estimate <= target[req]:
-                chosen = pi
-                break
+                ahead += self.setup.reserve
+            estimate = estimate_response_seconds(ahead, pool.ready, self.mus[pi], self.delays[pi])
+            if estimate <= self.workload.target[req]:
+                return pi
+        return None
+
+    def admit(self, req: int) -> None:
+        """Route the request arriving now, then serve, queue or reject it."""
+        t = float(self.workload.arrival[req])
+        is_private = bool(self.workload.private[req])
+        self.offered[0 if is_private else 1] += 1
+        chosen = self._route(req, is_private)
         if chosen is None:
             if is_private:
-                rejected_p += 1
+                self.rejected_p += 1
             else:
-                rejected_n += 1
-            continue
-        pool = pools[chosen]
+                self.rejected_n += 1
+            return
+        pool = self.pools[chosen]
         pool.advance(t)
         if pool.busy < pool.ready:
             pool.busy += 1
-            begin(chosen, req, t)
+            self.begin(chosen, req, t)
         else:
             pool.queue.append(req)
-    end = float(arrival[-1])
-    while events:  # drain the admitted requests; the scaler keeps running
-        t_event = events[0][0]
-        if next_tick <= t_event:
-            tick(next_tick)
-            next_tick += setup.period_seconds
-            continue
-        _, _, kind, pi = heapq.heappop(events)
-        (depart if kind == 0 else became_ready)(pi, t_event)
-        if not any(p.busy or p.queue or p.draining for p in pools):
-            end = max(end, t_event)
-            break
-    for pool in pools:
-        pool.advance(end)
-    n_private = int(private.sum())
-    return {
-        "privacyRejected": rejected_p / max(n_private, 1),
-        "normalRejected": rejected_n / max(n - n_private, 1),
-        "sloViolations": float(late) / max(accepted, 1),
-        "replicaSeconds": float(sum(p.replica_area for p in pools)),
-    }
+
+    def drain(self) -> float:
+        """Serve the admitted requests (the scaler keeps running); the run's end time."""
+        end = float(self.workload.arrival[-1])
+        while self.events:
+            t_event = self.events[0][0]
+            if self.next_tick <= t_event:
+                self.tick(self.next_tick)
+                self.next_tick += self.setup.period_seconds
+                continue
+            self._pop_event()
+            if not any(p.busy or p.queue or p.draining for p in self.pools):
+                end = max(end, t_event)
+                break
+        for pool in self.pools:
+            pool.advance(end)
+        return end
+
+    def results(self) -> dict[str, float]:
+        n = len(self.workload.arrival)
+        n_private = int(self.workload.private.sum())
+        return {
+            "privacyRejected": self.rejected_p / max(n_private, 1),
+            "normalRejected": self.rejected_n / max(n - n_private, 1),
+            "sloViolations": float(self.late) / max(self.accepted, 1),
+            "replicaSeconds": float(sum(p.replica_area for p in self.pools)),
+        }
+
+
+def simulate(workload: Workload, setup: _Setup, seed: int = 0) -> dict[str, float]:
+    """Run one policy over the workload; returns the metrics of :data:`METRICS`."""
+    run = _Simulation(workload, setup, seed)
+    for req in range(len(workload.arrival)):
+        run.catch_up(float(workload.arrival[req]))
+        run.admit(req)
+    run.drain()
+    return run.results()
 
 
 def run_benchmark(seed: int) -> dict[str, dict[str, float]]:

@@ -17,8 +17,8 @@ from collections.abc import Sequence
 from typing import Any
 
 from fogfleet.api.v1alpha1.robotfleet import SchedulerSettings
+from fogfleet.bench import scheduling as sbench
 from fogfleet.domain.problem import Problem
-from fogfleet.scheduling import bench as sbench
 from fogfleet.scheduling.solver import plan
 from fogfleet.sim import simulate
 

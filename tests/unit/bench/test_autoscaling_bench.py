@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from fogfleet.autoscaling.bench import (
+from fogfleet.bench.autoscaling import (
     METRICS,
     POLICIES,
     format_table,

@@ -24,10 +24,9 @@ from fogfleet.api.v1alpha1.computenode import ComputeNode
 from fogfleet.api.v1alpha1.robotfleet import RobotFleet, SchedulerSettings
 from fogfleet.domain.build import build_problem
 from fogfleet.domain.problem import Problem
-
-from .exact import scalarised, solve_exact
-from .schedule import Schedule
-from .solver import nsga2, plan
+from fogfleet.scheduling.exact import scalarised, solve_exact
+from fogfleet.scheduling.schedule import Schedule
+from fogfleet.scheduling.solver import nsga2, plan
 
 __all__ = [
     "WAREHOUSE",
