@@ -35,10 +35,6 @@ from __future__ import annotations
 import re
 from collections.abc import Mapping
 from enum import StrEnum
-from typing import TYPE_CHECKING
-
-if TYPE_CHECKING:  # the workload image imports this module without pydantic
-    from fogfleet.api.v1alpha1.scaling import SloMetric
 
 __all__ = [
     "CYCLE_TIME",
@@ -83,8 +79,8 @@ class Label(StrEnum):
     NAMESPACE = "namespace"
 
 
-def histogram_of(metric: SloMetric) -> str:
-    """The contract histogram an SLO metric names."""
+def histogram_of(metric: str) -> str:
+    """The contract histogram an SLO metric names (``api.v1alpha1.scaling.SloMetric``)."""
     return RESPONSE_TIME if metric == "responseTime" else CYCLE_TIME
 
 
@@ -110,7 +106,7 @@ def _window(seconds: int) -> str:
 
 
 def slo_query(
-    metric: SloMetric,
+    metric: str,
     *,
     module: str,
     namespace: str,

@@ -3,7 +3,7 @@
 import pytest
 
 from fogfleet.api.v1alpha1.scaling import SloMetric
-from fogfleet.autoscaling import contract as c
+from fogfleet.contract import metrics as c
 
 
 def test_names_follow_prometheus_conventions() -> None:
