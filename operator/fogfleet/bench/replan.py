@@ -35,7 +35,7 @@ from fogfleet.scheduling.stickiness import keep_running, mask_unavailable, objec
 
 __all__ = ["EDGES_PER_ROBOT", "replan_rows"]
 
-EDGES_PER_ROBOT = 0.4  # as e2e/bench_scale.py
+EDGES_PER_ROBOT = 0.4  # as e2e/bench/scale.py
 Row = dict[str, Any]
 
 

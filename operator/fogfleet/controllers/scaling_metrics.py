@@ -14,10 +14,10 @@ from fogfleet.adapters.prometheus import QUERY_FIELD
 from fogfleet.api.labels import LABEL_TIER
 from fogfleet.api.v1alpha1.scaling import Mode, ScalingSpec
 from fogfleet.api.v1alpha1.softwaremodule import SoftwareModule
-from fogfleet.contract import metrics as contract
-from fogfleet.contract.metrics import histogram_of
 from fogfleet.autoscaling.policy import Pool, TierMetrics
 from fogfleet.autoscaling.pools import ALL
+from fogfleet.contract import metrics as contract
+from fogfleet.contract.metrics import histogram_of
 from fogfleet.errors import DependencyUnavailable, InvalidSpec
 
 from .deps import ScalingDeps
