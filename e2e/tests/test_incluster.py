@@ -42,7 +42,7 @@ pytestmark = [
 RELEASE = "fogfleet"
 SYSTEM = "fogfleet-system"
 CHART = ROOT / "charts" / "fogfleet"
-HARNESS = ROOT / "e2e" / "cluster" / "harness.py"
+HARNESS = ROOT / "e2e" / "bed" / "harness.py"
 OPERATOR_LABELS = "app.kubernetes.io/name=fogfleet,app.kubernetes.io/component=operator"
 
 
