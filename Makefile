@@ -43,19 +43,19 @@ docs-check: venv ## Fail when README.md or docs/ name a missing file, anchor, ma
 	$(BIN)/python tests/docs/check_docs.py
 
 cluster-tools: venv ## Build (or reuse from ~/.cache/fogfleet) etcd, kube-*, kwok, helm and Prometheus
-	$(BIN)/python e2e/cluster/harness.py build
+	$(BIN)/python e2e/bed/harness.py build
 
 images: venv ## Build (or reuse from ~/.cache/fogfleet/images) the operator, workload, pause and busybox images without Docker
-	$(BIN)/python e2e/cluster/images.py build
+	$(BIN)/python e2e/bed/images.py build
 
 cluster-up: venv ## Start the local bed (control plane, Prometheus, kwok and real nodes) on 127.0.0.1; PROFILE=paper for the paper's real nodes
-	$(BIN)/python e2e/cluster/harness.py up --profile $(or $(PROFILE),default)
+	$(BIN)/python e2e/bed/harness.py up --profile $(or $(PROFILE),default)
 
 cluster-down: venv ## Stop the local control plane and remove its state
-	$(BIN)/python e2e/cluster/harness.py down
+	$(BIN)/python e2e/bed/harness.py down
 
 cluster-status: venv ## Show the local control plane's processes and health
-	$(BIN)/python e2e/cluster/harness.py status
+	$(BIN)/python e2e/bed/harness.py status
 
 # The tools and images are built (or found in ~/.cache/fogfleet) before pytest starts: a fresh
 # machine's first build takes many minutes, more than any test's timeout.
@@ -63,11 +63,11 @@ e2e: venv cluster-tools images ## End-to-end tests on the local control plane (s
 	$(BIN)/pytest e2e -q --with-e2e
 
 e2e-k3d: venv ## The same e2e suite on a k3d cluster (needs Docker; not run on the dev machines)
-	bash e2e/k3d/run.sh
+	bash e2e/bed/k3d/run.sh
 
 chart-lint: venv ## helm lint + helm template of charts/fogfleet (helm from the cluster tools)
-	$(BIN)/python e2e/cluster/harness.py helm lint --strict charts/fogfleet
-	$(BIN)/python e2e/cluster/harness.py helm template fogfleet charts/fogfleet -n fogfleet-system > /dev/null
+	$(BIN)/python e2e/bed/harness.py helm lint --strict charts/fogfleet
+	$(BIN)/python e2e/bed/harness.py helm template fogfleet charts/fogfleet -n fogfleet-system > /dev/null
 
 $(CHECKOV_VENV)/bin/checkov:
 	$(PY) -m venv $(CHECKOV_VENV)
@@ -75,7 +75,7 @@ $(CHECKOV_VENV)/bin/checkov:
 
 checkov: venv $(CHECKOV_VENV)/bin/checkov ## checkov (offline) over manifests/install, the rendered chart and the rendered warehouse Deployments
 	@d=$$(mktemp -d); trap 'rm -rf "$$d"' EXIT; set -e; \
-	$(BIN)/python e2e/cluster/harness.py helm template fogfleet charts/fogfleet -n fogfleet-system > "$$d/chart.yaml"; \
+	$(BIN)/python e2e/bed/harness.py helm template fogfleet charts/fogfleet -n fogfleet-system > "$$d/chart.yaml"; \
 	mkdir "$$d/warehouse"; $(BIN)/fogfleet render manifests/examples/warehouse > "$$d/warehouse/deployments.yaml"; \
 	for target in manifests/install "$$d/chart.yaml"; do \
 	  echo "checkov: $$target"; \
@@ -92,16 +92,16 @@ bench-replan: venv ## A robot joining and an edge failing at 100, 300 and 1000 r
 	$(BIN)/fogfleet bench replan --robots $(or $(SIZES),100,300,1000) --runs 3
 
 bench-cluster: venv ## Operator benchmarks on the local control plane: apply-to-Running latency (40 and 400 pods), nsga2 vs kube-scheduler's real placement (~25 min)
-	$(BIN)/python e2e/bench_operator.py --runs 5
+	$(BIN)/python -m e2e.bench.cluster --runs 5
 
 bench-scale: venv cluster-tools ## The operator at 100, 300 and 1000 robots x 8 modules on kwok nodes: apply-to-Running vs plain, Ready lag, peak RSS, a robot joining; writes bench-scale.json
-	$(BIN)/python -m e2e.bench_scale --sizes $(or $(SIZES),100,300,1000) --repeats $(or $(REPEATS),1)
+	$(BIN)/python -m e2e.bench.scale --sizes $(or $(SIZES),100,300,1000) --repeats $(or $(REPEATS),1)
 
 bench-real: venv cluster-tools images ## The paper's real experiment on the paper bed (started if not running): nsga2 x6 vs kube-scheduler x6 (+ on-board x2, nsga2-static x3), 90 s warm-up + 60 s windows; writes bench-real.json (~55 min)
-	$(BIN)/python -m e2e.realbench
+	$(BIN)/python -m e2e.bench.real
 
 bench-real-report: venv ## Tables, docs/benchmarks/real-nodes.md and its plot from bench-real.json
-	$(BIN)/python -m e2e.realbench.report --json bench-real.json --docs docs/benchmarks/real-nodes.md --plot docs/benchmarks/real-nodes-perception.svg
+	$(BIN)/python -m e2e.bench.real.report --json bench-real.json --docs docs/benchmarks/real-nodes.md --plot docs/benchmarks/real-nodes-perception.svg
 
 demo: venv ## Plan + simulate the warehouse fleet, then run it on the local control plane (operator, real kube-scheduler)
 	$(BIN)/fogfleet plan manifests/examples/warehouse

@@ -1,1 +1,2 @@
-"""End-to-end tests and the local control-plane harness (see e2e/README.md)."""
+"""End-to-end: the local control-plane bed (``bed``), the tests on it (``tests``) and the
+benchmarks on it (``bench``); see e2e/README.md."""

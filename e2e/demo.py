@@ -18,9 +18,9 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from e2e.cluster import ensure_up  # noqa: E402
-from e2e.cluster.kube import Kube, guard_kubeconfig  # noqa: E402
-from e2e.operator_fixtures import Operator, conditions, example_docs, install_crds  # noqa: E402
+from e2e.bed import ensure_up  # noqa: E402
+from e2e.bed.kube import Kube, guard_kubeconfig  # noqa: E402
+from e2e.bed.operator_fixtures import Operator, conditions, example_docs, install_crds  # noqa: E402
 from fogfleet.controllers.ros import is_ros_object  # noqa: E402
 
 NAMESPACE = "fogfleet-demo"

@@ -38,7 +38,7 @@ def cmd_twin(args: argparse.Namespace) -> int:
 
 def cmd_bench(args: argparse.Namespace) -> int:
     if args.suite == "autoscaling":
-        from fogfleet.autoscaling import bench as abench
+        from fogfleet.bench import autoscaling as abench
 
         # the predictive policy's settings were tuned on seeds 1-5: report held-out seeds
         first = AUTOSCALING_FIRST_SEED
@@ -50,17 +50,17 @@ def cmd_bench(args: argparse.Namespace) -> int:
             print(abench.format_table(results))
         return 0
     if args.suite == "replan":
-        from fogfleet.scheduling.bench import format_table
-        from fogfleet.scheduling.bench_replan import replan_rows
+        from fogfleet.bench.replan import replan_rows
+        from fogfleet.bench.scheduling import format_table
 
         sizes = tuple(int(n) for n in args.robots.split(","))
         rows = replan_rows(sizes, runs=args.runs, seed=args.seed or 1)
         print(json.dumps(rows, indent=2) if args.json else format_table(rows))
         return 0
-    from fogfleet import benchmarks
+    from fogfleet.bench import suite
 
-    report = benchmarks.run_scheduling(runs=args.runs, quick=args.quick)
-    print(json.dumps(report, indent=2) if args.json else benchmarks.format_scheduling(report))
+    report = suite.run_scheduling(runs=args.runs, quick=args.quick)
+    print(json.dumps(report, indent=2) if args.json else suite.format_scheduling(report))
     return 0
 
 

@@ -3,7 +3,7 @@ SoftwareModule with ``spec.scaling`` (backend ``fogfleet``).
 
 One reconcile, level-based and restart-safe:
 
-1. Read the metrics contract (``fogfleet.autoscaling.contract``) from Prometheus into a
+1. Read the metrics contract (``fogfleet.contract.metrics``) from Prometheus into a
    :class:`~fogfleet.autoscaling.policy.MetricsSnapshot`: the SLO per pool (contract histogram
    per ``tier``, or the raw ``slo.query``) for ``mode: reactive``; the offered rate of each
    privacy class for ``mode: predictive``; CPU utilisation (cAdvisor + kube-state-metrics) for

@@ -1,5 +1,5 @@
 """What the scaling controller reads from Prometheus: the metrics contract
-(``fogfleet.autoscaling.contract``) for one shared module, per pool, as a MetricsSnapshot's
+(``fogfleet.contract.metrics``) for one shared module, per pool, as a MetricsSnapshot's
 parts; a missing, empty or rejected query is reported (``problem``), never raised.
 """
 
@@ -14,10 +14,10 @@ from fogfleet.adapters.prometheus import QUERY_FIELD
 from fogfleet.api.labels import LABEL_TIER
 from fogfleet.api.v1alpha1.scaling import Mode, ScalingSpec
 from fogfleet.api.v1alpha1.softwaremodule import SoftwareModule
-from fogfleet.autoscaling import contract
-from fogfleet.autoscaling.contract import histogram_of
 from fogfleet.autoscaling.policy import Pool, TierMetrics
 from fogfleet.autoscaling.pools import ALL
+from fogfleet.contract import metrics as contract
+from fogfleet.contract.metrics import histogram_of
 from fogfleet.errors import DependencyUnavailable, InvalidSpec
 
 from .deps import ScalingDeps

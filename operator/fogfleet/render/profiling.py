@@ -27,13 +27,13 @@ from fogfleet.api.labels import (
 )
 from fogfleet.api.v1alpha1.base import format_millicores
 from fogfleet.api.v1alpha1.softwaremodule import SoftwareModule
+from fogfleet.contract.env import ENV_PROFILE_CYCLES
 from fogfleet.render.deployments import label_value, node_affinity
 from fogfleet.render.podtemplate import module_pod_spec
 from fogfleet.render.ros import module_env, stay_on_robot
 
 __all__ = ["ENV_PROFILE_CYCLES", "profiling_job_name", "profiling_selector", "render_profiling_job"]
 
-ENV_PROFILE_CYCLES = "FOGFLEET_PROFILE_CYCLES"
 TTL_SECONDS = 3600  # the operator deletes a recorded run's Jobs; this cleans up the rest
 
 

@@ -24,6 +24,19 @@ from fogfleet.api.labels import LABEL_COMPONENT, LABEL_ROBOT
 from fogfleet.api.v1alpha1.fallback import Fallback
 from fogfleet.api.v1alpha1.robotfleet import RosSettings
 from fogfleet.api.v1alpha1.softwaremodule import ProfileEntry, SoftwareModule
+from fogfleet.contract.env import (
+    ENV_CPU,
+    ENV_FLEET,
+    ENV_HARDWARE_TYPE,
+    ENV_MODULE,
+    ENV_MODULE_SPEC,
+    ENV_NODE,
+    ENV_ROBOT,
+    ENV_ROLE,
+    ENV_TIER,
+    ENV_VARIANT,
+    METRICS_PORT,
+)
 from fogfleet.domain.pairs import rows_for
 
 __all__ = [
@@ -41,7 +54,6 @@ __all__ = [
     "stay_on_robot",
 ]
 
-METRICS_PORT = 9100
 PROBE_PORT = 42100  # the discovery server's TCP listener, for the kubelet's probes
 COMPONENT_DISCOVERY = "ros-discovery-server"
 NON_ROOT_UID = 65532
@@ -187,23 +199,23 @@ def module_env(
     FOGFLEET_MODULE and the metrics, the variant's in FOGFLEET_VARIANT).
     """
     env = {
-        "FOGFLEET_FLEET": fleet,
-        "FOGFLEET_ROBOT": robot,
-        "FOGFLEET_MODULE": stands_in_for or module.metadata.name,
-        "FOGFLEET_TIER": tier,
-        "FOGFLEET_NODE": node,
-        "FOGFLEET_HARDWARE_TYPE": hardware_type,
-        "FOGFLEET_CPU": cpu,
-        "FOGFLEET_MODULE_SPEC": module_spec_json(
+        ENV_FLEET: fleet,
+        ENV_ROBOT: robot,
+        ENV_MODULE: stands_in_for or module.metadata.name,
+        ENV_TIER: tier,
+        ENV_NODE: node,
+        ENV_HARDWARE_TYPE: hardware_type,
+        ENV_CPU: cpu,
+        ENV_MODULE_SPEC: module_spec_json(
             module, hardware_type, node_rows, fallback, remote_cycle_millis, speed_factor
         ),
     }
     if role:
-        env["FOGFLEET_ROLE"] = role
+        env[ENV_ROLE] = role
     if stands_in_for:
-        env["FOGFLEET_VARIANT"] = module.metadata.name
+        env[ENV_VARIANT] = module.metadata.name
     if node_rows:
-        del env["FOGFLEET_NODE"], env["FOGFLEET_CPU"], env["FOGFLEET_HARDWARE_TYPE"]
+        del env[ENV_NODE], env[ENV_CPU], env[ENV_HARDWARE_TYPE]
     if wiring is not None and wiring.settings.enabled:
         ros = wiring.settings
         env |= {
@@ -219,7 +231,7 @@ def module_env(
     out: list[dict[str, Any]] = _env(env)
     if node_rows:
         node_ref = {"fieldRef": {"apiVersion": "v1", "fieldPath": "spec.nodeName"}}
-        out.insert(4, {"name": "FOGFLEET_NODE", "valueFrom": node_ref})
+        out.insert(4, {"name": ENV_NODE, "valueFrom": node_ref})
     return out
 
 

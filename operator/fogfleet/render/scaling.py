@@ -21,8 +21,8 @@ from typing import Any
 
 from fogfleet.api.labels import LABEL_MANAGED_BY, LABEL_MODULE, MANAGER
 from fogfleet.api.v1alpha1.scaling import ScalingSpec
-from fogfleet.autoscaling import contract
 from fogfleet.autoscaling.behavior import Behavior, ScalingRules, resolve_behavior
+from fogfleet.contract import metrics as contract
 
 __all__ = ["SLO_METRIC", "behavior_block", "render_hpa", "render_scaled_object", "slo_promql"]
 

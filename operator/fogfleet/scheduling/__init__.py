@@ -1,5 +1,6 @@
 """The pure scheduling core: objectives (F1-F4 and extensions), the pymoo problem and
-operators, NSGA-II and baseline planners, Pareto choice, an exact MILP and benchmarks.
+operators, NSGA-II and baseline planners, Pareto choice and an exact MILP
+(the benchmarks are in ``fogfleet.bench``).
 
 Entry point: ``plan(problem, settings, progress) -> Schedule``.
 """

@@ -1,4 +1,4 @@
-"""The contract metrics (``fogfleet.autoscaling.contract``) of the simulated services.
+"""The contract metrics (``fogfleet.contract.metrics``) of the simulated services.
 
 The twin is one scrape target for many namespaces, so it sets ``namespace`` itself (on a real
 cluster Prometheus' Kubernetes discovery adds it per pod). Counters of both privacy classes
@@ -11,7 +11,7 @@ from collections.abc import Iterable
 
 from prometheus_client import CollectorRegistry, Counter, Gauge, Histogram
 
-from fogfleet.autoscaling import contract
+from fogfleet.contract import metrics as contract
 
 from .model import Rejected, Served
 

@@ -8,6 +8,8 @@ import dataclasses
 import os
 import sys
 
+from fogfleet.contract.env import ENV_METRICS_HOST, ENV_METRICS_PORT, METRICS_PORT
+
 from .profile import DEFAULT_OUTPUT, ENV_PROFILE_OUTPUT, profile_cycles, run_profile
 from .spec import WorkloadSpec
 from .work import describe, work_for
@@ -17,8 +19,8 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="fogfleet-workload", description=__doc__)
     sub = parser.add_subparsers(dest="cmd", required=True)
     m = sub.add_parser("module", help="play the SoftwareModule in $FOGFLEET_MODULE_SPEC")
-    m.add_argument("--host", default=os.environ.get("FOGFLEET_METRICS_HOST", "0.0.0.0"))
-    m.add_argument("--port", type=int, default=int(os.environ.get("FOGFLEET_METRICS_PORT", "9100")))
+    m.add_argument("--host", default=os.environ.get(ENV_METRICS_HOST, "0.0.0.0"))
+    m.add_argument("--port", type=int, default=int(os.environ.get(ENV_METRICS_PORT, METRICS_PORT)))
     m.add_argument(
         "--work-factor",
         type=_work_factor,
@@ -39,7 +41,7 @@ def main(argv: list[str] | None = None) -> int:
     p = sub.add_parser(
         "probe", help="measure the cycle times of the module in $FOGFLEET_MODULE_SPEC (sidecar)"
     )
-    p.add_argument("--host", default=os.environ.get("FOGFLEET_METRICS_HOST", "0.0.0.0"))
+    p.add_argument("--host", default=os.environ.get(ENV_METRICS_HOST, "0.0.0.0"))
     p.add_argument("--port", type=int, default=9101)
     d = sub.add_parser("discovery-server", help="the robot's Fast DDS discovery server")
     d.add_argument("--listen", default="0.0.0.0")

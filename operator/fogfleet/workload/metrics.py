@@ -14,7 +14,7 @@ from typing import Any
 from prometheus_client import CollectorRegistry, Counter, Gauge, Histogram, generate_latest
 from prometheus_client.exposition import CONTENT_TYPE_LATEST
 
-from fogfleet.autoscaling.contract import (
+from fogfleet.contract.metrics import (
     CYCLE_TIME,
     EXECUTION_TIME,
     HISTOGRAM_BUCKETS_SECONDS,

@@ -19,6 +19,8 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
+from fogfleet.contract.env import ENV_PROFILE_CYCLES, ENV_PROFILE_OUTPUT
+
 from .spec import WorkloadSpec
 from .work import Work
 
@@ -32,8 +34,6 @@ __all__ = [
     "summarise",
 ]
 
-ENV_PROFILE_CYCLES = "FOGFLEET_PROFILE_CYCLES"
-ENV_PROFILE_OUTPUT = "FOGFLEET_PROFILE_OUTPUT"
 DEFAULT_OUTPUT = "/dev/termination-log"
 MAX_MESSAGE_BYTES = 4096
 

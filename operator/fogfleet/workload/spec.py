@@ -8,6 +8,19 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
+from fogfleet.contract.env import (
+    ENV_CPU,
+    ENV_FLEET,
+    ENV_HARDWARE_TYPE,
+    ENV_MODULE,
+    ENV_NODE,
+    ENV_ROBOT,
+    ENV_ROLE,
+    ENV_TIER,
+)
+from fogfleet.contract.env import ENV_MODULE_SPEC as ENV_SPEC
+from fogfleet.contract.quantity import parse_quantity as _quantity
+
 from .fallback import Role
 
 __all__ = [
@@ -21,8 +34,6 @@ __all__ = [
     "sample_exec_seconds",
 ]
 
-ENV_SPEC = "FOGFLEET_MODULE_SPEC"
-ENV_ROLE = "FOGFLEET_ROLE"  # fallback.Role: primary (default), remote or standby
 # fogfleet.sim.episodes: the same activation episodes the simulator draws (a unit test keeps
 # the two equal; the workload image carries no numpy-based simulator).
 ACTIVE_PERIOD_S, MIN_ACTIVE_S, MAX_ACTIVE_S = 40.0, 10.0, 30.0
@@ -66,18 +77,6 @@ def exec_time(rows: list[ExecRow], cpu: float | None) -> ExecRow:
 def sample_exec_seconds(row: ExecRow, rng: random.Random) -> float:
     """One cycle's execution time at full share: normal, never below a tenth of the mean."""
     return max(row.mean_s * 0.1, rng.gauss(row.mean_s, row.std_s))
-
-
-def _quantity(value: Any) -> float:
-    """Quantities as the operator renders them: numbers, or strings such as "80Ki" / "500m"."""
-    if isinstance(value, int | float):
-        return float(value)
-    text = str(value).strip()
-    units = {"Ki": 2**10, "Mi": 2**20, "Gi": 2**30, "k": 1e3, "M": 1e6, "m": 1e-3}
-    for suffix, factor in units.items():
-        if text.endswith(suffix):
-            return float(text[: -len(suffix)]) * factor
-    return float(text)
 
 
 @dataclass(frozen=True)
@@ -129,20 +128,20 @@ class WorkloadSpec:
             raise ValueError(f"{ENV_SPEC}: not JSON ({exc})") from exc
         try:
             topics = raw.get("topics") or {}
-            node = env.get("FOGFLEET_NODE", "")
+            node = env.get(ENV_NODE, "")
             # a plain Deployment learns its node only when it runs (the downward API), so its
             # spec carries the rows of every node it may land on
             rows = (raw.get("profileByNode") or {}).get(node, raw.get("profile", []))
-            cpu = env.get("FOGFLEET_CPU", "")
+            cpu = env.get(ENV_CPU, "")
             fallback = raw.get("fallback") or {}
             role = env.get(ENV_ROLE, Role.PRIMARY.value)
             if role not in {r.value for r in Role}:
                 raise ValueError(f"{ENV_ROLE}={role!r}: one of {', '.join(r.value for r in Role)}")
             return cls(
-                fleet=env.get("FOGFLEET_FLEET", ""),
-                robot=env.get("FOGFLEET_ROBOT", ""),
-                module=env.get("FOGFLEET_MODULE", raw.get("module", "module")),
-                tier=env.get("FOGFLEET_TIER", "robot"),
+                fleet=env.get(ENV_FLEET, ""),
+                robot=env.get(ENV_ROBOT, ""),
+                module=env.get(ENV_MODULE, raw.get("module", "module")),
+                tier=env.get(ENV_TIER, "robot"),
                 node=node,
                 cpu=_quantity(cpu) if cpu else None,
                 cycle_s=_quantity(raw["cycleTimeMillis"]) / 1e3,
@@ -163,7 +162,7 @@ class WorkloadSpec:
                 role=Role(role),
                 silent_cycles=_positive(fallback, "silentCycles", 3),
                 step_back_cycles=_positive(fallback, "stepBackCycles", 10),
-                hardware_type=env.get("FOGFLEET_HARDWARE_TYPE", ""),
+                hardware_type=env.get(ENV_HARDWARE_TYPE, ""),
                 remote_cycle_s=(
                     _quantity(fallback["remoteCycleTimeMillis"]) / 1e3
                     if "remoteCycleTimeMillis" in fallback

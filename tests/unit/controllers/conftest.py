@@ -66,7 +66,7 @@ class FakeKube:
         ex = ROOT / "manifests" / "examples" / "warehouse"
         for d in docs(ex / "nodes.yaml", ex / "modules.yaml", ex / "fleet.yaml"):
             self.add(d)
-        for d in docs(ROOT / "e2e" / "cluster" / "nodes.yaml"):
+        for d in docs(ROOT / "e2e" / "bed" / "nodes.yaml"):
             d.setdefault("status", {})["conditions"] = [{"type": "Ready", "status": "True"}]
             self.nodes[d["metadata"]["name"]] = d
 

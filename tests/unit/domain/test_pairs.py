@@ -7,10 +7,10 @@ import numpy as np
 
 from fogfleet.api.loader import Catalog
 from fogfleet.api.v1alpha1.common import Tier
+from fogfleet.bench.scheduling import synthetic_fleet
 from fogfleet.domain.build import build_problem
 from fogfleet.domain.network import uplink
 from fogfleet.domain.pairs import Pair, PairTable, pad_rungs
-from fogfleet.scheduling.bench import synthetic_fleet
 
 
 def _fleet_with_a_slow_robot() -> tuple[Catalog, object]:

@@ -77,7 +77,7 @@ def test_requests_are_the_planned_cpu_and_limits_leave_the_fleets_headroom(catal
 def test_a_limit_never_exceeds_what_its_node_has_for_pods():
     """The paper bed's 300m edge: segmentation planned at 267m would get a 534m limit, which a
     node whose CPU is a cgroup quota refuses (runc: cpu.cfs_quota_us invalid argument)."""
-    catalog = load_paths([Path(__file__).resolve().parents[3] / "e2e" / "realbench" / "paper"])
+    catalog = load_paths([Path(__file__).resolve().parents[3] / "e2e" / "bench" / "real" / "paper"])
     problem = build_problem(catalog.fleets[0], catalog)
     small = next(j for j, n in enumerate(problem.nodes) if n.name == "paper-edge-2")
     seg = next(i for i, inst in enumerate(problem.instances) if inst.module == "scene-segmentation")
@@ -93,7 +93,7 @@ def test_a_degraded_instance_plays_the_row_it_was_planned_to_burst_to():
     """Degraded one rung, segmentation is guaranteed 133m and may burst to the 267m its
     deadline needs; planner and simulator run it at the 267m row (85 ms), so must the pod
     (it played the 133m row, 145 ms of a 150 ms cycle, and missed 38 % on the paper bed)."""
-    catalog = load_paths([Path(__file__).resolve().parents[3] / "e2e" / "realbench" / "paper"])
+    catalog = load_paths([Path(__file__).resolve().parents[3] / "e2e" / "bench" / "real" / "paper"])
     problem = build_problem(catalog.fleets[0], catalog)
     big = next(j for j, n in enumerate(problem.nodes) if n.name == "paper-edge-1")
     seg = next(i for i, inst in enumerate(problem.instances) if inst.module == "scene-segmentation")

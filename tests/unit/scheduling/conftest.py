@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from fogfleet.api.v1alpha1.common import Tier
+from fogfleet.bench.scheduling import warehouse_problem
 from fogfleet.domain.problem import Allocation, Instance, NodeInfo, Problem
-from fogfleet.scheduling.bench import warehouse_problem
 
 
 def make_problem(

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from fogfleet.api.loader import load_paths
+from fogfleet.bench.scheduling import WAREHOUSE
 from fogfleet.domain.build import build_problem
-from fogfleet.scheduling.bench import WAREHOUSE
 from fogfleet.scheduling.convergence import (
     StallWatch,
     improves,

@@ -11,10 +11,10 @@ import pytest
 
 from fogfleet.api.loader import Catalog
 from fogfleet.api.v1alpha1.robotfleet import RobotFleet, SchedulerSettings
+from fogfleet.bench.scheduling import synthetic_fleet
 from fogfleet.domain.build import build_problem
 from fogfleet.domain.problem import Problem, freeze
 from fogfleet.scheduling import incremental
-from fogfleet.scheduling.bench import synthetic_fleet
 from fogfleet.scheduling.incremental import changed_instances, replan
 from fogfleet.scheduling.solver import plan
 from fogfleet.scheduling.stickiness import feasible, fill_around, mask_unavailable

@@ -8,10 +8,10 @@ import numpy as np
 import pytest
 
 from fogfleet.api.v1alpha1.robotfleet import SchedulerSettings
+from fogfleet.bench.scheduling import synthetic_fleet
 from fogfleet.domain.build import build_problem
 from fogfleet.domain.problem import Problem
 from fogfleet.scheduling import solver
-from fogfleet.scheduling.bench import synthetic_fleet
 from fogfleet.scheduling.heuristics import Fit, greedy
 from fogfleet.scheduling.levelling import (
     MISS_TOLERANCE,

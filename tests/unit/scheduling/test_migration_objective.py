@@ -7,7 +7,7 @@ import dataclasses
 import numpy as np
 
 from fogfleet.api.v1alpha1.robotfleet import SchedulerSettings
-from fogfleet.scheduling.bench import warehouse_problem
+from fogfleet.bench.scheduling import warehouse_problem
 from fogfleet.scheduling.solver import plan
 
 WITH_MOVES = ["missRate", "migrations", "missedCycles", "onboard", "reserve", "balance"]

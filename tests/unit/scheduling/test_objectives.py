@@ -132,9 +132,9 @@ def test_module_miss_rates_make_up_the_fleets_miss_rate() -> None:
     """One definition: the fleet's missRate is the mean of the per-module predictions (the
     plan's per-module table cannot disagree with its total)."""
     from fogfleet.api.loader import load_paths
+    from fogfleet.bench.scheduling import WAREHOUSE
     from fogfleet.domain.build import build_problem
     from fogfleet.scheduling.baselines import onboard_plan
-    from fogfleet.scheduling.bench import WAREHOUSE
     from fogfleet.scheduling.objectives import module_miss_rates
 
     catalog = load_paths([WAREHOUSE])

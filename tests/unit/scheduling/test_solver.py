@@ -7,10 +7,10 @@ import pytest
 
 from fogfleet.api.loader import load_paths
 from fogfleet.api.v1alpha1.robotfleet import SchedulerSettings
+from fogfleet.bench.scheduling import WAREHOUSE
 from fogfleet.domain.build import build_problem
 from fogfleet.domain.problem import Problem
 from fogfleet.errors import Infeasible
-from fogfleet.scheduling.bench import WAREHOUSE
 from fogfleet.scheduling.exact import solve_exact
 from fogfleet.scheduling.solver import plan
 

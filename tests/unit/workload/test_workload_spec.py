@@ -91,19 +91,25 @@ def test_sampled_work_is_never_negative() -> None:
 
 def test_the_workload_imports_with_only_what_its_image_installs() -> None:
     """The ROS 2 image installs fogfleet with --no-deps (rclpy and prometheus-client only):
-    no workload entry point may pull pydantic, numpy, kopf or kubernetes in."""
+    no workload entry point may pull pydantic, numpy, kopf or kubernetes in, nor any fogfleet
+    package but the workload and the stdlib-only contract."""
     import subprocess
     import sys
 
-    blocked = ["pydantic", "numpy", "kopf", "kubernetes", "pymoo", "yaml"]
+    blocked = ["pydantic", "pydantic_settings", "numpy", "scipy", "kopf", "kubernetes", "pymoo",
+               "yaml", "prometheus_api_client", "requests", "highspy", "tqdm"]  # fmt: skip
     code = (
         "import sys\n"
         + "".join(f"sys.modules[{name!r}] = None\n" for name in blocked)
         + "import fogfleet.workload.__main__, fogfleet.workload.module, fogfleet.workload.probe\n"
-        + "import fogfleet.workload.discovery\n"
+        + "import fogfleet.workload.discovery, fogfleet.workload.profile\n"
+        + "print(' '.join(sorted(m for m in sys.modules if m.startswith('fogfleet.'))))\n"
     )
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
     assert proc.returncode == 0, proc.stderr
+    loaded = proc.stdout.split()
+    assert any(m.startswith("fogfleet.contract") for m in loaded)
+    assert all(m.startswith(("fogfleet.workload", "fogfleet.contract")) for m in loaded), loaded
 
 
 def test_a_plain_deployment_without_a_limit_plays_its_nodes_rows_at_full_parallelism() -> None:

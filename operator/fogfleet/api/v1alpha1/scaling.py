@@ -67,7 +67,7 @@ PoolTier = Literal[Tier.EDGE, Tier.CLOUD]
 
 
 class SloMetric(StrEnum):
-    """Histograms of the metrics contract an SLO can name (fogfleet.autoscaling.contract)."""
+    """Histograms of the metrics contract an SLO can name (fogfleet.contract.metrics)."""
 
     RESPONSE_TIME = "responseTime"
     CYCLE_TIME = "cycleTime"

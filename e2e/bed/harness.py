@@ -1,0 +1,184 @@
+#!/usr/bin/env python3
+"""A real Kubernetes control plane for fogfleet's e2e tests, run as local processes (no Docker).
+
+    python e2e/bed/harness.py build | up [--profile default|paper] | down | status
+    python e2e/bed/harness.py nodes [--robots N --edges M --cloud K]
+    python e2e/bed/harness.py kubectl ARGS... | helm ARGS...
+
+Why it looks like this (see e2e/README.md and /work/shared/design/CLUSTER.md):
+
+* Every binary is built from published Go modules (k8s.io/kubernetes through a wrapper module
+  whose ``replace`` lines are generated from k8s's own go.mod, kwok, etcd, helm) or unpacked from
+  Debian's ``prometheus`` package. Versions live in ``versions.env`` next to this file; builds
+  are cached under ``${XDG_CACHE_HOME:-~/.cache}/fogfleet/tools/<tool>-<version>/`` and reused
+  after a ``--version`` check. ``GOTOOLCHAIN=local`` always: a too-old Go fails at once.
+* The processes are started by this module directly (CLUSTER.md "Option B"), not by kwokctl:
+  flags, ports, PKI and the Prometheus config are all ours, so nothing listens beyond
+  127.0.0.1 and nothing tries to download release binaries.
+* kwok plays every kubelet. Fake nodes report ``localhost`` as their only address, so the
+  apiserver's kubelet calls reach kwok on loopback. Pod and Service IPs are data only.
+* Processes are detached (own session) and outlive this script; pids and start times are
+  stored, and ``down`` signals exactly those pids after checking they are still ours.
+
+Only the standard library is used, so the script runs with any python3 >= 3.11.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import time
+from collections.abc import Mapping
+from pathlib import Path
+
+if __package__ in (None, ""):  # run as a script: make the repository root importable
+    sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
+
+from e2e.bed import links, realnodes
+from e2e.bed.base import (
+    BIN_DIR,
+    CACHE_ROOT,
+    KUBECONFIG,
+    PROMETHEUS_TARGETS_DIR,
+    STATE_DIR,
+    TOOLS_DIR,
+    HarnessError,
+    load_versions,
+    locked,
+    log,
+    run,
+)
+from e2e.bed.bed import down, ensure_up, status
+from e2e.bed.cluster import COMPONENTS, Cluster, running
+from e2e.bed.fakenodes import NODES_FILE, create_nodes, generated_nodes, node_object
+from e2e.bed.realnodes import DEFAULT_PROFILE, PROFILES
+from e2e.bed.tools import TOOLS, GoToolchain, _staging_modules, ensure_built
+
+__all__ = [
+    "BIN_DIR",
+    "CACHE_ROOT",
+    "COMPONENTS",
+    "KUBECONFIG",
+    "NODES_FILE",
+    "PROMETHEUS_TARGETS_DIR",
+    "STATE_DIR",
+    "TOOLS_DIR",
+    "Cluster",
+    "GoToolchain",
+    "HarnessError",
+    "_staging_modules",
+    "create_nodes",
+    "down",
+    "ensure_built",
+    "ensure_up",
+    "generated_nodes",
+    "load_versions",
+    "locked",
+    "log",
+    "node_object",
+    "run",
+    "running",
+]
+
+
+def _exec(argv: list[str], env: Mapping[str, str] | None = None) -> None:
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os.execve(argv[0], argv, dict(env if env is not None else os.environ))
+
+
+def _link(argv: list[str]) -> int:
+    """``harness.py link NODE [--delay ...] [--reset]``: change a running real node's link
+    (here, above both: ``realnodes`` knows the node and applies ``links``' settings)."""
+    ns = links.parse_args(argv)
+    node = realnodes.declared(ns.node)
+    spec = realnodes.set_link(node, **({} if ns.reset else links.change_from_args(ns)))
+    print(f"{ns.node}: {spec.describe()}")
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = list(sys.argv[1:] if argv is None else argv)
+    # passthroughs first: their arguments are not ours to parse
+    if args and args[0] == "kubectl":
+        with locked():
+            ensure_built(["k8s"], quiet=True)
+        if not KUBECONFIG.exists():
+            raise HarnessError("no cluster: run `harness.py up` first")
+        _exec([str(BIN_DIR / "kubectl"), f"--kubeconfig={KUBECONFIG}", *args[1:]])
+    if args and args[0] == "link":
+        return _link(args[1:])
+    if args and args[0] == "helm":
+        with locked():
+            ensure_built(["helm"], quiet=True)
+        home = CACHE_ROOT / "helm-home"
+        env = dict(
+            os.environ,
+            HELM_CACHE_HOME=str(home / "cache"),
+            HELM_CONFIG_HOME=str(home / "config"),
+            HELM_DATA_HOME=str(home / "data"),
+        )
+        if KUBECONFIG.exists():
+            env["KUBECONFIG"] = str(KUBECONFIG)
+        _exec([str(BIN_DIR / "helm"), *args[1:]], env)
+
+    parser = argparse.ArgumentParser(prog="harness.py", description=__doc__.split("\n\n")[0])
+    sub = parser.add_subparsers(dest="cmd", required=True)
+    b = sub.add_parser("build", help="build or reuse the pinned tools")
+    b.add_argument("--only", default=",".join(TOOLS), help=f"comma list of {','.join(TOOLS)}")
+    b.add_argument("--force", action="store_true", help="rebuild even when cached")
+    u = sub.add_parser("up", help="start the control plane (idempotent)")
+    u.add_argument(
+        "--profile",
+        default=DEFAULT_PROFILE,
+        choices=sorted(PROFILES),
+        help="which real nodes the bed runs (a running bed of another profile is restarted)",
+    )
+    sub.add_parser("down", help="stop the control plane and remove its state")
+    sub.add_parser("status", help="components, pids, ports, health")
+    n = sub.add_parser("nodes", help="replace the fake nodes (default: nodes.yaml)")
+    n.add_argument("--robots", type=int)
+    n.add_argument("--edges", type=int)
+    n.add_argument("--cloud", type=int, default=1)
+    sub.add_parser("kubectl", help="kubectl ARGS... with the test kubeconfig")
+    sub.add_parser("helm", help="helm ARGS... (cached helm binary)")
+    sub.add_parser(
+        "link", help="NODE [--delay 20ms] [--jitter 5ms] [--rate 50mbit] [--loss 100%%] [--reset]"
+    )
+    ns = parser.parse_args(args)
+
+    if ns.cmd == "build":
+        with locked():
+            t0 = time.monotonic()
+            bin_dir = ensure_built([t for t in ns.only.split(",") if t], force=ns.force)
+        log(f"tools ready in {bin_dir} ({time.monotonic() - t0:.1f}s)")
+        return 0
+    if ns.cmd == "up":
+        cluster = ensure_up(profile=ns.profile)
+        print(f"bed profile: {cluster.profile} ({', '.join(cluster.real_nodes)})")
+        print(f"kubeconfig: {cluster.kubeconfig}")
+        print(f"api server: {cluster.api_server}")
+        print(f"prometheus: {cluster.prometheus_url}")
+        print(f"export KUBECONFIG={cluster.kubeconfig}")
+        return 0
+    if ns.cmd == "down":
+        return down()
+    if ns.cmd == "status":
+        return status()
+    if ns.cmd == "nodes":
+        names = create_nodes(ns.robots, ns.edges, ns.cloud)
+        print(f"{len(names)} nodes: {' '.join(names)}")
+        return 0
+    parser.error(f"unknown command {ns.cmd}")
+    return 2
+
+
+if __name__ == "__main__":
+    try:
+        sys.exit(main())
+    except HarnessError as exc:
+        print(f"harness: error: {exc}", file=sys.stderr)
+        sys.exit(1)
+    except KeyboardInterrupt:
+        sys.exit(130)

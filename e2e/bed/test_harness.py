@@ -1,0 +1,184 @@
+"""Fast checks of the harness and the kubeconfig guard (no cluster, no network)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from e2e.bed import harness
+from e2e.bed.kube import UnsafeKubeconfig, guard_kubeconfig
+from e2e.bed.realnodes import split_manifest
+
+
+def _kubeconfig(path: Path, *servers: str) -> Path:
+    path.write_text(
+        json.dumps(
+            {
+                "apiVersion": "v1",
+                "kind": "Config",
+                "clusters": [
+                    {"name": f"c{i}", "cluster": {"server": s}} for i, s in enumerate(servers)
+                ],
+                "users": [{"name": "u", "user": {"token": "t"}}],
+                "contexts": [{"name": "ctx", "context": {"cluster": "c0", "user": "u"}}],
+                "current-context": "ctx",
+            }
+        )
+    )
+    return path
+
+
+@pytest.fixture
+def harness_kubeconfig(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Path:
+    path = tmp_path / "kubeconfig"
+    monkeypatch.setattr(harness, "KUBECONFIG", path)
+    return path
+
+
+def test_guard_accepts_the_harness_kubeconfig(harness_kubeconfig: Path) -> None:
+    _kubeconfig(harness_kubeconfig, "https://127.0.0.1:26443")
+    server = guard_kubeconfig(harness_kubeconfig, expected_server="https://127.0.0.1:26443")
+    assert server == "https://127.0.0.1:26443"
+
+
+@pytest.mark.parametrize(
+    "server", ["https://10.0.0.1:6443", "https://127.0.0.1:6443", "https://prod.example.com"]
+)
+def test_guard_refuses_another_api_server(harness_kubeconfig: Path, server: str) -> None:
+    _kubeconfig(harness_kubeconfig, server)
+    with pytest.raises(UnsafeKubeconfig, match="not the harness's own"):
+        guard_kubeconfig(harness_kubeconfig, expected_server="https://127.0.0.1:26443")
+
+
+def test_guard_refuses_a_file_that_is_not_the_harness_kubeconfig(
+    harness_kubeconfig: Path, tmp_path: Path
+) -> None:
+    other = _kubeconfig(tmp_path / "copy", "https://127.0.0.1:26443")
+    with pytest.raises(UnsafeKubeconfig, match="is not the harness kubeconfig"):
+        guard_kubeconfig(other, expected_server="https://127.0.0.1:26443")
+
+
+def test_guard_refuses_a_kubeconfig_with_several_clusters(tmp_path: Path) -> None:
+    path = _kubeconfig(tmp_path / "kc", "https://127.0.0.1:16550", "https://prod:6443")
+    with pytest.raises(UnsafeKubeconfig, match="exactly one cluster"):
+        guard_kubeconfig(path, expected_server=None)
+
+
+def test_staging_modules_come_from_the_v0_0_0_requires() -> None:
+    gomod = """module k8s.io/kubernetes
+require (
+\tk8s.io/api v0.0.0
+\tk8s.io/utils v0.0.0-20260210185600-b8788abfbbc2
+\tk8s.io/kubectl v0.0.0
+)
+require k8s.io/streaming v0.0.0
+replace (
+\tk8s.io/api => ./staging/src/k8s.io/api
+)
+"""
+    assert harness._staging_modules(gomod) == ["k8s.io/api", "k8s.io/kubectl", "k8s.io/streaming"]
+
+
+def test_generated_nodes_label_like_nodes_yaml() -> None:
+    fake, _ = split_manifest(harness.NODES_FILE.read_text())
+    fixed = {d["metadata"]["name"]: d for d in fake}
+    generated = {n["metadata"]["name"]: n for n in harness.generated_nodes(5, 6, 1)}
+    for name, node in generated.items():
+        assert node["metadata"]["labels"] == fixed[name]["metadata"]["labels"], name
+        assert node["status"] == fixed[name]["status"], name
+    assert set(fixed) - set(generated) == {"solo-robot", "solo-edge"}
+    assert all(not d.get("spec", {}).get("taints") for d in fixed.values())
+    assert all(d["metadata"]["annotations"]["kwok.x-k8s.io/node"] == "fake" for d in fake)
+
+
+def test_nodes_yaml_declares_two_real_robots_and_a_real_edge_node() -> None:
+    _, real = split_manifest(harness.NODES_FILE.read_text())
+    tiers = sorted(n.labels["fogfleet.io/tier"] for n in real)
+    assert tiers == ["edge", "robot", "robot"]
+    for node in real:
+        assert node.labels["fogfleet.io/e2e-real"] == "true"  # fake-node tests exclude them
+        assert 0 < node.cpu_millis < 2000 and node.memory_bytes >= 2**30
+        assert node.link["latencyMillis"] >= 0 and node.link["type"] in ("wifi", "lan", "wan")
+    assert [n.index for n in real] == [1, 2, 3]
+    assert len({n.net.ip for n in real} | {n.net.pod_cidr for n in real}) == 6
+
+
+def test_a_real_node_without_its_share_is_refused() -> None:
+    doc = """
+apiVersion: v1
+kind: Node
+metadata:
+  name: r
+  annotations: {fogfleet.io/e2e-real: "true", fogfleet.io/e2e-memory: 1Gi}
+"""
+    with pytest.raises(harness.HarnessError, match=r"real node r: bad or missing .*e2e-cpu"):
+        split_manifest(doc)
+
+
+def test_scrape_targets_must_be_loopback(tmp_path: Path) -> None:
+    cluster = harness.Cluster(
+        state_dir=tmp_path,
+        bin_dir=tmp_path,
+        kubeconfig=tmp_path / "kc",
+        api_server="https://127.0.0.1:1",
+        prometheus_url="http://127.0.0.1:2",
+        prometheus_targets_dir=tmp_path / "targets",
+        ports={},
+    )
+    path = cluster.add_prometheus_target("twin", "127.0.0.1:9123", labels={"fleet": "w"})
+    assert json.loads(path.read_text()) == [
+        {"targets": ["127.0.0.1:9123"], "labels": {"job": "twin", "fleet": "w"}}
+    ]
+    with pytest.raises(harness.HarnessError, match=r"only 127\.0\.0\.1"):
+        cluster.add_prometheus_target("pod", "10.0.0.7:8080")
+    cluster.remove_prometheus_target("twin")
+    assert not path.exists()
+
+
+def test_a_cluster_from_state_knows_its_real_nodes_and_versions() -> None:
+    state = {"ports": {"kube-apiserver": 1, "prometheus": 2}, "real_nodes": ["bed-robot-1"],
+             "versions": {"K8S_VERSION": "1.36.3"}}  # fmt: skip
+    cluster = harness.Cluster.from_state(state)
+    assert cluster.real_nodes == ("bed-robot-1",) and cluster.versions["K8S_VERSION"] == "1.36.3"
+
+
+def test_scale_heartbeats_reach_kwok_and_the_controller_manager_only(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from e2e.bed import heartbeats
+    from e2e.bed.cluster import PREFERRED_PORTS
+    from e2e.bed.controlplane import Heartbeats, _argv
+
+    bed, scale = _argv(PREFERRED_PORTS), _argv(PREFERRED_PORTS, heartbeats.SCALE)
+    assert "--node-lease-duration-seconds=120" in scale["kwok"][0]
+    assert "--node-monitor-grace-period=120s" in scale["kube-controller-manager"][0]
+    assert f"--node-lease-duration-seconds={Heartbeats().lease_seconds}" in bed["kwok"][0]
+    assert {n for n in bed if bed[n][0] != scale[n][0]} == {"kwok", "kube-controller-manager"}
+    # the file a relaxed run leaves names what the bed runs with until restored
+    monkeypatch.setattr(heartbeats, "_FILE", tmp_path / "heartbeats.json")
+    assert heartbeats.current() == Heartbeats()
+    (tmp_path / "heartbeats.json").write_text(
+        json.dumps({"lease_seconds": 120, "grace_period": "120s"})
+    )
+    assert heartbeats.current() == heartbeats.SCALE
+
+
+def test_pod_discovery_lists_the_real_nodes_pods_from_the_watch_cache() -> None:
+    """One list per real node, served by the API server's cache (not a read of every pod
+    from etcd every two seconds); every Running pod only when no node is named."""
+    from urllib.parse import parse_qs, urlsplit
+
+    from e2e.bed.poddiscovery import list_urls
+
+    urls = list_urls("https://127.0.0.1:6443", ["bed-robot-1", "bed-edge-1"])
+    queries = [parse_qs(urlsplit(u).query) for u in urls]
+    assert [q["fieldSelector"] for q in queries] == [
+        ["spec.nodeName=bed-robot-1,status.phase=Running"],
+        ["spec.nodeName=bed-edge-1,status.phase=Running"],
+    ]
+    assert all(q["resourceVersion"] == ["0"] for q in queries)
+    assert all(urlsplit(u).path == "/api/v1/pods" for u in urls)
+    (everything,) = list_urls("https://127.0.0.1:6443", [])
+    assert parse_qs(urlsplit(everything).query)["fieldSelector"] == ["status.phase=Running"]

@@ -1,0 +1,442 @@
+"""Build (or reuse from the cache) every pinned tool of the local cluster.
+
+Each tool is built from published Go modules (k8s.io/kubernetes through a wrapper module whose
+``replace`` lines are generated from k8s's own go.mod, kwok, etcd, helm) or unpacked from
+Debian's ``prometheus`` package, into ``TOOLS_DIR/<tool>-<version>/`` and reused after a
+``--version`` check. ``GOTOOLCHAIN=local`` always: a too-old Go fails at once.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import shutil
+import subprocess
+import time
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from e2e.bed.base import (
+    BIN_DIR,
+    TOOLS_DIR,
+    VERSIONS_FILE,
+    HarnessError,
+    load_versions,
+    log,
+    run,
+)
+
+TOOLS = ("k8s", "etcd", "kwok", "helm", "prometheus", "node-runtime")
+# Debian packages a real node runs on (the kubelet and kube-proxy come from the k8s build).
+NODE_PACKAGES = ("containerd", "runc", "containernetworking-plugins", "iptables")
+K8S_COMMANDS = (
+    "kube-apiserver",
+    "kube-controller-manager",
+    "kube-scheduler",
+    "kubelet",
+    "kube-proxy",
+    "kubectl",
+)
+
+# Node health timing. kwok renews each node Lease every lease/4 seconds; the node-lifecycle
+KWOK_STAGES = (
+    "stage/node/fast/node-initialize.yaml",
+    "stage/node/heartbeat-with-lease/node-heartbeat-with-lease.yaml",
+    "stage/node/chaos/node-not-ready.yaml",
+    "stage/pod/fast/pod-ready.yaml",
+    "stage/pod/fast/pod-complete.yaml",
+    "stage/pod/fast/pod-delete.yaml",
+)
+
+
+def _version_tuple(text: str) -> tuple[int, ...]:
+    return tuple(int(x) for x in re.findall(r"\d+", text)[:3])
+
+
+@dataclass
+class GoToolchain:
+    go: str
+    env: dict[str, str]
+
+    @classmethod
+    def find(cls, versions: Mapping[str, str]) -> GoToolchain:
+        go = shutil.which("go") or (
+            "/usr/local/go/bin/go" if Path("/usr/local/go/bin/go").exists() else None
+        )
+        need = versions["GO_MIN_VERSION"]
+        if go is None:
+            raise HarnessError(
+                f"Go toolchain not found: the e2e control plane is built from the Go module "
+                f"proxy and needs Go >= {need} on PATH (https://go.dev/dl/)."
+            )
+        env = dict(os.environ, GOTOOLCHAIN="local", CGO_ENABLED="0", GOFLAGS="-buildvcs=false")
+        have = run([go, "env", "GOVERSION"], env=env).strip()
+        if _version_tuple(have) < _version_tuple(need):
+            raise HarnessError(
+                f"{go} is {have}; the pinned tools need Go >= {need} (GOTOOLCHAIN=local, "
+                "so no toolchain is downloaded). Install a newer Go."
+            )
+        return cls(go=go, env=env)
+
+    def __call__(
+        self,
+        *args: str,
+        cwd: Path | None = None,
+        log_file: Path | None = None,
+        extra_env: Mapping[str, str] | None = None,
+    ) -> str:
+        env = dict(self.env, **(extra_env or {}))
+        return run(
+            [self.go, *args],
+            cwd=cwd,
+            env=env,
+            log_file=log_file,
+            hint=(
+                "hint: is the Go module proxy reachable? "
+                f"(GOPROXY={env.get('GOPROXY') or 'default'}); see the log above."
+            ),
+        )
+
+
+def _version_ok(binary: Path, args: Sequence[str], expect: str) -> bool:
+    if not binary.exists():
+        return False
+    try:
+        out = subprocess.run(
+            [str(binary), *args], capture_output=True, text=True, timeout=30, check=False
+        )
+    except OSError:
+        return False
+    return expect in out.stdout + out.stderr
+
+
+@dataclass
+class Tool:
+    name: str
+    root: Path
+    binaries: dict[str, Path]
+    checks: list[tuple[Path, list[str], str]] = field(default_factory=list)
+    extra: dict[str, Path] = field(default_factory=dict)
+    files: list[Path] = field(default_factory=list)
+
+    def ok(self) -> bool:
+        return (
+            all(_version_ok(b, a, e) for b, a, e in self.checks)
+            and all(p.exists() for p in self.extra.values())
+            and all(p.exists() for p in self.files)
+        )
+
+
+def tool_specs(v: Mapping[str, str]) -> dict[str, Tool]:
+    kv, ev, kw, hv = v["K8S_VERSION"], v["ETCD_VERSION"], v["KWOK_VERSION"], v["HELM_VERSION"]
+    pv = v["PROMETHEUS_DEB_VERSION"]
+    k8s_root = TOOLS_DIR / f"k8s-{kv}"
+    k8s = Tool("k8s", k8s_root, {c: k8s_root / "bin" / c for c in K8S_COMMANDS})
+    for c in K8S_COMMANDS:
+        if c != "kubectl":
+            k8s.checks.append((k8s.binaries[c], ["--version"], f"Kubernetes v{kv}"))
+    k8s.checks.append((k8s.binaries["kubectl"], ["version", "--client"], f"Client Version: v{kv}"))
+    etcd_root = TOOLS_DIR / f"etcd-{ev}"
+    etcd = Tool("etcd", etcd_root, {"etcd": etcd_root / "bin" / "etcd"})
+    etcd.checks.append((etcd.binaries["etcd"], ["--version"], f"etcd Version: {ev}"))
+    kwok_root = TOOLS_DIR / f"kwok-{kw}"
+    kwok = Tool("kwok", kwok_root, {"kwok": kwok_root / "bin" / "kwok"})
+    kwok.checks.append((kwok.binaries["kwok"], ["--version"], f"kwok version v{kw}"))
+    kwok.extra["stages"] = kwok_root / "stages.yaml"
+    minor = kv.split(".")[1]
+    helm_root = TOOLS_DIR / f"helm-{hv}-k8s1.{minor}"
+    helm = Tool("helm", helm_root, {"helm": helm_root / "bin" / "helm"})
+    helm.checks.append((helm.binaries["helm"], ["version", "--short"], f"v{hv}"))
+    prom_root = TOOLS_DIR / f"prometheus-{pv.replace('+', '_').replace(':', '_')}"
+    prom = Tool(
+        "prometheus",
+        prom_root,
+        {
+            "prometheus": prom_root / "pkg" / "usr" / "bin" / "prometheus",
+            "promtool": prom_root / "pkg" / "usr" / "bin" / "promtool",
+        },
+    )
+    prom.checks.append((prom.binaries["prometheus"], ["--version"], f"version {pv.split('+')[0]}"))
+    runtime = Tool("node-runtime", TOOLS_DIR / "node-runtime", {})
+    runtime.checks += [
+        (Path("/usr/bin/containerd"), ["--version"], "containerd"),
+        (Path("/usr/sbin/runc"), ["--version"], "runc version"),
+        (Path("/usr/bin/ctr"), ["--version"], "ctr"),
+        (Path("/usr/sbin/iptables"), ["--version"], "iptables"),
+    ]
+    runtime.files += [Path("/usr/lib/cni/bridge"), Path("/usr/lib/cni/host-local")]
+    return {
+        "k8s": k8s,
+        "etcd": etcd,
+        "kwok": kwok,
+        "helm": helm,
+        "prometheus": prom,
+        "node-runtime": runtime,
+    }
+
+
+def _staging_modules(gomod_text: str) -> list[str]:
+    """k8s.io/* modules that k8s.io/kubernetes requires at v0.0.0 (its ./staging replaces)."""
+    found = re.findall(r"^\s*(?:require\s+)?(k8s\.io/[\w.\-/]+)\s+v0\.0\.0\s*$", gomod_text, re.M)
+    return sorted(set(found))
+
+
+def _build_k8s(tool: Tool, v: Mapping[str, str], go: GoToolchain, blog: Path) -> None:
+    kv = v["K8S_VERSION"]
+    major, minor, _ = kv.split(".")
+    staging_version = f"v0.{minor}.{kv.split('.')[2]}"
+    src = tool.root / "src"
+    src.mkdir(parents=True, exist_ok=True)
+    if not (src / "go.mod").exists():
+        go("mod", "init", "e2e.local/k8sbins", cwd=src, log_file=blog)
+    go("mod", "edit", f"-go={v['GO_MIN_VERSION']}", cwd=src, log_file=blog)
+    info = json.loads(go("mod", "download", "-json", f"k8s.io/kubernetes@v{kv}", cwd=src))
+    if info.get("Error"):
+        raise HarnessError(f"go mod download k8s.io/kubernetes@v{kv}: {info['Error']}")
+    staging = _staging_modules(Path(info["GoMod"]).read_text())
+    if not staging:
+        raise HarnessError(f"found no staging modules in {info['GoMod']}; go.mod format changed?")
+    log(f"k8s: {len(staging)} staging modules -> {staging_version}")
+    go(
+        "mod",
+        "edit",
+        *[f"-replace={m}={m}@{staging_version}" for m in staging],
+        cwd=src,
+        log_file=blog,
+    )
+    cmds = [f"k8s.io/kubernetes/cmd/{c}" for c in K8S_COMMANDS]
+    log("k8s: go get -tool (resolves the module graph, downloads modules)")
+    go("get", "-tool", *[f"{c}@v{kv}" for c in cmds], cwd=src, log_file=blog)
+    date = time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())
+    ldflags = ["-s", "-w"]
+    for pkg in ("k8s.io/component-base/version", "k8s.io/client-go/pkg/version"):
+        ldflags += [
+            f"-X {pkg}.gitVersion=v{kv}",
+            f"-X {pkg}.gitMajor={major}",
+            f"-X {pkg}.gitMinor={minor}",
+            f"-X {pkg}.gitTreeState=clean",
+            f"-X {pkg}.gitCommit=go-module-build",
+            f"-X {pkg}.buildDate={date}",
+        ]
+    (tool.root / "bin").mkdir(exist_ok=True)
+    log("k8s: go build kube-apiserver kube-controller-manager kube-scheduler kubectl")
+    go(
+        "build",
+        "-trimpath",
+        "-ldflags",
+        " ".join(ldflags),
+        "-o",
+        f"{tool.root / 'bin'}/",
+        *cmds,
+        cwd=src,
+        log_file=blog,
+    )
+
+
+def _build_etcd(tool: Tool, v: Mapping[str, str], go: GoToolchain, blog: Path) -> None:
+    src = tool.root / "src"
+    src.mkdir(parents=True, exist_ok=True)
+    if not (src / "go.mod").exists():
+        go("mod", "init", "e2e.local/etcdbin", cwd=src, log_file=blog)
+    # etcd's server module has `replace` lines of its own, so `go install` refuses it; a
+    # wrapper module that requires it works (its module root is a main package).
+    go("get", "-tool", f"go.etcd.io/etcd/server/v3@v{v['ETCD_VERSION']}", cwd=src, log_file=blog)
+    go(
+        "build",
+        "-trimpath",
+        "-ldflags",
+        "-s -w",
+        "-o",
+        str(tool.binaries["etcd"]),
+        "go.etcd.io/etcd/server/v3",
+        cwd=src,
+        log_file=blog,
+    )
+
+
+def _build_kwok(tool: Tool, v: Mapping[str, str], go: GoToolchain, blog: Path) -> None:
+    kw = v["KWOK_VERSION"]
+    (tool.root / "bin").mkdir(parents=True, exist_ok=True)
+    go(
+        "install",
+        f"sigs.k8s.io/kwok/cmd/kwok@v{kw}",
+        log_file=blog,
+        extra_env={"GOBIN": str(tool.root / "bin")},
+    )
+    # The node/pod lifecycle stages ship as YAML in kwok's module; read them from the module
+    # cache (nothing of kwok is copied into the repository).
+    info = json.loads(go("mod", "download", "-json", f"sigs.k8s.io/kwok@v{kw}"))
+    if info.get("Error"):
+        raise HarnessError(f"go mod download sigs.k8s.io/kwok@v{kw}: {info['Error']}")
+    kustomize = Path(info["Dir"]) / "kustomize"
+    docs = [(kustomize / rel).read_text().strip() for rel in KWOK_STAGES]
+    tool.extra["stages"].write_text("\n---\n".join(docs) + "\n")
+
+
+def _build_helm(tool: Tool, v: Mapping[str, str], go: GoToolchain, blog: Path) -> None:
+    hv, kv = v["HELM_VERSION"], v["K8S_VERSION"]
+    major, minor = kv.split(".")[:2]
+    ldflags = ["-s", "-w", f"-X helm.sh/helm/v3/internal/version.version=v{hv}"]
+    for pkg in ("helm.sh/helm/v3/pkg/chartutil", "helm.sh/helm/v3/pkg/lint/rules"):
+        ldflags += [f"-X {pkg}.k8sVersionMajor={major}", f"-X {pkg}.k8sVersionMinor={minor}"]
+    (tool.root / "bin").mkdir(parents=True, exist_ok=True)
+    go(
+        "install",
+        "-trimpath",
+        "-ldflags",
+        " ".join(ldflags),
+        f"helm.sh/helm/v3/cmd/helm@v{hv}",
+        log_file=blog,
+        extra_env={"GOBIN": str(tool.root / "bin")},
+    )
+
+
+def _build_prometheus(tool: Tool, v: Mapping[str, str], go: GoToolchain | None, blog: Path) -> None:
+    pv = v["PROMETHEUS_DEB_VERSION"]
+    for cmd in ("apt-get", "dpkg"):
+        if shutil.which(cmd) is None:
+            raise HarnessError(
+                f"{cmd} not found: Prometheus comes from Debian's `prometheus` package "
+                f"({pv}); run on Debian/Ubuntu or put a prometheus binary at "
+                f"{tool.binaries['prometheus']}."
+            )
+    dl = tool.root / "download"
+    shutil.rmtree(dl, ignore_errors=True)
+    dl.mkdir(parents=True)
+    spec = f"prometheus={pv}"
+    try:
+        run(["apt-get", "download", spec], cwd=dl, log_file=blog)
+    except HarnessError:
+        if os.geteuid() != 0:
+            raise HarnessError(
+                f"`apt-get download {spec}` failed; run `sudo apt-get update` and retry."
+            ) from None
+        log("prometheus: apt-get download failed; running apt-get update and retrying")
+        run(
+            ["apt-get", "update"],
+            log_file=blog,
+            timeout=600,
+            hint="hint: is the Debian mirror reachable?",
+        )
+        run(
+            ["apt-get", "download", spec],
+            cwd=dl,
+            log_file=blog,
+            hint=(
+                f"hint: Debian no longer carries {pv}? Update PROMETHEUS_DEB_VERSION in "
+                f"{VERSIONS_FILE} to `apt-cache policy prometheus`'s candidate."
+            ),
+        )
+    debs = sorted(dl.glob("prometheus_*.deb"))
+    if not debs:
+        raise HarnessError(f"apt-get download {spec} produced no .deb in {dl}")
+    shutil.rmtree(tool.root / "pkg", ignore_errors=True)
+    run(["dpkg", "-x", debs[0], tool.root / "pkg"], log_file=blog)
+    shutil.rmtree(dl, ignore_errors=True)
+
+
+def install_debian_packages(packages: Sequence[str], blog: Path | None = None) -> None:
+    """apt-get install what is missing, as root, without starting any service.
+
+    Debian's containerd would otherwise start a daemon on /run/containerd; a policy-rc.d that
+    answers 101 keeps every package's service down (the bed starts its own, per node).
+    """
+    missing = [
+        p
+        for p in packages
+        if subprocess.run(
+            ["dpkg-query", "-W", "-f=${Status}", p], capture_output=True, text=True, check=False
+        ).stdout.strip()
+        != "install ok installed"
+    ]
+    if not missing:
+        return
+    if os.geteuid() != 0 or shutil.which("apt-get") is None:
+        raise HarnessError(
+            f"the bed needs the Debian packages {' '.join(missing)}: install them as root "
+            f"(apt-get install {' '.join(missing)})"
+        )
+    policy = Path("/usr/sbin/policy-rc.d")
+    had_policy = policy.exists()
+    if not had_policy:
+        policy.write_text("#!/bin/sh\n# fogfleet bed: packages never start services\nexit 101\n")
+        policy.chmod(0o755)
+    env = dict(os.environ, DEBIAN_FRONTEND="noninteractive")
+    try:
+        try:
+            run(["apt-get", "install", "-y", "--no-install-recommends", *missing], env=env,
+                log_file=blog, timeout=900)  # fmt: skip
+        except HarnessError:
+            log("apt-get install failed; running apt-get update and retrying")
+            run(["apt-get", "update"], env=env, log_file=blog, timeout=600)
+            run(["apt-get", "install", "-y", "--no-install-recommends", *missing], env=env,
+                log_file=blog, timeout=900)  # fmt: skip
+    finally:
+        if not had_policy:
+            policy.unlink(missing_ok=True)
+    log(f"installed Debian packages: {' '.join(missing)}")
+
+
+def _build_node_runtime(tool: Tool, v: Mapping[str, str], go: object, blog: Path) -> None:
+    install_debian_packages(NODE_PACKAGES, blog)
+
+
+BUILDERS: dict[str, Callable[..., None]] = {
+    "node-runtime": _build_node_runtime,
+    "k8s": _build_k8s,
+    "etcd": _build_etcd,
+    "kwok": _build_kwok,
+    "helm": _build_helm,
+    "prometheus": _build_prometheus,
+}
+
+
+def ensure_built(only: Sequence[str] = TOOLS, *, force: bool = False, quiet: bool = False) -> Path:
+    """Build (or reuse) the pinned tools and link them into BIN_DIR; return BIN_DIR.
+
+    Not locked by itself: callers from other processes go through `locked()`.
+    """
+    v = load_versions()
+    specs = tool_specs(v)
+    unknown = set(only) - set(TOOLS)
+    if unknown:
+        raise HarnessError(f"unknown tool(s) {sorted(unknown)}; choose from {TOOLS}")
+    go: GoToolchain | None = None
+    timings: list[tuple[str, float, str]] = []
+    for name in TOOLS:
+        if name not in only:
+            continue
+        tool = specs[name]
+        t0 = time.monotonic()
+        if not force and tool.ok():
+            timings.append((name, time.monotonic() - t0, "cached"))
+        else:
+            if go is None and name not in ("prometheus", "node-runtime"):
+                go = GoToolchain.find(v)
+            tool.root.mkdir(parents=True, exist_ok=True)
+            blog = tool.root / "build.log"
+            blog.write_text("")
+            log(f"{name}: building into {tool.root} (log: {blog})")
+            BUILDERS[name](tool, v, go, blog)
+            bad = [str(b) for b, a, e in tool.checks if not _version_ok(b, a, e)]
+            if bad or not tool.ok():
+                raise HarnessError(f"{name}: built, but the --version check failed for {bad}")
+            timings.append((name, time.monotonic() - t0, "built"))
+        if not (quiet and timings[-1][2] == "cached"):
+            log(f"{name}: {timings[-1][2]} in {timings[-1][1]:.1f}s")
+        BIN_DIR.mkdir(parents=True, exist_ok=True)
+        for bin_name, path in tool.binaries.items():
+            link = BIN_DIR / bin_name
+            tmp = BIN_DIR / f".{bin_name}.tmp"
+            tmp.unlink(missing_ok=True)
+            tmp.symlink_to(path)
+            tmp.replace(link)
+        for extra_name, path in tool.extra.items():
+            link = BIN_DIR / f"kwok-{extra_name}.yaml"
+            tmp = BIN_DIR / f".{link.name}.tmp"
+            tmp.unlink(missing_ok=True)
+            tmp.symlink_to(path)
+            tmp.replace(link)
+    return BIN_DIR

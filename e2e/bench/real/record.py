@@ -1,0 +1,111 @@
+"""What one run records, and the bench-real.json document that holds every run.
+
+A run's record names the run (arm, seed, block, position), says why it failed if it did, and
+holds the measured window (per module and pooled over the perception, the primary endpoint),
+the simulator's rates for the placement the cluster ran, that placement, and the CPU each part
+of the bed used over the window.
+"""
+
+from __future__ import annotations
+
+import os
+import platform
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from e2e.bench.real.measure import WindowRates
+from e2e.bench.real.protocol import PERCEPTION, PRIMARY, Protocol, ScheduledRun
+from e2e.bench.real.scenario import PROFILE, SCALE, Scenario
+from e2e.bench.real.summary import summarise
+from fogfleet.sim.simulator import fleet_miss_rate
+
+__all__ = ["RunResult", "document", "machine"]
+
+
+@dataclass
+class RunResult:
+    """One run as bench-real.json records it (``failed``: why it did not complete)."""
+
+    run: ScheduledRun
+    window_s: float
+    failed: str | None = None
+    measured: WindowRates | None = None
+    simulated: dict[str, float] | None = None  # per module
+    simulated_cycles: dict[str, int] | None = None
+    placement: dict[str, str] | None = None  # robot/module -> node
+    ready_s: float | None = None  # apply -> fleet Ready
+    corrected: tuple[str, ...] = ()  # what the closed loop learnt in the warm-up
+    cpu_seconds: dict[str, float] | None = None  # per part of the bed, over the window
+
+    def as_json(self) -> dict[str, Any]:
+        r = self.run
+        out: dict[str, Any] = {
+            "scheduler": r.arm,
+            "seed": r.seed,
+            "position": r.position,
+            "block": r.block,
+            "windowSeconds": self.window_s,
+            "failed": self.failed,
+            "placement": self.placement,
+            "readySeconds": None if self.ready_s is None else round(self.ready_s, 1),
+            "corrected": list(self.corrected),
+            "cpuSeconds": self.cpu_seconds,
+            "measured": None,
+            "simulated": None,
+        }
+        if self.measured is not None:
+            m = self.measured
+            missed, cycles = m.pooled(PERCEPTION)
+            out["measured"] = {
+                PRIMARY: {"missed": missed, "cycles": cycles, "missRate": _rate(missed, cycles)},
+                "modules": {
+                    k: {"missed": m.missed.get(k, 0), "cycles": c, "missRate": m.modules[k]}
+                    for k, c in sorted(m.cycles.items())
+                },
+                "allModules": m.miss_rate,
+            }
+        if self.simulated is not None and self.simulated_cycles is not None:
+            sim, n = self.simulated, self.simulated_cycles
+            pooled = sum(sim[k] * n[k] for k in PERCEPTION if k in n)
+            out["simulated"] = {
+                PRIMARY: {"missRate": _rate(pooled, sum(n.get(k, 0) for k in PERCEPTION))},
+                "modules": {k: {"missRate": v} for k, v in sorted(sim.items())},
+                "allModules": fleet_miss_rate(sim),
+            }
+        return out
+
+
+def _rate(missed: float, cycles: float) -> float | None:
+    return missed / cycles if cycles else None
+
+
+def document(
+    results: Sequence[RunResult], protocol: Protocol, scenario: Scenario, command: str
+) -> dict[str, Any]:
+    """The bench-real.json document: the bed, the protocol, every run and the summary."""
+    runs = [r.as_json() for r in results]
+    return {
+        "date": time.strftime("%Y-%m-%d"),
+        "machine": machine(),
+        "command": command,
+        "bed": {"profile": PROFILE, "scale": SCALE, "nodes": scenario.hardware()},
+        "protocol": protocol.as_json(),
+        "primaryEndpoint": PRIMARY,
+        "runs": runs,
+        "summary": summarise(runs),
+    }
+
+
+def machine() -> str:
+    model = ""
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                model = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    return f"{os.cpu_count()} cores {model}, {platform.system()} {platform.release()}".strip()

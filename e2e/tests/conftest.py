@@ -1,0 +1,284 @@
+"""Fixtures for end-to-end tests against a real Kubernetes API server.
+
+By default the tests run on the local control plane of e2e/bed/harness.py (started on
+demand, left running). With ``FOGFLEET_E2E_EXTERNAL=1 FOGFLEET_E2E_KUBECONFIG=<path>`` they run
+against that one explicit cluster instead (e2e/bed/k3d/run.sh does this).
+
+Fixtures (generic, for the smoke tests and the operator suites that come later):
+
+* ``cluster``   session; the harness's :class:`Cluster` (local mode only, else the test skips)
+* ``kube``      session; :class:`Kube`: guarded kubeconfig path, ``kubectl()``, ``apply()``,
+                ``api_client()``
+* ``namespace`` per test; a fresh namespace (its ``default`` ServiceAccount exists), deleted after
+* ``diagnostics`` per test; a list to append ``() -> (title, text)`` callables to, dumped with
+                the namespace objects, events and component logs when the test fails
+
+The guard refuses any kubeconfig that is not the harness's own (server
+``https://127.0.0.1:<its port>``) or, in external mode, the one explicitly named.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import re
+import secrets
+import shutil
+import subprocess
+from collections.abc import Callable, Iterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from e2e.bed import harness, realnodes
+from e2e.bed.kube import Kube, UnsafeKubeconfig, guard_kubeconfig
+
+ENV_EXTERNAL = "FOGFLEET_E2E_EXTERNAL"
+ENV_KUBECONFIG = "FOGFLEET_E2E_KUBECONFIG"
+ENV_KUBECTL = "FOGFLEET_E2E_KUBECTL"
+ENV_KEEP_NAMESPACES = "FOGFLEET_E2E_KEEP_NAMESPACES"
+
+Diagnostic = Callable[[], tuple[str, str]]
+
+
+def pytest_addoption(parser: pytest.Parser) -> None:
+    with contextlib.suppress(ValueError):  # already added by a conftest higher up
+        parser.addoption(
+            "--with-e2e",
+            action="store_true",
+            default=False,
+            help="run tests marked e2e (starts the local control plane unless "
+            f"{ENV_EXTERNAL}=1 names another cluster)",
+        )
+
+
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    if config.getoption("--with-e2e"):
+        # a test on the paper bed restarts the bed with the paper profile: it runs last, so
+        # every other test has the suite's bed (the order is otherwise kept)
+        items.sort(key=lambda item: item.get_closest_marker("paperbed") is not None)
+        return
+    skip = pytest.mark.skip(
+        reason="e2e test: needs a Kubernetes control plane; run `make e2e` (pytest e2e --with-e2e)"
+    )
+    for item in items:
+        if item.get_closest_marker("e2e") is not None:
+            item.add_marker(skip)
+
+
+def pytest_terminal_summary(terminalreporter: Any, exitstatus: int, config: pytest.Config) -> None:
+    """Never skip silently: name every e2e test that did not run here, and why (on an
+    external cluster such as k3d, the tests that need the local bed's powers: kwok node
+    controls, emulated links, the harness's Prometheus)."""
+    if not config.getoption("--with-e2e"):
+        return
+    skipped = terminalreporter.stats.get("skipped", [])
+    if not skipped:
+        return
+    terminalreporter.section(f"e2e tests not run on this cluster ({len(skipped)})")
+    for report in skipped:
+        reason = report.longrepr[2] if isinstance(report.longrepr, tuple) else str(report.longrepr)
+        terminalreporter.line(f"{report.nodeid}: {reason.removeprefix('Skipped: ')}")
+
+
+_SESSION_KUBE: Kube | None = None
+
+
+def _external() -> bool:
+    return os.environ.get(ENV_EXTERNAL, "") not in ("", "0", "false", "no")
+
+
+def _kubectl_bin() -> str:
+    for candidate in (os.environ.get(ENV_KUBECTL), str(harness.BIN_DIR / "kubectl")):
+        if candidate and Path(candidate).exists():
+            return candidate
+    found = shutil.which("kubectl")
+    if found is None:
+        raise pytest.UsageError(f"no kubectl: set {ENV_KUBECTL} or put kubectl on PATH")
+    return found
+
+
+def _connect(request: pytest.FixtureRequest) -> Kube:
+    explicit = os.environ.get(ENV_KUBECONFIG)
+    cluster: harness.Cluster | None = None
+    if _external():
+        if not explicit:
+            raise UnsafeKubeconfig(f"{ENV_EXTERNAL}=1 needs {ENV_KUBECONFIG}=<path>")
+        path = Path(explicit).expanduser().resolve()
+        server = guard_kubeconfig(path, expected_server=None)
+    else:
+        if explicit:
+            raise UnsafeKubeconfig(
+                f"{ENV_KUBECONFIG} is set but {ENV_EXTERNAL} is not; set {ENV_EXTERNAL}=1 to "
+                "run against that cluster, or unset it to use the local control plane"
+            )
+        capture = request.config.pluginmanager.getplugin("capturemanager")
+        with capture.global_and_fixture_disabled():  # show build/start progress live
+            cluster = harness.ensure_up()
+        path = cluster.kubeconfig
+        server = guard_kubeconfig(path, expected_server=cluster.api_server)
+    return Kube(
+        kubeconfig=path,
+        server=server,
+        kubectl_bin=_kubectl_bin(),
+        external=_external(),
+        cluster=cluster,
+    )
+
+
+@pytest.fixture(scope="session")
+def _e2e_target(request: pytest.FixtureRequest) -> Iterator[tuple[Kube, harness.Cluster | None]]:
+    global _SESSION_KUBE
+    try:
+        kube = _connect(request)
+    except UnsafeKubeconfig as exc:  # stop the whole session, not one error per test
+        pytest.exit(f"fogfleet e2e guard: {exc}", returncode=pytest.ExitCode.USAGE_ERROR)
+    except harness.HarnessError as exc:
+        pytest.exit(
+            f"fogfleet e2e: the local control plane is not available:\n{exc}",
+            returncode=pytest.ExitCode.TESTS_FAILED,
+        )
+    path = kube.kubeconfig
+    saved = os.environ.get("KUBECONFIG")
+    os.environ["KUBECONFIG"] = str(path)  # libraries that default to $KUBECONFIG see ours only
+    _SESSION_KUBE = kube
+    try:
+        yield kube, kube.cluster
+    finally:
+        _SESSION_KUBE = None
+        if saved is None:
+            os.environ.pop("KUBECONFIG", None)
+        else:
+            os.environ["KUBECONFIG"] = saved
+
+
+@pytest.fixture(scope="session")
+def kube(_e2e_target: tuple[Kube, harness.Cluster | None]) -> Kube:
+    return _e2e_target[0]
+
+
+@pytest.fixture(scope="session")
+def cluster(_e2e_target: tuple[Kube, harness.Cluster | None]) -> harness.Cluster:
+    """The local control plane (Prometheus, kwok node controls); skips on external clusters."""
+    if _e2e_target[1] is None:
+        pytest.skip("needs the local control plane (not available with an external cluster)")
+    return _e2e_target[1]
+
+
+def _namespace_name(nodeid: str) -> str:
+    base = re.sub(r"[^a-z0-9]+", "-", nodeid.split("::")[-1].lower()).strip("-")
+    return f"e2e-{base[:44].strip('-')}-{secrets.token_hex(3)}"
+
+
+@pytest.fixture
+def namespace(kube: Kube, request: pytest.FixtureRequest) -> Iterator[str]:
+    """A fresh namespace whose `default` ServiceAccount exists; deleted after the test."""
+    name = _namespace_name(request.node.nodeid)
+    kube.apply(
+        {
+            "apiVersion": "v1",
+            "kind": "Namespace",
+            "metadata": {"name": name, "labels": {"fogfleet.io/e2e": "true"}},
+        }
+    )
+    kube.wait_for(
+        f"ServiceAccount default in {name}",
+        lambda: kube.kubectl("get", "sa", "default", "-n", name, check=False).returncode == 0,
+        timeout=60,
+    )
+    yield name
+    if os.environ.get(ENV_KEEP_NAMESPACES):
+        return
+    kube.kubectl("delete", "namespace", name, "--wait=false", "--ignore-not-found", check=False)
+
+
+@pytest.fixture
+def diagnostics() -> list[Diagnostic]:
+    """Append `() -> (title, text)` callables; they are dumped when the test fails."""
+    return []
+
+
+# --------------------------------------------------------------------------------------------
+# failure dump
+
+
+def _limit(text: str, lines: int) -> str:
+    rows = text.rstrip().splitlines()
+    if len(rows) <= lines:
+        return "\n".join(rows)
+    return "\n".join([*rows[:lines], f"... ({len(rows) - lines} more lines)"])
+
+
+def _dump(kube: Kube, namespace: str | None, extra: list[Diagnostic]) -> str:
+    out: list[str] = []
+
+    def section(title: str, text: str) -> None:
+        out.append(f"===== {title} =====\n{text.rstrip()}\n")
+
+    def run(*args: str) -> str:
+        try:
+            proc = kube.kubectl(*args, check=False, timeout=30)
+        except (subprocess.TimeoutExpired, OSError) as exc:
+            return f"({exc})"
+        return proc.stdout + proc.stderr
+
+    if namespace:
+        section(
+            f"events in {namespace}",
+            run("get", "events", "-n", namespace, "--sort-by=.lastTimestamp", "-o", "wide"),
+        )
+        kinds = run("api-resources", "--verbs=list", "--namespaced", "-o", "name").split()
+        skip = {"events", "events.events.k8s.io"}
+        kinds = [k for k in kinds if k not in skip]
+        if kinds:
+            section(
+                f"objects in {namespace}",
+                _limit(run("get", ",".join(kinds), "-n", namespace, "-o", "wide"), 100),
+            )
+            section(
+                f"objects in {namespace} (yaml)",
+                _limit(run("get", ",".join(kinds), "-n", namespace, "-o", "yaml"), 400),
+            )
+    section("nodes", run("get", "nodes", "-o", "wide", "--show-labels=false"))
+    section(
+        "warning events (all namespaces)",
+        _limit(
+            run("get", "events", "-A", "--field-selector=type=Warning", "--sort-by=.lastTimestamp"),
+            40,
+        ),
+    )
+    for fn in extra:
+        try:
+            title, text = fn()
+        except Exception as exc:  # a broken diagnostic must not hide the failure
+            title, text = getattr(fn, "__name__", "diagnostic"), f"(failed: {exc!r})"
+        section(title, text)
+    if kube.cluster is not None:
+        for component in harness.COMPONENTS:
+            section(
+                f"log tail: {component} ({kube.cluster.logs_dir}/{component}.log)",
+                kube.cluster.log_tail(component, 25),
+            )
+        for node in kube.cluster.real_nodes:
+            section(f"real node {node}", _limit(realnodes.diagnose(realnodes.declared(node)), 120))
+    return "\n".join(out)
+
+
+@pytest.hookimpl(hookwrapper=True)
+def pytest_runtest_makereport(item: pytest.Item, call: pytest.CallInfo[None]) -> Iterator[None]:
+    outcome = yield
+    report: pytest.TestReport = outcome.get_result()  # type: ignore[attr-defined]
+    if not report.failed or report.when not in ("setup", "call"):
+        return
+    if item.get_closest_marker("e2e") is None or _SESSION_KUBE is None:
+        return
+    funcargs = getattr(item, "funcargs", {})
+    ns = funcargs.get("namespace")
+    extra = funcargs.get("diagnostics") or []
+    report.sections.append(
+        (
+            "fogfleet e2e diagnostics",
+            _dump(_SESSION_KUBE, ns if isinstance(ns, str) else None, list(extra)),
+        )
+    )

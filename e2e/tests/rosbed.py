@@ -1,0 +1,179 @@
+"""Objects of a small ROS 2 fleet on the bed's real nodes (the workload image plays them), and
+reading a pod's metrics: shared by the real-node e2e tests."""
+
+from __future__ import annotations
+
+import re
+import urllib.request
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Any
+
+from e2e.bed.harness import Cluster
+from e2e.bed.kube import Kube
+from e2e.bed.operator_fixtures import Operator, install_crds, wait_ready
+
+__all__ = [
+    "EDGE",
+    "IMAGE",
+    "PROBE_PORT",
+    "ROBOTS",
+    "bed_objects",
+    "compute_node",
+    "operated_fleet",
+    "ros_module",
+    "scrape",
+    "scrape_buckets",
+    "scrape_series",
+]
+
+ROBOTS = ("bed-robot-1", "bed-robot-2")
+EDGE = "bed-edge-1"
+IMAGE = "ghcr.io/fogfleet/ros2-module:0.1.0"
+PROBE_PORT = 9101
+
+
+def compute_node(name: str, tier: str, hardware: str, link: dict[str, Any]) -> dict[str, Any]:
+    return {
+        "apiVersion": "fogfleet.io/v1alpha1",
+        "kind": "ComputeNode",
+        "metadata": {"name": name},
+        # capacity comes from the Node (the bed's real share); the link is the emulated one
+        "spec": {"tier": tier, "hardwareType": hardware, "network": [link], "privacyLevel": 3},
+    }
+
+
+def ros_module(
+    name: str,
+    ns: str,
+    *,
+    cycle_ms: int,
+    taxonomy: tuple[str, str, str],
+    subscribes: list[tuple[str, int, int]],
+    publishes: list[tuple[str, int, int]],
+    profile: list[tuple[str, str, float, float]],
+    tiers: list[str] | None = None,
+    probe: bool = False,
+    **extra: Any,
+) -> dict[str, Any]:
+    """A SoftwareModule the workload image plays; ``extra`` goes into its spec as it is."""
+
+    def topics(items: list[tuple[str, int, int]]) -> list[dict[str, Any]]:
+        return [{"name": n, "sizeBytes": s, "rateHz": r} for n, s, r in items]
+
+    spec: dict[str, Any] = {
+        "template": {"image": IMAGE, "metricsPort": 9100, "imagePullPolicy": "Never"},
+        "taxonomy": dict(zip(("executionPattern", "realtime", "safety"), taxonomy, strict=True)),
+        "cycleTimeMillis": cycle_ms,
+        "activationPercent": 100,
+        "resources": {"cpu": "100m", "memory": "256Mi"},
+        "topics": {"subscribes": topics(subscribes), "publishes": topics(publishes)},
+        "profile": [
+            # plain numbers (type: number), fractions unquoted
+            {"hardwareType": hw, "cpu": cpu, "meanMillis": mean, "stdMillis": std}
+            for hw, cpu, mean, std in profile
+        ],
+    }
+    if tiers:
+        spec["requirements"] = {"tiers": tiers}
+    spec.update(extra)
+    if probe:  # the cycle-time sidecar users add to a module nobody instrumented
+        spec["template"]["sidecars"] = [
+            {"name": "cycle-probe", "image": IMAGE, "imagePullPolicy": "Never",
+             "args": ["probe", "--port", str(PROBE_PORT)], "metricsPort": PROBE_PORT},
+        ]  # fmt: skip
+    return {
+        "apiVersion": "fogfleet.io/v1alpha1",
+        "kind": "SoftwareModule",
+        "metadata": {"name": name, "namespace": ns},
+        "spec": spec,
+    }
+
+
+def bed_objects(ns: str, fleet: str, modules: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """The bed's two robots (Wi-Fi) and edge node (LAN) as ComputeNodes, ``modules``, and a
+    RobotFleet ``fleet`` of them with a small, seeded scheduler budget."""
+    wifi = {"type": "wifi", "latencyMillis": 4, "jitterMillis": 1, "bandwidthMbps": 100}
+    lan = {"type": "lan", "latencyMillis": 1, "jitterMillis": 0, "bandwidthMbps": 1000}
+    nodes = [compute_node(r, "robot", "bed-robot", wifi) for r in ROBOTS]
+    nodes.append(compute_node(EDGE, "edge", "bed-edge", lan))
+    fleet_obj = {
+        "apiVersion": "fogfleet.io/v1alpha1",
+        "kind": "RobotFleet",
+        "metadata": {"name": fleet, "namespace": ns},
+        "spec": {
+            "robots": list(ROBOTS),
+            "nodes": [EDGE],
+            "modules": [{"name": m["metadata"]["name"]} for m in modules],
+            "scheduler": {"population": 20, "generations": 10, "seed": 1},
+        },
+    }
+    return [*nodes, *modules, fleet_obj]
+
+
+@contextmanager
+def operated_fleet(
+    kube: Kube,
+    cluster: Cluster,
+    namespace: str,
+    tmp_path: Path,
+    diagnostics: list[Any],
+    objects: list[dict[str, Any]],
+    fleet: str,
+    env: dict[str, str] | None = None,
+) -> Iterator[str]:
+    """The operator running (with ``env`` on top of the tests' settings), ``objects`` applied
+    and the fleet Ready; yields the namespace."""
+    assert set(ROBOTS) | {EDGE} <= set(cluster.real_nodes)
+    install_crds(kube)
+    op = Operator(kube.kubeconfig, [namespace], tmp_path / "operator.log", env)
+    diagnostics.append(lambda: ("operator log", op.logs(150)))
+    op.start().wait_live()
+    try:
+        kube.apply(objects)
+        wait_ready(kube, namespace, fleet, timeout=300)
+        yield namespace
+    finally:
+        op.stop()
+
+
+def scrape(url: str) -> dict[str, float]:
+    """Totals per metric name (labels summed) from a Prometheus text endpoint."""
+    text = urllib.request.urlopen(url, timeout=5).read().decode()
+    out: dict[str, float] = {}
+    for line in text.splitlines():
+        m = re.match(r"^(fogfleet_\w+)(\{[^}]*\})?\s+([0-9.eE+-]+)$", line)
+        if m and not re.search(r'[{,]le="', m.group(2) or ""):  # not a histogram bucket
+            out[m.group(1)] = out.get(m.group(1), 0.0) + float(m.group(3))
+    return out
+
+
+def scrape_series(url: str, name: str, **labels: str) -> float:
+    """The sum of the series of metric ``name`` whose labels include ``labels``."""
+    text = urllib.request.urlopen(url, timeout=5).read().decode()
+    total = 0.0
+    for line in text.splitlines():
+        m = re.match(r"^(\w+)\{([^}]*)\}\s+([0-9.eE+-]+)$", line)
+        if not m or m.group(1) != name:
+            continue
+        have = dict(re.findall(r'(\w+)="([^"]*)"', m.group(2)))
+        if all(have.get(k) == v for k, v in labels.items()):
+            total += float(m.group(3))
+    return total
+
+
+def scrape_buckets(url: str, name: str, **labels: str) -> dict[float, float]:
+    """The cumulative buckets (le -> count, +Inf as ``inf``) of histogram ``name`` whose
+    labels include ``labels``, from one scrape (so they are consistent with each other)."""
+    text = urllib.request.urlopen(url, timeout=5).read().decode()
+    out: dict[float, float] = {}
+    for line in text.splitlines():
+        m = re.match(r"^(\w+)\{([^}]*)\}\s+([0-9.eE+-]+)$", line)
+        if not m or m.group(1) != f"{name}_bucket":
+            continue
+        have = dict(re.findall(r'(\w+)="([^"]*)"', m.group(2)))
+        if all(have.get(k) == v for k, v in labels.items()):
+            le = float(have["le"])  # "+Inf" parses as inf
+            out[le] = out.get(le, 0.0) + float(m.group(3))
+    return out

@@ -1,0 +1,207 @@
+"""The operator as users install it: `helm install` of the chart, from its image, on a real node.
+
+The image is the one `make images` builds from the repository's Dockerfile, imported into the
+real nodes' containerd; the operator reaches the API server through the `kubernetes` Service
+(kube-proxy on the node), with its ServiceAccount token and the chart's RBAC. Two replicas
+elect a leader on a Lease. The tests run in file order: install, upgrade, failover, uninstall.
+"""
+
+from __future__ import annotations
+
+import json
+import secrets
+import subprocess
+import sys
+import time
+from collections.abc import Iterator
+from typing import Any
+
+import pytest
+
+from e2e.bed.harness import Cluster
+from e2e.bed.kube import Kube
+from e2e.bed.operator_fixtures import (
+    N_INSTANCES,
+    ROOT,
+    apply_warehouse,
+    assert_pods_where_planned,
+    deployment_versions,
+    deployments,
+    fleet,
+    install_crds,
+    wait_ready,
+)
+
+pytestmark = [
+    pytest.mark.e2e,
+    pytest.mark.real,
+    pytest.mark.incluster,
+    pytest.mark.timeout(600),
+]
+
+RELEASE = "fogfleet"
+SYSTEM = "fogfleet-system"
+CHART = ROOT / "charts" / "fogfleet"
+HARNESS = ROOT / "e2e" / "bed" / "harness.py"
+OPERATOR_LABELS = "app.kubernetes.io/name=fogfleet,app.kubernetes.io/component=operator"
+
+
+def helm(*args: str, timeout: float = 300) -> str:
+    proc = subprocess.run(
+        [sys.executable, str(HARNESS), "helm", *args],
+        capture_output=True, text=True, timeout=timeout, check=False,
+    )  # fmt: skip
+    assert proc.returncode == 0, f"helm {' '.join(args)}:\n{proc.stdout}\n{proc.stderr}"
+    return proc.stdout
+
+
+def operator_pods(kube: Kube, *, terminating: bool = False) -> list[dict[str, Any]]:
+    items: list[dict[str, Any]] = kube.kubectl_json(
+        "get", "pods", "-n", SYSTEM, "-l", OPERATOR_LABELS
+    )["items"]
+    return [p for p in items if terminating or not p["metadata"].get("deletionTimestamp")]
+
+
+def leader(kube: Kube) -> str | None:
+    proc = kube.kubectl(
+        "get", "lease", "fogfleet-operator", "-n", SYSTEM, "-o", "json", check=False
+    )
+    if proc.returncode != 0:
+        return None
+    holder: str | None = json.loads(proc.stdout)["spec"].get("holderIdentity")
+    return holder
+
+
+def running_pod_names(kube: Kube) -> set[str]:
+    return {
+        p["metadata"]["name"] for p in operator_pods(kube) if p["status"].get("phase") == "Running"
+    }
+
+
+@pytest.fixture(scope="module")
+def watched(kube: Kube, cluster: Cluster) -> Iterator[str]:
+    """The namespace the installed operator watches (the release itself is in fogfleet-system)."""
+    install_crds(kube)
+    # an interrupted earlier run may have left the plain-manifest install (not Helm's) behind
+    for what in (
+        ["clusterrolebinding", "fogfleet-operator"],
+        ["clusterrole", "fogfleet-operator"],
+        ["serviceaccount", "fogfleet-operator", "-n", SYSTEM],
+    ):
+        obj = kube.kubectl("get", *what, "-o", "json", check=False)
+        if obj.returncode == 0 and "Helm" not in obj.stdout:
+            kube.kubectl("delete", *what, check=False)
+    ns = f"e2e-incluster-{secrets.token_hex(3)}"
+    kube.apply({"apiVersion": "v1", "kind": "Namespace", "metadata": {"name": ns}})
+    helm(
+        "install", RELEASE, str(CHART), "-n", SYSTEM, "--create-namespace",
+        "--set", f"watchNamespaces={{{ns}}}",
+        # a real node (kwok would only pretend to run it); the chart already keeps it off robots
+        "--set-string", "nodeSelector.fogfleet\\.io/e2e-real=true",
+        "--set", "logFormat=plain",
+        "--wait", "--timeout", "240s",
+    )  # fmt: skip
+    yield ns
+    helm_list = helm("list", "-n", SYSTEM, "-q")
+    if RELEASE in helm_list.split():
+        helm("uninstall", RELEASE, "-n", SYSTEM, "--wait")
+    kube.kubectl("delete", "namespace", ns, "--wait=false", "--ignore-not-found", check=False)
+
+
+def test_helm_install_runs_the_operator_image_on_a_real_node_that_is_not_a_robot(
+    kube: Kube, cluster: Cluster, watched: str
+) -> None:
+    pods = operator_pods(kube)
+    assert len(pods) == 2, [p["metadata"]["name"] for p in pods]
+    for pod in pods:
+        node = kube.kubectl_json("get", "node", pod["spec"]["nodeName"])
+        labels = node["metadata"]["labels"]
+        assert pod["spec"]["nodeName"] in cluster.real_nodes
+        assert labels.get("fogfleet.io/tier") != "robot", pod["spec"]["nodeName"]
+        (status,) = pod["status"]["containerStatuses"]
+        assert status["image"].endswith("ghcr.io/fogfleet/fogfleet:0.1.0"), status["image"]
+        assert status["ready"] is True
+    kube.wait_for("a leader", lambda: leader(kube) in {p["metadata"]["name"] for p in pods}, 60)
+
+    apply_warehouse(kube, watched)
+    wait_ready(kube, watched, timeout=300)
+    assert_pods_where_planned(kube, watched)
+
+
+def test_helm_upgrade_rolls_the_operator_without_touching_running_modules(
+    kube: Kube, watched: str
+) -> None:
+    before_pods = {p["metadata"]["name"] for p in operator_pods(kube)}
+    before = deployment_versions(kube, watched)
+    assert len(before) == N_INSTANCES
+    helm(
+        "upgrade", RELEASE, str(CHART), "-n", SYSTEM, "--reuse-values",
+        "--set", "logLevel=debug", "--wait", "--timeout", "240s",
+    )  # fmt: skip
+    kube.wait_for(
+        "only the rolled operator pods",
+        lambda: (
+            len(running_pod_names(kube) - before_pods) == 2
+            and len(operator_pods(kube, terminating=True)) == 2
+        ),
+        180,
+    )
+    # the old leader released the Lease on its way out: a new pod leads
+    kube.wait_for("a new leader", lambda: leader(kube) in running_pod_names(kube), 30)
+    time.sleep(10)  # a resumed operator re-checks every fleet: give it the time to (not) act
+    assert deployment_versions(kube, watched) == before
+    wait_ready(kube, watched)
+
+
+def test_killing_the_leader_mid_reconcile_hands_over_within_30_s_without_duplicates(
+    kube: Kube, watched: str
+) -> None:
+    old = leader(kube)
+    assert old in running_pod_names(kube)
+    # a change that re-plans the whole fleet, then the leader dies at once
+    patch = {"spec": {"scheduler": {"seed": 7}}}
+    kube.kubectl("patch", "robotfleet", "warehouse", "-n", watched, "--type=merge",
+                 "-p", json.dumps(patch))  # fmt: skip
+    generation = fleet(kube, watched)["metadata"]["generation"]
+    t0 = time.monotonic()
+    kube.kubectl("delete", "pod", old, "-n", SYSTEM, "--grace-period=0", "--force", "--wait=false")
+    kube.wait_for(
+        "another leader",
+        lambda: leader(kube) not in (None, old) and leader(kube) in running_pod_names(kube),
+        30,
+        interval=0.5,
+    )
+    took = time.monotonic() - t0
+    print(f"failover: new leader {leader(kube)} after {took:.1f}s")
+    assert took <= 30
+    kube.wait_for(
+        "the new leader's reconcile",
+        lambda: (fleet(kube, watched).get("status") or {}).get("observedGeneration") == generation,
+        120,
+    )
+    wait_ready(kube, watched)
+    deps = deployments(kube, watched)
+    assert len(deps) == N_INSTANCES, sorted(d["metadata"]["name"] for d in deps)
+    owner = fleet(kube, watched)["metadata"]["uid"]
+    assert all(d["metadata"]["ownerReferences"][0]["uid"] == owner for d in deps)
+    assert len({d["metadata"]["annotations"]["fogfleet.io/plan-id"] for d in deps}) == 1
+    assert_pods_where_planned(kube, watched)
+
+
+def test_helm_uninstall_leaves_only_the_crds_and_nothing_is_stuck(kube: Kube, watched: str) -> None:
+    helm("uninstall", RELEASE, "-n", SYSTEM, "--wait")
+    for kind in ("clusterrole", "clusterrolebinding"):
+        proc = kube.kubectl("get", kind, "fogfleet-operator", check=False)
+        assert proc.returncode != 0, f"{kind} fogfleet-operator survived helm uninstall"
+    for crd in ("robotfleets", "softwaremodules", "computenodes"):
+        kube.kubectl("get", "crd", f"{crd}.fogfleet.io")
+    kube.wait_for("the operator pods gone", lambda: operator_pods(kube) == [], 60)
+    # no operator any more: deleting the fleet's namespace must not hang on a finalizer
+    t0 = time.monotonic()
+    kube.kubectl("delete", "namespace", watched, "--wait=false")
+    kube.wait_for(
+        f"namespace {watched} gone",
+        lambda: kube.kubectl("get", "namespace", watched, check=False).returncode != 0,
+        60,
+    )
+    print(f"namespace deleted in {time.monotonic() - t0:.1f}s without the operator")

@@ -1,0 +1,141 @@
+"""A real ROS 2 fleet on real nodes: two robots whose modules are split between the robots and
+the edge node, wired by the operator (a discovery server per robot), measured by Prometheus.
+
+Everything here is real: rclpy processes in containers under the nodes' CPU quotas, Fast DDS
+unicast discovery through ClusterIP Services (kube-proxy), messages over the emulated links,
+the workload's own counters scraped by Prometheus.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from functools import partial
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from e2e.bed.harness import Cluster
+from e2e.bed.kube import Kube
+from e2e.bed.operator_fixtures import fleet, pods_by_instance
+from e2e.tests.rosbed import (
+    EDGE,
+    PROBE_PORT,
+    ROBOTS,
+    bed_objects,
+    operated_fleet,
+    ros_module,
+    scrape,
+)
+
+pytestmark = [pytest.mark.e2e, pytest.mark.real, pytest.mark.timeout(600)]
+
+
+def _fleet_objects(ns: str) -> list[dict[str, Any]]:
+    modules = [
+        # the lidar driver: hard real time, stays on its robot
+        ros_module("lidar", ns, cycle_ms=100, taxonomy=("periodic", "hard", "critical"),
+                   subscribes=[], publishes=[("scan", 4096, 10)],
+                   profile=[("bed-robot", "50m", 4, 0.5)]),
+        # localization: runs on the robot here
+        ros_module("localizer", ns, cycle_ms=100, taxonomy=("continuous", "soft", "relevant"),
+                   subscribes=[("scan", 4096, 10)], publishes=[("pose", 256, 10)],
+                   profile=[("bed-robot", "100m", 15, 2), ("bed-edge", "100m", 10, 1)],
+                   tiers=["robot"]),
+        # the planner: offloaded to the edge, talks to its robot through the discovery server
+        ros_module("planner", ns, cycle_ms=1000, taxonomy=("periodic", "soft", "relevant"),
+                   subscribes=[("pose", 256, 10)], publishes=[("plan", 2048, 1)],
+                   profile=[("bed-robot", "200m", 300, 20), ("bed-edge", "200m", 120, 10)],
+                   tiers=["edge"], probe=True),
+    ]  # fmt: skip
+    return bed_objects(ns, "bedfleet", modules)
+
+
+@pytest.fixture
+def ros_fleet(
+    kube: Kube, cluster: Cluster, namespace: str, tmp_path: Path, diagnostics: list[Any]
+) -> Iterator[str]:
+    objects = _fleet_objects(namespace)
+    with operated_fleet(kube, cluster, namespace, tmp_path, diagnostics, objects, "bedfleet") as ns:
+        yield ns
+
+
+def _series(cluster: Cluster, promql: str) -> dict[tuple[str, str], float]:
+    out = {}
+    for r in cluster.prometheus_query(promql):
+        m = r["metric"]
+        out[(m.get("module", ""), m.get("robot", ""))] = float(r["value"][1])
+    return out
+
+
+def test_a_split_ros_fleet_talks_across_nodes_within_each_robot_only(
+    kube: Kube, cluster: Cluster, ros_fleet: str
+) -> None:
+    ns = ros_fleet
+    status = fleet(kube, ns, "bedfleet")["status"]
+    where = {(p["robot"], p["module"]): p["node"] for p in status["placement"]}
+    for robot in ROBOTS:
+        assert where[(robot, "lidar")] == robot and where[(robot, "localizer")] == robot
+        assert where[(robot, "planner")] == EDGE
+    pods = pods_by_instance(kube, ns)
+    assert len(pods) == 6 and all(p["status"]["podIP"].startswith("198.18.") for p in pods.values())
+    sel = f'namespace="{ns}"'
+    kube.wait_for(
+        "every module's cycles in Prometheus",
+        lambda: len(_series(cluster, f"fogfleet_cycle_time_seconds_count{{{sel}}} > 5")) == 6,
+        180,
+        interval=3,
+    )
+    # the offloaded planners hear their own robot's localizer, across the emulated links
+    received = _series(
+        cluster, f"sum by (module, robot) (fogfleet_messages_received_total{{{sel}}})"
+    )
+    for robot in ROBOTS:
+        assert received.get(("planner", robot), 0) > 10, received
+        assert received.get(("localizer", robot), 0) > 10, received
+    # and never the other robot's (the workload's own leak counter)
+    leaks = _series(cluster, f"sum by (module, robot) (fogfleet_foreign_messages_total{{{sel}}})")
+    assert sum(leaks.values()) == 0, f"cross-robot messages: {leaks}"
+    # measured cycle times are what the profiles predict: the workload plays a row at its pace
+    # (cpu cores for mean seconds, workload.burn), so an instance with room on its node takes
+    # about the row's mean; at most half as long again plus the link, never the cycle time
+    mean = _series(
+        cluster,
+        f"sum by (module, robot) (fogfleet_cycle_time_seconds_sum{{{sel}}})"
+        f" / sum by (module, robot) (fogfleet_cycle_time_seconds_count{{{sel}}})",
+    )
+    profile = {"lidar": (0.004, 0.1), "localizer": (0.015, 0.1), "planner": (0.120, 1.0)}
+    report = {f"{m}/{r}": f"{v * 1e3:.1f} ms" for (m, r), v in sorted(mean.items())}
+    print(f"measured mean cycle times: {report}")
+    assert len(mean) == 6, report
+    for (module, robot), value in mean.items():
+        exec_s, cycle_s = profile[module]
+        assert 0.8 * exec_s <= value <= min(1.5 * exec_s + 0.02, cycle_s), f"{module}/{robot}"
+    missed = _series(cluster, f"sum by (module, robot) (fogfleet_missed_cycles_total{{{sel}}})")
+    print(f"missed cycles: {missed}")
+
+    # the cycle-time probe beside each planner measures it from the messages alone: the
+    # planner's cycle plus the wait of its freshest pose for the next 1 s tick (poses come
+    # every 100 ms, so at most ~0.1 s more), and every one of its outputs is timed
+    for robot in ROBOTS:
+        pod = next(
+            p
+            for p in pods.values()
+            if p["metadata"]["labels"].get("fogfleet.io/robot") == robot
+            and p["metadata"]["labels"].get("fogfleet.io/module") == "planner"
+        )
+        url = f"http://{pod['status']['podIP']}:{PROBE_PORT}/metrics"
+        # the probe counts a cycle once it has discovered both topics across the link, which
+        # can come a few planner cycles after the planner's own first ones: wait for three
+        kube.wait_for(f"three cycles timed by {robot}'s probe", partial(_timed, url, 3), 60, 2)
+        probed = scrape(url)
+        count = probed["fogfleet_cycle_time_seconds_count"]
+        probe_mean = probed["fogfleet_cycle_time_seconds_sum"] / count
+        own = mean[("planner", robot)]
+        print(f"planner/{robot}: own {own * 1e3:.1f} ms, probe {probe_mean * 1e3:.1f} ms")
+        assert own - 0.005 <= probe_mean <= own + 0.1 + 0.05, (own, probe_mean)
+        assert probed.get("fogfleet_foreign_messages_total", 0.0) == 0, probed
+
+
+def _timed(url: str, cycles: int) -> bool:
+    return scrape(url).get("fogfleet_cycle_time_seconds_count", 0.0) >= cycles
