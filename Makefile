@@ -28,10 +28,13 @@ lint: venv ## ruff, mypy (strict on the pure core) and import-linter contracts
 	$(BIN)/mypy
 	$(BIN)/lint-imports
 
-unit: venv ## Unit tests (pure core, CLI, render; no cluster)
-	$(BIN)/pytest tests -q
+unit: venv ## Unit tests: the fast tier, each under 1 s (no cluster, no processes; tests/integration/conftest.py)
+	FOGFLEET_STRICT_UNIT=1 $(BIN)/pytest tests/unit -q -m "not integration"
 
-test: venv lint crds-check cluster-tools unit chart-lint checkov images e2e ## Everything CI runs: lint, CRD drift, unit tests, chart lint, checkov, e2e on the local bed (real and kwok nodes)
+integration: venv ## Integration tests: rclpy workload processes, the operator under KopfRunner on a fake API, tests over 1 s
+	$(BIN)/pytest tests -q -m integration
+
+test: venv lint crds-check cluster-tools unit integration chart-lint checkov images e2e ## Everything CI runs: lint, CRD drift, unit tests, chart lint, checkov, e2e on the local bed (real and kwok nodes)
 
 crds: venv ## Write the CRD YAML in crds/ from the pydantic models
 	$(BIN)/fogfleet crds --out crds
