@@ -28,10 +28,13 @@ lint: venv ## ruff, mypy (strict on the pure core) and import-linter contracts
 	$(BIN)/mypy
 	$(BIN)/lint-imports
 
-unit: venv ## Unit tests (pure core, CLI, render; no cluster)
-	$(BIN)/pytest tests -q
+unit: venv ## Unit tests: the fast tier, each under 1 s (no cluster, no processes; tests/integration/conftest.py)
+	FOGFLEET_STRICT_UNIT=1 $(BIN)/pytest tests/unit -q -m "not integration"
 
-test: venv lint crds-check docs-check cluster-tools unit chart-lint checkov images e2e ## Everything CI runs: lint, CRD drift, docs check, unit tests, chart lint, checkov, e2e on the local bed (real and kwok nodes)
+integration: venv ## Integration tests: rclpy workload processes, the operator under KopfRunner on a fake API, tests over 1 s
+	$(BIN)/pytest tests -q -m integration
+
+test: venv lint crds-check docs-check cluster-tools unit integration chart-lint checkov images e2e ## Everything CI runs: lint, CRD drift, docs check, unit and integration tests, chart lint, checkov, e2e on the local bed (real and kwok nodes)
 
 crds: venv ## Write the CRD YAML in crds/ from the pydantic models
 	$(BIN)/fogfleet crds --out crds
@@ -116,4 +119,4 @@ clean: ## Remove the virtualenv and caches in the repo
 	rm -rf $(VENV) .pytest_cache .mypy_cache .ruff_cache
 
 
-.PHONY: help venv lint unit test checkov images crds crds-check demo-offline bench-replan bench-cluster bench-scale bench-real bench-real-report cluster-tools cluster-up cluster-down cluster-status e2e e2e-k3d chart-lint bench demo clean
+.PHONY: help venv lint unit integration docs-check test checkov images crds crds-check demo-offline bench-replan bench-cluster bench-scale bench-real bench-real-report cluster-tools cluster-up cluster-down cluster-status e2e e2e-k3d chart-lint bench demo clean

@@ -51,6 +51,6 @@ def test_format_table_reports_medians_side_by_side() -> None:
     assert "median of 3 seeds" in table[0]
 
 
-@pytest.mark.slow
+@pytest.mark.integration
 def test_full_benchmark_is_deterministic() -> None:
     assert run_benchmark(11) == run_benchmark(11)

@@ -206,6 +206,7 @@ def test_crds_check_passes_on_the_committed_crds(capsys: pytest.CaptureFixture[s
     assert code == 0 and "match" in out
 
 
+@pytest.mark.integration
 def test_plot_writes_a_png(capsys: pytest.CaptureFixture[str], tmp_path: Path) -> None:
     out = tmp_path / "plan.png"
     code, _, _ = run(capsys, "plan", str(WAREHOUSE), "--generations", "5", "--plot", str(out))

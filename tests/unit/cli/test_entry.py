@@ -51,6 +51,7 @@ def test_a_value_the_user_set_is_kept(monkeypatch: pytest.MonkeyPatch) -> None:
     assert os.environ["OMP_NUM_THREADS"] == "1"
 
 
+@pytest.mark.integration
 def test_python_m_fogfleet_goes_through_the_entry_point() -> None:
     env = _clean_env()
     code = (

@@ -76,6 +76,7 @@ def prometheus() -> Iterator[str]:
         server.server_close()
 
 
+@pytest.mark.integration
 def test_measured_times_show_what_the_declared_plan_misses_and_what_a_re_plan_gains(
     prometheus: str, capsys: pytest.CaptureFixture[str]
 ) -> None:

@@ -111,6 +111,7 @@ def test_healthy_links_are_reported_and_change_nothing(kube, deps, prom, builds)
     assert not [e for e in kube.events if e[1].startswith("Link")]
 
 
+@pytest.mark.integration
 def test_a_slow_link_re_plans_its_robot_with_the_measure_and_moves_back_when_stable(
     kube, deps, prom, builds
 ) -> None:

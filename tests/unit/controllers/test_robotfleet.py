@@ -176,6 +176,7 @@ def test_a_fleet_that_cannot_fit_is_reported_and_nothing_is_applied(kube, deps):
     assert deps.planner.calls == calls, "same inputs, same failure: no second GA run"
 
 
+@pytest.mark.integration
 def test_a_fleet_short_of_cpu_runs_degraded_and_says_so(kube, deps):
     from fogfleet.adapters.metrics import PrometheusMetrics
 
@@ -394,6 +395,7 @@ class ShiftingPlanner:
         return dataclasses.replace(schedule, placement=x, objectives=values)
 
 
+@pytest.mark.integration
 def test_status_reports_the_objectives_of_the_placement_actually_deployed(kube, make_deps):
     from fogfleet.controllers.deps import Deps
 

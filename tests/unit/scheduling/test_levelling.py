@@ -85,6 +85,7 @@ def test_nothing_is_added_without_the_reserve_objective() -> None:
     assert X2 is X and F2 is F
 
 
+@pytest.mark.integration
 def test_nsga2_reaches_a_lower_peak_with_levelling_than_without(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:

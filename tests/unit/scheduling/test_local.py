@@ -163,6 +163,7 @@ def test_local_search_is_deterministic() -> None:
         )
     )
 )
+@pytest.mark.integration
 def test_the_gene_table_is_the_stable_argsort_of_the_allowed_sets(rows: list[list[bool]]) -> None:
     allowed = np.array(rows, dtype=bool)
     counts = allowed.sum(axis=1)

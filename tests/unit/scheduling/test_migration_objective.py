@@ -5,6 +5,7 @@ from __future__ import annotations
 import dataclasses
 
 import numpy as np
+import pytest
 
 from fogfleet.api.v1alpha1.robotfleet import SchedulerSettings
 from fogfleet.bench.scheduling import warehouse_problem
@@ -13,6 +14,7 @@ from fogfleet.scheduling.solver import plan
 WITH_MOVES = ["missRate", "migrations", "missedCycles", "onboard", "reserve", "balance"]
 
 
+@pytest.mark.integration
 def test_a_replan_that_counts_its_moves_keeps_more_in_place_at_the_same_miss_rate() -> None:
     problem = warehouse_problem()
     settings = SchedulerSettings(population=40, generations=30, seed=3)

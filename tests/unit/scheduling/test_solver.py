@@ -58,7 +58,7 @@ def test_instances_without_gene_space_are_left_out(warehouse: Problem) -> None:
     assert (s.placement[np.arange(p.n_instances) != 3] >= 0).all()
 
 
-@pytest.mark.slow
+@pytest.mark.integration
 def test_nsga2_beats_baselines_on_warehouse(warehouse: Problem) -> None:
     s = plan(warehouse, SchedulerSettings(seed=1))
     k8s = plan(warehouse, SchedulerSettings(algorithm="k8s-default", seed=1))
@@ -76,7 +76,7 @@ def _warehouse_with_edges(edges: list[str]) -> Problem:
     return build_problem(sub, cat)
 
 
-@pytest.mark.slow
+@pytest.mark.integration
 def test_nsga2_misses_less_than_k8s_default_on_a_tight_warehouse() -> None:
     """The tightest feasible warehouse: two 15.5-core and two 7.5-core edges (46 of the 72
     edge cores). Per the MILP it is feasible, but dropping either small edge (any 3 edges)

@@ -37,7 +37,7 @@ def test_a_whole_core_burns_without_sleeping(monkeypatch: pytest.MonkeyPatch) ->
     assert naps == [] and cpu >= 0.095 and wall >= 0.1, (naps, cpu, wall)
 
 
-@pytest.mark.slow
+@pytest.mark.integration
 def test_more_than_a_core_goes_to_worker_processes() -> None:
     burner = Burner(1.5)
     try:

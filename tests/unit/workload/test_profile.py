@@ -114,6 +114,7 @@ def _run(tmp_path: Path, args: list[str], **env: str) -> subprocess.CompletedPro
     )
 
 
+@pytest.mark.integration
 def test_the_program_profiles_without_ros_and_writes_its_termination_message(
     tmp_path: Path,
 ) -> None:
@@ -132,6 +133,7 @@ def test_the_program_profiles_without_ros_and_writes_its_termination_message(
     assert json.loads(proc.stdout.strip().splitlines()[-1]) == result
 
 
+@pytest.mark.integration
 def test_nothing_to_profile_or_a_bad_count_exits_2_saying_why(tmp_path: Path) -> None:
     spec = json.dumps({"cycleTimeMillis": 20, "profile": []})
     nothing = _run(tmp_path, ["module"], FOGFLEET_MODULE_SPEC=spec, FOGFLEET_PROFILE_CYCLES="3")

@@ -89,6 +89,7 @@ def test_sampled_work_is_never_negative() -> None:
     assert min(sample_exec_seconds(row, rng) for _ in range(1000)) >= 0.001
 
 
+@pytest.mark.integration
 def test_the_workload_imports_with_only_what_its_image_installs() -> None:
     """The ROS 2 image installs fogfleet with --no-deps (rclpy and prometheus-client only):
     no workload entry point may pull pydantic, numpy, kopf or kubernetes in, nor any fogfleet
