@@ -43,7 +43,7 @@ crds-check: venv ## Fail when crds/ drifts from the models
 	$(BIN)/fogfleet crds --check crds
 
 docs-check: venv ## Fail when README.md or docs/ name a missing file, anchor, make target or CLI flag
-	$(BIN)/python tests/docs/check_docs.py
+	$(BIN)/pytest tests/docs -q
 
 cluster-tools: venv ## Build (or reuse from ~/.cache/fogfleet) etcd, kube-*, kwok, helm and Prometheus
 	$(BIN)/python e2e/bed/harness.py build
