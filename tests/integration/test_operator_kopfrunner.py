@@ -58,7 +58,7 @@ def _condition(obj: Obj | None, type_: str) -> Obj | None:
 def single_robot(api: FakeApi) -> None:
     """The single-robot example (solo-robot, solo-edge, the warehouse's eight modules) with
     its Nodes, Ready as their kubelets would report them, and a small seeded NSGA-II."""
-    for node in _docs(ROOT / "e2e" / "cluster" / "nodes.yaml"):
+    for node in _docs(ROOT / "e2e" / "bed" / "nodes.yaml"):
         if node["metadata"]["name"] in ("solo-robot", "solo-edge"):
             node["status"]["conditions"] = [{"type": "Ready", "status": "True"}]
             api.create(node)
