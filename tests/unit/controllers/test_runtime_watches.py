@@ -7,6 +7,7 @@ import asyncio
 import threading
 from collections.abc import Callable
 from types import SimpleNamespace
+from typing import Any
 
 import pytest
 
@@ -96,15 +97,25 @@ def test_other_pod_changes_and_unknown_fleets_do_not():
 @pytest.mark.parametrize("listener", ["listener", "deployments"])
 def test_the_caches_start_with_the_loops_and_their_events_reach_the_loop(listener):
     watches = FakeWatches()
+    assert scheduled_by_a_cache(watches, listener, ("ADDED", pod(True), None))
+    assert watches.stopped
+
+
+def scheduled_by_a_cache(
+    watches: FakeWatches, listener: str, event: tuple, prime: Any = None
+) -> bool:
+    """Whether a cache's ``event`` (heard by ``listener`` on the informer's own thread)
+    schedules the fleet that uses edge-1 and module m on the loop; ``prime(runtime)`` first."""
 
     async def main() -> bool:
         runtime = Runtime(Deps(kube=object(), watches=watches), debounce=5.0)
-        record(runtime, KEY, set(), {"m"})
+        record(runtime, KEY, {"edge-1"}, {"m"})
         runtime.start_periodic(3600)
+        if prime is not None:
+            prime(runtime)
         call = getattr(watches, listener)
         assert call is not None
-        # the informer calls from its own thread; the fleet is scheduled on the loop
-        t = threading.Thread(target=call, args=("ADDED", pod(True), None))
+        t = threading.Thread(target=call, args=event)
         t.start()
         t.join()
         for _ in range(100):
@@ -115,7 +126,7 @@ def test_the_caches_start_with_the_loops_and_their_events_reach_the_loop(listene
         await runtime.close()
         return pending
 
-    assert asyncio.run(main()) and watches.stopped
+    return asyncio.run(main())
 
 
 @pytest.mark.parametrize(
@@ -128,28 +139,13 @@ def test_the_caches_start_with_the_loops_and_their_events_reach_the_loop(listene
 def test_the_caches_report_modules_and_compute_nodes_one_watch_per_kind(listener, obj):
     """With the caches on, kopf does not watch these kinds: the caches' events re-check the
     fleets that use the object."""
-    watches = FakeWatches()
+    old = {"metadata": {**obj["metadata"], "generation": 1}}
+    kind = "SoftwareModule" if listener == "modules" else "ComputeNode"
 
-    async def main() -> bool:
-        runtime = Runtime(Deps(kube=object(), watches=watches), debounce=5.0)
-        record(runtime, KEY, {"edge-1"}, {"m"})
-        runtime.start_periodic(3600)
-        old = {"metadata": {**obj["metadata"], "generation": 1}}
-        runtime._changed(  # what the first listing recorded of it
-            "SoftwareModule" if listener == "modules" else "ComputeNode", old, None
-        )
-        t = threading.Thread(target=getattr(watches, listener), args=("MODIFIED", obj, old))
-        t.start()
-        t.join()
-        for _ in range(100):
-            if KEY in runtime.queue.pending():
-                break
-            await asyncio.sleep(0.01)
-        pending = KEY in runtime.queue.pending()
-        await runtime.close()
-        return pending
+    def seen_before(runtime: Runtime) -> None:  # what the first listing recorded of it
+        runtime._changed(kind, old, None)
 
-    assert asyncio.run(main())
+    assert scheduled_by_a_cache(FakeWatches(), listener, ("MODIFIED", obj, old), seen_before)
 
 
 @pytest.mark.parametrize(("waiting", "cap"), [(100, 5.0), (5, None), (0, None)])
