@@ -87,9 +87,10 @@ checkov: venv $(CHECKOV_VENV)/bin/checkov ## checkov (offline) over manifests/in
 	echo "checkov: fogfleet render manifests/examples/warehouse (the user's images: digest and pull policy are theirs)"; \
 	$(CHECKOV) -d "$$d/warehouse" --skip-check CKV_K8S_43,CKV_K8S_15
 
-bench: venv ## Benchmarks of the pure core: scheduling (misses, MILP gap, decision time) and autoscaling (tinyKube); prints tables
-	$(BIN)/fogfleet bench scheduling
-	$(BIN)/fogfleet bench autoscaling --runs 7
+bench: venv ## Benchmarks of the pure core: scheduling (misses, MILP gap, decision time) and autoscaling (tinyKube); prints tables, writes bench-*.json and docs/benchmarks/core.md
+	$(BIN)/fogfleet bench scheduling --record bench-scheduling.json
+	$(BIN)/fogfleet bench autoscaling --runs 7 --record bench-autoscaling.json
+	$(BIN)/fogfleet bench page --records bench-scheduling.json,bench-autoscaling.json --out docs/benchmarks/core.md
 
 bench-replan: venv ## A robot joining and an edge failing at 100, 300 and 1000 robots: whole-fleet vs incremental re-plan (seconds, moves, miss rate; ~10 min)
 	$(BIN)/fogfleet bench replan --robots $(or $(SIZES),100,300,1000) --runs 3
