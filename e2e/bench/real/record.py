@@ -8,18 +8,16 @@ of the bed used over the window.
 
 from __future__ import annotations
 
-import os
-import platform
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any
 
 from e2e.bench.real.measure import WindowRates
 from e2e.bench.real.protocol import PERCEPTION, PRIMARY, Protocol, ScheduledRun
 from e2e.bench.real.scenario import PROFILE, SCALE, Scenario
 from e2e.bench.real.summary import summarise
+from fogfleet.bench.record import machine
 from fogfleet.sim.simulator import fleet_miss_rate
 
 __all__ = ["RunResult", "document", "machine"]
@@ -97,15 +95,3 @@ def document(
         "runs": runs,
         "summary": summarise(runs),
     }
-
-
-def machine() -> str:
-    model = ""
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                model = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
-    return f"{os.cpu_count()} cores {model}, {platform.system()} {platform.release()}".strip()
