@@ -38,11 +38,12 @@ from kubernetes.config.config_exception import ConfigException
 
 from fogfleet import GROUP, VERSION
 from fogfleet.adapters.informer import WatchExpired
-from fogfleet.api.labels import MANAGER
+from fogfleet.api.labels import LABEL_FLEET, LABEL_MANAGED_BY, MANAGER
 from fogfleet.api.timestamps import timestamp
 from fogfleet.api.v1alpha1.computenode import ComputeNode
 from fogfleet.api.v1alpha1.robotfleet import RobotFleet
 from fogfleet.api.v1alpha1.softwaremodule import SoftwareModule
+from fogfleet.contract.quantity import parse_quantity
 from fogfleet.errors import DependencyUnavailable, InvalidSpec
 
 __all__ = ["KubeClient", "load_config", "map_errors"]
@@ -266,6 +267,12 @@ class KubeClient:
             f"/api/v1/namespaces/{namespace}/pods", f"list Pods in {namespace}", selector
         )
 
+    def list_node_load(self) -> list[Obj]:
+        """Every Pod bound to a node and not finished, as ``pod_load`` trims it (what it
+        requests there and whose it is): what fleets share nodes with."""
+        loads = (pod_load(p) for p in self._list("/api/v1/pods", "list Pods on every node"))
+        return [p for p in loads if holds_room(p)]
+
     # ---------------------------------------------------------------- writes
     def _server_side_apply(self, kind: str, collection: str, body: Obj) -> Obj:
         """Server-side apply under the ``fogfleet`` field manager, forcing conflicts."""
@@ -415,3 +422,36 @@ class KubeClient:
                 self._call("POST", f"/api/v1/namespaces/{ns}/events", body=event)
         except DependencyUnavailable as exc:  # an Event is best effort
             log.warning("Failed to post event %s: %s", reason, exc)
+
+
+def pod_load(pod: Mapping[str, Any]) -> Obj:
+    """A Pod as the tenancy of its node sees it: its name, the fleet and manager labels, its
+    node and phase, and the CPU cores and memory bytes its containers request."""
+    meta = pod.get("metadata") or {}
+    spec = pod.get("spec") or {}
+    cpu = memory = 0.0
+    for container in spec.get("containers") or []:
+        requests = (container.get("resources") or {}).get("requests") or {}
+        try:
+            cpu += parse_quantity(requests.get("cpu", 0))
+            memory += parse_quantity(requests.get("memory", 0))
+        except ValueError:
+            continue  # the API server validated it; a form we do not read counts as 0
+    labels = meta.get("labels") or {}
+    return {
+        "metadata": {
+            "name": meta.get("name"),
+            "namespace": meta.get("namespace"),
+            "resourceVersion": meta.get("resourceVersion"),
+            "labels": {k: labels[k] for k in (LABEL_FLEET, LABEL_MANAGED_BY) if k in labels},
+        },
+        "spec": {"nodeName": spec.get("nodeName")},
+        "status": {"phase": (pod.get("status") or {}).get("phase")},
+        "requests": {"cpu": cpu, "memory": memory},
+    }
+
+
+def holds_room(load: Mapping[str, Any]) -> bool:
+    """Bound to a node and not finished: its requests count against the node."""
+    phase = (load.get("status") or {}).get("phase")
+    return bool((load.get("spec") or {}).get("nodeName")) and phase not in ("Succeeded", "Failed")

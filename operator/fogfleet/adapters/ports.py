@@ -34,6 +34,11 @@ class KubePort(Protocol):
 
     def list_pods(self, namespace: str, selector: Mapping[str, str]) -> list[Obj]: ...
 
+    def list_node_load(self) -> list[Obj]:
+        """Every Pod bound to a node and not finished, trimmed to what it requests
+        (``adapters.kube.pod_load``)."""
+        ...
+
     def apply_deployment(self, body: Obj) -> Obj:
         """Server-side apply under the ``fogfleet`` field manager, forcing conflicts."""
         ...

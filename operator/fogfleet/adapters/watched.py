@@ -25,7 +25,7 @@ from fogfleet.api.v1alpha1.computenode import ComputeNode
 from fogfleet.api.v1alpha1.softwaremodule import SoftwareModule
 
 from .informer import Informer, OnEvent, trim_metadata
-from .kube import KubeClient
+from .kube import KubeClient, holds_room, pod_load
 
 __all__ = ["WatchedKube", "trim_deployment", "trim_node", "trim_pod"]
 
@@ -102,6 +102,8 @@ class WatchedKube(KubeClient):
             "deployments", "/apis/apps/v1", "Deployments", selector=managed, trim=trim_deployment
         )
         self.pods = per_scope("pods", "/api/v1", "Pods", selector=managed, trim=trim_pod)
+        # every Pod on every node, trimmed to its requests: what fleets share nodes with
+        self.node_load = Informer(self, "/api/v1/pods", trim=pod_load, name="Pods (node load)")
 
     def informers(self) -> list[Informer]:
         return [
@@ -110,6 +112,7 @@ class WatchedKube(KubeClient):
             *self.modules.values(),
             *self.deployments.values(),
             *self.pods.values(),
+            self.node_load,
         ]
 
     def start(
@@ -183,6 +186,11 @@ class WatchedKube(KubeClient):
         if informer is None:
             return super().list_pods(namespace, selector)
         return informer.list(namespace, selector)
+
+    def list_node_load(self) -> list[Obj]:
+        if not self.node_load.synced.is_set():
+            return super().list_node_load()
+        return [p for p in self.node_load.list() if holds_room(p)]
 
     # ---------------------------------------------------------------- writes, read back at once
     def apply_deployment(self, body: Obj) -> Obj:

@@ -4,6 +4,7 @@ missed cycles of plans side by side."""
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import sys
 from pathlib import Path
@@ -11,8 +12,10 @@ from typing import Any
 
 import numpy as np
 
+from fogfleet.api.loader import Catalog
 from fogfleet.api.v1alpha1.robotfleet import PLACEMENT_LIST_LIMIT
 from fogfleet.domain.rows import Learnt
+from fogfleet.domain.tenancy import Held, claims_of, with_held
 from fogfleet.errors import InvalidSpec
 from fogfleet.scheduling.explain import degraded_message, infeasible_message, unplaced_reasons
 from fogfleet.scheduling.objectives import module_miss_rates
@@ -46,11 +49,21 @@ def cmd_plan(args: argparse.Namespace) -> int:
     catalog = catalog_of(args.paths)
     out: list[dict[str, Any]] = []
     infeasible = False
-    for fleet in fleets_of(catalog, args.fleet):
+    fleets = fleets_of(catalog, args.fleet)
+    if len(fleets) > 1:  # one site: each fleet plans into what the earlier ones left
+        order = ", ".join(f"{f.metadata.namespace or 'default'}/{f.metadata.name}" for f in fleets)
+        print(f"Planning {len(fleets)} fleets as one site, in this order: {order}", file=sys.stderr)
+    held: dict[str, Held] = {}
+    for fleet in fleets:
         settings = settings_of(fleet, args.scheduler, args.seed, args)
         problem, schedule = plan_fleet(
-            fleet, catalog, settings, sys.stderr.isatty() and not args.json
+            fleet, site_catalog(catalog, held), settings, sys.stderr.isatty() and not args.json
         )
+        name = f"RobotFleet {fleet.metadata.namespace or 'default'}/{fleet.metadata.name}"
+        for node, (cpu, mem) in claims_of(
+            problem, schedule.placement, schedule.with_limits
+        ).items():
+            held[node] = held.get(node, Held()).plus(cpu, mem, name)
         infeasible |= not schedule.feasible
         rows = _placement_rows(problem, schedule)
         doc = {
@@ -85,6 +98,15 @@ def cmd_plan(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps(out[0] if len(out) == 1 else out, indent=2))
     return 2 if infeasible else 0
+
+
+def site_catalog(catalog: Catalog, held: dict[str, Held]) -> Catalog:
+    """``catalog`` with each ComputeNode's capacity less what the fleets planned before hold
+    on its Node (``domain.tenancy``)."""
+    if not held:
+        return catalog
+    nodes = {name: with_held(cn, held.get(cn.node_name)) for name, cn in catalog.nodes.items()}
+    return dataclasses.replace(catalog, nodes=nodes)
 
 
 def _print_plan(doc: dict[str, Any]) -> None:

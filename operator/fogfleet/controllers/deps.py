@@ -5,6 +5,7 @@ ports, the planner, the operator's settings and the store of every fleet's state
 
 from __future__ import annotations
 
+import threading
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any, Protocol
@@ -35,6 +36,8 @@ class Deps:
     # a render is re-done once older than this (or than stamp.RESYNC_COST_FACTOR times what
     # it took; 0: every reconcile is a full pass)
     full_reconcile_seconds: float = 60.0
+    # one fleet plans at a time, into what the others claimed (controllers/tenancy.py)
+    planning: threading.Lock = field(default_factory=threading.Lock)
 
 
 class ScalingKube(Protocol):

@@ -8,13 +8,17 @@ Same inputs, same failure: an infeasible fleet is not planned again until they c
 from __future__ import annotations
 
 import logging
+from collections.abc import Mapping
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
+from fogfleet.api.v1alpha1.base import format_millicores
 from fogfleet.api.v1alpha1.robotfleet import RobotFleet, SchedulerName
 from fogfleet.domain.build import build_problem
 from fogfleet.domain.problem import Problem
+from fogfleet.domain.tenancy import Held, claims_of
 from fogfleet.errors import Infeasible
 from fogfleet.scheduling import stickiness
 from fogfleet.scheduling.decision import Decision, decide, fingerprint, with_defaults
@@ -27,6 +31,7 @@ from .state import FleetState, Rendered
 __all__ = ["Planned", "plan_fleet", "plan_step"]
 
 log = logging.getLogger(__name__)
+Obj = dict[str, Any]
 
 
 def plan_fleet(
@@ -127,13 +132,54 @@ def plan_step(
     never = {i: why for i, why in problem.reasons.items() if i not in stranded}
     if never:
         why = "; ".join(never.values())
-        raise Infeasible(f"RobotFleet/{fleet.metadata.name}", "spec.modules", why)
+        err = Infeasible(f"RobotFleet/{fleet.metadata.name}", "spec.modules", why)
+        raise _naming_the_others(err, problem, inputs.held)
     if fleet.spec.scheduler.algorithm is SchedulerName.K8S_DEFAULT:
+        state.claims, state.shared = {}, []  # its pods hold what they request (tenancy)
         return Planned(problem, frozenset(stranded), None, False)
     previous = last.problem if last is not None else None
-    decision, planned = plan_fleet(deps, state, problem, fleet, before, previous)
+    try:
+        decision, planned = plan_fleet(deps, state, problem, fleet, before, previous)
+    except Infeasible as err:
+        state.claims, state.shared = {}, []
+        raise _naming_the_others(err, problem, inputs.held) from None
     problem = problem.with_levels(decision.schedule.levels)  # a degraded plan's CPU amounts
+    with_limits = decision.schedule.with_limits
+    state.claims = claims_of(problem, decision.placement, with_limits)
+    state.shared = shared_nodes(problem, inputs.held, state.claims)
     return Planned(problem, frozenset(stranded), decision, planned)
+
+
+def shared_nodes(
+    problem: Problem, held: Mapping[str, Held], claims: Mapping[str, tuple[float, float]]
+) -> list[Obj]:
+    """``status.sharedNodes``: the fleet's nodes others hold part of, and what is left."""
+    out: list[Obj] = []
+    for j, node in enumerate(problem.nodes):
+        h = held.get(node.node_name)
+        if h is None or h.cpu <= 0:
+            continue
+        left = float(problem.capacity[j, 0]) - claims.get(node.node_name, (0.0, 0.0))[0]
+        out.append(
+            {
+                "node": node.node_name,
+                "heldCpu": format_millicores(h.cpu),
+                "leftCpu": format_millicores(max(left, 0.0)),
+                "heldBy": list(h.holders),
+            }
+        )
+    return out
+
+
+def _naming_the_others(err: Infeasible, problem: Problem, held: Mapping[str, Held]) -> Infeasible:
+    """An infeasible plan on nodes others hold part of says who holds what."""
+    names = {n.node_name for n in problem.nodes}
+    parts = [
+        f"{node}: {h.describe()}" for node, h in sorted(held.items()) if node in names and h.cpu > 0
+    ]
+    if not parts:
+        return err
+    return Infeasible(err.obj, err.field, f"{err.message} (shared nodes: {'; '.join(parts)})")
 
 
 def _release_recovered(problem: Problem, inputs: FleetInputs, last: Rendered | None) -> Problem:

@@ -112,6 +112,7 @@ def fleet_status(
     old: Obj,
     links: LinkReport | None = None,
     drift: DriftReport | None = None,
+    shared: list[Obj] | None = None,
 ) -> RobotFleetStatus:
     """The status of a fleet whose instances stand where ``placement`` (placement_entries)
     says; the per-instance list only up to PLACEMENT_LIST_LIMIT entries."""
@@ -146,6 +147,10 @@ def fleet_status(
         parts["measured"] = drift.entries
     elif old.get("measured"):
         parts["measured"] = []
+    if shared:
+        parts["shared_nodes"] = shared
+    elif old.get("sharedNodes"):
+        parts["shared_nodes"] = []
     parts.update(_plan_figures(rendered, placement))
     return RobotFleetStatus(**parts)
 

@@ -17,6 +17,7 @@ from fogfleet.api.v1alpha1.computenode import ComputeNode, NodeResources
 from fogfleet.api.v1alpha1.robotfleet import RobotFleet
 from fogfleet.api.v1alpha1.softwaremodule import SoftwareModule
 from fogfleet.domain.profiling import with_profiled
+from fogfleet.domain.tenancy import Held, with_held
 from fogfleet.errors import InvalidSpec
 from fogfleet.render.deployments import identity_of
 
@@ -57,9 +58,14 @@ def _with_capacity(cn: ComputeNode, node: Mapping[str, Any] | None) -> ComputeNo
 
 
 def gather(
-    fleet: RobotFleet, compute_nodes: Iterable[Obj], modules: Iterable[Obj], nodes: Iterable[Obj]
+    fleet: RobotFleet,
+    compute_nodes: Iterable[Obj],
+    modules: Iterable[Obj],
+    nodes: Iterable[Obj],
+    held: Mapping[str, Held] | None = None,
 ) -> Inputs:
-    """Parse the CRs (remembering broken ones) and attach Node capacity and health."""
+    """Parse the CRs (remembering broken ones) and attach Node capacity and health; ``held``:
+    what other tenants hold on each Node, which the fleet plans around."""
     by_node = {(n.get("metadata") or {}).get("name"): n for n in nodes}
     catalog = Catalog()
     broken: dict[str, InvalidSpec] = {}
@@ -77,7 +83,7 @@ def gather(
         if why:
             unavailable[cn.metadata.name] = why
         try:
-            catalog.add(_with_capacity(cn, node))
+            catalog.add(with_held(_with_capacity(cn, node), (held or {}).get(cn.node_name)))
         except ValueError as exc:
             broken[f"ComputeNode/{name}"] = InvalidSpec(
                 f"ComputeNode/{name}", "status.allocatable", str(exc)

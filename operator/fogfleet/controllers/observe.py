@@ -10,7 +10,7 @@ full passes only.
 from __future__ import annotations
 
 from collections.abc import Iterable, Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 from fogfleet.api.labels import LABEL_FLEET
@@ -21,6 +21,7 @@ from fogfleet.domain.fallback import variant_names
 from fogfleet.domain.linkhealth import planned_links
 from fogfleet.domain.network import Link
 from fogfleet.domain.rows import Learnt
+from fogfleet.domain.tenancy import Held
 from fogfleet.errors import InvalidSpec
 from fogfleet.render.deployments import Owner, label_value
 
@@ -32,6 +33,7 @@ from .ros import is_ros_object
 from .stamp import input_stamp
 from .state import FleetKey, FleetState, References, fleet_key
 from .status import scaling_status
+from .tenancy import claims_in, held_by_others, held_signature
 
 __all__ = [
     "FleetInputs",
@@ -104,6 +106,7 @@ class FleetInputs:
     nodes: list[Obj]
     measured: Mapping[str, Link]  # robots whose link is planned as measured, not declared
     corrections: dict[tuple[str, str], Learnt]  # profiles corrected by what ran
+    held: Mapping[str, Held]  # Node -> what other tenants hold there (controllers/tenancy)
     stamp: tuple[Any, ...]
 
     @property
@@ -122,9 +125,16 @@ def observe(deps: Deps, state: FleetState, obj: FleetObject, fleet: RobotFleet) 
     measured = planned_links(state.links.robots)
     corrections = profile_corrections(raw_modules)
     inputs = FleetInputs(
-        obj, fleet, [], raw_modules, compute_nodes, nodes, measured, corrections, ()
+        obj, fleet, [], raw_modules, compute_nodes, nodes, measured, corrections, {}, ()
     )
-    return relisted(deps, state, inputs)
+    return relisted(deps, state, with_held(deps, state, inputs))
+
+
+def with_held(deps: Deps, state: FleetState, inputs: FleetInputs) -> FleetInputs:
+    """``inputs`` with what the other tenants hold now (read again under the planning lock,
+    so the plan sees every claim recorded before it)."""
+    held = held_by_others(state.key, deps.kube.list_node_load(), claims_in(deps.store))
+    return replace(inputs, held=held)
 
 
 def relisted(deps: Deps, state: FleetState, inputs: FleetInputs) -> FleetInputs:
@@ -144,18 +154,9 @@ def relisted(deps: Deps, state: FleetState, inputs: FleetInputs) -> FleetInputs:
         ),
         inputs.measured,
         (tuple(sorted(inputs.corrections.items())), _profiled(inputs.raw_modules)),
+        held_signature(inputs.held, state.references.nodes if state.references else None),
     )
-    return FleetInputs(
-        obj,
-        inputs.fleet,
-        listed,
-        inputs.raw_modules,
-        inputs.compute_nodes,
-        inputs.nodes,
-        inputs.measured,
-        inputs.corrections,
-        stamp,
-    )
+    return replace(inputs, listed=listed, stamp=stamp)
 
 
 @dataclass(frozen=True)
@@ -176,7 +177,7 @@ def parse(inputs: FleetInputs) -> Parsed:
     """The catalog of the fleet's inputs; InvalidSpec when the fleet references an invalid
     ComputeNode or SoftwareModule."""
     fleet = inputs.fleet
-    gathered = gather(fleet, inputs.compute_nodes, inputs.raw_modules, inputs.nodes)
+    gathered = gather(fleet, inputs.compute_nodes, inputs.raw_modules, inputs.nodes, inputs.held)
     ns = inputs.obj.key[0]
     modules = {
         m.metadata.name: m

@@ -42,6 +42,7 @@ from .observe import (
     parse_fleet,
     record_references,
     relisted,
+    with_held,
 )
 from .observed import drift_watch
 from .outcome import Outcome
@@ -101,17 +102,19 @@ def _full_pass(
 ) -> Outcome:
     started = time.monotonic()
     obj, fleet = inputs.obj, inputs.fleet
-    parsed = parse(inputs)
-    record_references(state, fleet, parsed.wanted)
-    # modules with profiling auto are planned once their profiles are known (issue 10)
-    waiting, recorded = profile_first(deps, fleet, parsed.catalog, inputs.raw_modules)
-    if waiting:
-        waiting_for_profiles(deps, obj, waiting.message, waiting.failed)
-        poll = None if waiting.failed else PROFILING_POLL_SECONDS
-        return Outcome(requeue_after=poll, message=waiting.message)
-    if recorded:  # the rows just written are part of the modules now
+    with deps.planning:  # one plan at a time, into what the others claimed (tenancy.py)
+        inputs = with_held(deps, state, inputs)
         parsed = parse(inputs)
-    planned = plan_step(deps, state, inputs, parsed, last)
+        record_references(state, fleet, parsed.wanted)
+        # modules with profiling auto are planned once their profiles are known (issue 10)
+        waiting, recorded = profile_first(deps, fleet, parsed.catalog, inputs.raw_modules)
+        if waiting:
+            waiting_for_profiles(deps, obj, waiting.message, waiting.failed)
+            poll = None if waiting.failed else PROFILING_POLL_SECONDS
+            return Outcome(requeue_after=poll, message=waiting.message)
+        if recorded:  # the rows just written are part of the modules now
+            parsed = parse(inputs)
+        planned = plan_step(deps, state, inputs, parsed, last)
     desired = render_step(deps, inputs, parsed, planned)
     applied, pruned = apply_step(
         deps, *obj.key, desired, inputs.deployments, planned.problem, planned.stranded

@@ -13,7 +13,7 @@ import functools
 import logging
 import math
 import time
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from concurrent.futures import ThreadPoolExecutor
 from typing import Any, TypeVar
 
@@ -207,11 +207,24 @@ class Runtime:
         )
         if state.placement is not before:  # nothing moved: no usage pass
             self.usage_changed()
+        if outcome.planned:
+            self._neighbours_changed(key, state.claims)
         return outcome
 
+    def _neighbours_changed(self, key: FleetKey, nodes: Iterable[str]) -> None:
+        """A fleet's claims on these nodes changed (a new plan, or the fleet went): the other
+        fleets on them re-check what is left for them (controllers/tenancy.py)."""
+        for node in sorted(nodes):
+            for other in self.store.using_node(node) - {key}:
+                self.queue.schedule_debounced(other)
+
     def _forget(self, key: FleetKey) -> None:
-        """The fleet is gone: its state, and its lock and timers in the queue, go."""
+        """The fleet is gone: its state, and its lock and timers in the queue, go; the fleets
+        it shared nodes with may use its room."""
+        state = self.store.get(key)
         self.store.forget(key)
+        if state is not None:
+            self._neighbours_changed(key, state.claims)
         self.queue.forget(key)
         self.usage_changed()
 

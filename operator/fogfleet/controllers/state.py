@@ -160,6 +160,10 @@ class FleetState:
     key: FleetKey
     references: References | None = None  # None until a reconcile recorded them
     plan: Decision | None = None  # the deployed plan, by input fingerprint
+    # Kubernetes Node -> (CPU cores, memory bytes) the plan requests there: what the other
+    # fleets plan around (controllers/tenancy.py); recorded with the plan, under the lock
+    claims: dict[str, tuple[float, float]] = field(default_factory=dict)
+    shared: list[Obj] = field(default_factory=list)  # status.sharedNodes of the plan
     failure: tuple[str, Exception] | None = None  # (fingerprint, the error it gave)
     rendered: Rendered | None = None
     # where its instances stand, as its last status refresh found them (the usage pass reads

@@ -50,7 +50,15 @@ def refresh(
     drift = drift_report(state.drift.watch, state.drift.modules)
     status = running_wire(
         fleet_status(
-            inputs.fleet, rendered, placement, roll, obj.generation, obj.old_status, links, drift
+            inputs.fleet,
+            rendered,
+            placement,
+            roll,
+            obj.generation,
+            obj.old_status,
+            links,
+            drift,
+            state.shared if not rendered.baseline else None,
         )
     )
     ready = not roll.waiting and not roll.moving and not rendered.stranded

@@ -27,10 +27,12 @@ from fogfleet.api.v1alpha1.base import format_cores, parse_cpu
 from fogfleet.api.v1alpha1.computenode import ComputeNodeStatus
 from fogfleet.api.v1alpha1.softwaremodule import SoftwareModuleStatus, Taxonomy
 from fogfleet.domain.taxonomy import classify
+from fogfleet.domain.tenancy import Held
 
 from .deps import Deps
 from .inputs import node_health
 from .status import condition, merge_conditions, split_text, wire, without_transition_times
+from .tenancy import pod_requests
 
 __all__ = [
     "Usage",
@@ -128,10 +130,15 @@ def module_status(module: Mapping[str, Any], usage: Usage | None) -> Obj:
 
 
 def compute_node_status(
-    compute_node: Mapping[str, Any], usage: Usage | None, node: Mapping[str, Any] | None
+    compute_node: Mapping[str, Any],
+    usage: Usage | None,
+    node: Mapping[str, Any] | None,
+    others: Held | None = None,
 ) -> Obj:
-    """The status of a ComputeNode: its Node's readiness and allocatable, and who uses it."""
+    """The status of a ComputeNode: its Node's readiness and allocatable, who uses it, what
+    pods fogfleet does not own request there (``others``) and what is left."""
     use = usage or Usage()
+    other_cpu = others.cpu if others is not None else 0.0
     meta = compute_node.get("metadata") or {}
     generation = meta.get("generation")
     name = (compute_node.get("spec") or {}).get("nodeName") or meta.get("name", "")
@@ -155,8 +162,20 @@ def compute_node_status(
         fleets=sorted(use.fleets),
         instances=use.instances,
         cpu_planned=format_cores(use.cpu),
+        cpu_others=format_cores(other_cpu),
+        cpu_free=_free(alloc.get("cpu"), use.cpu + other_cpu),
     )
     return wire(status)
+
+
+def _free(allocatable: Any, taken: float) -> str | None:
+    """Allocatable CPU less what is taken ("" when the Node says nothing)."""
+    if allocatable in (None, ""):
+        return None
+    try:
+        return format_cores(max(parse_cpu(allocatable) - taken, 0.0))
+    except ValueError:
+        return None
 
 
 def _differs(old: Mapping[str, Any], new: Mapping[str, Any]) -> bool:
@@ -190,10 +209,13 @@ def reconcile_usage(deps: Deps) -> int:
             patched += 1
     by_node = usage_by_node(fleets, known)
     nodes = {(n.get("metadata") or {}).get("name", ""): n for n in kube.list_nodes()}
+    _, others = pod_requests(kube.list_node_load())
     for cn in kube.list_compute_nodes():
         meta = cn.get("metadata") or {}
         node_name = (cn.get("spec") or {}).get("nodeName") or meta.get("name", "")
-        status = compute_node_status(cn, by_node.get(node_name), nodes.get(node_name))
+        status = compute_node_status(
+            cn, by_node.get(node_name), nodes.get(node_name), others.get(node_name)
+        )
         if _differs(cn.get("status") or {}, status):
             kube.patch_compute_node_status(meta.get("name", ""), status)
             patched += 1

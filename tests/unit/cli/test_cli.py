@@ -357,3 +357,41 @@ def test_a_robot_trusts_its_own_computer_by_default() -> None:
     assert ComputeNodeSpec.model_validate(robot).privacy == 3
     assert ComputeNodeSpec.model_validate({**robot, "privacyLevel": 1}).privacy == 1
     assert ComputeNodeSpec.model_validate({"tier": "cloud", "hardwareType": "vm"}).privacy == 0
+
+
+def test_a_directory_of_fleets_is_planned_as_one_site(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Two fleets on the same (small) edge nodes: the second plans into what the first left,
+    and the order is printed."""
+    docs = [d for f in ("nodes.yaml", "modules.yaml", "fleet.yaml") for d in _docs(WAREHOUSE / f)]
+    capacity: dict[str, float] = {}
+    for d in docs:
+        if d["kind"] == "ComputeNode":
+            if d["spec"]["tier"] == "edge":
+                d["spec"]["capacity"]["cpu"] = "4"
+            reserved = parse_cpu((d["spec"].get("reserved") or {}).get("cpu", 0))
+            capacity[d["metadata"]["name"]] = parse_cpu(d["spec"]["capacity"]["cpu"]) - reserved
+        if d["kind"] == "RobotFleet":
+            d["spec"]["robots"] = ["robot-1", "robot-2"]
+    second = []
+    for d in docs:
+        if d["kind"] in ("SoftwareModule", "RobotFleet"):
+            copy = json.loads(json.dumps(d))
+            copy["metadata"]["namespace"] = "other"
+            if d["kind"] == "RobotFleet":
+                copy["spec"]["robots"] = ["robot-3", "robot-4"]
+            second.append(copy)
+    (tmp_path / "site.yaml").write_text(yaml.safe_dump_all(docs + second))
+    code, out, err = run(capsys, "plan", str(tmp_path), "--json", "--generations", "15")
+    assert code == 0, err
+    assert "in this order: warehouse/warehouse, other/warehouse" in err
+    used: dict[str, float] = {}
+    for plan in json.loads(out):
+        for row in plan["placement"]:
+            used[row["node"]] = used.get(row["node"], 0.0) + row["cpu"]
+    assert all(cpu <= capacity[node] + 1e-9 for node, cpu in used.items()), used
+
+
+def _docs(path: Path) -> list[dict]:
+    return [d for d in yaml.safe_load_all(path.read_text()) if isinstance(d, dict)]

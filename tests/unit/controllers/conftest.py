@@ -10,6 +10,7 @@ from typing import Any
 import pytest
 import yaml
 
+from fogfleet.adapters.kube import holds_room, pod_load
 from fogfleet.api.v1alpha1.robotfleet import SchedulerSettings
 from fogfleet.domain.problem import Problem
 from fogfleet.scheduling.decision import CorePlanner
@@ -103,7 +104,7 @@ class FakeKube:
             labels = dep["spec"]["template"]["metadata"]["labels"]
             self.pods[(ns, name + "-pod")] = {
                 "metadata": {"name": name + "-pod", "namespace": ns, "labels": labels},
-                "spec": {"nodeName": node},
+                "spec": {"nodeName": node, "containers": pod_spec.get("containers") or []},
                 "status": {"phase": "Running", "conditions": [{"type": "Ready", "status": "True"}]},
             }
             dep["status"] = {
@@ -138,6 +139,10 @@ class FakeKube:
                 if ns == namespace and _match(d["metadata"]["labels"], selector)
             ]
         )
+
+    def list_node_load(self) -> list[Obj]:
+        loads = (pod_load(p) for p in self.pods.values())
+        return [p for p in loads if holds_room(p)]
 
     def list_pods(self, namespace: str, selector: Mapping[str, str]) -> list[Obj]:
         return copy.deepcopy(

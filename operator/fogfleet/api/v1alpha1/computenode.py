@@ -190,6 +190,11 @@ class ComputeNodeStatus(FogModel):
     """Module instances those plans place here."""
     cpu_planned: str | None = None
     """CPU those instances are given, in cores (their requests = limits)."""
+    cpu_others: str | None = None
+    """CPU the pods fogfleet does not own request on the node (DaemonSets, other workloads):
+    what fleets plan around."""
+    cpu_free: str | None = None
+    """Allocatable CPU left after the fleets' plans and the other pods' requests."""
 
 
 class ComputeNode(FogModel):

@@ -342,6 +342,20 @@ class ModuleMissStatus(FogModel):
     """Since when it misses more than predicted by the margin (RFC 3339)."""
 
 
+class SharedNodeStatus(FogModel):
+    """A node the fleet shares with other tenants (other fleets, pods fogfleet does not own)."""
+
+    node: str
+    """The Kubernetes Node."""
+    held_cpu: str
+    """CPU the others hold there (their plans or pods' requests), which this fleet planned
+    around."""
+    left_cpu: str
+    """CPU left on the node after the others and this fleet's plan."""
+    held_by: list[str] = Field(default_factory=list)
+    """Who holds it: other RobotFleets, and the namespaces of other pods."""
+
+
 class RobotFleetStatus(FogModel):
     """The deployed plan and how its rollout stands (written by the operator)."""
 
@@ -386,6 +400,9 @@ class RobotFleetStatus(FogModel):
     """Per robot, its link as measured (fleets whose links are monitored)."""
     measured: list[ModuleMissStatus] = Field(default_factory=list)
     """Per module, its measured miss rate against the plan's prediction (spec.drift)."""
+    shared_nodes: list[SharedNodeStatus] = Field(default_factory=list)
+    """The nodes the fleet shares with other tenants: what they hold, what is left. The plan
+    uses only what is left."""
 
 
 class RobotFleet(FogModel):
