@@ -9,15 +9,14 @@ set as affinity and the module's nominal requests (no limits), so the real kube-
 makes the choice.
 
 Names are deterministic and collision-free: ``<fleet>-<robot>-<module>-<hash8>`` (the hash is of
-the exact identity), shortened to 63 characters; the full identity is in the annotations.
+the exact identity), shortened to 63 characters; the full identity is in the annotations. Every
+other name and label value goes through ``api.names`` (issue 35).
 ``fogfleet.io/spec-hash`` lets the controller skip applying what is already there.
 """
 
 from __future__ import annotations
 
-import hashlib
 import json
-import re
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -42,6 +41,7 @@ from fogfleet.api.labels import (
     LABEL_TIER,
     MANAGER,
 )
+from fogfleet.api.names import MAX_NAME, digest, dns_label, dns_text, label_value
 from fogfleet.api.v1alpha1.fallback import Fallback
 from fogfleet.api.v1alpha1.robotfleet import DEFAULT_CPU_LIMIT_PERCENT
 from fogfleet.api.v1alpha1.softwaremodule import ProfileEntry, SoftwareModule
@@ -67,6 +67,7 @@ __all__ = [
     "ROLE_REMOTE",
     "ROLE_STANDBY",
     "Owner",
+    "container_name",
     "deployment_name",
     "format_cpu",
     "hash_annotation",
@@ -78,10 +79,8 @@ __all__ = [
     "spec_hash",
 ]
 
-MAX_NAME = 63
 ROLE_STANDBY, ROLE_REMOTE = "standby", "remote"
 COMPONENT_STANDBY = "fallback-standby"
-_NOT_DNS = re.compile(r"[^a-z0-9-]+")
 
 
 @dataclass(frozen=True)
@@ -90,22 +89,6 @@ class Owner:
 
     name: str
     uid: str
-
-
-def _digest(*parts: object, n: int = 8) -> str:
-    return hashlib.sha256(json.dumps(parts, separators=(",", ":")).encode()).hexdigest()[:n]
-
-
-def _dns(text: str) -> str:
-    return _NOT_DNS.sub("-", text.lower()).strip("-")
-
-
-def label_value(text: str) -> str:
-    """A valid label value: ``text`` if it is one, else a shortened form with a hash suffix."""
-    if len(text) <= MAX_NAME and re.fullmatch(r"([A-Za-z0-9]([-A-Za-z0-9_.]*[A-Za-z0-9])?)?", text):
-        return text
-    head = re.sub(r"[^A-Za-z0-9_.-]+", "-", text)[: MAX_NAME - 9].strip("-_.")
-    return f"{head}-{_digest(text)}"
 
 
 def deployment_name(fleet: str, inst: Instance, role: str = "") -> str:
@@ -118,9 +101,15 @@ def deployment_name(fleet: str, inst: Instance, role: str = "") -> str:
     if role == ROLE_STANDBY:
         who.append(ROLE_STANDBY)
         parts += (ROLE_STANDBY,)
-    suffix = _digest(*parts)
-    base = _dns("-".join(who))[: MAX_NAME - len(suffix) - 1].rstrip("-")
-    return f"{base}-{suffix}"
+    suffix = digest(*parts)  # of the exact identity: the name is unique however it is cut
+    base = dns_text("-".join(who))[: MAX_NAME - len(suffix) - 1].rstrip("-")
+    return f"{base}-{suffix}" if base else suffix
+
+
+def container_name(module: str) -> str:
+    """The module's container: its name in DNS-label characters (a dotted name as today, with
+    ``-``), hashed only when longer than 63; one container per pod, so it needs no more."""
+    return dns_label(dns_text(module)) or "module"
 
 
 def format_cpu(cores: float) -> str:
@@ -137,7 +126,7 @@ def spec_hash(deployment: Mapping[str, Any]) -> str:
     annotations.pop(ANNOTATION_SPEC_HASH, None)
     template = (body.get("spec") or {}).get("template") or {}
     ((template.get("metadata") or {}).get("annotations") or {}).pop(ANNOTATION_SPEC_HASH, None)
-    return _digest(body, n=16)
+    return digest(body, n=16)
 
 
 def hash_annotation(obj: Mapping[str, Any] | None) -> str | None:
@@ -252,7 +241,7 @@ def render_instance(
     )
     pod_spec = module_pod_spec(
         module,
-        container_name=_dns(module.metadata.name)[:MAX_NAME] or "module",
+        container_name=container_name(module.metadata.name),
         affinity=node_affinity([problem.nodes[k].node_name for k in nodes]),
         resources=resources,
         owned_env=owned_env,
