@@ -77,6 +77,7 @@ __all__ = [
     "render_fleet",
     "render_instance",
     "spec_hash",
+    "spread_replicas",
 ]
 
 ROLE_STANDBY, ROLE_REMOTE = "standby", "remote"
@@ -156,6 +157,24 @@ def node_affinity(node_names: Sequence[str]) -> dict[str, Any]:
             "requiredDuringSchedulingIgnoredDuringExecution": {"nodeSelectorTerms": [term]}
         }
     }
+
+
+def spread_replicas(pod_spec: dict[str, Any], fleet: str, module: str) -> dict[str, Any]:
+    """``pod_spec`` with a topology spread over nodes for a shared module's replicas (issue 35):
+    the safety net of the planner's rule (``scheduling.spread``). ``ScheduleAnyway`` never
+    blocks a pod, and a replica pinned to its planned node by a required node affinity has one
+    candidate node, so the spread cannot contradict the plan: it only steers replicas that
+    kube-scheduler places (the ``k8s-default`` baseline, affinity to every allowed node)."""
+    selector = {LABEL_FLEET: label_value(fleet), LABEL_MODULE: label_value(module)}
+    spread = {
+        "maxSkew": 1,
+        "topologyKey": HOSTNAME_KEY,
+        "whenUnsatisfiable": "ScheduleAnyway",
+        "labelSelector": {"matchLabels": selector},
+    }
+    have = list(pod_spec.get("topologySpreadConstraints") or [])
+    pod_spec["topologySpreadConstraints"] = have + ([spread] if spread not in have else [])
+    return pod_spec
 
 
 def _nominal_row(problem: Problem, i: int, j: int) -> ProfileEntry:
@@ -248,6 +267,8 @@ def render_instance(
     )
     if tier == "robot":
         stay_on_robot(pod_spec)
+    if not inst.robot and role != ROLE_STANDBY:
+        spread_replicas(pod_spec, problem.fleet, inst.module)
     metadata = _metadata(name, problem.namespace, labels, annotations, owner)
     dep = _deployment(metadata, selector, labels, pod_annotations, pod_spec)
     annotations[ANNOTATION_SPEC_HASH] = spec_hash(dep)
