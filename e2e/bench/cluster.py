@@ -432,13 +432,13 @@ def plain_discovery(problem: Any, fleet: Any) -> list[Obj]:
     operator runs them for ``fleet`` (none with ``spec.ros.enabled: false``): a plain ROS 2
     fleet whose modules span nodes needs them too, so the plain baseline runs the same pods."""
     from fogfleet.api.labels import LABEL_FLEET, LABEL_MANAGED_BY
-    from fogfleet.render.deployments import _dns, label_value
+    from fogfleet.render.deployments import label_value
     from fogfleet.render.ros import discovery_servers
 
     if not fleet.spec.ros.enabled:
         return []
     labels = {LABEL_FLEET: label_value(problem.fleet), LABEL_MANAGED_BY: PLAIN_MANAGER}
-    servers = discovery_servers(problem, fleet.spec.ros, labels, [], _dns)
+    servers = discovery_servers(problem, fleet.spec.ros, labels, [])
     return [doc for _, service, deployment in servers for doc in (service, deployment)]
 
 

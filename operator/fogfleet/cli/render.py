@@ -23,7 +23,6 @@ def cmd_render(args: argparse.Namespace) -> int:
         LABEL_FLEET,
         LABEL_MANAGED_BY,
         MANAGER,
-        _dns,
         label_value,
         render_fleet,
     )
@@ -31,6 +30,7 @@ def cmd_render(args: argparse.Namespace) -> int:
         RosWiring,
         discovery_servers,
         fleet_network_policy,
+        network_policy_name,
         service_address,
     )
 
@@ -52,7 +52,7 @@ def cmd_render(args: argparse.Namespace) -> int:
         wiring = None
         if fleet.spec.ros.enabled:
             labels = {LABEL_FLEET: label_value(problem.fleet), LABEL_MANAGED_BY: MANAGER}
-            servers = discovery_servers(problem, fleet.spec.ros, labels, [], _dns)
+            servers = discovery_servers(problem, fleet.spec.ros, labels, [])
             # offline: the Services' DNS names (the operator uses their cluster IPs)
             wiring = RosWiring(fleet.spec.ros, {r: service_address(s) for r, s, _ in servers})
             for _, service, deployment in servers:
@@ -60,7 +60,7 @@ def cmd_render(args: argparse.Namespace) -> int:
             ports = sorted({p for m in modules.values() for p in m.spec.template.metrics_ports()})
             docs.append(
                 fleet_network_policy(
-                    name=_dns(f"{problem.fleet}-pods")[:63],
+                    name=network_policy_name(problem.fleet),
                     namespace=ns,
                     selector={LABEL_FLEET: label_value(problem.fleet)},
                     metrics_ports=ports,

@@ -21,12 +21,13 @@ from fogfleet.api.v1alpha1.robotfleet import RobotFleet
 from fogfleet.api.v1alpha1.softwaremodule import SoftwareModule
 from fogfleet.controllers.parallel import run_all
 from fogfleet.domain.problem import Problem
-from fogfleet.render.deployments import Owner, _dns, hash_annotation, spec_hash
+from fogfleet.render.deployments import Owner, hash_annotation, spec_hash
 from fogfleet.render.ros import (
     COMPONENT_DISCOVERY,
     RosWiring,
     discovery_servers,
     fleet_network_policy,
+    network_policy_name,
     service_address,
 )
 
@@ -90,7 +91,7 @@ def apply_ros_wiring(
     to_apply: list[Obj] = []
     deployments: list[Obj] = []
     for robot, service, deployment in discovery_servers(
-        problem, settings, labels, _owner_refs(owner), _dns
+        problem, settings, labels, _owner_refs(owner)
     ):
         service, deployment = _hashed(service), _hashed(deployment)
         name = service["metadata"]["name"]
@@ -118,7 +119,7 @@ def apply_ros_wiring(
     ports = sorted({p for m in modules for p in m.spec.template.metrics_ports()})
     kube.apply_network_policy(
         fleet_network_policy(
-            name=_dns(f"{problem.fleet}-pods")[:63],
+            name=network_policy_name(problem.fleet),
             namespace=ns,
             selector=dict(fleet_labels),
             metrics_ports=ports,

@@ -19,7 +19,7 @@ from typing import Any, TypeVar
 
 from fogfleet.api.labels import LABEL_FLEET, LABEL_INSTANCE
 from fogfleet.errors import FogfleetError
-from fogfleet.render.deployments import hash_annotation
+from fogfleet.render.deployments import hash_annotation, label_value
 
 from .deps import Deps, FleetKey
 from .links import LinkDeps, measure_links
@@ -235,7 +235,9 @@ class Runtime:
     async def delete_fleet(self, namespace: str, name: str) -> None:
         """Delete the fleet's Deployments now (the garbage collector would, via ownerReferences)."""
         self._forget((namespace, name))
-        deps = await self.call(self.deps.kube.list_deployments, namespace, {LABEL_FLEET: name})
+        deps = await self.call(
+            self.deps.kube.list_deployments, namespace, {LABEL_FLEET: label_value(name)}
+        )
         for dep in deps:
             await self.call(self.deps.kube.delete_deployment, namespace, dep["metadata"]["name"])
         self.usage_changed()
@@ -353,7 +355,14 @@ class Runtime:
         """The state of the fleet a Deployment or Pod belongs to (None: no fleet's, or one
         this process does not know)."""
         key = _fleet_of(obj)
-        return self.store.get(key) if key is not None else None
+        if key is None:
+            return None
+        state = self.store.get(key)
+        if state is None:  # a fleet name too long for a label value carries a shortened one
+            ns, value = key
+            known = (k for k in self.store.fleets() if k[0] == ns and label_value(k[1]) == value)
+            state = next((self.store.get(k) for k in known), None)
+        return state
 
     def _count_rollout(self, key: FleetKey, waiting: int, now: float) -> None:
         """Record a fleet's modules still rolling out, and when its rollout should end at the

@@ -38,6 +38,7 @@ from typing import Any
 
 from fogfleet.api.labels import LABEL_MANAGED_BY, LABEL_MODULE, LABEL_TIER, MANAGER
 from fogfleet.api.loader import parse_object
+from fogfleet.api.names import label_value
 from fogfleet.api.timestamps import parse_timestamp, timestamp
 from fogfleet.api.v1alpha1.scaling import Mode, ScalingSpec
 from fogfleet.api.v1alpha1.softwaremodule import SafetyClass, ScalingStatus, SoftwareModule
@@ -189,7 +190,7 @@ def reconcile_scaling(module: Mapping[str, Any], deps: ScalingDeps, now: float) 
     pools = pools_for(mod)
     safety = mod.spec.taxonomy.safety is SafetyClass.RELEVANT
     current = _current(mod, pools, old)
-    pods = deps.kube.list_pods(ns, {LABEL_MODULE: name, LABEL_MANAGED_BY: MANAGER})
+    pods = deps.kube.list_pods(ns, {LABEL_MODULE: label_value(name), LABEL_MANAGED_BY: MANAGER})
     ready = _ready_by_pool(pods, pools)
     last = (
         ScaleDecision(

@@ -9,15 +9,14 @@ set as affinity and the module's nominal requests (no limits), so the real kube-
 makes the choice.
 
 Names are deterministic and collision-free: ``<fleet>-<robot>-<module>-<hash8>`` (the hash is of
-the exact identity), shortened to 63 characters; the full identity is in the annotations.
+the exact identity), shortened to 63 characters; the full identity is in the annotations. Every
+other name and label value goes through ``api.names`` (issue 35).
 ``fogfleet.io/spec-hash`` lets the controller skip applying what is already there.
 """
 
 from __future__ import annotations
 
-import hashlib
 import json
-import re
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -42,6 +41,7 @@ from fogfleet.api.labels import (
     LABEL_TIER,
     MANAGER,
 )
+from fogfleet.api.names import MAX_NAME, digest, dns_label, dns_text, label_value
 from fogfleet.api.v1alpha1.fallback import Fallback
 from fogfleet.api.v1alpha1.robotfleet import DEFAULT_CPU_LIMIT_PERCENT
 from fogfleet.api.v1alpha1.softwaremodule import ProfileEntry, SoftwareModule
@@ -67,6 +67,7 @@ __all__ = [
     "ROLE_REMOTE",
     "ROLE_STANDBY",
     "Owner",
+    "container_name",
     "deployment_name",
     "format_cpu",
     "hash_annotation",
@@ -76,12 +77,11 @@ __all__ = [
     "render_fleet",
     "render_instance",
     "spec_hash",
+    "spread_replicas",
 ]
 
-MAX_NAME = 63
 ROLE_STANDBY, ROLE_REMOTE = "standby", "remote"
 COMPONENT_STANDBY = "fallback-standby"
-_NOT_DNS = re.compile(r"[^a-z0-9-]+")
 
 
 @dataclass(frozen=True)
@@ -90,22 +90,6 @@ class Owner:
 
     name: str
     uid: str
-
-
-def _digest(*parts: object, n: int = 8) -> str:
-    return hashlib.sha256(json.dumps(parts, separators=(",", ":")).encode()).hexdigest()[:n]
-
-
-def _dns(text: str) -> str:
-    return _NOT_DNS.sub("-", text.lower()).strip("-")
-
-
-def label_value(text: str) -> str:
-    """A valid label value: ``text`` if it is one, else a shortened form with a hash suffix."""
-    if len(text) <= MAX_NAME and re.fullmatch(r"([A-Za-z0-9]([-A-Za-z0-9_.]*[A-Za-z0-9])?)?", text):
-        return text
-    head = re.sub(r"[^A-Za-z0-9_.-]+", "-", text)[: MAX_NAME - 9].strip("-_.")
-    return f"{head}-{_digest(text)}"
 
 
 def deployment_name(fleet: str, inst: Instance, role: str = "") -> str:
@@ -118,9 +102,15 @@ def deployment_name(fleet: str, inst: Instance, role: str = "") -> str:
     if role == ROLE_STANDBY:
         who.append(ROLE_STANDBY)
         parts += (ROLE_STANDBY,)
-    suffix = _digest(*parts)
-    base = _dns("-".join(who))[: MAX_NAME - len(suffix) - 1].rstrip("-")
-    return f"{base}-{suffix}"
+    suffix = digest(*parts)  # of the exact identity: the name is unique however it is cut
+    base = dns_text("-".join(who))[: MAX_NAME - len(suffix) - 1].rstrip("-")
+    return f"{base}-{suffix}" if base else suffix
+
+
+def container_name(module: str) -> str:
+    """The module's container: its name in DNS-label characters (a dotted name as today, with
+    ``-``), hashed only when longer than 63; one container per pod, so it needs no more."""
+    return dns_label(dns_text(module)) or "module"
 
 
 def format_cpu(cores: float) -> str:
@@ -137,7 +127,7 @@ def spec_hash(deployment: Mapping[str, Any]) -> str:
     annotations.pop(ANNOTATION_SPEC_HASH, None)
     template = (body.get("spec") or {}).get("template") or {}
     ((template.get("metadata") or {}).get("annotations") or {}).pop(ANNOTATION_SPEC_HASH, None)
-    return _digest(body, n=16)
+    return digest(body, n=16)
 
 
 def hash_annotation(obj: Mapping[str, Any] | None) -> str | None:
@@ -167,6 +157,24 @@ def node_affinity(node_names: Sequence[str]) -> dict[str, Any]:
             "requiredDuringSchedulingIgnoredDuringExecution": {"nodeSelectorTerms": [term]}
         }
     }
+
+
+def spread_replicas(pod_spec: dict[str, Any], fleet: str, module: str) -> dict[str, Any]:
+    """``pod_spec`` with a topology spread over nodes for a shared module's replicas (issue 35):
+    the safety net of the planner's rule (``scheduling.spread``). ``ScheduleAnyway`` never
+    blocks a pod, and a replica pinned to its planned node by a required node affinity has one
+    candidate node, so the spread cannot contradict the plan: it only steers replicas that
+    kube-scheduler places (the ``k8s-default`` baseline, affinity to every allowed node)."""
+    selector = {LABEL_FLEET: label_value(fleet), LABEL_MODULE: label_value(module)}
+    spread = {
+        "maxSkew": 1,
+        "topologyKey": HOSTNAME_KEY,
+        "whenUnsatisfiable": "ScheduleAnyway",
+        "labelSelector": {"matchLabels": selector},
+    }
+    have = list(pod_spec.get("topologySpreadConstraints") or [])
+    pod_spec["topologySpreadConstraints"] = have + ([spread] if spread not in have else [])
+    return pod_spec
 
 
 def _nominal_row(problem: Problem, i: int, j: int) -> ProfileEntry:
@@ -252,13 +260,15 @@ def render_instance(
     )
     pod_spec = module_pod_spec(
         module,
-        container_name=_dns(module.metadata.name)[:MAX_NAME] or "module",
+        container_name=container_name(module.metadata.name),
         affinity=node_affinity([problem.nodes[k].node_name for k in nodes]),
         resources=resources,
         owned_env=owned_env,
     )
     if tier == "robot":
         stay_on_robot(pod_spec)
+    if not inst.robot and role != ROLE_STANDBY:
+        spread_replicas(pod_spec, problem.fleet, inst.module)
     metadata = _metadata(name, problem.namespace, labels, annotations, owner)
     dep = _deployment(metadata, selector, labels, pod_annotations, pod_spec)
     annotations[ANNOTATION_SPEC_HASH] = spec_hash(dep)

@@ -25,10 +25,11 @@ from fogfleet.api.labels import (
     LABEL_PROFILE_SPEC,
     MANAGER,
 )
+from fogfleet.api.names import dns_label, dns_text
 from fogfleet.api.v1alpha1.base import format_millicores
 from fogfleet.api.v1alpha1.softwaremodule import SoftwareModule
 from fogfleet.contract.env import ENV_PROFILE_CYCLES
-from fogfleet.render.deployments import label_value, node_affinity
+from fogfleet.render.deployments import container_name, label_value, node_affinity
 from fogfleet.render.podtemplate import module_pod_spec
 from fogfleet.render.ros import module_env, stay_on_robot
 
@@ -38,10 +39,11 @@ TTL_SECONDS = 3600  # the operator deletes a recorded run's Jobs; this cleans up
 
 
 def profiling_job_name(module: str, hardware_type: str, cpu: float, spec_hash: str) -> str:
-    """``<module>-profile-<digest>``, at most 52 characters (a Job's pods append their own
-    suffix to it and must stay a valid label value)."""
+    """``<module>-profile-<digest>``, at most 49 characters (a Job's pods append their own
+    suffix to it and must stay a valid label value); a module name over 32 characters is cut
+    with a hash of it (``api.names``), so two long modules never share a Job."""
     digest = hashlib.sha256(f"{hardware_type}/{cpu:g}/{spec_hash}".encode()).hexdigest()[:8]
-    head = module[:32].rstrip("-.")
+    head = dns_label(dns_text(module), limit=32)
     return f"{head}-profile-{digest}"
 
 
@@ -88,7 +90,7 @@ def render_profiling_job(
     env.append({"name": ENV_PROFILE_CYCLES, "value": str(module.spec.profiling.cycles)})
     pod = module_pod_spec(
         module,
-        container_name=name[:63],
+        container_name=container_name(name),
         affinity=node_affinity(node_names),
         resources={"requests": dict(quantities), "limits": dict(quantities)},
         owned_env=env,

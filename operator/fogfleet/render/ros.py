@@ -21,6 +21,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from fogfleet.api.labels import LABEL_COMPONENT, LABEL_ROBOT
+from fogfleet.api.names import dns_label, label_value
 from fogfleet.api.v1alpha1.fallback import Fallback
 from fogfleet.api.v1alpha1.robotfleet import RosSettings
 from fogfleet.api.v1alpha1.softwaremodule import ProfileEntry, SoftwareModule
@@ -48,6 +49,7 @@ __all__ = [
     "discovery_service_name",
     "fleet_network_policy",
     "module_env",
+    "network_policy_name",
     "pod_security",
     "render_discovery",
     "service_address",
@@ -77,11 +79,6 @@ def stay_on_robot(pod_spec: dict[str, Any]) -> dict[str, Any]:
     return pod_spec
 
 
-def robot_label(robot: str) -> str:
-    """A label value for a robot name (names are DNS subdomains; label values are shorter)."""
-    return robot[:63].rstrip("-._")
-
-
 @dataclass(frozen=True)
 class RosWiring:
     """The fleet's ROS settings and the discovery server address of each robot."""
@@ -96,8 +93,15 @@ class RosWiring:
         return ";".join(self.servers[r] for r in sorted(self.servers))
 
 
-def discovery_service_name(fleet: str, robot: str, dns: Any) -> str:
-    return str(dns(f"{fleet}-{robot}-dds"))[:63].rstrip("-")
+def discovery_service_name(fleet: str, robot: str) -> str:
+    """``<fleet>-<robot>-dds`` (its Service and Deployment); cut with a hash when it does not fit
+    (``api.names``): two robots never share a server."""
+    return dns_label(f"{fleet}-{robot}-dds")
+
+
+def network_policy_name(fleet: str) -> str:
+    """``<fleet>-pods``, the fleet's NetworkPolicy."""
+    return dns_label(f"{fleet}-pods")
 
 
 def pod_security() -> tuple[dict[str, Any], dict[str, Any]]:
@@ -244,12 +248,11 @@ def render_discovery(
     settings: RosSettings,
     labels: Mapping[str, str],
     owner_refs: Sequence[Mapping[str, Any]],
-    dns: Any,
 ) -> tuple[dict[str, Any], dict[str, Any]]:
     """(Service, Deployment) of the robot's discovery server, pinned to the robot's node."""
-    name = discovery_service_name(fleet, robot, dns)
+    name = discovery_service_name(fleet, robot)
     # the robot in the selector: each Service must reach its own robot's server only
-    selector = {**labels, LABEL_COMPONENT: COMPONENT_DISCOVERY, LABEL_ROBOT: robot_label(robot)}
+    selector = {**labels, LABEL_COMPONENT: COMPONENT_DISCOVERY, LABEL_ROBOT: label_value(robot)}
     meta = {
         "name": name,
         "namespace": namespace,
@@ -331,7 +334,6 @@ def discovery_servers(
     settings: RosSettings,
     labels: Mapping[str, str],
     owner_refs: Sequence[Mapping[str, Any]],
-    dns: Any,
 ) -> list[tuple[str, dict[str, Any], dict[str, Any]]]:
     """(robot, Service, Deployment) for every robot of the plan, on the robot's own node."""
     nodes = {n.name: n.node_name for n in problem.nodes}
@@ -347,7 +349,6 @@ def discovery_servers(
                 settings=settings,
                 labels=labels,
                 owner_refs=owner_refs,
-                dns=dns,
             ),
         )
         for robot in robots

@@ -20,6 +20,7 @@ from __future__ import annotations
 from typing import Any
 
 from fogfleet.api.labels import LABEL_MANAGED_BY, LABEL_MODULE, MANAGER
+from fogfleet.api.names import dns_label, label_value
 from fogfleet.api.v1alpha1.scaling import ScalingSpec
 from fogfleet.autoscaling.behavior import Behavior, ScalingRules, resolve_behavior
 from fogfleet.contract import metrics as contract
@@ -62,10 +63,11 @@ def slo_promql(spec: ScalingSpec, module: str, namespace: str, window_seconds: i
 
 
 def _meta(kind_suffix: str, module: str, namespace: str) -> Obj:
+    """``<module>-<suffix>``, bounded and unique (``api.names``)."""
     return {
-        "name": f"{module}-{kind_suffix}"[:63],
+        "name": dns_label(f"{module}-{kind_suffix}"),
         "namespace": namespace,
-        "labels": {LABEL_MANAGED_BY: MANAGER, LABEL_MODULE: module},
+        "labels": {LABEL_MANAGED_BY: MANAGER, LABEL_MODULE: label_value(module)},
     }
 
 

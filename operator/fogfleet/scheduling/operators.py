@@ -19,6 +19,7 @@ from pymoo.core.sampling import Sampling
 
 from .heuristics import greedy
 from .problem import FIT_TOLERANCE, PlacementProblem
+from .spread import spread_plans
 
 __all__ = [
     "CapacityRepair",
@@ -265,11 +266,12 @@ def _max3(a: NDArray[np.float64]) -> NDArray[np.float64]:
 
 
 class CapacityRepair(Repair):  # type: ignore[misc]
-    """Capacity and uplink repair (``repair_plans``) applied to every new individual."""
+    """Capacity and uplink repair (``repair_plans``), then the shared replicas' spread
+    (``spread.spread_plans``), applied to every new individual."""
 
     def _do(self, problem: PlacementProblem, X: NDArray[Any], **kwargs: Any) -> I64:
-        full = problem.full(X)
-        return repair_plans(problem, full)[:, problem.genes]
+        full = repair_plans(problem, problem.full(X))
+        return spread_plans(problem.fleet, full, problem.fit)[:, problem.genes]
 
 
 class GeneMutation(Mutation):  # type: ignore[misc]

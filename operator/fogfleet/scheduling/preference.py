@@ -21,6 +21,7 @@ from fogfleet.domain.problem import Problem
 
 from .heuristics import Fit
 from .objectives import constraints, evaluate
+from .spread import stacks_more
 from .stickiness import loads
 
 __all__ = ["polish", "tie_breakers"]
@@ -96,6 +97,8 @@ def polish(problem: Problem, x: I64, names: Sequence[str]) -> tuple[I64, int]:
             trial[i] = k
             if np.any(constraints(problem, trial[None, :], problem.limits) > 1e-9):
                 continue
+            if problem.home[i] < 0 and stacks_more(problem, trial, x):
+                continue  # the shared module's replicas would all be on one node again
             miss, rank = score(trial)
             if np.all(miss <= limit) and rank < base_rank:
                 x, base_rank = trial, rank

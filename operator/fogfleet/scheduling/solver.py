@@ -40,6 +40,7 @@ from .operators import (
 from .preference import polish, tie_breakers
 from .problem import PlacementProblem
 from .schedule import Schedule
+from .spread import spread_note, spread_plans, stacked
 
 ENUMERATE_LIMIT = 20_000  # plans; smaller search spaces are enumerated exactly
 # The local search is bounded by work; this deadline is only a safety net for pathological
@@ -166,6 +167,8 @@ def nsga2(
         cv = np.zeros(len(X))
         feasible = np.ones(len(X), dtype=bool)
     full = pp.full(X)
+    F, cv, feasible = _spread_shared(clean, full, F, cv, feasible)
+    X = full[:, pp.genes]
     if feasible.any():
         idx = np.flatnonzero(feasible)
         front = idx[non_dominated(F[idx])]
@@ -185,6 +188,8 @@ def nsga2(
         chosen = int(front[0])
         plan_x = full[chosen]
         reason = f"no feasible plan found; least constraint violation {cv[chosen]:.4g}"
+    note = spread_note(problem, plan_x)
+    reason += f"; {note}" if note else ""
     sched = finish(problem, "nsga2", plan_x, True, t0, reason)
     if not feasible.any():
         extra = dict(sched.reasons)
@@ -206,6 +211,29 @@ def nsga2(
         evaluations=n_eval + n_local,
         duration_seconds=time.perf_counter() - t0,
     )
+
+
+def _spread_shared(
+    pp: PlacementProblem,
+    full: NDArray[np.int64],
+    F: NDArray[np.float64],
+    cv: NDArray[np.float64],
+    feasible: NDArray[np.bool_],
+) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.bool_]]:
+    """The final candidates with every shared module spread where a second allowed node has
+    room (``spread.spread_plans``; ``full`` in place), re-evaluated: the enumeration and the
+    local search make plans the repair never saw, and the choice must pay for the spread."""
+    moved = stacked(pp.fleet, full).any(axis=1)
+    if not moved.any():
+        return F, cv, feasible
+    spread_plans(pp.fleet, full, pp.fit)
+    out: dict[str, NDArray[np.float64]] = {}
+    pp._evaluate(full[moved][:, pp.genes], out)
+    F, cv, feasible = F.copy(), cv.copy(), feasible.copy()
+    F[moved] = out["F"]
+    cv[moved] = np.maximum(out["G"], 0.0).sum(axis=1)
+    feasible[moved] = cv[moved] <= 1e-9
+    return F, cv, feasible
 
 
 def _evolve(
