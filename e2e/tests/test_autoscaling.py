@@ -29,7 +29,6 @@ from e2e.bed.operator_fixtures import (
     EXAMPLES,
     Operator,
     bound_node,
-    example_docs,
     free_port,
     install_crds,
     of_kind,
@@ -363,7 +362,7 @@ def _loop_docs(namespace: str) -> tuple[list[Obj], Obj, Obj]:
     (ComputeNodes, modules, fleet). The robot and edge ComputeNodes are the warehouse's."""
     shared = [
         d
-        for f in ("nodes.yaml", "modules.yaml", "fleet.yaml")  # not twin-scenario.yaml
+        for f in ("nodes.yaml", "modules.yaml", "fleet.yaml")
         for d in yaml.safe_load_all((EXAMPLES / "shared-detector" / f).read_text())
         if d
     ]
@@ -372,11 +371,7 @@ def _loop_docs(namespace: str) -> tuple[list[Obj], Obj, Obj]:
             d["metadata"]["namespace"] = namespace
     fleet_body = of_kind(shared, "RobotFleet")[0]
     names = set(fleet_body["spec"]["robots"]) | set(fleet_body["spec"]["nodes"])
-    nodes = [
-        d
-        for d in of_kind(example_docs("warehouse"), "ComputeNode") + of_kind(shared, "ComputeNode")
-        if d["metadata"]["name"] in names
-    ]
+    nodes = [d for d in of_kind(shared, "ComputeNode") if d["metadata"]["name"] in names]
     modules = of_kind(shared, "SoftwareModule")
     detector = next(m for m in modules if m["metadata"]["name"] == MODULE)
     detector["spec"]["replicas"] = 1

@@ -28,7 +28,7 @@ from .fakeapi import FakeApi
 
 ROOT = Path(__file__).resolve().parents[2]
 EXAMPLES = ROOT / "manifests" / "examples"
-NS = "warehouse"
+NS = "single-robot"
 MODULES = 8  # the warehouse's modules, on the one robot of the single-robot fleet
 
 Obj = dict[str, Any]
@@ -65,7 +65,7 @@ def single_robot(api: FakeApi) -> None:
     api.create({"apiVersion": "v1", "kind": "Namespace", "metadata": {"name": NS}})
     for obj in _docs(EXAMPLES / "single-robot" / "nodes.yaml"):
         api.create(obj)
-    for obj in _docs(EXAMPLES / "warehouse" / "modules.yaml"):
+    for obj in _docs(EXAMPLES / "single-robot" / "modules.yaml"):
         api.create(obj)
     (fleet,) = _docs(EXAMPLES / "single-robot" / "fleet.yaml")
     fleet["spec"]["scheduler"] = {
@@ -173,7 +173,7 @@ def test_a_new_fleet_is_planned_applied_and_reported(api: FakeApi, tmp_path: Pat
     assert runner.exit_code == 0, runner.output
 
     # every Deployment went in by server-side apply, under fogfleet's field manager
-    applies = list(api.requests_to("PATCH", containing="/apis/apps/v1/namespaces/warehouse/"))
+    applies = list(api.requests_to("PATCH", containing=f"/apis/apps/v1/namespaces/{NS}/"))
     assert applies and all(r.content_type == "application/apply-patch+yaml" for r in applies)
     assert {r.query.get("fieldManager") for r in applies} == {"fogfleet"}
     assert all(r.query.get("force") == "true" for r in applies)

@@ -58,8 +58,8 @@ def test_warehouse_example_loads_and_builds_a_problem() -> None:
     assert problem.n_nodes == 11
 
 
-def test_single_robot_example_loads_with_the_warehouse_modules() -> None:
-    catalog = load_paths([SINGLE, WAREHOUSE / "modules.yaml"])
+def test_single_robot_example_loads_on_its_own() -> None:
+    catalog = load_paths([SINGLE])
     (fleet,) = catalog.fleets
     assert fleet.metadata.name == "single-robot"
     problem = build_problem(fleet, catalog)

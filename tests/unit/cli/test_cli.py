@@ -44,9 +44,7 @@ def test_plan_json_places_every_instance_on_an_allowed_node(
 
 
 def test_plan_prints_a_table_and_the_choice(capsys: pytest.CaptureFixture[str]) -> None:
-    code, out, _ = run(
-        capsys, "plan", str(SOLO), str(WAREHOUSE / "modules.yaml"), "--generations", "10"
-    )
+    code, out, _ = run(capsys, "plan", str(SOLO), "--generations", "10")
     assert code == 0
     assert "ROBOT" in out and "solo-robot" in out and "Choice:" in out
 
@@ -239,7 +237,7 @@ def _short_site(tmp_path: Path, *, allow_degraded: bool = False) -> Path:
         fleet = fleet.replace("  modules:\n", "  scheduler: {allowDegraded: false}\n  modules:\n")
         assert "allowDegraded" in fleet
     (tmp_path / "fleet.yaml").write_text(fleet)
-    (tmp_path / "modules.yaml").write_text((WAREHOUSE / "modules.yaml").read_text())
+    (tmp_path / "modules.yaml").write_text((SOLO / "modules.yaml").read_text())
     return tmp_path
 
 
@@ -272,7 +270,9 @@ def test_a_short_site_plans_degraded_with_a_warning_and_exit_0(
     code, out, err = run(capsys, "plan", str(site), "--json", "--generations", "5")
     doc = json.loads(out)
     assert code == 0 and doc["feasible"] is True and doc["degraded"] is True
-    assert err.startswith("DEGRADED warehouse/single-robot: degraded: the nodes are short of CPU")
+    assert err.startswith(
+        "DEGRADED single-robot/single-robot: degraded: the nodes are short of CPU"
+    )
     below = [r for r in doc["placement"] if "cpuForDeadline" in r]
     assert below and all(r["cpu"] < r["cpuForDeadline"] for r in below)
     assert all(r["module"] != "nav-controller" for r in below), "hard real-time keeps its CPU"

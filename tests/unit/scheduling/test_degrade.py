@@ -17,7 +17,6 @@ from fogfleet.scheduling.objectives import evaluate
 from fogfleet.scheduling.solver import plan
 
 ROOT = Path(__file__).resolve().parents[3]
-WAREHOUSE = ROOT / "manifests" / "examples" / "warehouse"
 SOLO = ROOT / "manifests" / "examples" / "single-robot"
 
 
@@ -30,7 +29,7 @@ def _site(tmp_path: Path, edge_cpu: str, *, memory: str = "64Gi", modules: str =
         nodes.replace(old, f"capacity: {{cpu: {edge_cpu}, memory: {memory}}}")
     )
     (tmp_path / "fleet.yaml").write_text((SOLO / "fleet.yaml").read_text())
-    (tmp_path / "modules.yaml").write_text(modules or (WAREHOUSE / "modules.yaml").read_text())
+    (tmp_path / "modules.yaml").write_text(modules or (SOLO / "modules.yaml").read_text())
     catalog = load_paths([tmp_path])
     return build_problem(catalog.fleets[0], catalog)
 
@@ -88,7 +87,7 @@ def test_refusing_degradation_keeps_the_fleet_infeasible(tmp_path: Path) -> None
 
 
 def test_a_memory_shortage_is_not_degraded_away(tmp_path: Path) -> None:
-    modules = (WAREHOUSE / "modules.yaml").read_text()
+    modules = (SOLO / "modules.yaml").read_text()
     old = 'resources: {cpu: "500m", memory: 1Gi}'
     assert old in modules
     # a 20 GiB module fits neither the robot (14 GiB) nor a 2 GiB edge: less CPU cannot help
@@ -100,7 +99,7 @@ def test_a_memory_shortage_is_not_degraded_away(tmp_path: Path) -> None:
 
 
 def test_a_users_priority_decides_who_degrades_first(tmp_path: Path) -> None:
-    modules = (WAREHOUSE / "modules.yaml").read_text()
+    modules = (SOLO / "modules.yaml").read_text()
     # object pose matters most now; scene segmentation least
     modules = modules.replace(
         "  name: object-pose-estimation\n", "  name: object-pose-estimation\n", 1
@@ -167,7 +166,7 @@ def test_a_plan_that_fits_never_builds_the_ladder_and_derived_problems_share_it(
 def test_the_plan_fingerprint_follows_a_smaller_profiled_cpu(tmp_path: Path) -> None:
     from fogfleet.scheduling.stickiness import fingerprint
 
-    modules = (WAREHOUSE / "modules.yaml").read_text()
+    modules = (SOLO / "modules.yaml").read_text()
     row = "{hardwareType: default, cpu: 1, meanMillis: 380, stdMillis: 70}"
     assert row in modules
     for d in "abc":

@@ -15,12 +15,7 @@ ROOT = Path(__file__).resolve().parents[3]
 
 
 def test_a_tiny_fleet_is_enumerated_and_its_choice_is_the_exact_lexicographic_optimum() -> None:
-    cat = load_paths(
-        [
-            ROOT / "manifests/examples/shared-detector",
-            ROOT / "manifests/examples/warehouse/nodes.yaml",
-        ]
-    )
+    cat = load_paths([ROOT / "manifests/examples/shared-detector"])
     p = build_problem(cat.fleets[0], cat)
     s = plan(p, cat.fleets[0].spec.scheduler)
     assert s.feasible

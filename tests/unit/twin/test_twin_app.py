@@ -16,6 +16,7 @@ from fogfleet.twin.app import Twin
 
 ROOT = Path(__file__).resolve().parents[3]
 EXAMPLE = ROOT / "manifests" / "examples" / "shared-detector"
+SCENARIO = ROOT / "docs" / "examples" / "twin-scenario.yaml"
 NS = "shared-detector"
 
 
@@ -66,7 +67,7 @@ class Clock:
 @pytest.fixture
 def twin(tmp_path: Path) -> Any:
     scenario = tmp_path / "scenario.yaml"
-    scenario.write_text((EXAMPLE / "twin-scenario.yaml").read_text())
+    scenario.write_text((SCENARIO).read_text())
     kube, clock = FakeKube(), Clock()
     t = Twin(kube, scenario, port=0, clock=clock)
     t.kube_fake, t.clock_fake = kube, clock  # type: ignore[attr-defined]
@@ -156,6 +157,6 @@ def test_a_changed_scenario_file_is_reloaded_and_a_broken_one_ignored(twin: Twin
 
 def test_the_twin_refuses_to_listen_beyond_loopback(tmp_path: Path) -> None:
     scenario = tmp_path / "s.yaml"
-    scenario.write_text((EXAMPLE / "twin-scenario.yaml").read_text())
+    scenario.write_text((SCENARIO).read_text())
     with pytest.raises(ValueError, match="loopback"):
         Twin(FakeKube(), scenario, port=0, host="0.0.0.0")
