@@ -46,4 +46,3 @@ def test_bench_page_renders_recorded_autoscaling_results(
     assert main(["bench", "page", "--records", str(path), "--out", str(out)]) == 0
     text = out.read_text()
     assert "reactive-slo" in text and "50.00%" in text and "fogfleet bench autoscaling" in text
-
