@@ -17,6 +17,7 @@ from collections.abc import Iterable, Mapping
 from typing import Any
 
 from fogfleet.api.labels import LABEL_FLEET, LABEL_MANAGED_BY, MANAGER
+from fogfleet.api.names import label_value
 from fogfleet.domain.tenancy import Held
 
 from .state import FleetKey, FleetStore
@@ -54,14 +55,17 @@ def held_by_others(
     me: FleetKey, loads: Iterable[Mapping[str, Any]], claims: Mapping[FleetKey, Claims]
 ) -> dict[str, Held]:
     """Node -> what every tenant but fleet ``me`` holds there."""
-    running, held = pod_requests(loads)
-    fleets = {k for k, _ in running} | set(claims)
-    for fleet in sorted(fleets - {me}):
+    running, held = pod_requests(loads)  # keyed by the pods' fleet label
+    labelled = {(ns, label_value(name)): (ns, name) for ns, name in claims}  # long names: hashed
+    names = {k for k, _ in running} | set(labelled)
+    mine = (me[0], label_value(me[1]))
+    for label in sorted(names - {mine}):
+        fleet = labelled.get(label, label)
         planned = claims.get(fleet, {})
-        nodes = set(planned) | {n for (f, n) in running if f == fleet}
+        nodes = set(planned) | {n for (f, n) in running if f == label}
         for node in sorted(nodes):
             c_plan, m_plan = planned.get(node, (0.0, 0.0))
-            c_run, m_run = running.get((fleet, node), (0.0, 0.0))
+            c_run, m_run = running.get((label, node), (0.0, 0.0))
             cpu, mem = max(c_plan, c_run), max(m_plan, m_run)
             if cpu or mem:
                 held[node] = held.get(node, Held()).plus(
