@@ -15,9 +15,7 @@ from fogfleet.cli import main
 
 REPO = Path(__file__).resolve().parents[3]
 LITE = REPO / "manifests" / "examples" / "warehouse-lite"
-LITE_DOCS = [
-    d for f in sorted(LITE.glob("*.yaml")) for d in yaml.safe_load_all(f.read_text()) if d
-]
+LITE_DOCS = [d for f in sorted(LITE.glob("*.yaml")) for d in yaml.safe_load_all(f.read_text()) if d]
 FUZZ = settings(
     max_examples=30, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture]
 )
