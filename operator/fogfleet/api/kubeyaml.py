@@ -85,7 +85,7 @@ KubeLoader.add_implicit_resolver(_FLOAT_TAG, _YAML12_FLOAT, list("-+0123456789."
 
 def safe_load(text: str) -> Any:
     """One YAML document, read as kubectl reads it."""
-    return yaml.load(text, Loader=KubeLoader)  # noqa: S506 - KubeLoader is a SafeLoader
+    return yaml.load(text, Loader=KubeLoader)  # KubeLoader is a SafeLoader
 
 
 def read_documents(path: Path) -> list[Any]:
@@ -103,12 +103,12 @@ def read_documents(path: Path) -> list[Any]:
             "kubectl reads UTF-8 only, save the file as UTF-8",
         ) from exc
     stream = io.StringIO(text)
-    stream.name = str(path)  # type: ignore[misc]  # error marks name the file
+    stream.name = str(path)  # error marks name the file
     loader: KubeLoader | None = None
     try:
         loader = KubeLoader(stream)  # it reads (and may refuse) the first characters
         docs = []
-        while loader.check_data():
+        while loader.check_data():  # type: ignore[no-untyped-call]
             docs.append(loader.get_data())
         return docs
     except DuplicateKey as exc:

@@ -117,7 +117,8 @@ def _files(paths: Iterable[str | Path]) -> list[Path]:
     for raw in paths:
         p = Path(raw)
         if p.is_dir():
-            out.extend(sorted(q for q in p.rglob("*") if q.suffix in (".yaml", ".yml") and q.is_file()))
+            found = (q for q in p.rglob("*") if q.suffix in (".yaml", ".yml") and q.is_file())
+            out.extend(sorted(found))
         elif p.exists():
             out.append(p)
         else:
@@ -159,9 +160,7 @@ def _name_of(doc: Mapping[str, Any]) -> str:
     return f"{doc.get('kind')}/{meta.get('name') if isinstance(meta, Mapping) else None}"
 
 
-def load_paths(
-    paths: Iterable[str | Path], errors: list[InvalidSpec] | None = None
-) -> Catalog:
+def load_paths(paths: Iterable[str | Path], errors: list[InvalidSpec] | None = None) -> Catalog:
     """Read every fogfleet object from YAML files or folders; other kinds are ignored.
 
     Without ``errors`` the first bad input raises :class:`InvalidSpec`; with it, every bad file

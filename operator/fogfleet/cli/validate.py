@@ -23,8 +23,8 @@ def cmd_validate(args: argparse.Namespace) -> int:
             build_problem(fleet, catalog)
         except InvalidSpec as exc:
             errors.append(exc)
-    for exc in errors:
-        print(f"error: {exc}", file=sys.stderr)
+    for error in errors:
+        print(f"error: {error}", file=sys.stderr)
     if errors:
         print(f"{len(errors)} error(s) in {', '.join(args.paths)}", file=sys.stderr)
         return 2
