@@ -30,7 +30,7 @@ from .v1alpha1.computenode import ComputeNode, ComputeNodeSpec
 from .v1alpha1.fallback import Fallback
 from .v1alpha1.objectives import ObjectiveName
 from .v1alpha1.podtemplate import OWNED_POD_FIELDS
-from .v1alpha1.robotfleet import RobotFleet, RobotFleetSpec, SchedulerSettings
+from .v1alpha1.robotfleet import RobotFleet, RobotFleetSpec, RosSettings, SchedulerSettings
 from .v1alpha1.softwaremodule import SoftwareModule, SoftwareModuleSpec
 
 __all__ = [
@@ -206,6 +206,7 @@ KINDS: tuple[KindInfo, ...] = (
             "spec": _cel(RobotFleetSpec),
             "spec.fallback": _cel(Fallback),
             "spec.scheduler.objectives": _cel(SchedulerSettings),
+            "spec.ros": _cel(RosSettings),
         },
         # CEL's cost estimate needs a bound for the O(n^2) uniqueness rule (without it the API
         # server refuses the CRD). Better in the model: Field(max_length=len(ObjectiveName)).

@@ -2,16 +2,16 @@
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Mapping
+from collections.abc import Iterable, Iterator, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import yaml
 from pydantic import ValidationError
 
 from fogfleet.errors import InvalidSpec
 
+from .kubeyaml import read_documents
 from .v1alpha1.computenode import ComputeNode
 from .v1alpha1.robotfleet import RobotFleet
 from .v1alpha1.softwaremodule import SoftwareModule
@@ -117,7 +117,8 @@ def _files(paths: Iterable[str | Path]) -> list[Path]:
     for raw in paths:
         p = Path(raw)
         if p.is_dir():
-            out.extend(sorted(q for q in p.rglob("*") if q.suffix in (".yaml", ".yml")))
+            found = (q for q in p.rglob("*") if q.suffix in (".yaml", ".yml") and q.is_file())
+            out.extend(sorted(found))
         elif p.exists():
             out.append(p)
         else:
@@ -128,21 +129,67 @@ def _files(paths: Iterable[str | Path]) -> list[Path]:
     return list(unique.values())
 
 
-def load_paths(paths: Iterable[str | Path]) -> Catalog:
-    """Read every fogfleet object from YAML files or folders; other kinds are ignored."""
+def _objects(doc: Any, where: str) -> Iterator[tuple[str, Mapping[str, Any]]]:
+    """The objects of one YAML document with where each sits: itself, or the ``items`` of a
+    ``kind: List`` or ``<Kind>List`` (what ``kubectl get -o yaml`` writes), as kubectl reads
+    them."""
+    if not isinstance(doc, Mapping):
+        return  # an empty document (or a scalar): nothing to apply
+    kind = doc.get("kind")
+    items = doc.get("items")
+    if isinstance(kind, str) and kind.endswith("List") and "items" in doc:
+        if not isinstance(items, list):
+            raise InvalidSpec(f"{kind} in {where}", "items", "must be a list of objects")
+        for k, item in enumerate(items):
+            if not isinstance(item, Mapping):
+                raise InvalidSpec(f"{kind} in {where}", f"items[{k}]", "must be an object")
+            yield from _objects(item, where)
+        return
+    yield where, doc
+
+
+def _parse_in(obj: Mapping[str, Any], where: str) -> ComputeNode | SoftwareModule | RobotFleet:
+    try:
+        return parse_object(obj)
+    except InvalidSpec as exc:  # the same error, naming the file too
+        raise type(exc)(exc.obj, exc.field, f"{exc.message} (in {where})") from exc
+
+
+def _name_of(doc: Mapping[str, Any]) -> str:
+    meta = doc.get("metadata")
+    return f"{doc.get('kind')}/{meta.get('name') if isinstance(meta, Mapping) else None}"
+
+
+def load_paths(paths: Iterable[str | Path], errors: list[InvalidSpec] | None = None) -> Catalog:
+    """Read every fogfleet object from YAML files or folders; other kinds are ignored.
+
+    Without ``errors`` the first bad input raises :class:`InvalidSpec`; with it, every bad file
+    or object is appended there and the rest is still read (``fogfleet validate``)."""
     catalog = Catalog()
-    for path in _files(paths):
+
+    def refuse(exc: InvalidSpec) -> None:
+        if errors is None:
+            raise exc
+        errors.append(exc)
+
+    try:
+        files = _files(paths)
+    except InvalidSpec as exc:
+        refuse(exc)
+        return catalog
+    for path in files:
         try:
-            docs = list(yaml.safe_load_all(path.read_text()))
-        except yaml.YAMLError as exc:
-            raise InvalidSpec(str(path), "", f"not valid YAML: {exc}") from exc
+            docs = read_documents(path)
+        except InvalidSpec as exc:
+            refuse(exc)
+            continue
         for doc in docs:
-            if not isinstance(doc, Mapping):
-                continue
-            if str(doc.get("apiVersion", "")).split("/")[0] != "fogfleet.io":
-                catalog.ignored.append(
-                    f"{doc.get('kind')}/{(doc.get('metadata') or {}).get('name')}"
-                )
-                continue
-            catalog.add(parse_object(doc), str(path))
+            try:
+                for where, obj in _objects(doc, str(path)):
+                    if str(obj.get("apiVersion", "")).split("/")[0] != "fogfleet.io":
+                        catalog.ignored.append(_name_of(obj))
+                        continue
+                    catalog.add(_parse_in(obj, where), where)
+            except InvalidSpec as exc:
+                refuse(exc)
     return catalog

@@ -1,5 +1,5 @@
-"""The ``fogfleet`` command: plan, simulate and render fleets from CR YAML; generate CRDs; run the
-operator; run the benchmarks.
+"""The ``fogfleet`` command: validate, plan, simulate and render fleets from CR YAML; generate
+CRDs; run the operator; run the benchmarks.
 
 Exit codes: 0 ok, 1 unexpected failure, 2 bad input (the message names object, field, reason)
 or an infeasible fleet.
@@ -20,6 +20,7 @@ from fogfleet.errors import FogfleetError, InvalidSpec
 from .common import AUTOSCALING_FIRST_SEED, SCHEDULERS
 from .planning import cmd_plan, cmd_simulate
 from .render import cmd_crds, cmd_render
+from .validate import cmd_validate
 
 __all__ = ["main"]
 
@@ -172,6 +173,12 @@ def _parser() -> argparse.ArgumentParser:
         help="render what fits when the fleet cannot run as planned (default: refuse, exit 2)",
     )
     sp.set_defaults(func=cmd_render)
+
+    sp = sub.add_parser(
+        "validate", help="check CR YAML as `plan` does, plan nothing; exit 0 (OK) or 2 (errors)"
+    )
+    sp.add_argument("paths", nargs="+", help="CR YAML files or folders")
+    sp.set_defaults(func=cmd_validate)
 
     sp = sub.add_parser("crds", help="write (or check) the CRD YAML generated from the models")
     g = sp.add_mutually_exclusive_group(required=True)

@@ -249,9 +249,12 @@ def cmd_simulate(args: argparse.Namespace) -> int:
 
 
 def _read_placement(problem: Any, path: Path) -> tuple[Any, Any]:
-    import yaml
+    from fogfleet.api.kubeyaml import read_documents
 
-    return recorded_placement(problem, yaml.safe_load(path.read_text()), str(path))
+    if not path.is_file():
+        raise InvalidSpec(str(path), "", "no such file")
+    docs = read_documents(path)  # JSON is YAML too
+    return recorded_placement(problem, docs[0] if docs else None, str(path))
 
 
 def recorded_placement(problem: Any, doc: Any, source: str) -> tuple[Any, Any]:

@@ -67,19 +67,19 @@ def cmd_render(args: argparse.Namespace) -> int:
                     owner_refs=[],
                 )
             )
-        docs.extend(
-            render_fleet(
-                problem,
-                modules,
-                schedule.placement,
-                baseline=schedule.scheduler == "k8s-default",
-                with_limits=schedule.with_limits,
-                cpu_limit_percent=fleet.spec.scheduler.cpu_limit_percent,
-                fallbacks=fleet_fallbacks(fleet.spec, modules),
-                plan_id=f"cli-{schedule.scheduler}-{settings.seed}",
-                wiring=wiring,
-            )
+        deployments = render_fleet(
+            problem,
+            modules,
+            schedule.placement,
+            baseline=schedule.scheduler == "k8s-default",
+            with_limits=schedule.with_limits,
+            cpu_limit_percent=fleet.spec.scheduler.cpu_limit_percent,
+            fallbacks=fleet_fallbacks(fleet.spec, modules),
+            plan_id=f"cli-{schedule.scheduler}-{settings.seed}",
+            wiring=wiring,
         )
+        docs.extend(deployments)
+        docs.extend(_hpas(deployments, modules, ns))
 
     class _NoAliases(yaml.SafeDumper):
         def ignore_aliases(self, data: Any) -> bool:
@@ -87,6 +87,35 @@ def cmd_render(args: argparse.Namespace) -> int:
 
     print(yaml.dump_all(docs, Dumper=_NoAliases, sort_keys=False), end="")
     return 0
+
+
+def _hpas(deployments: list[dict[str, Any]], modules: Any, namespace: str) -> list[dict[str, Any]]:
+    """The HPAs of the shared modules with ``backend: hpa``, said on stderr. The Deployment an
+    HPA scales leaves ``spec.replicas`` to it (else every re-apply would reset its count)."""
+    from fogfleet.render.scaling import module_hpas
+
+    by_name = {d["metadata"]["name"]: d for d in deployments}
+    out = []
+    for item in module_hpas(deployments, modules, namespace):
+        by_name[item.target]["spec"].pop("replicas", None)
+        spec = item.hpa["spec"]
+        metric = spec["metrics"][0]
+        what = (
+            f"External metric {metric['external']['metric']['name']}, which a metrics adapter "
+            "must serve"
+            if metric["type"] == "External"
+            else "CPU utilisation (metrics-server)"
+        )
+        print(
+            f"fogfleet render: SoftwareModule {namespace}/{item.module} has scaling.backend hpa: "
+            f"HorizontalPodAutoscaler {item.hpa['metadata']['name']} scales Deployment "
+            f"{item.target} between {spec['minReplicas']} and {spec['maxReplicas']} replicas on "
+            f"{what}; its {item.fixed} other planned replica(s) stay where planned. The "
+            "operator does not apply it: apply it with these objects.",
+            file=sys.stderr,
+        )
+        out.append(item.hpa)
+    return out
 
 
 def cmd_crds(args: argparse.Namespace) -> int:

@@ -13,19 +13,45 @@ is ``ceil(replicas * measured / target)`` -- fogfleet's ``reactive`` mode on the
 
 They scale one workload (``target``: a Deployment name). Pools per tier and the predictive mode
 need fogfleet's own backend (the API rejects ``predictive`` with another backend).
+
+:func:`module_hpas` picks that workload in a rendered fleet. Each replica of a shared module is
+a Deployment of its own, pinned to the node the plan chose, and an HPA scales one Deployment:
+it gets the module's first placed replica, and the bounds of the whole module less the other
+planned replicas (which stay where the plan put them), so the module keeps between
+``minReplicas`` and ``maxReplicas`` in total. The operator applies neither object: it plans
+every replica onto a node and re-applies what it planned, which an in-cluster HPA would fight.
 """
 
 from __future__ import annotations
 
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
 from typing import Any
 
-from fogfleet.api.labels import LABEL_MANAGED_BY, LABEL_MODULE, MANAGER
+from fogfleet.api.labels import (
+    ANNOTATION_MODULE,
+    ANNOTATION_REPLICA,
+    ANNOTATION_ROBOT,
+    ANNOTATION_ROLE,
+    LABEL_MANAGED_BY,
+    LABEL_MODULE,
+    MANAGER,
+)
 from fogfleet.api.names import dns_label, label_value
-from fogfleet.api.v1alpha1.scaling import ScalingSpec
+from fogfleet.api.v1alpha1.scaling import Backend, ScalingSpec
+from fogfleet.api.v1alpha1.softwaremodule import SoftwareModule
 from fogfleet.autoscaling.behavior import Behavior, ScalingRules, resolve_behavior
 from fogfleet.contract import metrics as contract
 
-__all__ = ["SLO_METRIC", "behavior_block", "render_hpa", "render_scaled_object", "slo_promql"]
+__all__ = [
+    "SLO_METRIC",
+    "ModuleHpa",
+    "behavior_block",
+    "module_hpas",
+    "render_hpa",
+    "render_scaled_object",
+    "slo_promql",
+]
 
 SLO_METRIC = "fogfleet_slo_seconds"
 Obj = dict[str, Any]
@@ -152,3 +178,53 @@ def render_hpa(spec: ScalingSpec, *, module: str, namespace: str, target: str) -
             "behavior": behavior_block(resolve_behavior(spec)),
         },
     }
+
+
+@dataclass(frozen=True)
+class ModuleHpa:
+    """The HPA of one shared module with ``backend: hpa``, and what it scales."""
+
+    module: str
+    hpa: Obj
+    target: str
+    """The Deployment it scales (its first placed replica)."""
+    fixed: int
+    """The module's other planned replicas, which the HPA leaves alone."""
+
+
+def _shared_replica(deployment: Mapping[str, Any]) -> tuple[str, int] | None:
+    """(module, replica) of a shared module's replica Deployment, else None."""
+    ann = (deployment.get("metadata") or {}).get("annotations") or {}
+    if ANNOTATION_MODULE not in ann or ann.get(ANNOTATION_ROBOT) or ann.get(ANNOTATION_ROLE):
+        return None
+    return ann[ANNOTATION_MODULE], int(ann.get(ANNOTATION_REPLICA, "0"))
+
+
+def module_hpas(
+    deployments: Sequence[Mapping[str, Any]],
+    modules: Mapping[str, SoftwareModule],
+    namespace: str,
+) -> list[ModuleHpa]:
+    """An HPA for every shared module of ``modules`` with ``scaling.backend: hpa`` that has a
+    placed replica among ``deployments`` (a fleet's rendered Deployments), in module order."""
+    replicas: dict[str, list[tuple[int, str]]] = {}
+    for dep in deployments:
+        ident = _shared_replica(dep)
+        if ident is not None:
+            replicas.setdefault(ident[0], []).append((ident[1], dep["metadata"]["name"]))
+    out: list[ModuleHpa] = []
+    for name in sorted(replicas):
+        module = modules.get(name)
+        spec = module.spec.scaling if module is not None else None
+        if spec is None or spec.backend is not Backend.HPA:
+            continue
+        placed = sorted(replicas[name])
+        fixed = len(placed) - 1
+        low = max(spec.min_replicas - fixed, 1)  # the HPA's own floor is 1
+        bounds = {"min_replicas": low, "max_replicas": max(spec.max_replicas - fixed, low)}
+        target = placed[0][1]
+        hpa = render_hpa(
+            spec.model_copy(update=bounds), module=name, namespace=namespace, target=target
+        )
+        out.append(ModuleHpa(name, hpa, target, fixed))
+    return out

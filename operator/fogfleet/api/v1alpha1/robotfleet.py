@@ -16,6 +16,7 @@ from .observed import DriftSettings
 from .rules import CrossFieldRule, enforce
 
 __all__ = [
+    "DISCOVERY_SERVER_RMWS",
     "PLACEMENT_LIST_LIMIT",
     "ChoiceRule",
     "DiscoveryRange",
@@ -174,6 +175,13 @@ class SchedulerSettings(FogModel):
         return self
 
 
+DISCOVERY_SERVER_RMWS = ("rmw_fastrtps_cpp",)
+"""The RMWs the discovery-server isolation works with: Fast DDS reads ROS_DISCOVERY_SERVER
+(rmw_fastrtps_dynamic_cpp would too, but no image here runs it; Cyclone DDS and Zenoh ignore
+it). The generic alternative (ROS_AUTOMATIC_DISCOVERY_RANGE=SYSTEM_DEFAULT with
+ROS_STATIC_PEERS per robot, Jazzy and later) is not offered: only Fast DDS runs here."""
+
+
 class DiscoveryRange(StrEnum):
     """ROS_AUTOMATIC_DISCOVERY_RANGE of every module (ROS 2 Jazzy and later)."""
 
@@ -194,9 +202,24 @@ class RosSettings(FogModel):
     of every robot's server. Unmodified nodes with absolute topic names stay isolated.
     """
 
+    RULES: ClassVar[tuple[CrossFieldRule, ...]] = (
+        CrossFieldRule(
+            "(has(self.enabled) && !self.enabled) || !has(self.rmwImplementation) || "
+            f"self.rmwImplementation in {list(DISCOVERY_SERVER_RMWS)!r}",
+            "rmwImplementation: the robots are isolated by Fast DDS discovery servers "
+            "(ROS_DISCOVERY_SERVER), which other RMWs ignore, so their robots would see each "
+            f"other; use {' or '.join(DISCOVERY_SERVER_RMWS)} (or enabled: false and wire "
+            "ROS yourself)",
+            lambda s: not s.enabled or s.rmw_implementation in DISCOVERY_SERVER_RMWS,
+        ),
+    )
+
     enabled: bool = Field(default=True, description="Inject the ROS 2 wiring into the modules.")
     rmw_implementation: Annotated[str, Field(min_length=1)] = Field(
-        default="rmw_fastrtps_cpp", description="RMW_IMPLEMENTATION of every module."
+        default="rmw_fastrtps_cpp",
+        description="RMW_IMPLEMENTATION of every module. With enabled (the discovery-server "
+        "isolation) only rmw_fastrtps_cpp: the one RMW that honours ROS_DISCOVERY_SERVER and "
+        "that the workload image runs.",
     )
     discovery_range: DiscoveryRange = DiscoveryRange.SUBNET
     """ROS_AUTOMATIC_DISCOVERY_RANGE of every module and discovery server."""
@@ -209,6 +232,11 @@ class RosSettings(FogModel):
     )
     discovery_server_port: Annotated[int, Field(ge=1024, le=65535)] = 11811
     """UDP port of each robot's discovery server."""
+
+    @model_validator(mode="after")
+    def _check(self) -> RosSettings:
+        enforce(self, self.RULES)
+        return self
 
 
 class RobotFleetSpec(FogModel):

@@ -1,0 +1,97 @@
+"""What fogfleet writes or refuses, checked by the real API server with a server-side dry run
+(nothing is created): the HPA ``fogfleet render`` prints for ``scaling.backend: hpa``, and the
+CRD's rule on ``spec.ros.rmwImplementation``. Needs only the bed's API server (``dryrun``).
+
+    pytest e2e/tests/test_dry_run.py --with-e2e -m dryrun
+"""
+
+from __future__ import annotations
+
+import json
+import re
+import shutil
+from pathlib import Path
+from typing import Any
+
+import pytest
+import yaml
+
+from e2e.bed.kube import Kube
+from e2e.bed.operator_fixtures import EXAMPLES, example_docs, install_crds, of_kind
+from fogfleet.cli import main
+
+pytestmark = [pytest.mark.e2e, pytest.mark.dryrun, pytest.mark.timeout(180)]
+
+HPA_SCALING = (
+    "  scaling:\n    minReplicas: 2\n    maxReplicas: 6\n    backend: hpa\n"
+    "    slo: {metric: responseTime, targetMillis: 350, percentile: 99}\n"
+    "    behavior: {preset: tinykube}\n"
+)
+
+
+def _dry_run(kube: Kube, docs: list[dict[str, Any]], namespace: str) -> tuple[int, str]:
+    """Server-side apply with ``--dry-run=server``: validated and admitted, never stored."""
+    for doc in docs:
+        doc["metadata"]["namespace"] = namespace
+    proc = kube.kubectl(
+        "apply",
+        "--server-side",
+        "--dry-run=server",
+        "--field-manager=fogfleet-e2e",
+        "-f",
+        "-",
+        input=json.dumps({"apiVersion": "v1", "kind": "List", "items": docs}),
+        check=False,
+    )
+    return proc.returncode, proc.stdout + proc.stderr
+
+
+def _rendered_hpa_fleet(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> list[Any]:
+    """``fogfleet render`` of the shared-detector fleet with its detector on backend hpa."""
+    for f in (EXAMPLES / "shared-detector").glob("*.yaml"):
+        if f.name != "twin-scenario.yaml":
+            shutil.copy(f, tmp_path / f.name)
+    shutil.copy(EXAMPLES / "warehouse" / "nodes.yaml", tmp_path / "warehouse-nodes.yaml")
+    modules = tmp_path / "modules.yaml"
+    text, n = re.subn(r"  scaling:\n(    .*\n)+", HPA_SCALING, modules.read_text(), count=1)
+    assert n == 1
+    modules.write_text(text)
+    code = main(["render", str(tmp_path), "--generations", "5", "--population", "10"])
+    out, err = capsys.readouterr()
+    assert code == 0, err
+    return list(yaml.safe_load_all(out))
+
+
+def test_the_rendered_hpa_is_valid_for_the_api_server(
+    kube: Kube, namespace: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    docs = _rendered_hpa_fleet(tmp_path, capsys)
+    (hpa,) = of_kind(docs, "HorizontalPodAutoscaler")
+    target = next(
+        d for d in of_kind(docs, "Deployment")
+        if d["metadata"]["name"] == hpa["spec"]["scaleTargetRef"]["name"]
+    )  # fmt: skip
+    code, out = _dry_run(kube, [target, hpa], namespace)
+    assert code == 0, out
+    assert "horizontalpodautoscaler.autoscaling/object-detector-hpa serverside-applied" in out
+    # the dry run validates: the same HPA with impossible bounds is refused
+    hpa["spec"]["minReplicas"], hpa["spec"]["maxReplicas"] = 3, 2
+    code, out = _dry_run(kube, [hpa], namespace)
+    assert code != 0 and "maxReplicas" in out, out
+
+
+def test_the_crd_refuses_an_rmw_the_discovery_servers_cannot_isolate(
+    kube: Kube, namespace: str
+) -> None:
+    install_crds(kube)
+    (fleet,) = of_kind(example_docs("warehouse", namespace), "RobotFleet")
+    fleet["spec"]["ros"] = {"rmwImplementation": "rmw_cyclonedds_cpp"}
+    code, out = _dry_run(kube, [fleet], namespace)
+    assert code != 0, out
+    assert "rmwImplementation" in out and "rmw_fastrtps_cpp" in out
+    fleet["spec"]["ros"] = {"rmwImplementation": "rmw_fastrtps_cpp"}
+    code, out = _dry_run(kube, [fleet], namespace)
+    assert code == 0, out
+    fleet["spec"]["ros"] = {"enabled": False, "rmwImplementation": "rmw_cyclonedds_cpp"}
+    code, out = _dry_run(kube, [fleet], namespace)
+    assert code == 0, out
