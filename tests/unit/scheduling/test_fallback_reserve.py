@@ -152,3 +152,19 @@ def test_onboard_does_not_count_the_cpu_a_standby_already_holds() -> None:
     vals, _ = me.evaluate(fulls, par, inst, node)
     kids = me.children(fulls, par, inst, node)
     np.testing.assert_allclose(vals["onboard"], evaluate(p, kids, p.limits)["onboard"])
+
+
+def test_the_exact_optimum_counts_f1_as_the_evaluation_does() -> None:
+    """The MILP's F1 term leaves out what a standby holds, as ``Evaluation.cpu_onboard``:
+    its optimum is the brute-force minimum of ``scalarised``."""
+    import itertools
+
+    from fogfleet.scheduling.exact import scalarised
+
+    p = _with_fallback(_robot_and_edge(), 1)
+    best = min(
+        scalarised(p, np.array(x))
+        for x in itertools.product(*(np.flatnonzero(p.allowed[i]) for i in range(3)))
+        if np.all(constraints(p, np.array(x)[None, :], p.limits) <= 1e-9)
+    )
+    assert scalarised(p, solve_exact(p).placement) == pytest.approx(best, abs=1e-9)
