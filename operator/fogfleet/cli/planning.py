@@ -63,8 +63,7 @@ def cmd_plan(args: argparse.Namespace) -> int:
             "objectives": schedule.objectives,
             "durationSeconds": round(schedule.duration_seconds, 4),
             "generations": schedule.generations,
-            "timeBudgetReached": schedule.generations < settings.generations
-            and schedule.scheduler == "nsga2",
+            "timeBudgetReached": schedule.time_budget_reached,
             "choiceReason": schedule.choice_reason,
             "unplaced": unplaced_reasons(problem, schedule.reasons),
             "moduleMissRates": module_miss_rates(problem, schedule.placement, schedule.with_limits),

@@ -204,6 +204,7 @@ def nsga2(
         pareto_placements=full[front],
         objective_names=names,
         generations=generations,
+        time_budget_reached=stop is Stop.BUDGET,
         evaluations=n_eval + n_local,
         duration_seconds=time.perf_counter() - t0,
     )

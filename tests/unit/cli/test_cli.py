@@ -357,3 +357,25 @@ def test_a_robot_trusts_its_own_computer_by_default() -> None:
     assert ComputeNodeSpec.model_validate(robot).privacy == 3
     assert ComputeNodeSpec.model_validate({**robot, "privacyLevel": 1}).privacy == 1
     assert ComputeNodeSpec.model_validate({"tier": "cloud", "hardwareType": "vm"}).privacy == 0
+
+
+def test_a_plan_that_converged_early_does_not_say_the_time_budget_was_reached(
+    capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Issue 35: fewer generations than asked is not a cut budget: a converged plan stops
+    early too. The flag tells what the solver says stopped it."""
+    import dataclasses
+
+    from fogfleet.cli import planning
+
+    real = planning.plan_fleet
+
+    def converged(*args, **kwargs):  # type: ignore[no-untyped-def]
+        problem, schedule = real(*args, **kwargs)
+        return problem, dataclasses.replace(schedule, generations=3, time_budget_reached=False)
+
+    monkeypatch.setattr(planning, "plan_fleet", converged)
+    code, out, _ = run(
+        capsys, "plan", str(SOLO), str(WAREHOUSE / "modules.yaml"), "--json", "--generations", "50"
+    )
+    assert code == 0 and json.loads(out)["timeBudgetReached"] is False
