@@ -425,3 +425,16 @@ def test_overall_is_not_a_figure_beside_an_unplaced_module(
     overall = next(line for line in out.splitlines() if line.startswith("OVERALL")).split()
     assert overall[1:4] == ["n/a", "(1", "unplaced)"]  # recorded
     assert overall[4].endswith("%")  # onboard, every module placed
+
+
+def test_render_of_a_degraded_fleet_warns_on_stderr(
+    capsys: pytest.CaptureFixture[str], tmp_path: Path
+) -> None:
+    """Issue 35: the YAML goes to stdout (often a pipe into kubectl); that the plan runs
+    modules below their deadline's CPU is one line on stderr."""
+    site = _short_site(tmp_path, allow_degraded=True)
+    code, out, err = run(capsys, "render", str(site), "--generations", "5")
+    assert code == 0 and "kind: Deployment" in out
+    lines = err.strip().splitlines()
+    assert len(lines) == 1, err
+    assert lines[0].startswith("DEGRADED warehouse/single-robot: degraded: the nodes are short")
