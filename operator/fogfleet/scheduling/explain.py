@@ -73,8 +73,12 @@ def _gpu_shortfall(problem: Problem) -> str:
     if need <= float(have.sum()) + 1e-9:
         return ""
     modules = sorted({problem.instances[int(i)].module for i in needy})
-    with_gpu = [f"{problem.nodes[int(j)].name} {h:g}" for j, h in zip(nodes, have, strict=True) if h]
-    where = f" ({', '.join(with_gpu[:6])}{', ...' if len(with_gpu) > 6 else ''})" if with_gpu else ""
+    with_gpu = [
+        f"{problem.nodes[int(j)].name} {h:g}" for j, h in zip(nodes, have, strict=True) if h
+    ]
+    where = (
+        f" ({', '.join(with_gpu[:6])}{', ...' if len(with_gpu) > 6 else ''})" if with_gpu else ""
+    )
     return (
         f"the fleet needs {need:g} GPUs in all ({len(needy)} instance(s) of "
         f"{', '.join(modules)}) but the nodes they may use have {float(have.sum()):g}{where}: "

@@ -101,7 +101,7 @@ class MoveEvaluator:
         return np.where(self._keys[pos] == key, values[pos], 0.0)
 
     def _onboard_use(self, inst: I64, node: I64) -> F64:
-        """The expected CPU instance ``inst`` adds to F1 on ``node`` (``Evaluation.cpu_onboard``)."""
+        """The expected CPU each instance adds to F1 on its node (``Evaluation.cpu_onboard``)."""
         fleet = self.pp.fleet
         w = fleet.activation[inst] * self.pp.alloc.cpu_use[inst, node]
         if self._held is None:

@@ -8,8 +8,9 @@ instances of the chosen plan out of a non-preferred or pricier node when the mov
 hard constraint and does not raise the miss objectives, which is what the lexicographic order
 asks for and what a front built without these rules may lack. A move may go either way
 between a robot and the nodes beyond it: back onto the instance's own robot (a paid-cloud
-instance whose robot has room at the same misses), or off a robot whose tier the module does
-not prefer.
+instance of a module that prefers [robot, edge], whose robot has room at the same misses; or
+one whose standby already holds its CPU there), or off a robot whose tier the module does not
+prefer. Without such a reason a robot is no target: on-board use is F1's to weigh.
 """
 
 from __future__ import annotations
@@ -50,9 +51,10 @@ def tie_breakers(problem: Problem, plans: I64, names: Sequence[str]) -> dict[str
 
 
 def polish(problem: Problem, x: I64, names: Sequence[str]) -> tuple[I64, int]:
-    """Move instances of plan ``x`` one at a time to a preferred, then cheaper node (its own
-    robot included) while the plan stays feasible and its miss objectives do not rise;
-    returns the plan and the number of moves."""
+    """Move instances of plan ``x`` one at a time to a preferred, then cheaper node while the
+    plan stays feasible and its miss objectives do not rise; returns the plan and the number
+    of moves. An instance's own robot is such a node where its module prefers the robot
+    tier, or where its on-board standby already holds its CPU."""
     rules = tie_breakers(problem, x[None, :], names)
     if not rules:
         return x, 0
@@ -74,7 +76,9 @@ def polish(problem: Problem, x: I64, names: Sequence[str]) -> tuple[I64, int]:
     used, _ = loads(problem, x)
     # among equally preferred and priced nodes, a robot comes last unless its standby already
     # holds the instance's CPU there: on-board use is F1's, the next objective in line
-    costly_home = (problem.tier[np.maximum(problem.home, 0)] == 0) & ~problem.held_at_home
+    held = problem.held_at_home
+    remote = problem.tier > 0
+    costly_home = (problem.tier[np.maximum(problem.home, 0)] == 0) & ~held
     # an incremental re-plan's fixed instances have one node: they never move
     at = np.maximum(x, 0)
     others = problem.allowed.sum(axis=1) - problem.allowed[np.arange(problem.n_instances), at]
@@ -83,6 +87,11 @@ def polish(problem: Problem, x: I64, names: Sequence[str]) -> tuple[I64, int]:
         j = int(x[i])
         pref = problem.preferred[i] if problem.preferred is not None else None
         better = problem.allowed[i] & (nodes != j)
+        # onto a robot only where the module welcomes it (its preferred tiers include the
+        # robot) or where its standby already holds the CPU: else on-board use is F1's
+        # business, not a tie-break's
+        onto_robot = pref if pref is not None else np.full(problem.n_nodes, held[i])
+        better &= remote | onto_robot
         if pref is not None and not pref[j]:
             better &= pref | (price < price[j])
         else:

@@ -415,13 +415,13 @@ def test_overall_is_not_a_figure_beside_an_unplaced_module(
     """Issue 35: the fleet's rate covers the modules that ran; beside an unplaced module the
     OVERALL row says n/a and how many are unplaced, not 0.00%."""
     solo = (str(SOLO), str(WAREHOUSE / "modules.yaml"))
-    code, out, _ = run(capsys, "plan", *solo, "--scheduler", "onboard", "--json")
+    _, out, _ = run(capsys, "plan", *solo, "--scheduler", "onboard", "--json")
     doc = json.loads(out)
     doc["placement"] = [r for r in doc["placement"] if r["module"] != "nav-periphery"]
     saved = tmp_path / "plan.json"
     saved.write_text(json.dumps(doc))
     args = ("simulate", *solo, "--scheduler", "onboard", "--duration", "2")
-    code, out, _ = run(capsys, *args, "--placement", str(saved))
+    _, out, _ = run(capsys, *args, "--placement", str(saved))
     overall = next(line for line in out.splitlines() if line.startswith("OVERALL")).split()
     assert overall[1:4] == ["n/a", "(1", "unplaced)"]  # recorded
     assert overall[4].endswith("%")  # onboard, every module placed

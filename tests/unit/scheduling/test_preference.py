@@ -87,6 +87,8 @@ def test_polish_moves_work_onto_a_robot_only_its_own_and_keeps_the_plan_feasible
     assert np.array_equal(x[on_board], s.placement[on_board])  # robots cost nothing: they stay
     to_robot = p.tier[x] == 0
     assert np.array_equal(x[to_robot], p.home[to_robot])  # never another robot's computer
+    # onto a robot only for a module whose standby holds its CPU there (no wishes here)
+    assert np.all(p.held_at_home[to_robot & ~on_board])
     assert np.all(constraints(p, x[None, :], p.limits) <= 1e-9)
 
 
@@ -116,9 +118,26 @@ def _robot_edge_cloud(*, preferred: list[bool] | None = None, cloud_price: float
 
 
 def test_a_paid_cloud_instance_moves_back_to_its_robot() -> None:
-    """Issue 35: the edge is full, the robot has room, the misses are the same: the move
-    after the choice takes the instance out of the paid cloud and back onto its robot."""
+    """Issue 35: preferredTiers [robot, edge], the edge is full, the robot has room, the
+    misses are the same: the move after the choice takes the instance out of the paid cloud
+    and back onto its robot."""
+    p = _robot_edge_cloud(preferred=[True, True, False], cloud_price=1.0)
+    x, moved = polish(p, np.array([1, 2]), ("missRate", "missedCycles", "onboard"))
+    assert moved == 1 and x.tolist() == [1, 0]
+
+
+def test_without_a_wish_for_the_robot_a_cheaper_robot_is_no_target() -> None:
+    """No preference and no standby holding the CPU: on-board use is F1's to weigh, so the
+    polish (a tie-break on cost) does not fill the robot."""
     p = _robot_edge_cloud(cloud_price=1.0)
+    x, moved = polish(p, np.array([1, 2]), ("missRate", "missedCycles", "onboard"))
+    assert moved == 0 and x.tolist() == [1, 2]
+
+
+def test_a_paid_cloud_instance_whose_standby_holds_its_cpu_moves_back_to_its_robot() -> None:
+    from dataclasses import replace
+
+    p = replace(_robot_edge_cloud(cloud_price=1.0), fallback=np.array([False, True]))
     x, moved = polish(p, np.array([1, 2]), ("missRate", "missedCycles", "onboard"))
     assert moved == 1 and x.tolist() == [1, 0]
 
