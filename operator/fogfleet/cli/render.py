@@ -8,7 +8,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from fogfleet.scheduling.explain import infeasible_message
+from fogfleet.scheduling.explain import degraded_message, infeasible_message
 
 from .common import catalog_of, fleets_of, plan_fleet, settings_of
 
@@ -47,6 +47,12 @@ def cmd_render(args: argparse.Namespace) -> int:
                 file=sys.stderr,
             )
             return 2
+        if schedule.degraded:  # rendered all the same: say so where a pipe does not hide it
+            print(
+                f"DEGRADED {problem.namespace}/{problem.fleet}: "
+                f"{degraded_message(problem, schedule.placement)}",
+                file=sys.stderr,
+            )
         ns = problem.namespace
         modules = {name: m for (mns, name), m in catalog.modules.items() if mns == ns}
         wiring = None

@@ -75,27 +75,41 @@ def _normalise(F: F64) -> F64:
 
 
 def _lexicographic(F: F64, names: Sequence[str]) -> tuple[int, str]:
+    """The plan the levels leave and a reason quoting *its* values (a plan within a level's
+    tolerance of the best is not the best: the reason says both where they differ)."""
     cand = np.arange(len(F))
-    first = ""
-    tie_notes: list[str] = []
-    for k, name in enumerate(names):
+    levels: list[tuple[int, float, float, int]] = []  # objective, best, tolerance, within
+    for k in range(len(names)):
         col = F[cand, k]
         best = float(col.min())
         tol = 1e-6 + 1e-3 * abs(best)
         within = cand[col <= best + tol]
-        if k == 0:
-            first = f"lowest {name} {_fmt(best)} among {len(F)} non-dominated plans"
-            if len(within) > 1:
-                first += f" ({len(within)} within {_fmt(tol)} of it)"
-        elif len(cand) > 1:
-            tie_notes.append(f"{name} {_fmt(best)}")
+        if k == 0 or len(cand) > 1:
+            levels.append((k, best, tol, len(within)))
         cand = within
         if len(cand) == 1:
             break
     idx = int(cand[np.argmin(F[cand, 0])])
-    reason = first
-    if tie_notes:
-        reason += "; ties broken by " + ", then ".join(tie_notes)
+    notes: list[str] = []
+    for k, best, tol, n_within in levels:
+        value = float(F[idx, k])
+        same = _fmt(value) == _fmt(best)
+        if k == 0:
+            if same:
+                text = f"lowest {names[0]} {_fmt(value)} among {len(F)} non-dominated plans"
+            else:
+                text = (
+                    f"{names[0]} {_fmt(value)}, within {_fmt(tol)} of the lowest "
+                    f"{_fmt(best)} among {len(F)} non-dominated plans"
+                )
+            if n_within > 1:
+                text += f" ({n_within} within {_fmt(tol)} of it)"
+            notes.append(text)
+        else:
+            notes.append(f"{names[k]} {_fmt(value)}" + ("" if same else f" (lowest {_fmt(best)})"))
+    reason = notes[0]
+    if len(notes) > 1:
+        reason += "; ties broken by " + ", then ".join(notes[1:])
     return idx, reason
 
 

@@ -148,6 +148,20 @@ class Evaluation:
         return self.per_node(self.problem.activation[None, :] * self.use)
 
     @cached_property
+    def cpu_onboard(self) -> F64:
+        """Expected CPU use per node beyond what the robots already hold for fallbacks (P, N):
+        an instance on its robot whose standby's share is in the robot's reserve
+        (``Problem.held_at_home``) adds only its expected use above that share. F1 counts
+        this: the reserve is held whatever the plan, so running the module on the CPU its
+        standby already holds costs the robot nothing more."""
+        w = self.problem.activation[None, :] * self.use
+        held = self._held
+        if held is not None:
+            share = self.problem.fallback_share(self.alloc)[:, 0]
+            w = np.where(held, np.maximum(w - share[None, :], 0.0), w)
+        return self.per_node(w)
+
+    @cached_property
     def cpu_peak(self) -> F64:
         """CPU use per node if every instance there were active at once (P, N)."""
         return self.per_node(self.use)
@@ -187,7 +201,7 @@ class Evaluation:
     # -- objectives -----------------------------------------------------------------------
     def onboard(self) -> F64:
         cap = self.problem.capacity[self.robots]
-        cpu = self.cpu_expected[:, self.robots] / cap[None, :, 0]
+        cpu = self.cpu_onboard[:, self.robots] / cap[None, :, 0]
         mem = self.mem_requested[:, self.robots] / np.maximum(cap[None, :, 1], 1.0)
         return np.asarray((cpu + mem).sum(axis=1), dtype=np.float64)
 
@@ -377,5 +391,6 @@ NODE_SUMS = (
     "mem_requested",
     "gpu_requested",
     "cpu_expected",
+    "cpu_onboard",
     "offboard_traffic",
 )

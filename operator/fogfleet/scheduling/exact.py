@@ -6,18 +6,22 @@ activation_i * tau_>1(i, j) are constants of the pair (i, j); F1 is a sum of pai
 too. The scalar minimised is
 
     S = w_missRate * missRate + w_missedCycles * missedCycles
-        + w_onboard * onboard / N_R + w_reserve * reserve
+        + w_onboard * onboard / N_R + w_reserve * reserve [+ w_cost * cost]
 
 (defaults ``DEFAULT_WEIGHTS``: missRate is a fraction, so its weight makes 0.1 percentage
 point worth 0.1; F1 is divided by the number of robots so it is a mean per robot; reserve is
-linearised with an auxiliary variable z >= u_j^r / L_j^r for all nodes and resources). F3
-(balance, a standard deviation) is quadratic and left out. ``scalarised`` computes the same S
-for any plan, so a heuristic's gap to the optimum can be reported.
+linearised with an auxiliary variable z >= u_j^r / L_j^r for all nodes and resources; cost,
+the requested cores times each node's price, is linear as it is). F3 (balance, a standard
+deviation) is quadratic and left out. ``scalarised`` computes the same S for any plan, so a
+heuristic's gap to the optimum can be reported. The ``exact`` scheduler of a fleet adds cost
+(``fleet_weights``): at the fleet's weight when it lists or weighs cost, else as a small
+tie-break on a site with priced nodes, as the lexicographic choice takes the cheapest of the
+plans that miss alike.
 """
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -32,7 +36,16 @@ from fogfleet.errors import Infeasible, InvalidSpec
 from .heuristics import uncontended_miss
 from .objectives import UPLINK_SHARE, evaluate
 
-__all__ = ["DEFAULT_WEIGHTS", "MAX_PAIRS", "ExactResult", "scalarised", "solve_exact"]
+__all__ = [
+    "COST_TIE_BREAK",
+    "DEFAULT_WEIGHTS",
+    "MAX_PAIRS",
+    "ExactResult",
+    "describe_weights",
+    "fleet_weights",
+    "scalarised",
+    "solve_exact",
+]
 
 DEFAULT_WEIGHTS: dict[str, float] = {
     ObjectiveName.MISS_RATE.value: 100.0,
@@ -40,6 +53,11 @@ DEFAULT_WEIGHTS: dict[str, float] = {
     ObjectiveName.ONBOARD.value: 1.0,
     ObjectiveName.RESERVE.value: 1.0,
 }
+# cost's weight when the fleet names no cost but pays for some nodes: small beside the
+# defaults (0.1 core-hour price unit = 1e-4 of S), so it only breaks near-ties, as the
+# lexicographic choice's cost tie-break does
+COST_TIE_BREAK = 1e-3
+LINEAR = (*DEFAULT_WEIGHTS, ObjectiveName.COST.value)  # what the MILP can weigh
 F64 = NDArray[np.float64]
 I64 = NDArray[np.int64]
 MAX_PAIRS = 5000  # binary variables the exact solver accepts (the warehouse fleet has ~250)
@@ -52,6 +70,27 @@ class ExactResult:
     bound: float  # HiGHS' dual bound
     status: str
     relaxed: bool
+
+
+def fleet_weights(
+    problem: Problem, objectives: Sequence[str], weights: Mapping[str, float]
+) -> dict[str, float]:
+    """The weights the ``exact`` scheduler minimises for a fleet: ``DEFAULT_WEIGHTS`` plus
+    cost, at the fleet's weight for it (1 unless given) when ``spec.scheduler.objectives``
+    lists cost or ``weights`` names it, else at ``COST_TIE_BREAK`` when some node has a
+    price (a weight of 0 leaves cost out)."""
+    w = dict(DEFAULT_WEIGHTS)
+    cost = ObjectiveName.COST.value
+    if cost in weights or cost in objectives:
+        w[cost] = float(weights.get(cost, 1.0))
+    elif problem.cost.any():
+        w[cost] = COST_TIE_BREAK
+    return {k: v for k, v in w.items() if v > 0}
+
+
+def describe_weights(weights: Mapping[str, float]) -> str:
+    """``100*missRate + 1*missedCycles + ...``: the weighted sum, for people."""
+    return " + ".join(f"{v:g}*{k}" for k, v in weights.items())
 
 
 def scalarised(
@@ -80,7 +119,7 @@ def solve_exact(
     bound on S at any size). Raises InvalidSpec above ``max_pairs`` binaries and Infeasible
     when no plan satisfies the constraints."""
     w = dict(DEFAULT_WEIGHTS if weights is None else weights)
-    unknown = set(w) - set(DEFAULT_WEIGHTS)
+    unknown = set(w) - set(LINEAR)
     if unknown:
         raise InvalidSpec(
             f"RobotFleet/{problem.fleet}",
@@ -137,16 +176,22 @@ def _costs(problem: Problem, w: Mapping[str, float], pi: I64, pj: I64) -> F64:
     tau = ((problem.net_mean + exe) / problem.cycle[:, None])[pi, pj]
     cap = problem.capacity
     on_home = pj == problem.home[pi]
-    f1 = np.where(
-        on_home,
-        a[pi] * alloc.cpu_use[pi, pj] / cap[pj, 0]
-        + problem.memory[pi] / np.maximum(cap[pj, 1], 1.0),
-        0.0,
-    )
+    # F1 as ``Evaluation.cpu_onboard`` / ``mem_requested`` count it: at home, a fallback's
+    # share is in its robot's reserve (a constant), so only the rest counts
+    held = problem.held_at_home[pi] & on_home
+    fb = problem.fallback_share(alloc)[pi]
+    use = a[pi] * alloc.cpu_use[pi, pj]
+    use = np.where(held, np.maximum(use - fb[:, 0], 0.0), use)
+    mem = np.where(held, problem.memory[pi] - fb[:, 1], problem.memory[pi])
+    f1 = np.where(on_home, use / cap[pj, 0] + mem / np.maximum(cap[pj, 1], 1.0), 0.0)
+    # cost: the cores requested on the node times its price (``Evaluation.cost``; the
+    # reserve's part is a constant)
+    cores = np.where(held, alloc.cpu_request[pi, pj] - fb[:, 0], alloc.cpu_request[pi, pj])
     c = (
         w.get(ObjectiveName.MISS_RATE.value, 0.0) * share[pi] * q
         + w.get(ObjectiveName.MISSED_CYCLES.value, 0.0) * a[pi] * np.where(tau > 1.0, tau, 0.0)
         + w.get(ObjectiveName.ONBOARD.value, 0.0) * f1 / n_r
+        + w.get(ObjectiveName.COST.value, 0.0) * problem.cost[pj] * cores
     )
     return np.append(c, w.get(ObjectiveName.RESERVE.value, 0.0))  # z
 

@@ -38,15 +38,52 @@ def infeasible_message(problem: Problem, placement: np.ndarray, reasons: dict[in
                     f"{_amount(name, float(problem.capacity[biggest, r]))}"
                 )
     fits_nowhere = [why for i, why in sorted(reasons.items()) if i >= 0 and why]
+    short = _gpu_shortfall(problem)
+    if short:
+        parts.insert(0, short)
     if not parts and not fits_nowhere:
         g = constraints(problem, placement[None, :], problem.limits)[0]
         names = constraint_names(problem)
-        parts = [f"{n} over by {v * 100:.0f}%" for n, v in zip(names, g, strict=True) if v > 1e-9][
-            :8
-        ]
+        parts = [_violation(n, v) for n, v in zip(names, g, strict=True) if v > 1e-9][:8]
     head = "no placement fits the fleet's nodes"
     detail = "; ".join([*fits_nowhere[:4], *parts[:8]]) or "constraints violated"
     return f"{head}: {detail}{_reserve_note(problem)}"
+
+
+def _violation(column: str, value: float) -> str:
+    """One violated column of ``constraints`` (``constraint_names``) in words."""
+    if column == "geneSpace":  # a count of instances, not a ratio
+        return f"{value:.0f} instance(s) on a node their module may not use"
+    what, _, node = column.partition(":")
+    label = {"cpu": "CPU requests", "memory": "memory", "gpu": "GPUs", "uplink": "uplink traffic"}
+    return f"{label.get(what, what)} on {node} over by {value * 100:.0f}%"
+
+
+def _gpu_shortfall(problem: Problem) -> str:
+    """The fleet's GPU shortfall, when its GPU modules need more GPUs in all than every node
+    they may use has (after what the robots hold for fallbacks): no plan can fit them, and
+    the nodes one plan overfills are only where that plan put the excess."""
+    needy = np.flatnonzero((problem.gpu > 0) & problem.allowed.any(axis=1))
+    if not needy.size:
+        return ""
+    nodes = np.flatnonzero(problem.allowed[needy].any(axis=0))
+    have = problem.capacity[nodes, 2] - problem.fallback_reserve(problem.limits)[nodes, 2]
+    have = np.maximum(have, 0.0)
+    need = float(problem.gpu[needy].sum())
+    if need <= float(have.sum()) + 1e-9:
+        return ""
+    modules = sorted({problem.instances[int(i)].module for i in needy})
+    with_gpu = [
+        f"{problem.nodes[int(j)].name} {h:g}" for j, h in zip(nodes, have, strict=True) if h
+    ]
+    where = (
+        f" ({', '.join(with_gpu[:6])}{', ...' if len(with_gpu) > 6 else ''})" if with_gpu else ""
+    )
+    return (
+        f"the fleet needs {need:g} GPUs in all ({len(needy)} instance(s) of "
+        f"{', '.join(modules)}) but the nodes they may use have {float(have.sum()):g}{where}: "
+        f"{need - float(have.sum()):g} GPU(s) short"
+    )
 
 
 def _reserve_note(problem: Problem) -> str:

@@ -51,8 +51,9 @@ class MoveEvaluator:
     """Objectives and constraints of single-instance moves of parent plans, incrementally.
 
     A move (instance i: node c -> node j) changes the per-node sums (``NODE_SUMS``: cpu and
-    gpu requests, memory, expected cpu use; uplink traffic of i's robot) only at c, j and
-    i's home, so a child's sums are its parent's with those entries patched, and the per-node
+    gpu requests, memory, expected cpu use and its on-board part; uplink traffic of i's robot)
+    only at c, j and i's home, so a child's sums are its parent's with those entries patched,
+    and the per-node
     objectives (F1, F2, F3, cost, energy) and the capacity/uplink constraints follow from
     them (``Evaluation.of_node_sums``: the same formulas as ``objectives.evaluate``).
     missRate and missedCycles are sums over instances of a term that depends on the node's
@@ -83,6 +84,10 @@ class MoveEvaluator:
         t = both / fleet.cycle[i]
         key = i * fleet.n_nodes + j
         order = np.argsort(key, kind="stable")
+        # F1's per-instance CPU (``Evaluation.cpu_onboard``): a held instance at home adds only
+        # its expected use beyond its standby's share of the robot's reserve
+        self._held = fleet.held_at_home if fleet.fallback_rows.size else None
+        self._share = fleet.fallback_share(alloc)[:, 0]
         self._keys: I64 = key[order]
         self._miss: F64 = (a * miss_probability(both, sd, fleet.cycle[i]))[order]
         self._missed: F64 = (a * np.where(t > 1.0, t, 0.0))[order]
@@ -94,6 +99,15 @@ class MoveEvaluator:
         key = inst * self.pp.fleet.n_nodes + node
         pos = np.minimum(np.searchsorted(self._keys, key), len(self._keys) - 1)
         return np.where(self._keys[pos] == key, values[pos], 0.0)
+
+    def _onboard_use(self, inst: I64, node: I64) -> F64:
+        """The expected CPU each instance adds to F1 on its node (``Evaluation.cpu_onboard``)."""
+        fleet = self.pp.fleet
+        w = fleet.activation[inst] * self.pp.alloc.cpu_use[inst, node]
+        if self._held is None:
+            return np.asarray(w, dtype=np.float64)
+        held = self._held[inst] & (node == fleet.home[inst])
+        return np.where(held, np.maximum(w - self._share[inst], 0.0), w)
 
     def parents(self, fulls: I64) -> Evaluation:
         """The parents' whole evaluation (their per-node sums are what moves patch)."""
@@ -164,6 +178,9 @@ class MoveEvaluator:
                 ev.cpu_expected,
                 fleet.activation[inst] * alloc.cpu_use[inst, cur],
                 fleet.activation[inst] * alloc.cpu_use[inst, node],
+            ),
+            "cpu_onboard": patch(
+                ev.cpu_onboard, self._onboard_use(inst, cur), self._onboard_use(inst, node)
             ),
         }
         traffic = ev.offboard_traffic[par]

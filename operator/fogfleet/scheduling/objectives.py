@@ -63,7 +63,9 @@ def onboard(problem: Problem, X: NDArray[np.integer], allocation: Allocation) ->
     """F1 (eq. 1): on-board resource use, sum over robot nodes j and r in {cpu, memory} of
     u_j^r / L_j^r, with u^cpu = sum activation * cpu_use (expected use) and u^mem the requested
     bytes. Dividing by the node's own limit makes cores and bytes summable; the paper sums raw
-    usage, which would let bytes swamp cores."""
+    usage, which would let bytes swamp cores. CPU a module's on-board standby already holds on
+    its robot is not counted again when the module runs there (``Evaluation.cpu_onboard``), as
+    memory's held share is not: that use is the robot's whatever the plan."""
     return Evaluation(problem, X, allocation).onboard()
 
 

@@ -6,7 +6,11 @@ larger and the search slower: 2.6 s instead of 1.8 s and a 1.5-3.7 % optimality 
 warehouse). ``tie_breakers`` scores the plans of the front; ``polish`` then moves single
 instances of the chosen plan out of a non-preferred or pricier node when the move keeps every
 hard constraint and does not raise the miss objectives, which is what the lexicographic order
-asks for and what a front built without these rules may lack.
+asks for and what a front built without these rules may lack. A move may go either way
+between a robot and the nodes beyond it: back onto the instance's own robot (a paid-cloud
+instance of a module that prefers [robot, edge], whose robot has room at the same misses; or
+one whose standby already holds its CPU there), or off a robot whose tier the module does not
+prefer. Without such a reason a robot is no target: on-board use is F1's to weigh.
 """
 
 from __future__ import annotations
@@ -48,9 +52,10 @@ def tie_breakers(problem: Problem, plans: I64, names: Sequence[str]) -> dict[str
 
 
 def polish(problem: Problem, x: I64, names: Sequence[str]) -> tuple[I64, int]:
-    """Move off-board instances of plan ``x`` one at a time to a preferred, then cheaper
-    edge or cloud node while the plan stays feasible and its miss objectives do not rise;
-    returns the plan and the number of moves."""
+    """Move instances of plan ``x`` one at a time to a preferred, then cheaper node while the
+    plan stays feasible and its miss objectives do not rise; returns the plan and the number
+    of moves. An instance's own robot is such a node where its module prefers the robot
+    tier, or where its on-board standby already holds its CPU."""
     rules = tie_breakers(problem, x[None, :], names)
     if not rules:
         return x, 0
@@ -67,25 +72,37 @@ def polish(problem: Problem, x: I64, names: Sequence[str]) -> tuple[I64, int]:
     budget = POLISH_EVALUATIONS
     moves = 0
     price = problem.cost
-    remote = problem.tier > 0
+    nodes = np.arange(problem.n_nodes)
     fit = Fit(problem, problem.limits)
     used, _ = loads(problem, x)
-    # only an off-board instance with another allowed node can move (on-board use is F1's
-    # business, not a tie-break); an incremental re-plan's fixed instances have one node
+    # among equally preferred and priced nodes, a robot comes last unless its standby already
+    # holds the instance's CPU there: on-board use is F1's, the next objective in line
+    held = problem.held_at_home
+    remote = problem.tier > 0
+    costly_home = (problem.tier[np.maximum(problem.home, 0)] == 0) & ~held
+    # an incremental re-plan's fixed instances have one node: they never move
     at = np.maximum(x, 0)
     others = problem.allowed.sum(axis=1) - problem.allowed[np.arange(problem.n_instances), at]
-    movable = (x >= 0) & remote[at] & (others > 0)
+    movable = (x >= 0) & (others > 0)
     for i in map(int, np.flatnonzero(movable)):
         j = int(x[i])
         pref = problem.preferred[i] if problem.preferred is not None else None
-        better = problem.allowed[i] & remote & (np.arange(problem.n_nodes) != j)
+        better = problem.allowed[i] & (nodes != j)
+        # onto a robot only where the module welcomes it (its preferred tiers include the
+        # robot) or where its standby already holds the CPU: else on-board use is F1's
+        # business, not a tie-break's
+        onto_robot = pref if pref is not None else np.full(problem.n_nodes, held[i])
+        better &= remote | onto_robot
         if pref is not None and not pref[j]:
             better &= pref | (price < price[j])
         else:
             better &= price < price[j]
             if pref is not None:
                 better &= pref
-        ks = np.flatnonzero(better)[np.argsort(price[better], kind="stable")]
+        ks = np.flatnonzero(better)
+        last = (problem.tier[ks] == 0) & costly_home[i]
+        unwanted = ~pref[ks] if pref is not None else np.zeros(len(ks), dtype=bool)
+        ks = ks[np.lexsort((ks, last, price[ks], unwanted))]
         room = _has_room(fit, used, i, ks)
         for k, fits in zip(ks, room, strict=True):
             if budget <= 0:

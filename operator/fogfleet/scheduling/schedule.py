@@ -35,6 +35,8 @@ class Schedule:
     generations: int = 0
     evaluations: int = 0
     levels: NDArray[np.int64] | None = None  # (I,) rungs each instance was degraded (degrade)
+    # the time budget cut the search short (not: it converged, or ran every generation)
+    time_budget_reached: bool = False
 
     @property
     def degraded_instances(self) -> int:

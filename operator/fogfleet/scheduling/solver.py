@@ -27,7 +27,7 @@ from .bookkeeping import (
 from .choice import choose, non_dominated
 from .convergence import StallWatch, stall_window
 from .degrade import degrade
-from .exact import scalarised, solve_exact
+from .exact import describe_weights, fleet_weights, scalarised, solve_exact
 from .levelling import with_levelled
 from .local import pareto_local_search
 from .mating import ArrayMating
@@ -95,15 +95,16 @@ def plan(
     if algo is SchedulerName.RANDOM:
         return random_plan(problem, settings.seed)
     t0 = time.perf_counter()
-    res = solve_exact(problem)
+    w = fleet_weights(problem, [str(n) for n in settings.objectives], weights_of(settings))
+    res = solve_exact(problem, w)
     return finish(
         problem,
         "exact",
         res.placement,
         True,
         t0,
-        f"MILP optimum {scalarised(problem, res.placement):.6g} of the weighted sum "
-        "(exact.DEFAULT_WEIGHTS)",
+        f"MILP optimum {scalarised(problem, res.placement, w):.6g} of the weighted sum "
+        f"{describe_weights(w)}",
     )
 
 
@@ -208,6 +209,7 @@ def nsga2(
         pareto_placements=full[front],
         objective_names=names,
         generations=generations,
+        time_budget_reached=stop is Stop.BUDGET,
         evaluations=n_eval + n_local,
         duration_seconds=time.perf_counter() - t0,
     )

@@ -69,7 +69,7 @@ def _check(problem: Problem, placement: NDArray[np.int64], allocation: Allocatio
         if not math.isfinite(mean) or allocation.cpu_use[i, j] <= 0.0:
             raise ValueError(
                 f"{problem.label(i)} cannot run on {problem.nodes[j].name}: no execution profile "
-                "there (the node is outside its gene space)"
+                "there (its module may not use the node)"
             )
 
 

@@ -395,3 +395,84 @@ def test_a_directory_of_fleets_is_planned_as_one_site(
 
 def _docs(path: Path) -> list[dict]:
     return [d for d in yaml.safe_load_all(path.read_text()) if isinstance(d, dict)]
+
+
+def test_a_plan_that_converged_early_does_not_say_the_time_budget_was_reached(
+    capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Issue 35: fewer generations than asked is not a cut budget: a converged plan stops
+    early too. The flag tells what the solver says stopped it."""
+    import dataclasses
+
+    from fogfleet.cli import planning
+
+    real = planning.plan_fleet
+
+    def converged(*args, **kwargs):  # type: ignore[no-untyped-def]
+        problem, schedule = real(*args, **kwargs)
+        return problem, dataclasses.replace(schedule, generations=3, time_budget_reached=False)
+
+    monkeypatch.setattr(planning, "plan_fleet", converged)
+    code, out, _ = run(
+        capsys, "plan", str(SOLO), str(WAREHOUSE / "modules.yaml"), "--json", "--generations", "50"
+    )
+    assert code == 0 and json.loads(out)["timeBudgetReached"] is False
+
+
+def _robot_too_small_to_hold_everything(tmp_path: Path) -> Path:
+    """The single-robot fleet on a robot with 3Gi of memory to give: everything on board
+    does not fit (the on-board reference is infeasible), offloading does."""
+    nodes = (SOLO / "nodes.yaml").read_text()
+    small = nodes.replace("capacity: {cpu: 8, memory: 16Gi}", "capacity: {cpu: 8, memory: 5Gi}")
+    assert small != nodes
+    (tmp_path / "nodes.yaml").write_text(small)
+    (tmp_path / "fleet.yaml").write_text((SOLO / "fleet.yaml").read_text())
+    (tmp_path / "modules.yaml").write_text((WAREHOUSE / "modules.yaml").read_text())
+    return tmp_path
+
+
+def test_an_infeasible_reference_is_reported_not_an_error(
+    capsys: pytest.CaptureFixture[str], tmp_path: Path
+) -> None:
+    """Issue 35: with --scheduler all, the on-board reference not fitting the robot is a
+    result of the comparison (said on stderr), not an exit 2: the planner's plan fits."""
+    site = _robot_too_small_to_hold_everything(tmp_path)
+    args = ("simulate", str(site), "--scheduler", "all", "--duration", "2", "--generations", "5")
+    code, out, err = run(capsys, *args)
+    assert code == 0, err
+    assert "INFEASIBLE onboard (a reference, compared only): no placement fits" in err
+    assert "INFEASIBLE nsga2" not in err and "OVERALL" in out
+    # asked for on its own, the same plan is the run's result: exit 2
+    code, _, err = run(capsys, "simulate", str(site), "--scheduler", "onboard", "--duration", "2")
+    assert code == 2 and "INFEASIBLE onboard: no placement fits" in err
+
+
+def test_overall_is_not_a_figure_beside_an_unplaced_module(
+    capsys: pytest.CaptureFixture[str], tmp_path: Path
+) -> None:
+    """Issue 35: the fleet's rate covers the modules that ran; beside an unplaced module the
+    OVERALL row says n/a and how many are unplaced, not 0.00%."""
+    solo = (str(SOLO), str(WAREHOUSE / "modules.yaml"))
+    _, out, _ = run(capsys, "plan", *solo, "--scheduler", "onboard", "--json")
+    doc = json.loads(out)
+    doc["placement"] = [r for r in doc["placement"] if r["module"] != "nav-periphery"]
+    saved = tmp_path / "plan.json"
+    saved.write_text(json.dumps(doc))
+    args = ("simulate", *solo, "--scheduler", "onboard", "--duration", "2")
+    _, out, _ = run(capsys, *args, "--placement", str(saved))
+    overall = next(line for line in out.splitlines() if line.startswith("OVERALL")).split()
+    assert overall[1:4] == ["n/a", "(1", "unplaced)"]  # recorded
+    assert overall[4].endswith("%")  # onboard, every module placed
+
+
+def test_render_of_a_degraded_fleet_warns_on_stderr(
+    capsys: pytest.CaptureFixture[str], tmp_path: Path
+) -> None:
+    """Issue 35: the YAML goes to stdout (often a pipe into kubectl); that the plan runs
+    modules below their deadline's CPU is one line on stderr."""
+    site = _short_site(tmp_path, allow_degraded=True)
+    code, out, err = run(capsys, "render", str(site), "--generations", "5")
+    assert code == 0 and "kind: Deployment" in out
+    lines = err.strip().splitlines()
+    assert len(lines) == 1, err
+    assert lines[0].startswith("DEGRADED warehouse/single-robot: degraded: the nodes are short")

@@ -43,3 +43,13 @@ def test_knee_picks_the_bulge_of_a_convex_front() -> None:
 def test_unknown_rule_is_rejected() -> None:
     with pytest.raises(ValueError):
         choose(np.zeros((2, 1)), ["a"], "best")
+
+
+def test_the_lexicographic_reason_quotes_the_chosen_plans_values() -> None:
+    """Issue 35: two plans tie on missRate within the tolerance; the one with the lower
+    onboard wins, and the reason gives its missRate, not the best tied value."""
+    F = np.array([[1.0, 5.0], [1.0009, 3.0]])
+    idx, reason = choose(F, ["missRate", "onboard"])
+    assert idx == 1
+    assert reason.startswith("missRate 1.001, within 0.001001 of the lowest 1 among 2")
+    assert "ties broken by onboard 3" in reason

@@ -81,6 +81,7 @@ def test_a_converged_warehouse_plan_stops_early_says_so_and_is_reproducible(ware
     first = plan(problem, settings)
     assert first.generations < settings.generations
     assert f"converged after {first.generations} generations" in first.choice_reason
+    assert not first.time_budget_reached  # converged, not cut (issue 35)
     again = plan(problem, settings)
     assert again.generations == first.generations
     assert np.array_equal(np.asarray(again.placement), np.asarray(first.placement))

@@ -31,3 +31,56 @@ def test_lp_relaxation_is_a_lower_bound(tiny: Problem) -> None:
 def test_exact_refuses_large_fleets(tiny: Problem) -> None:
     with pytest.raises(InvalidSpec, match="limited to 3"):
         solve_exact(tiny, max_pairs=3)
+
+
+def test_milp_with_cost_equals_brute_force_on_tiny_fleet(tiny: Problem) -> None:
+    from fogfleet.scheduling.exact import DEFAULT_WEIGHTS
+
+    w = {**DEFAULT_WEIGHTS, "cost": 5.0}
+    best = min(
+        scalarised(tiny, np.array(x), w)
+        for x in itertools.product(
+            *(np.flatnonzero(tiny.allowed[i]) for i in range(tiny.n_instances))
+        )
+        if np.all(constraints(tiny, np.array(x)[None, :], tiny.limits) <= 1e-9)
+    )
+    res = solve_exact(tiny, w)
+    assert scalarised(tiny, res.placement, w) == pytest.approx(best, abs=1e-9)
+
+
+def _edge_or_paid_cloud() -> Problem:
+    """One 1-core instance that meets its cycle on a 4-core edge or a 16-core cloud at 1 per
+    core-hour: the cloud leaves the larger reserve, the edge costs nothing."""
+    from .conftest import make_problem
+
+    return make_problem(
+        tiers=[0, 1, 2],
+        cpu=[2.0, 4.0, 16.0],
+        mem=[4.0, 8.0, 8.0],
+        home=[0],
+        allowed=[[False, True, True]],
+        activation=[1.0],
+        cycle=[1.0],
+        request=[[1.0, 1.0, 1.0]],
+        exe=[[0.1, 0.1, 0.1]],
+        cost=[0.0, 0.0, 1.0],
+    )
+
+
+def test_the_exact_scheduler_weighs_cost_when_the_fleet_lists_it() -> None:
+    """Issue 35: ``exact`` ignored cost. Listed (or weighted), cost is in its sum; the reason
+    names the weights, not an internal constant."""
+    from fogfleet.api.v1alpha1.robotfleet import SchedulerSettings
+    from fogfleet.scheduling.solver import plan
+
+    p = _edge_or_paid_cloud()
+    plain = plan(p, SchedulerSettings(algorithm="exact"))
+    assert plain.placement.tolist() == [2]  # a tie-break weight does not outweigh the reserve
+    listed = SchedulerSettings(
+        algorithm="exact", objectives=["missRate", "missedCycles", "onboard", "reserve", "cost"]
+    )
+    s = plan(p, listed)
+    assert s.placement.tolist() == [1]
+    assert "cost" in s.choice_reason and "DEFAULT_WEIGHTS" not in s.choice_reason
+    weighted = SchedulerSettings(algorithm="exact", weights=[{"objective": "cost", "weight": 2}])
+    assert plan(p, weighted).placement.tolist() == [1]

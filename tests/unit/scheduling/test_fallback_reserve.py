@@ -130,3 +130,41 @@ def test_what_a_lost_link_leaves_of_each_robot() -> None:
     assert cut.miss_rate == pytest.approx(1 / 3, abs=1e-3)
     # nothing offloaded: nothing to lose
     assert disconnected(p, np.array([ROBOT, ROBOT, ROBOT])) == []
+
+
+def test_onboard_does_not_count_the_cpu_a_standby_already_holds() -> None:
+    """F1 (issue 35): module 1's standby holds its core on the robot whatever the plan, so
+    running module 1 there adds nothing to on-board use; module 2 (no fallback) adds its own.
+    The local search's incremental F1 and the exact solver's agree."""
+    from fogfleet.scheduling.objectives import evaluate
+
+    p = _with_fallback(_robot_and_edge(), 1)
+
+    def f1(x: list[int]) -> float:
+        return float(evaluate(p, np.array([x]), p.limits, ("onboard",))["onboard"][0])
+
+    assert f1([ROBOT, ROBOT, EDGE]) == pytest.approx(f1([ROBOT, EDGE, EDGE]))
+    assert f1([ROBOT, EDGE, ROBOT]) > f1([ROBOT, EDGE, EDGE]) + 0.4  # a whole core of 2
+    pp = PlacementProblem(p, ("onboard", "missRate"), with_limits=True)
+    me = MoveEvaluator(pp)
+    fulls = np.array([[ROBOT, EDGE, EDGE], [ROBOT, ROBOT, EDGE]])
+    par, inst, node = me.moves(fulls, me.parents(fulls), 100)
+    vals, _ = me.evaluate(fulls, par, inst, node)
+    kids = me.children(fulls, par, inst, node)
+    np.testing.assert_allclose(vals["onboard"], evaluate(p, kids, p.limits)["onboard"])
+
+
+def test_the_exact_optimum_counts_f1_as_the_evaluation_does() -> None:
+    """The MILP's F1 term leaves out what a standby holds, as ``Evaluation.cpu_onboard``:
+    its optimum is the brute-force minimum of ``scalarised``."""
+    import itertools
+
+    from fogfleet.scheduling.exact import scalarised
+
+    p = _with_fallback(_robot_and_edge(), 1)
+    best = min(
+        scalarised(p, np.array(x))
+        for x in itertools.product(*(np.flatnonzero(p.allowed[i]) for i in range(3)))
+        if np.all(constraints(p, np.array(x)[None, :], p.limits) <= 1e-9)
+    )
+    assert scalarised(p, solve_exact(p).placement) == pytest.approx(best, abs=1e-9)

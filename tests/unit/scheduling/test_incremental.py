@@ -238,11 +238,15 @@ def test_no_room_around_the_others_asks_for_a_full_plan() -> None:
     _, x = _running()
     p = _unchanged_rerun()
     count = np.bincount(x, minlength=p.n_nodes)
-    down = max((j for j in range(p.n_nodes) if p.tier[j] == 1), key=lambda j: count[j])
+    # the busiest edges lose their CPU until more than a tenth of the fleet must move (what
+    # the running plan puts where depends on the planner, so count instead of assuming)
     cap = p.capacity.copy()
-    cap[p.tier == 1, 0] = np.where(
-        np.arange(p.n_nodes)[p.tier == 1] == down, 0.0, cap[p.tier == 1, 0]
-    )
+    lost = 0
+    for j in sorted(np.flatnonzero(p.tier == 1), key=lambda j: -count[j]):
+        if lost > incremental.MAX_AFFECTED_SHARE * p.n_instances:
+            break
+        cap[j, 0] = 0.0
+        lost += int(count[j])
     starved = dataclasses.replace(p, capacity=freeze(cap))
     out = replan(starved, SETTINGS)
     assert out.schedule is None

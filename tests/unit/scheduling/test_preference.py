@@ -77,14 +77,83 @@ def test_a_free_cloud_is_left_for_overflow_when_the_fleet_prefers_robot_and_edge
     assert moved == 0 and np.array_equal(again, kept.placement)
 
 
-def test_polish_never_moves_work_onto_a_robot_and_keeps_the_plan_feasible(tmp_path: Path) -> None:
+def test_polish_moves_work_onto_a_robot_only_its_own_and_keeps_the_plan_feasible(
+    tmp_path: Path,
+) -> None:
     p = _site(tmp_path, price=0.2)
     s = plan(p, SchedulerSettings(seed=2, generations=20, population=30))
     x, _ = polish(p, s.placement, s.objective_names)
     on_board = p.tier[s.placement] == 0
-    assert np.array_equal(x[on_board], s.placement[on_board])
-    assert not (p.tier[x[~on_board]] == 0).any()
+    assert np.array_equal(x[on_board], s.placement[on_board])  # robots cost nothing: they stay
+    to_robot = p.tier[x] == 0
+    assert np.array_equal(x[to_robot], p.home[to_robot])  # never another robot's computer
+    # onto a robot only for a module whose standby holds its CPU there (no wishes here)
+    assert np.all(p.held_at_home[to_robot & ~on_board])
     assert np.all(constraints(p, x[None, :], p.limits) <= 1e-9)
+
+
+def _robot_edge_cloud(*, preferred: list[bool] | None = None, cloud_price: float = 1.0) -> Problem:
+    """A 4-core robot (0), a 4-core edge (1) holding a 3.5-core neighbour of the instance,
+    and a 4-core cloud (2) at ``cloud_price``. Instance 1 (1 core) meets its 1 s cycle alike
+    everywhere (no transfer, no jitter): only the soft rules tell its nodes apart."""
+    from dataclasses import replace
+
+    from .conftest import make_problem
+
+    p = make_problem(
+        tiers=[0, 1, 2],
+        cpu=[4.0, 4.0, 4.0],
+        mem=[8.0, 8.0, 8.0],
+        home=[0, 0],
+        allowed=[[False, True, False], [True, True, True]],
+        activation=[1.0, 1.0],
+        cycle=[1.0, 1.0],
+        request=[[0.0, 3.5, 0.0], [1.0, 1.0, 1.0]],
+        exe=[[0.0, 0.1, 0.0], [0.1, 0.1, 0.1]],
+        cost=[0.0, 0.0, cloud_price],
+    )
+    if preferred is None:
+        return p
+    return replace(p, preferred=np.array([preferred, preferred], dtype=bool))
+
+
+def test_a_paid_cloud_instance_moves_back_to_its_robot() -> None:
+    """Issue 35: preferredTiers [robot, edge], the edge is full, the robot has room, the
+    misses are the same: the move after the choice takes the instance out of the paid cloud
+    and back onto its robot."""
+    p = _robot_edge_cloud(preferred=[True, True, False], cloud_price=1.0)
+    x, moved = polish(p, np.array([1, 2]), ("missRate", "missedCycles", "onboard"))
+    assert moved == 1 and x.tolist() == [1, 0]
+
+
+def test_without_a_wish_for_the_robot_a_cheaper_robot_is_no_target() -> None:
+    """No preference and no standby holding the CPU: on-board use is F1's to weigh, so the
+    polish (a tie-break on cost) does not fill the robot."""
+    p = _robot_edge_cloud(cloud_price=1.0)
+    x, moved = polish(p, np.array([1, 2]), ("missRate", "missedCycles", "onboard"))
+    assert moved == 0 and x.tolist() == [1, 2]
+
+
+def test_a_paid_cloud_instance_whose_standby_holds_its_cpu_moves_back_to_its_robot() -> None:
+    from dataclasses import replace
+
+    p = replace(_robot_edge_cloud(cloud_price=1.0), fallback=np.array([False, True]))
+    x, moved = polish(p, np.array([1, 2]), ("missRate", "missedCycles", "onboard"))
+    assert moved == 1 and x.tolist() == [1, 0]
+
+
+def test_a_fleet_that_prefers_robot_and_edge_leaves_a_free_cloud_for_overflow() -> None:
+    """preferredTiers [robot, edge]: a free cloud is still not where the instance belongs
+    while its robot can host it at the same misses."""
+    p = _robot_edge_cloud(preferred=[True, True, False], cloud_price=0.0)
+    x, moved = polish(p, np.array([1, 2]), ("missRate", "missedCycles", "onboard"))
+    assert moved == 1 and x.tolist() == [1, 0]
+
+
+def test_an_instance_leaves_its_robot_when_its_module_prefers_the_edge_and_cloud() -> None:
+    p = _robot_edge_cloud(preferred=[False, True, True], cloud_price=0.0)
+    x, moved = polish(p, np.array([1, 0]), ("missRate", "missedCycles", "onboard"))
+    assert moved == 1 and x.tolist() == [1, 2]  # the edge is full: the cloud
 
 
 def test_a_fleet_override_of_preferred_tiers_wins_over_the_fleet_default(tmp_path: Path) -> None:

@@ -102,9 +102,11 @@ def test_a_budget_cut_plan_is_reproduced_by_its_generation_count() -> None:
     cut = fleet.spec.scheduler.model_copy(update={"time_budget_millis": 100, "generations": 500})
     first = plan(problem, cut)
     assert first.generations < 500 and "to reproduce this plan" in first.choice_reason
+    assert first.time_budget_reached
     again = fleet.spec.scheduler.model_copy(
         update={"time_budget_millis": 600_000, "generations": first.generations}
     )
     second = plan(problem, again)
     assert second.generations == first.generations
+    assert not second.time_budget_reached  # every generation ran
     assert np.array_equal(np.asarray(first.placement), np.asarray(second.placement))
