@@ -53,6 +53,7 @@ from .preference import polish
 from .problem import PlacementProblem
 from .schedule import Schedule
 from .solver import choose_plan
+from .spread import stacked
 from .stickiness import ABS_TOLERANCE, fill_around, loads, release_overloads
 
 __all__ = [
@@ -225,6 +226,9 @@ def replan(
     sched = finish(problem, "nsga2", x, True, t0, reason)
     if not sched.feasible:
         return Replan(None, n_affected, int(free.sum()), "the incremental plan is infeasible")
+    if stacked(problem, x[None, :]).any():  # the whole-fleet plan spreads them where it can
+        why_full = "the incremental plan stacks a shared module's replicas on one node"
+        return Replan(None, n_affected, int(free.sum()), why_full)
     first = names[0]
     value = sched.objectives.get(first, math.inf)
     margin = settings.migration_margin_percent / 100.0

@@ -74,3 +74,28 @@ def test_a_full_second_node_leaves_the_replicas_together():
 
 def test_per_robot_modules_are_not_bound(tiny):
     assert spread_groups(tiny) == []
+
+
+def test_an_incremental_re_plan_that_would_stack_the_replicas_asks_for_a_whole_plan():
+    """Both replicas run on edge 1 (from before the rule); a change to one of the robot's 12
+    modules re-plans incrementally: the stacked replicas make it ask for the whole fleet."""
+    from fogfleet.scheduling.incremental import replan
+
+    n = 12  # on-board modules: one changed is under the incremental path's 10 %
+    p = make_problem(
+        tiers=[0, 1, 1],
+        cpu=[4.0, 4.0, 4.0],
+        mem=[8.0, 8.0, 8.0],
+        home=[0] * n + [-1, -1],
+        allowed=[[True, False, False]] * n + [[False, True, True]] * 2,
+        activation=[1.0] * (n + 2),
+        cycle=[0.1] * (n + 2),
+        request=[[0.1, 0, 0]] * n + [[0, 1.0, 1.0]] * 2,
+        exe=[[0.01, 0, 0]] * n + [[0, 0.02, 0.06]] * 2,
+    )
+    instances = (*p.instances[:n], Instance("", "det", 0), Instance("", "det", 1))
+    current = np.array([0] * n + [1, 1], dtype=np.int64)
+    problem = dataclasses.replace(p, instances=instances, current=current)
+    out = replan(problem, SchedulerSettings(seed=1, **FAST), changed=[0])
+    assert out.schedule is None
+    assert "stacks a shared module's replicas" in out.reason
