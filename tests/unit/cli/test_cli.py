@@ -427,7 +427,7 @@ def _robot_too_small_to_hold_everything(tmp_path: Path) -> Path:
     assert small != nodes
     (tmp_path / "nodes.yaml").write_text(small)
     (tmp_path / "fleet.yaml").write_text((SOLO / "fleet.yaml").read_text())
-    (tmp_path / "modules.yaml").write_text((WAREHOUSE / "modules.yaml").read_text())
+    (tmp_path / "modules.yaml").write_text((SOLO / "modules.yaml").read_text())
     return tmp_path
 
 
@@ -452,7 +452,7 @@ def test_overall_is_not_a_figure_beside_an_unplaced_module(
 ) -> None:
     """Issue 35: the fleet's rate covers the modules that ran; beside an unplaced module the
     OVERALL row says n/a and how many are unplaced, not 0.00%."""
-    solo = (str(SOLO), str(WAREHOUSE / "modules.yaml"))
+    solo = (str(SOLO),)
     _, out, _ = run(capsys, "plan", *solo, "--scheduler", "onboard", "--json")
     doc = json.loads(out)
     doc["placement"] = [r for r in doc["placement"] if r["module"] != "nav-periphery"]
@@ -475,4 +475,4 @@ def test_render_of_a_degraded_fleet_warns_on_stderr(
     assert code == 0 and "kind: Deployment" in out
     lines = err.strip().splitlines()
     assert len(lines) == 1, err
-    assert lines[0].startswith("DEGRADED warehouse/single-robot: degraded: the nodes are short")
+    assert lines[0].startswith("DEGRADED single-robot/single-robot: degraded: the nodes are short")

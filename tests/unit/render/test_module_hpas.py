@@ -73,11 +73,9 @@ def test_other_backends_and_unplaced_modules_get_no_hpa() -> None:
 
 @pytest.fixture
 def hpa_fleet(tmp_path: Path) -> Path:
-    """The shared-detector fleet (with the warehouse's nodes), its detector on backend hpa."""
+    """The shared-detector fleet (its folder stands alone), its detector on backend hpa."""
     for f in (EXAMPLES / "shared-detector").glob("*.yaml"):
-        if f.name != "twin-scenario.yaml":
-            shutil.copy(f, tmp_path / f.name)
-    shutil.copy(EXAMPLES / "warehouse" / "nodes.yaml", tmp_path / "warehouse-nodes.yaml")
+        shutil.copy(f, tmp_path / f.name)
     modules = tmp_path / "modules.yaml"
     text, n = re.subn(r"  scaling:\n(    .*\n)+", HPA_SCALING, modules.read_text(), count=1)
     assert n == 1
