@@ -48,10 +48,8 @@ def _dry_run(kube: Kube, docs: list[dict[str, Any]], namespace: str) -> tuple[in
 
 def _rendered_hpa_fleet(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> list[Any]:
     """``fogfleet render`` of the shared-detector fleet with its detector on backend hpa."""
-    for f in (EXAMPLES / "shared-detector").glob("*.yaml"):
-        if f.name != "twin-scenario.yaml":
-            shutil.copy(f, tmp_path / f.name)
-    shutil.copy(EXAMPLES / "warehouse" / "nodes.yaml", tmp_path / "warehouse-nodes.yaml")
+    for f in (EXAMPLES / "shared-detector").glob("*.yaml"):  # the folder stands alone
+        shutil.copy(f, tmp_path / f.name)
     modules = tmp_path / "modules.yaml"
     text, n = re.subn(r"  scaling:\n(    .*\n)+", HPA_SCALING, modules.read_text(), count=1)
     assert n == 1
