@@ -22,7 +22,7 @@ from fogfleet.domain.tenancy import Held
 
 from .state import FleetKey, FleetStore
 
-__all__ = ["held_by_others", "held_signature", "pod_requests"]
+__all__ = ["claims_in", "held_by_others", "held_signature", "pod_requests"]
 
 Obj = dict[str, Any]
 Claims = Mapping[str, tuple[float, float]]  # node -> (cpu, memory) a plan requests there
