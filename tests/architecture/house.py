@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import argparse
 import ast
+import configparser
 import importlib
 import json
 import sys
@@ -21,25 +22,23 @@ from collections import Counter
 from pathlib import Path
 from typing import Any
 
-# the layers of .importlinter, top first (a folder's rank: higher is further up)
-LAYERS = [
-    {"cli"},
-    {"operator_main", "benchmarks", "bench"},
-    {"handlers"},
-    {"controllers", "twin"},
-    {"adapters"},
-    {"render"},
-    {"scheduling", "autoscaling", "sim"},
-    {"domain"},
-    {"api", "contract"},
-]
+
+def layers(tree: Path) -> list[set[str]]:
+    """The layers contract of the tree's .importlinter, top first: the folders of each."""
+    config = configparser.ConfigParser()
+    config.read(tree / ".importlinter")
+    lines = config["importlinter:contract:layers"]["layers"].split("\n")
+    return [
+        {m.strip().removeprefix("fogfleet.") for m in line.split("|")} for line in lines if line
+    ]
 
 
-def rank(folder: str) -> int:
-    for i, layer in enumerate(LAYERS):
+def rank(folder: str, order: list[set[str]]) -> int:
+    """A folder's layer, higher further up (0: the package's own top-level modules)."""
+    for i, layer in enumerate(order):
         if folder in layer:
-            return len(LAYERS) - i
-    return 0  # the package's own top-level modules (errors, settings): the bottom
+            return len(order) - i
+    return 0
 
 
 def folder_of(path: Path, package: Path) -> str:
@@ -95,6 +94,7 @@ def trace_reconcile(tree: Path, package: Path) -> dict[str, Any]:
     kube.load_warehouse()
     deps = deps_module.Deps(kube=kube, planner=conftest.CountingPlanner())
     body = kube.get_fleet("warehouse", "warehouse")
+    order = layers(tree)
     places: set[tuple[str, str]] = set()
     crossings: set[tuple[tuple[str, str], tuple[str, str]]] = set()
     climbs = 0
@@ -118,8 +118,8 @@ def trace_reconcile(tree: Path, package: Path) -> dict[str, Any]:
         while caller is not None and where(caller) is None:
             caller = caller.f_back
         if caller is not None:
-            up = rank(folder_of(Path(callee[0]), package))
-            down = rank(folder_of(Path(caller.f_code.co_filename), package))
+            up = rank(folder_of(Path(callee[0]), package), order)
+            down = rank(folder_of(Path(caller.f_code.co_filename), package), order)
             climbs += up > down
             source = where(caller)
             assert source is not None

@@ -14,9 +14,9 @@ from fogfleet.adapters.ports import KubePort, MetricsPort, NullMetrics, Watches
 from fogfleet.adapters.prometheus import PrometheusPort
 from fogfleet.scheduling.decision import CorePlanner, Planner
 
-from .state import FleetKey, FleetStore, fleet_key
+from .state import FleetStore
 
-__all__ = ["Deps", "FleetKey", "ScalingDeps", "ScalingKube", "fleet_key"]
+__all__ = ["Deps", "ScalingDeps", "ScalingKube"]
 
 Obj = dict[str, Any]
 

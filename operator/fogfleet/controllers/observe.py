@@ -44,6 +44,7 @@ __all__ = [
     "parse_fleet",
     "record_references",
     "scaling_pools",
+    "with_held_now",
 ]
 
 Obj = dict[str, Any]
@@ -127,10 +128,10 @@ def observe(deps: Deps, state: FleetState, obj: FleetObject, fleet: RobotFleet) 
     inputs = FleetInputs(
         obj, fleet, [], raw_modules, compute_nodes, nodes, measured, corrections, {}, ()
     )
-    return relisted(deps, state, with_held(deps, state, inputs))
+    return relisted(deps, state, with_held_now(deps, state, inputs))
 
 
-def with_held(deps: Deps, state: FleetState, inputs: FleetInputs) -> FleetInputs:
+def with_held_now(deps: Deps, state: FleetState, inputs: FleetInputs) -> FleetInputs:
     """``inputs`` with what the other tenants hold now (read again under the planning lock,
     so the plan sees every claim recorded before it)."""
     held = held_by_others(state.key, deps.kube.list_node_load(), claims_in(deps.store))

@@ -42,7 +42,7 @@ from .observe import (
     parse_fleet,
     record_references,
     relisted,
-    with_held,
+    with_held_now,
 )
 from .observed import drift_watch
 from .outcome import Outcome
@@ -103,7 +103,7 @@ def _full_pass(
     started = time.monotonic()
     obj, fleet = inputs.obj, inputs.fleet
     with deps.planning:  # one plan at a time, into what the others claimed (tenancy.py)
-        inputs = with_held(deps, state, inputs)
+        inputs = with_held_now(deps, state, inputs)
         parsed = parse(inputs)
         record_references(state, fleet, parsed.wanted)
         # modules with profiling auto are planned once their profiles are known (issue 10)

@@ -21,7 +21,7 @@ from fogfleet.api.labels import LABEL_FLEET, LABEL_INSTANCE
 from fogfleet.errors import FogfleetError
 from fogfleet.render.deployments import hash_annotation, label_value
 
-from .deps import Deps, FleetKey
+from .deps import Deps
 from .links import LinkDeps, measure_links
 from .observed import ObservedDeps, observe, profile_corrections
 from .outcome import Outcome
@@ -29,7 +29,7 @@ from .queue import ReconcileQueue
 from .robotfleet import reconcile
 from .scaling import reconcile_scaling
 from .stamp import node_signature, pools_signature
-from .state import FleetState
+from .state import FleetKey, FleetState
 from .status import pod_ready
 from .usage import reconcile_usage
 

@@ -23,7 +23,7 @@ part. They share this module, never each other. Modelled on the cache of kueue
 from __future__ import annotations
 
 import threading
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -226,7 +226,7 @@ class FleetStore:
                 if k[0] == namespace and s.references is not None and name in s.references.modules
             }
 
-    def _using(self, uses: Any) -> set[FleetKey]:
+    def _using(self, uses: Callable[[References], bool]) -> set[FleetKey]:
         with self._lock:
             return {
                 k

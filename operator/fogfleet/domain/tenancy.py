@@ -8,7 +8,6 @@ the requests of every pod fogfleet does not own (DaemonSets, other teams' pods).
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -19,7 +18,7 @@ from fogfleet.api.v1alpha1.computenode import ComputeNode, NodeResources
 
 from .problem import Problem
 
-__all__ = ["Held", "claims_of", "room_left", "with_held"]
+__all__ = ["Held", "claims_of", "with_held"]
 
 MIN_CPU = 0.001  # a node others fill completely keeps 1m: nothing fits, and the plan says so
 
@@ -66,19 +65,3 @@ def with_held(node: ComputeNode, held: Held | None) -> ComputeNode:
     memory = max(parse_memory(cap.memory) - held.memory, parse_memory(node.spec.reserved.memory))
     left = NodeResources(cpu=format_millicores(cpu), memory=int(memory), gpu=cap.gpu)
     return node.model_copy(update={"spec": node.spec.model_copy(update={"capacity": left})})
-
-
-def room_left(
-    capacity: Mapping[str, float],
-    held: Mapping[str, Held],
-    claims: Mapping[str, tuple[float, float]],
-) -> dict[str, float]:
-    """Node -> CPU cores left after others' holdings and this plan's claims."""
-    return {
-        node: capacity[node] - held.get(node, Held()).cpu - claims.get(node, (0.0, 0.0))[0]
-        for node in capacity
-    }
-
-
-def total(held: Iterable[Held]) -> float:
-    return sum(h.cpu for h in held)
