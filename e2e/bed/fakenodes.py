@@ -9,6 +9,12 @@ from typing import Any
 from e2e.bed.base import NODES_FILE, HarnessError, log, wait_for
 from e2e.bed.cluster import Cluster, running
 
+# Nothing runs on a fake node, so nothing but the pods fogfleet plans (which tolerate the key)
+# may be bound to one: the operator installed as the README says lands on a real node.
+# The key is fogfleet.api.labels.DEDICATED_TAINT_KEY (the harness imports only the standard
+# library; test_harness checks the two agree).
+SIMULATED_TAINT = {"key": "fogfleet.io/dedicated", "value": "simulated", "effect": "NoSchedule"}
+
 
 def node_object(
     name: str, tier: str, hardware: str, cpu: int, memory_gi: int, robot: str | None = None
@@ -32,6 +38,7 @@ def node_object(
             "labels": labels,
             "annotations": {"kwok.x-k8s.io/node": "fake", "node.alpha.kubernetes.io/ttl": "0"},
         },
+        "spec": {"taints": [dict(SIMULATED_TAINT)]},
         "status": {"allocatable": resources, "capacity": dict(resources)},
     }
 
@@ -52,12 +59,17 @@ def generated_nodes(robots: int, edges: int, cloud: int) -> list[dict[str, Any]]
     return out
 
 
+def only_simulated_taint(node: dict[str, Any]) -> bool:
+    """No taint but the bed's own: not NotReady, unreachable or cordoned."""
+    return all(t == SIMULATED_TAINT for t in node.get("spec", {}).get("taints") or [])
+
+
 def _nodes_ready(cluster: Cluster, names: set[str]) -> bool:
     items = cluster.kubectl_json("get", "nodes")["items"]
     ready = set()
     for node in items:
         conds = {c["type"]: c["status"] for c in node.get("status", {}).get("conditions", [])}
-        if conds.get("Ready") == "True" and not node.get("spec", {}).get("taints"):
+        if conds.get("Ready") == "True" and only_simulated_taint(node):
             ready.add(node["metadata"]["name"])
     return names <= ready
 

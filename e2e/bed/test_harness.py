@@ -8,8 +8,11 @@ from pathlib import Path
 import pytest
 
 from e2e.bed import harness
+from e2e.bed.fakenodes import SIMULATED_TAINT
 from e2e.bed.kube import UnsafeKubeconfig, guard_kubeconfig
 from e2e.bed.realnodes import split_manifest
+from fogfleet.api.labels import DEDICATED_TAINT_KEY
+from fogfleet.render.ros import PLANNED_TOLERATION
 
 
 def _kubeconfig(path: Path, *servers: str) -> Path:
@@ -89,7 +92,10 @@ def test_generated_nodes_label_like_nodes_yaml() -> None:
         assert node["metadata"]["labels"] == fixed[name]["metadata"]["labels"], name
         assert node["status"] == fixed[name]["status"], name
     assert set(fixed) - set(generated) == {"solo-robot", "solo-edge"}
-    assert all(not d.get("spec", {}).get("taints") for d in fixed.values())
+    # every fake node takes only the pods fogfleet plans, under the key those pods tolerate
+    assert all(d["spec"]["taints"] == [SIMULATED_TAINT] for d in fixed.values())
+    assert all(n["spec"]["taints"] == [SIMULATED_TAINT] for n in generated.values())
+    assert SIMULATED_TAINT["key"] == DEDICATED_TAINT_KEY == PLANNED_TOLERATION["key"]
     assert all(d["metadata"]["annotations"]["kwok.x-k8s.io/node"] == "fake" for d in fake)
 
 

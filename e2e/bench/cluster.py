@@ -59,6 +59,7 @@ import numpy as np  # noqa: E402
 
 from e2e.bed import harness  # noqa: E402
 from e2e.bed.cpu_meter import CpuMeter  # noqa: E402
+from e2e.bed.fakenodes import only_simulated_taint  # noqa: E402
 from e2e.bed.kube import Kube, guard_kubeconfig  # noqa: E402
 from e2e.bed.operator_fixtures import CRDS, Operator, example_docs, of_kind  # noqa: E402
 from fogfleet.api.labels import LABEL_COMPONENT  # noqa: E402
@@ -568,7 +569,7 @@ def setup_cluster(kube: Kube, specs: Sequence[FleetSpec]) -> None:
                 c["type"] == "Ready" and c["status"] == "True"
                 for c in n.get("status", {}).get("conditions", [])
             )
-            and not n.get("spec", {}).get("taints")
+            and only_simulated_taint(n)
         }
         return names <= ok
 

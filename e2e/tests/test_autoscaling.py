@@ -36,6 +36,7 @@ from e2e.bed.operator_fixtures import (
 from fogfleet.adapters.kube import KubeClient, load_config
 from fogfleet.adapters.prometheus import PrometheusClient
 from fogfleet.controllers.scaling import ScalingDeps, reconcile_scaling
+from fogfleet.render.ros import PLANNED_TOLERATION
 from fogfleet.twin.app import Twin
 
 pytestmark = [pytest.mark.e2e, pytest.mark.timeout(300)]  # ticks are slower on a loaded 2-core bed
@@ -121,6 +122,7 @@ class Rig:
                             "metadata": {"labels": labels},
                             "spec": {
                                 "nodeSelector": {"fogfleet.io/tier": tier},
+                                "tolerations": [PLANNED_TOLERATION],
                                 "containers": [{"name": "detector", "image": "detector:e2e"}],
                                 "enableServiceLinks": False,
                             },

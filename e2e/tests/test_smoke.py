@@ -18,8 +18,10 @@ from typing import Any
 
 import pytest
 
+from e2e.bed.fakenodes import SIMULATED_TAINT, only_simulated_taint
 from e2e.bed.harness import Cluster
 from e2e.bed.kube import Kube
+from fogfleet.render.ros import PLANNED_TOLERATION
 
 pytestmark = [pytest.mark.e2e, pytest.mark.timeout(300)]
 
@@ -31,7 +33,7 @@ def _ready_nodes(kube: Kube, selector: str) -> list[str]:
     names = []
     for node in items:
         conds = {c["type"]: c["status"] for c in node["status"].get("conditions", [])}
-        if conds.get("Ready") == "True" and not node["spec"].get("taints"):
+        if conds.get("Ready") == "True" and only_simulated_taint(node):
             names.append(node["metadata"]["name"])
     return sorted(names)
 
@@ -64,6 +66,7 @@ def _deployment(name: str, replicas: int, hostname: str) -> dict[str, Any]:
                             }
                         }
                     },
+                    "tolerations": [PLANNED_TOLERATION],  # fake nodes take planned pods only
                     "containers": [
                         {
                             "name": "main",
@@ -359,7 +362,7 @@ def test_prometheus_scrapes_a_target_added_through_file_sd(cluster: Cluster) -> 
 def _ready_status(kube: Kube, node: str) -> tuple[str, set[str]]:
     obj = kube.kubectl_json("get", "node", node)
     conds = {c["type"]: c["status"] for c in obj["status"].get("conditions", [])}
-    taints = {t["key"] for t in obj["spec"].get("taints") or []}
+    taints = {t["key"] for t in obj["spec"].get("taints") or [] if t != SIMULATED_TAINT}
     return conds.get("Ready", "?"), taints
 
 

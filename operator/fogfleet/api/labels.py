@@ -15,6 +15,7 @@ __all__ = [
     "ANNOTATION_SCALER_STATE",
     "ANNOTATION_SPEC_HASH",
     "COMPONENT_PROFILING",
+    "DEDICATED_TAINT_KEY",
     "HOSTNAME_KEY",
     "LABEL_COMPONENT",
     "LABEL_FLEET",
@@ -37,6 +38,10 @@ LABEL_MANAGED_BY = "app.kubernetes.io/managed-by"
 LABEL_PART_OF = "app.kubernetes.io/part-of"
 LABEL_COMPONENT = "app.kubernetes.io/component"
 LABEL_FLEET = "fogfleet.io/fleet"
+DEDICATED_TAINT_KEY = "fogfleet.io/dedicated"
+"""Taint key of nodes kept for the pods fogfleet plans (robot computers, fleet edge servers):
+``kubectl taint node robot-1 fogfleet.io/dedicated=robot:NoSchedule`` keeps every other
+workload, the operator included, off the node; every pod fogfleet renders tolerates it."""
 LABEL_ROBOT = "fogfleet.io/robot"
 LABEL_MODULE = "fogfleet.io/module"
 LABEL_TIER = "fogfleet.io/tier"

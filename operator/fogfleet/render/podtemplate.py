@@ -16,7 +16,7 @@ from fogfleet.api.v1alpha1.base import FogModel
 from fogfleet.api.v1alpha1.podtemplate import ContainerBase, Probe, SecurityContext, Sidecar
 from fogfleet.api.v1alpha1.softwaremodule import SoftwareModule
 from fogfleet.api.v1alpha1.template import ContainerTemplate
-from fogfleet.render.ros import pod_security
+from fogfleet.render.ros import PLANNED_TOLERATION, pod_security
 
 __all__ = ["TMP_VOLUME", "module_pod_spec", "scrape_port"]
 
@@ -169,6 +169,6 @@ def module_pod_spec(
         spec["serviceAccountName"] = tpl.service_account_name
     if tpl.image_pull_secrets:
         spec["imagePullSecrets"] = [r.wire() for r in tpl.image_pull_secrets]
-    if tpl.tolerations:
-        spec["tolerations"] = [t.wire() for t in tpl.tolerations]
+    own = [t.wire() for t in tpl.tolerations]
+    spec["tolerations"] = own + ([] if PLANNED_TOLERATION in own else [dict(PLANNED_TOLERATION)])
     return spec

@@ -20,7 +20,7 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
-from fogfleet.api.labels import LABEL_COMPONENT, LABEL_ROBOT
+from fogfleet.api.labels import DEDICATED_TAINT_KEY, LABEL_COMPONENT, LABEL_ROBOT
 from fogfleet.api.names import dns_label, label_value
 from fogfleet.api.v1alpha1.fallback import Fallback
 from fogfleet.api.v1alpha1.robotfleet import RosSettings
@@ -43,6 +43,7 @@ from fogfleet.domain.pairs import rows_for
 __all__ = [
     "COMPONENT_DISCOVERY",
     "METRICS_PORT",
+    "PLANNED_TOLERATION",
     "ROBOT_TOLERATIONS",
     "RosWiring",
     "discovery_servers",
@@ -70,6 +71,15 @@ ROBOT_TOLERATIONS: tuple[dict[str, str], ...] = (
     {"key": "node.kubernetes.io/unreachable", "operator": "Exists", "effect": "NoExecute"},
     {"key": "node.kubernetes.io/not-ready", "operator": "Exists", "effect": "NoExecute"},
 )
+
+
+# fogfleet chose the node of every pod it renders, so each tolerates the taint that keeps a
+# node for planned pods only (``api.labels.DEDICATED_TAINT_KEY``).
+PLANNED_TOLERATION: dict[str, str] = {
+    "key": DEDICATED_TAINT_KEY,
+    "operator": "Exists",
+    "effect": "NoSchedule",
+}
 
 
 def stay_on_robot(pod_spec: dict[str, Any]) -> dict[str, Any]:
@@ -321,7 +331,7 @@ def render_discovery(
                     "securityContext": pod_sc,
                     "containers": [container],
                     "volumes": [{"name": "tmp", "emptyDir": {"sizeLimit": "16Mi"}}],
-                    "tolerations": [dict(t) for t in ROBOT_TOLERATIONS],
+                    "tolerations": [dict(PLANNED_TOLERATION), *map(dict, ROBOT_TOLERATIONS)],
                 },
             },
         },

@@ -267,6 +267,7 @@ def test_every_robot_gets_a_discovery_server_on_its_own_node_and_its_modules_use
         # it stays on its robot while the robot is cut off (no eviction)
         tolerated = {t["key"] for t in dep["spec"]["template"]["spec"]["tolerations"]}
         assert {"node.kubernetes.io/unreachable", "node.kubernetes.io/not-ready"} <= tolerated
+        assert "fogfleet.io/dedicated" in tolerated  # the bed taints the nodes it simulates
     ips = {k[1]: s["spec"]["clusterIP"] for k, s in kube.services.items()}
     # each Service selects its own robot's server pod, never another robot's
     for (_, name), svc in kube.services.items():

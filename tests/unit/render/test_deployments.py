@@ -263,3 +263,14 @@ def test_a_planned_pod_plays_the_rows_it_was_planned_with_on_a_faster_node(catal
         assert spec.row.std_s == pytest.approx(problem.limits.exe_std[i, j], rel=1e-6, abs=1e-9)
         checked += 1
     assert checked == int((placed >= 0).sum())
+
+
+def test_every_rendered_pod_tolerates_the_taint_of_nodes_kept_for_planned_pods(catalog, problem):
+    """A node tainted ``fogfleet.io/dedicated:NoSchedule`` takes only the pods fogfleet
+    rendered: planned instances on every tier, the baseline's, and no other workload."""
+    x = np.array([int(np.flatnonzero(row)[-1]) for row in problem.allowed])
+    planned = render_fleet(problem, modules(catalog), x)
+    baseline = render_fleet(problem, modules(catalog), None, baseline=True)
+    for dep in [*planned, *baseline]:
+        tol = dep["spec"]["template"]["spec"]["tolerations"]
+        assert {"key": "fogfleet.io/dedicated", "operator": "Exists", "effect": "NoSchedule"} in tol

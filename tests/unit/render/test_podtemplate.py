@@ -16,7 +16,7 @@ from fogfleet.api.v1alpha1.base import parse_cpu
 from fogfleet.api.v1alpha1.softwaremodule import SoftwareModule
 from fogfleet.domain.build import build_problem
 from fogfleet.render.deployments import render_fleet
-from fogfleet.render.ros import ROBOT_TOLERATIONS
+from fogfleet.render.ros import PLANNED_TOLERATION, ROBOT_TOLERATIONS
 
 EXAMPLES = Path(__file__).resolve().parents[3] / "manifests" / "examples"
 
@@ -100,8 +100,9 @@ def test_a_module_that_says_nothing_gets_the_restricted_defaults() -> None:
     assert sc["seccompProfile"] == {"type": "RuntimeDefault"}
     assert spec["automountServiceAccountToken"] is False
     assert "imagePullSecrets" not in spec
-    # placed on a robot: only the tolerations that keep it there while the robot is cut off
-    assert spec["tolerations"] == [dict(t) for t in ROBOT_TOLERATIONS]
+    # placed on a robot: the taint of nodes kept for planned pods, and the tolerations that keep
+    # it there while the robot is cut off
+    assert spec["tolerations"] == [PLANNED_TOLERATION, *map(dict, ROBOT_TOLERATIONS)]
     assert "livenessProbe" not in main  # no metricsPort: nothing to probe
 
 
