@@ -12,10 +12,12 @@ import socket
 import ssl
 import subprocess
 import sys
+import threading
 import time
 import urllib.request
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from pathlib import Path
+from typing import TextIO
 
 HERE = Path(__file__).resolve().parent
 REPO_ROOT = HERE.parent.parent
@@ -57,6 +59,11 @@ def load_versions(path: Path = VERSIONS_FILE) -> dict[str, str]:
     return versions
 
 
+# A command that runs longer than this says so, again every PROGRESS_SECONDS: the step, the time
+# it has taken and its last line of output (a Go build's package, apt's package, buildah's step).
+PROGRESS_SECONDS = 20.0
+
+
 def run(
     cmd: Sequence[str | os.PathLike[str]],
     *,
@@ -66,32 +73,63 @@ def run(
     timeout: float | None = None,
     hint: str = "",
 ) -> str:
-    """Run a command, return stdout+stderr; on failure raise HarnessError with the output tail."""
+    """Run a command, return stdout+stderr; on failure raise HarnessError with the output tail.
+
+    The output goes to ``log_file`` line by line as the command writes it (``tail -f`` works
+    during a build), and a command still running after ``PROGRESS_SECONDS`` logs a progress
+    line that often, so no step of a build is silent for longer.
+    """
     argv = [str(c) for c in cmd]
+    step = " ".join(Path(argv[0]).name if i == 0 else a for i, a in enumerate(argv[:3]))
     try:
-        proc = subprocess.run(
+        proc = subprocess.Popen(
             argv,
             cwd=cwd,
             env=dict(env) if env is not None else None,
             stdout=subprocess.PIPE,
             stderr=subprocess.STDOUT,
             text=True,
-            timeout=timeout,
-            check=False,
+            errors="replace",
         )
     except FileNotFoundError as exc:
         raise HarnessError(f"command not found: {argv[0]} {hint}".strip()) from exc
-    except subprocess.TimeoutExpired as exc:
-        raise HarnessError(f"timed out after {timeout}s: {' '.join(argv)}") from exc
-    if log_file is not None:
-        with log_file.open("a") as fh:
-            fh.write(f"$ {' '.join(argv)}\n{proc.stdout}\n")
-    if proc.returncode != 0:
-        tail = "\n".join(proc.stdout.splitlines()[-40:])
+    lines: list[str] = []
+    with contextlib.ExitStack() as stack:
+        sink = stack.enter_context(log_file.open("a")) if log_file is not None else None
+        if sink is not None:
+            sink.write(f"$ {' '.join(argv)}\n")
+            sink.flush()
+        pump = threading.Thread(target=_pump, args=(proc, lines, sink), daemon=True)
+        pump.start()
+        t0 = time.monotonic()
+        while pump.is_alive():
+            pump.join(PROGRESS_SECONDS)
+            elapsed = time.monotonic() - t0
+            if timeout is not None and elapsed > timeout:
+                proc.kill()  # our child, by its pid
+                proc.wait()
+                raise HarnessError(f"timed out after {timeout}s: {' '.join(argv)}")
+            if pump.is_alive():
+                last = lines[-1].strip()[:120] if lines else "(no output yet)"
+                log(f"... {step}: {elapsed:.0f}s so far; last output: {last}")
+        returncode = proc.wait()
+    out = "".join(lines)
+    if returncode != 0:
+        tail = "\n".join(out.splitlines()[-40:])
         raise HarnessError(
-            f"command failed (exit {proc.returncode}): {' '.join(argv)}\n{tail}\n{hint}".rstrip()
+            f"command failed (exit {returncode}): {' '.join(argv)}\n{tail}\n{hint}".rstrip()
         )
-    return proc.stdout
+    return out
+
+
+def _pump(proc: subprocess.Popen[str], lines: list[str], sink: TextIO | None) -> None:
+    """Read the command's output as it comes: keep it, and write it through to the log."""
+    assert proc.stdout is not None
+    for line in proc.stdout:
+        lines.append(line)
+        if sink is not None:
+            sink.write(line)
+            sink.flush()
 
 
 @contextlib.contextmanager
@@ -107,15 +145,21 @@ def locked() -> Iterator[None]:
 
 
 def wait_for(what: str, check: Callable[[], bool], timeout: float, interval: float = 0.5) -> None:
-    deadline = time.monotonic() + timeout
+    """Poll ``check`` until it holds; a wait longer than ``PROGRESS_SECONDS`` says so that often."""
+    t0 = time.monotonic()
+    deadline, report = t0 + timeout, t0 + PROGRESS_SECONDS
     while True:
         try:
             if check():
                 return
         except Exception:  # a probe that raises counts as "not yet"
             pass
-        if time.monotonic() > deadline:
+        now = time.monotonic()
+        if now > deadline:
             raise HarnessError(f"timed out after {timeout:.0f}s waiting for {what}")
+        if now > report:
+            log(f"... waiting for {what}: {now - t0:.0f}s of at most {timeout:.0f}s")
+            report = now + PROGRESS_SECONDS
         time.sleep(interval)
 
 

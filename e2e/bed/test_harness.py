@@ -188,3 +188,26 @@ def test_pod_discovery_lists_the_real_nodes_pods_from_the_watch_cache() -> None:
     assert all(urlsplit(u).path == "/api/v1/pods" for u in urls)
     (everything,) = list_urls("https://127.0.0.1:6443", [])
     assert parse_qs(urlsplit(everything).query)["fieldSelector"] == ["status.phase=Running"]
+
+
+def test_a_long_command_logs_progress_and_writes_its_log_as_it_goes(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from e2e.bed import base
+
+    monkeypatch.setattr(base, "PROGRESS_SECONDS", 0.1)
+    log_file = tmp_path / "build.log"
+    script = f"echo compiling k8s.io/api; sleep 0.35; head -n 2 {log_file} >&2; echo done"
+    out = base.run(["sh", "-c", script], log_file=log_file)
+    # the log already held the first line while the command still ran (it printed it back)
+    assert out.splitlines().count("compiling k8s.io/api") == 2 and out.endswith("done\n")
+    progress = [line for line in capsys.readouterr().err.splitlines() if "so far" in line]
+    assert len(progress) >= 2
+    assert "last output: compiling k8s.io/api" in progress[0]
+
+
+def test_a_failing_command_names_itself_and_its_output(tmp_path: Path) -> None:
+    from e2e.bed import base
+
+    with pytest.raises(harness.HarnessError, match=r"exit 3.*\n.*broken"):
+        base.run(["sh", "-c", "echo broken; exit 3"])

@@ -224,6 +224,7 @@ def _build_k8s(tool: Tool, v: Mapping[str, str], go: GoToolchain, blog: Path) ->
     log("k8s: go build kube-apiserver kube-controller-manager kube-scheduler kubectl")
     go(
         "build",
+        "-v",  # each package as it is compiled: the log and the progress lines name it
         "-trimpath",
         "-ldflags",
         " ".join(ldflags),
@@ -245,6 +246,7 @@ def _build_etcd(tool: Tool, v: Mapping[str, str], go: GoToolchain, blog: Path) -
     go("get", "-tool", f"go.etcd.io/etcd/server/v3@v{v['ETCD_VERSION']}", cwd=src, log_file=blog)
     go(
         "build",
+        "-v",  # each package as it is compiled: the log and the progress lines name it
         "-trimpath",
         "-ldflags",
         "-s -w",
@@ -261,6 +263,7 @@ def _build_kwok(tool: Tool, v: Mapping[str, str], go: GoToolchain, blog: Path) -
     (tool.root / "bin").mkdir(parents=True, exist_ok=True)
     go(
         "install",
+        "-v",
         f"sigs.k8s.io/kwok/cmd/kwok@v{kw}",
         log_file=blog,
         extra_env={"GOBIN": str(tool.root / "bin")},
@@ -284,6 +287,7 @@ def _build_helm(tool: Tool, v: Mapping[str, str], go: GoToolchain, blog: Path) -
     (tool.root / "bin").mkdir(parents=True, exist_ok=True)
     go(
         "install",
+        "-v",
         "-trimpath",
         "-ldflags",
         " ".join(ldflags),
