@@ -34,7 +34,11 @@ unit: venv ## Unit tests: the fast tier, each under 1 s (no cluster, no processe
 integration: venv ## Integration tests: rclpy workload processes, the operator under KopfRunner on a fake API, tests over 1 s
 	$(BIN)/pytest tests -q -m integration
 
-test: venv lint crds-check docs-check cluster-tools unit integration chart-lint checkov images e2e ## Everything CI runs: lint, CRD drift, docs check, unit and integration tests, chart lint, checkov, e2e on the local bed (real and kwok nodes)
+test: venv lint crds-check docs-check cluster-tools unit integration chart-lint checkov images ## Everything CI runs: lint, CRD drift, docs check, unit and integration tests, chart lint, checkov, e2e on the local bed (real and kwok nodes); stops the bed after (KEEP_BED=1 keeps it)
+	@status=0; $(MAKE) --no-print-directory e2e || status=$$?; \
+	if [ "$(KEEP_BED)" = 1 ]; then echo "KEEP_BED=1: the bed keeps running (make cluster-down stops it)"; \
+	else $(BIN)/python e2e/bed/harness.py down || status=1; fi; \
+	exit $$status
 
 crds: venv ## Write the CRD YAML in crds/ from the pydantic models
 	$(BIN)/fogfleet crds --out crds
@@ -62,8 +66,9 @@ cluster-status: venv ## Show the local control plane's processes and health
 
 # The tools and images are built (or found in ~/.cache/fogfleet) before pytest starts: a fresh
 # machine's first build takes many minutes, more than any test's timeout.
-e2e: venv cluster-tools images ## End-to-end tests on the local control plane (started if not running)
-	$(BIN)/pytest e2e -q --with-e2e
+e2e: venv cluster-tools images ## End-to-end tests on the local bed (started if not running; a demo left on it is removed first), each test named as it runs
+	$(BIN)/python e2e/demo.py remove
+	$(BIN)/pytest e2e -v --durations=25 --with-e2e
 
 e2e-k3d: venv ## The same e2e suite on a k3d cluster (needs Docker; not run on the dev machines)
 	bash e2e/bed/k3d/run.sh
@@ -107,10 +112,13 @@ bench-real: venv cluster-tools images ## The paper's real experiment on the pape
 bench-real-report: venv ## Tables, docs/benchmarks/real-nodes.md and its plot from bench-real.json
 	$(BIN)/python -m e2e.bench.real.report --json bench-real.json --docs docs/benchmarks/real-nodes.md --plot docs/benchmarks/real-nodes-perception.svg
 
-demo: venv ## Plan + simulate the warehouse fleet, then run it on the local control plane (operator, real kube-scheduler)
+demo: venv cluster-tools images ## Plan + simulate the warehouse fleet, then leave it running on the local bed with the operator installed in-cluster by Helm; prints what to type next
 	$(BIN)/fogfleet plan manifests/examples/warehouse
 	$(BIN)/fogfleet simulate manifests/examples/warehouse --scheduler all --all-active
 	$(BIN)/python e2e/demo.py
+
+kubectl: venv ## kubectl on the local bed: make kubectl ARGS="get robotfleets -A"
+	@$(BIN)/python e2e/bed/harness.py kubectl $(ARGS)
 
 demo-offline: venv ## Only plan + simulate the warehouse fleet (no cluster, a few seconds)
 	$(BIN)/fogfleet plan manifests/examples/warehouse

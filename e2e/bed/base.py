@@ -80,7 +80,8 @@ def run(
     line that often, so no step of a build is silent for longer.
     """
     argv = [str(c) for c in cmd]
-    step = " ".join(Path(argv[0]).name if i == 0 else a for i, a in enumerate(argv[:3]))
+    verb = next((a for a in argv[1:] if not a.startswith("-") and "/" not in a), "")
+    step = f"{Path(argv[0]).name} {verb}".strip()  # "go build", "buildah bud", "apt-get install"
     try:
         proc = subprocess.Popen(
             argv,

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import json
 from pathlib import Path
 
@@ -203,7 +204,7 @@ def test_a_long_command_logs_progress_and_writes_its_log_as_it_goes(
     assert out.splitlines().count("compiling k8s.io/api") == 2 and out.endswith("done\n")
     progress = [line for line in capsys.readouterr().err.splitlines() if "so far" in line]
     assert len(progress) >= 2
-    assert "last output: compiling k8s.io/api" in progress[0]
+    assert "sh: " in progress[0] and "last output: compiling k8s.io/api" in progress[0]
 
 
 def test_a_failing_command_names_itself_and_its_output(tmp_path: Path) -> None:
@@ -211,3 +212,32 @@ def test_a_failing_command_names_itself_and_its_output(tmp_path: Path) -> None:
 
     with pytest.raises(harness.HarnessError, match=r"exit 3.*\n.*broken"):
         base.run(["sh", "-c", "echo broken; exit 3"])
+
+
+def test_down_exits_1_and_names_what_it_could_not_remove(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A cgroup2 tree with something inside that rmdir cannot remove (a busy cgroup on a real
+    host; here a file) is left behind on purpose: `down` must say so and exit 1, not 0."""
+    from e2e.bed import bed, bednet, cgroups
+
+    v1, v2 = tmp_path / "cpu", tmp_path / "unified"
+    planted = v2 / cgroups.TOP / "kubepods" / "pod-1"
+    planted.mkdir(parents=True)
+    (planted / "cgroup.procs").write_text("")  # rmdir of a non-empty directory fails
+    (v1 / cgroups.TOP / "bed-robot-1").mkdir(parents=True)  # removable: down removes it
+    mounts = {"cgroup": [v1], "cgroup2": [v2]}
+    monkeypatch.setattr(cgroups, "_mounted", lambda fstype: mounts[fstype])
+    monkeypatch.setattr(bed, "STATE_DIR", tmp_path / "no-state")
+    monkeypatch.setattr(bednet, "teardown", lambda: None)  # the host's links are not ours here
+    monkeypatch.setattr(bed, "locked", contextlib.nullcontext)
+
+    assert bed.down() == 1
+    err = capsys.readouterr().err
+    assert f"left behind: cgroup {v2 / cgroups.TOP}" in err
+    assert not (v1 / cgroups.TOP).exists()  # what it could remove, it removed
+    assert str(v1 / cgroups.TOP) not in err
+
+    (planted / "cgroup.procs").unlink()
+    assert bed.down() == 0 or "cgroup" not in capsys.readouterr().err  # host links may remain
+    assert not (v2 / cgroups.TOP).exists()
