@@ -86,7 +86,8 @@ def show(kube: Kube, fleet: dict, elapsed: float) -> None:
     print(kube.kubectl("get", "robotfleets", "-n", NAMESPACE).stdout)
     status = fleet["status"]
     pods = kube.kubectl_json("get", "pods", "-n", NAMESPACE)["items"]
-    bound = Counter(p["spec"].get("nodeName") for p in pods if p["status"].get("phase") == "Running")
+    running_on = [p["spec"].get("nodeName") for p in pods if p["status"].get("phase") == "Running"]
+    bound = Counter(running_on)
     print(f"{'ROBOT':9} {'MODULE':24} {'NODE':9} {'TIER':6} CPU")
     for row in status["placement"]:
         print(f"{row['robot']:9} {row['module']:24} {row['node']:9} {row['tier']:6} {row['cpu']}")
@@ -110,7 +111,7 @@ running. In your own shell:
 
   export KUBECONFIG={cluster.kubeconfig}
   export PATH={cluster.bin_dir}:$PATH             # the bed's kubectl and helm
-  kubectl get robotfleets -A                      # or, without the exports: make kubectl ARGS="get robotfleets -A"
+  kubectl get robotfleets -A                      # without the exports: make kubectl ARGS="..."
   kubectl get robotfleets -n {NAMESPACE} -w            # watch the fleet
   kubectl describe robotfleet warehouse -n {NAMESPACE}  # conditions, choiceReason, Events
   kubectl get computenodes                        # what each node holds
@@ -119,7 +120,8 @@ running. In your own shell:
 Run a fleet on the bed's real nodes (real containers, real ROS 2 traffic) and cut a robot's link:
   kubectl apply -f manifests/examples/warehouse-lite/
   kubectl get robotfleets -n warehouse-lite -w
-  kubectl logs -n warehouse-lite -l app.kubernetes.io/managed-by=fogfleet --prefix --tail=1 --max-log-requests=20
+  kubectl logs -n warehouse-lite -l app.kubernetes.io/managed-by=fogfleet --prefix --tail=1 \\
+      --max-log-requests=20                       # each module logs a line every 10 s
   {harness} link {robot} --loss 100%     # the robot's standby modules take over
   kubectl logs -n warehouse-lite -l app.kubernetes.io/component=fallback-standby
   {harness} link {robot} --reset
