@@ -122,9 +122,10 @@ Run a fleet on the bed's real nodes (real containers, real ROS 2 traffic) and cu
   kubectl get robotfleets -n warehouse-lite -w
   kubectl logs -n warehouse-lite -l app.kubernetes.io/managed-by=fogfleet --prefix --tail=1 \\
       --max-log-requests=20                       # each module logs a line every 10 s
-  {harness} link {robot} --loss 100%     # the robot's standby modules take over
-  kubectl logs -n warehouse-lite -l app.kubernetes.io/component=fallback-standby
+  {harness} link {robot} --loss 100%     # cut the robot off the edge
+  kubectl logs -n warehouse-lite -l fogfleet.io/robot={robot} --prefix --tail=1  # messages stop
   {harness} link {robot} --reset
+(With a fallback in the fleet's spec, the robot's standbys take over: docs/ros2.md.)
 
 Every example applies on its own: kubectl apply -f manifests/examples/<name>/
 Stop everything: make cluster-down (it says what, if anything, it could not remove)
