@@ -26,6 +26,7 @@ import argparse
 import functools
 import os
 import re
+import shlex
 import subprocess
 import sys
 from collections.abc import Callable, Iterable, Iterator
@@ -257,7 +258,10 @@ def _commands(snip: Snippet) -> Iterator[list[str]]:
     if snip.block:
         text = re.sub(r"(^|\s)#.*$", "", text)
     for part in SEPARATORS.split(text):
-        tokens = part.split()
+        try:
+            tokens = shlex.split(part)  # make kubectl ARGS="get robotfleets -A": one argument
+        except ValueError:  # an unbalanced quote in prose-like code
+            tokens = part.split()
         while tokens and (tokens[0] in {"$", "sudo", "env"} or ASSIGNMENT.match(tokens[0])):
             tokens.pop(0)
         if tokens:
