@@ -97,6 +97,9 @@ def test_the_demo_leaves_the_warehouse_ready_with_an_in_cluster_operator_and_a_s
             [sys.executable, str(ROOT / "e2e" / "demo.py"), "remove"],
             cwd=ROOT, timeout=300, check=False,
         )  # fmt: skip
+        for ns in ("warehouse", "single-robot"):  # the next test applies single-robot again
+            kube.kubectl("wait", "--for=delete", f"namespace/{ns}", "--timeout=240s",
+                         check=False, timeout=260)  # fmt: skip
 
 
 def test_the_readme_install_puts_the_operator_on_a_real_node_and_it_runs_a_fleet(
