@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import json
 import subprocess
+import sys
 import time
 import urllib.parse
 from collections.abc import Callable
@@ -20,6 +21,7 @@ from typing import Any
 import yaml
 
 from e2e.bed import harness
+from e2e.bed.base import PROGRESS_SECONDS
 
 __all__ = ["Kube", "UnsafeKubeconfig", "guard_kubeconfig"]
 
@@ -146,8 +148,17 @@ class Kube:
     def wait_for(
         self, what: str, check: Callable[[], bool], timeout: float = 60, interval: float = 0.5
     ) -> None:
-        deadline = time.monotonic() + timeout
+        """Poll until ``check`` holds. A wait past ``PROGRESS_SECONDS`` says so on the terminal
+        (``sys.__stderr__``: pytest captures the test's own output), so a long e2e test is
+        never silent for long."""
+        t0 = time.monotonic()
+        deadline, report = t0 + timeout, t0 + PROGRESS_SECONDS
         while not check():
-            if time.monotonic() > deadline:
+            now = time.monotonic()
+            if now > deadline:
                 raise AssertionError(f"timed out after {timeout:.0f}s waiting for {what}")
+            if now > report and sys.__stderr__ is not None:
+                print(f"\n    ... waiting for {what}: {now - t0:.0f}s of at most {timeout:.0f}s",
+                      end="", file=sys.__stderr__, flush=True)  # fmt: skip
+                report = now + PROGRESS_SECONDS
             time.sleep(interval)
