@@ -1,4 +1,4 @@
-"""The ``fogfleet`` command: validate, plan, simulate and render fleets from CR YAML; generate
+"""The ``fogfleet`` command: validate, plan, explain, simulate and render fleets from CR YAML; generate
 CRDs; run the operator; run the benchmarks.
 
 Exit codes: 0 ok, 1 unexpected failure, 2 bad input (the message names object, field, reason)
@@ -18,6 +18,7 @@ from typing import Any
 from fogfleet.errors import FogfleetError, InvalidSpec
 
 from .common import AUTOSCALING_FIRST_SEED, SCHEDULERS
+from .explain import cmd_explain
 from .planning import cmd_plan, cmd_simulate
 from .render import cmd_crds, cmd_render
 from .validate import cmd_validate
@@ -164,6 +165,16 @@ def _parser() -> argparse.ArgumentParser:
     )
     sp.add_argument("--json", action="store_true")
     sp.set_defaults(func=cmd_simulate)
+
+    sp = sub.add_parser(
+        "explain", help="why each instance of a module runs where the plan puts it, not elsewhere"
+    )
+    fleet_args(sp, SCHEDULERS)
+    sp.add_argument("--module", required=True, help="the SoftwareModule to explain")
+    sp.add_argument("--robot", help="only this robot's instance")
+    sp.add_argument("--limit", type=int, default=50, help="instances explained at most (50)")
+    sp.add_argument("-o", "--output", choices=("table", "json", "yaml"), default="table")
+    sp.set_defaults(func=cmd_explain)
 
     sp = sub.add_parser("render", help="print the Deployments the operator would apply")
     fleet_args(sp, SCHEDULERS)
