@@ -53,6 +53,13 @@ def cmd_bench(args: argparse.Namespace) -> int:
         result: Any = results
         shown: Any = results[seeds[0]] if len(seeds) == 1 else results
         table = abench.format_table(results)
+    elif args.suite == "why":
+        from fogfleet.bench.scheduling import format_table
+        from fogfleet.bench.why import why_rows
+
+        sizes = tuple(int(n) for n in args.robots.split(","))
+        result = shown = why_rows(sizes, runs=args.runs, seed=args.seed or 1)
+        table = format_table(result)
     elif args.suite == "replan":
         from fogfleet.bench.replan import replan_rows
         from fogfleet.bench.scheduling import format_table
@@ -212,13 +219,13 @@ def _parser() -> argparse.ArgumentParser:
     sp = sub.add_parser("bench", help="run a benchmark and print a table")
     sp.add_argument(
         "suite",
-        choices=("scheduling", "autoscaling", "replan", "page"),
+        choices=("scheduling", "autoscaling", "replan", "why", "page"),
         help="page: the Markdown page of --records",
     )
     sp.add_argument("--seed", type=int)
     sp.add_argument("--runs", type=int, default=5, help="seeds / repetitions (default 5)")
     sp.add_argument("--quick", action="store_true", help="smaller instances, for a smoke run")
-    sp.add_argument("--robots", default="100,300,1000", help="replan: fleet sizes, comma-separated")
+    sp.add_argument("--robots", default="100,300,1000", help="replan, why: fleet sizes, comma-separated")
     sp.add_argument("--json", action="store_true")
     sp.add_argument("--record", metavar="FILE", help="also write the result as a record (JSON)")
     sp.add_argument("--records", help="page: record files, comma-separated")

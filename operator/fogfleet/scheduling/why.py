@@ -19,7 +19,7 @@ explained in well under a second (``fogfleet bench why``).
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from numpy.typing import NDArray
@@ -110,7 +110,14 @@ def explain_module(
         raise KeyError(f"fleet {problem.fleet} has no instance of module {module}{who}")
     shown = chosen[:limit]
     x = np.asarray(placement, dtype=np.int64)
-    pp = PlacementProblem(problem, list(EVALUATORS), with_limits=with_limits)
+    # the search's view narrowed to the moves asked about: only the shown instances are genes
+    # (the objectives never read gene spaces, and only the node columns of G are read), so
+    # the evaluator's tables hold their pairs, not every (instance, node) pair of the fleet
+    narrow = np.zeros_like(problem.allowed)
+    narrow[shown] = problem.allowed[shown]
+    pp = PlacementProblem(
+        replace(problem, allowed=narrow), list(EVALUATORS), with_limits=with_limits
+    )
     me = MoveEvaluator(pp)
     ev = me.parents(x[None, :])
     base = {n: float(EVALUATORS[n](ev)[0]) for n in EVALUATORS}
@@ -215,7 +222,7 @@ def _constraint(
 
 
 def _trade(deltas: Mapping[str, float], objectives: Sequence[str]) -> str:
-    """"allowed, but worse on <objective> by <amount>" over the fleet's objectives."""
+    """ "allowed, but worse on <objective> by <amount>" over the fleet's objectives."""
     worse = [(n, d) for n, d in deltas.items() if n in objectives and d > RESOLUTION.get(n, EPS)]
     better = [(n, d) for n, d in deltas.items() if n in objectives and d < -RESOLUTION.get(n, EPS)]
     if worse:
