@@ -26,10 +26,7 @@ Obj = dict[str, Any]
 @cache
 def _objects() -> tuple[Obj, list[Obj], list[Obj]]:
     docs = [
-        d
-        for f in sorted(WAREHOUSE.glob("*.yaml"))
-        for d in yaml.safe_load_all(f.read_text())
-        if d
+        d for f in sorted(WAREHOUSE.glob("*.yaml")) for d in yaml.safe_load_all(f.read_text()) if d
     ]
     fleet = next(d for d in docs if d["kind"] == "RobotFleet")
     modules = [d for d in docs if d["kind"] == "SoftwareModule"]
@@ -57,8 +54,12 @@ def _objects() -> tuple[Obj, list[Obj], list[Obj]]:
     modules = copy.deepcopy(modules)
     for m in modules:
         if m["metadata"]["name"] == "scene-segmentation":
-            m["status"] = {"observed": [{"cycles": 300, "missedPercent": 2.0},
-                                        {"cycles": 100, "missedPercent": 6.0}]}
+            m["status"] = {
+                "observed": [
+                    {"cycles": 300, "missedPercent": 2.0},
+                    {"cycles": 100, "missedPercent": 6.0},
+                ]
+            }
     return fleet, modules, nodes
 
 

@@ -102,7 +102,13 @@ def test_unavailable_node_is_said_so() -> None:
 
     j = problem.node_index("edge-1")
     masked, _ = mask_unavailable(problem, {j: "NotReady"})
-    why = explain_module(masked, np.where(x == j, -1, x), True, "nav-motion-planning",
-                         robot="robot-1", unavailable={j: "NotReady"})
+    why = explain_module(
+        masked,
+        np.where(x == j, -1, x),
+        True,
+        "nav-motion-planning",
+        robot="robot-1",
+        unavailable={j: "NotReady"},
+    )
     (edge1,) = [a for a in why.instances[0].alternatives if a.node == "edge-1"]
     assert edge1.rule == "unavailable" and "NotReady" in edge1.reason
