@@ -40,38 +40,39 @@ def _median(runs: int, step: Callable[[], object]) -> float:
 
 def why_rows(sizes: tuple[int, ...] = (1000,), runs: int = 5, seed: int = 1) -> list[Row]:
     """One row per fleet size (see the module docstring)."""
-    rows: list[Row] = []
-    for robots in sizes:
-        cat, fleet = synthetic_fleet(robots, max(2, round(EDGES_PER_ROBOT * robots)), seed)
-        problem = build_problem(fleet, cat)
-        x = greedy_schedule(problem, SchedulerSettings(seed=seed)).placement
-        robot = fleet.spec.robots[robots // 2]
-        per_robot = next(m for m in problem.module_names if m.startswith("scene"))
-        i = next(
-            k for k, s in enumerate(problem.instances) if s.robot == robot and s.module == per_robot
+    return [_row(robots, runs, seed) for robots in sizes]
+
+
+def _row(robots: int, runs: int, seed: int) -> Row:
+    cat, fleet = synthetic_fleet(robots, max(2, round(EDGES_PER_ROBOT * robots)), seed)
+    problem = build_problem(fleet, cat)
+    x = greedy_schedule(problem, SchedulerSettings(seed=seed)).placement
+    robot = fleet.spec.robots[robots // 2]
+    per_robot = next(m for m in problem.module_names if m.startswith("scene"))
+    i = next(
+        k for k, s in enumerate(problem.instances) if s.robot == robot and s.module == per_robot
+    )
+    shared = sorted({s.module for s in problem.instances if not s.robot})
+
+    def why(module: str, who: str | None) -> object:
+        return explain_module(
+            problem,
+            x,
+            True,
+            module,
+            robot=who,
+            refused=lambda k: refusals(fleet, cat, problem.instances[k]),
         )
-        shared = sorted({s.module for s in problem.instances if not s.robot})
 
-        def why(module: str, who: str | None) -> object:
-            return explain_module(
-                problem,
-                x,
-                True,
-                module,
-                robot=who,
-                refused=lambda k: refusals(fleet, cat, problem.instances[k]),
-            )
-
-        row: Row = {
-            "robots": robots,
-            "genes": problem.n_instances,
-            "nodes": problem.n_nodes,
-            "build_s": _median(max(1, runs // 2), lambda: build_problem(fleet, cat)),
-            "refusals_s": _median(runs, lambda: refusals(fleet, cat, problem.instances[i])),
-            "why_robot_s": _median(runs, lambda: why(per_robot, robot)),
-        }
-        if shared:
-            row["why_shared_s"] = _median(runs, lambda: why(shared[0], None))
-            row["shared"] = shared[0]
-        rows.append(row)
-    return rows
+    row: Row = {
+        "robots": robots,
+        "genes": problem.n_instances,
+        "nodes": problem.n_nodes,
+        "build_s": _median(max(1, runs // 2), lambda: build_problem(fleet, cat)),
+        "refusals_s": _median(runs, lambda: refusals(fleet, cat, problem.instances[i])),
+        "why_robot_s": _median(runs, lambda: why(per_robot, robot)),
+    }
+    if shared:
+        row["why_shared_s"] = _median(runs, lambda: why(shared[0], None))
+        row["shared"] = shared[0]
+    return row

@@ -1,5 +1,5 @@
-"""The ``fogfleet`` command: validate, plan, explain, simulate and render fleets from CR YAML; generate
-CRDs; run the operator; run the benchmarks.
+"""The ``fogfleet`` command: validate, plan, explain, simulate and render fleets from CR YAML;
+generate CRDs; run the operator; run the benchmarks.
 
 Exit codes: 0 ok, 1 unexpected failure, 2 bad input (the message names object, field, reason)
 or an infeasible fleet.
@@ -174,7 +174,7 @@ def _parser() -> argparse.ArgumentParser:
     sp.set_defaults(func=cmd_simulate)
 
     sp = sub.add_parser(
-        "explain", help="why each instance of a module runs where the plan puts it, not elsewhere"
+        "explain", help="why each instance of a module runs where the plan puts it"
     )
     fleet_args(sp, SCHEDULERS)
     sp.add_argument("--module", required=True, help="the SoftwareModule to explain")
@@ -225,7 +225,9 @@ def _parser() -> argparse.ArgumentParser:
     sp.add_argument("--seed", type=int)
     sp.add_argument("--runs", type=int, default=5, help="seeds / repetitions (default 5)")
     sp.add_argument("--quick", action="store_true", help="smaller instances, for a smoke run")
-    sp.add_argument("--robots", default="100,300,1000", help="replan, why: fleet sizes, comma-separated")
+    sp.add_argument(
+        "--robots", default="100,300,1000", help="replan, why: fleet sizes, comma-separated"
+    )
     sp.add_argument("--json", action="store_true")
     sp.add_argument("--record", metavar="FILE", help="also write the result as a record (JSON)")
     sp.add_argument("--records", help="page: record files, comma-separated")

@@ -95,7 +95,7 @@ def top_doc(live: Live) -> Doc:
         for link in status.get("links") or []
         if link.get("standbysActive")
     }
-    modules = []
+    modules: list[Doc] = []
     for name in p.module_names:
         idx = np.array([i for i, inst in enumerate(p.instances) if inst.module == name])
         mstatus = (by_module.get(name) or {}).get("status") or {}
@@ -112,7 +112,7 @@ def top_doc(live: Live) -> Doc:
                 "fallbacksActive": sorted(r for r, mods in active.items() if name in mods),
             }
         )
-    rates = [m["measuredMissRate"] for m in modules if m["measuredMissRate"] is not None]
+    rates = [float(m["measuredMissRate"]) for m in modules if m["measuredMissRate"] is not None]
     return {
         "fleet": f"{p.namespace}/{p.fleet}",
         "predictedMissRate": status.get("predictedMissRate"),

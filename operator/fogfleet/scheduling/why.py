@@ -123,8 +123,13 @@ def explain_module(
     base = {n: float(EVALUATORS[n](ev)[0]) for n in EVALUATORS}
     miss = ev.instance_miss()[0]
     # every move of every shown instance to another node of its gene space, scored at once
-    moves = [(i, j) for i in shown if x[i] >= 0 for j in np.flatnonzero(problem.allowed[i])]
-    moves = [(i, int(j)) for i, j in moves if j != x[i]]
+    moves = [
+        (i, int(j))
+        for i in shown
+        if x[i] >= 0
+        for j in np.flatnonzero(problem.allowed[i])
+        if j != x[i]
+    ]
     scored: dict[tuple[int, int], Alternative] = {}
     if moves:
         inst = np.array([m[0] for m in moves], dtype=np.int64)
@@ -148,7 +153,9 @@ def explain_module(
         inst_ = problem.instances[i]
         here = int(x[i])
         alts = _refusals(problem, i, here, refused, unavailable or {})
-        alts += [scored[i, int(j)] for j in np.flatnonzero(problem.allowed[i]) if (i, j) in scored]
+        alts += [
+            scored[i, int(j)] for j in np.flatnonzero(problem.allowed[i]) if (i, int(j)) in scored
+        ]
         alts.sort(key=lambda a: order[a.node])
         out.append(
             InstanceWhy(
@@ -179,8 +186,8 @@ def _refusals(
     """The nodes outside instance i's gene space that it could otherwise use, and why."""
     said = refused(i) if refused is not None else {}
     out = []
-    for j in np.flatnonzero(~problem.allowed[i]):
-        j = int(j)
+    for col in np.flatnonzero(~problem.allowed[i]):
+        j = int(col)
         if j == here:
             continue
         nd = problem.nodes[j]

@@ -56,7 +56,7 @@ def test_device_refusal_names_the_missing_device() -> None:
 
 
 def test_capacity_reason_says_the_amounts_from_the_evaluation() -> None:
-    cat, fleet, problem, x = _warehouse()
+    problem = _warehouse()[2]
     why = _why("scene-segmentation")
     full = [a for i in why.instances for a in i.alternatives if a.rule == "capacity"]
     assert full, "some node is too full for scene-segmentation"
@@ -67,7 +67,7 @@ def test_capacity_reason_says_the_amounts_from_the_evaluation() -> None:
 
 
 def test_worse_reason_is_the_moved_plans_evaluation_difference() -> None:
-    cat, fleet, problem, x = _warehouse()
+    _, _, problem, x = _warehouse()
     why = _why("scene-segmentation")
     found = [
         (inst, a)
@@ -97,7 +97,7 @@ def test_unknown_module_or_robot_is_a_key_error() -> None:
 
 
 def test_unavailable_node_is_said_so() -> None:
-    cat, fleet, problem, x = _warehouse()
+    _, _, problem, x = _warehouse()
     from fogfleet.scheduling.stickiness import mask_unavailable
 
     j = problem.node_index("edge-1")
