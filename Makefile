@@ -100,6 +100,9 @@ bench: venv ## Benchmarks of the pure core: scheduling (misses, MILP gap, decisi
 bench-replan: venv ## A robot joining and an edge failing at 100, 300 and 1000 robots: whole-fleet vs incremental re-plan (seconds, moves, miss rate; ~10 min)
 	$(BIN)/fogfleet bench replan --robots $(or $(SIZES),100,300,1000) --runs 3
 
+bench-why: venv ## How long `kubectl fogfleet why` computes at 1000 robots (build, refusals, explanation; median of 5)
+	$(BIN)/fogfleet bench why --robots $(or $(SIZES),1000) --runs 5
+
 bench-cluster: venv ## Operator benchmarks on the local control plane: apply-to-Running latency (40 and 400 pods), nsga2 vs kube-scheduler's real placement (~25 min)
 	$(BIN)/python -m e2e.bench.cluster --runs 5
 

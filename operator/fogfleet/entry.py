@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import os
 
-__all__ = ["THREAD_POOL_VARIABLES", "main", "pin_thread_pools"]
+__all__ = ["THREAD_POOL_VARIABLES", "kubectl_plugin", "main", "pin_thread_pools"]
 
 # read by OpenBLAS (NumPy's wheels), OpenMP and MKL when they load
 THREAD_POOL_VARIABLES = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
@@ -32,3 +32,11 @@ def main() -> int:
     from fogfleet.cli import main as cli_main
 
     return cli_main()
+
+
+def kubectl_plugin() -> int:
+    """The ``kubectl-fogfleet`` command (``fogfleet.plugin``), with the same thread pools."""
+    pin_thread_pools()
+    from fogfleet.plugin.cli import main as plugin_main
+
+    return plugin_main()

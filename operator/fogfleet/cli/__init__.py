@@ -1,5 +1,5 @@
-"""The ``fogfleet`` command: validate, plan, simulate and render fleets from CR YAML; generate
-CRDs; run the operator; run the benchmarks.
+"""The ``fogfleet`` command: validate, plan, explain, simulate and render fleets from CR YAML;
+generate CRDs; run the operator; run the benchmarks.
 
 Exit codes: 0 ok, 1 unexpected failure, 2 bad input (the message names object, field, reason)
 or an infeasible fleet.
@@ -18,6 +18,7 @@ from typing import Any
 from fogfleet.errors import FogfleetError, InvalidSpec
 
 from .common import AUTOSCALING_FIRST_SEED, SCHEDULERS
+from .explain import cmd_explain
 from .planning import cmd_plan, cmd_simulate
 from .render import cmd_crds, cmd_render
 from .validate import cmd_validate
@@ -52,6 +53,13 @@ def cmd_bench(args: argparse.Namespace) -> int:
         result: Any = results
         shown: Any = results[seeds[0]] if len(seeds) == 1 else results
         table = abench.format_table(results)
+    elif args.suite == "why":
+        from fogfleet.bench.scheduling import format_table
+        from fogfleet.bench.why import why_rows
+
+        sizes = tuple(int(n) for n in args.robots.split(","))
+        result = shown = why_rows(sizes, runs=args.runs, seed=args.seed or 1)
+        table = format_table(result)
     elif args.suite == "replan":
         from fogfleet.bench.replan import replan_rows
         from fogfleet.bench.scheduling import format_table
@@ -165,6 +173,16 @@ def _parser() -> argparse.ArgumentParser:
     sp.add_argument("--json", action="store_true")
     sp.set_defaults(func=cmd_simulate)
 
+    sp = sub.add_parser(
+        "explain", help="why each instance of a module runs where the plan puts it"
+    )
+    fleet_args(sp, SCHEDULERS)
+    sp.add_argument("--module", required=True, help="the SoftwareModule to explain")
+    sp.add_argument("--robot", help="only this robot's instance")
+    sp.add_argument("--limit", type=int, default=50, help="instances explained at most (50)")
+    sp.add_argument("-o", "--output", choices=("table", "json", "yaml"), default="table")
+    sp.set_defaults(func=cmd_explain)
+
     sp = sub.add_parser("render", help="print the Deployments the operator would apply")
     fleet_args(sp, SCHEDULERS)
     sp.add_argument(
@@ -201,13 +219,15 @@ def _parser() -> argparse.ArgumentParser:
     sp = sub.add_parser("bench", help="run a benchmark and print a table")
     sp.add_argument(
         "suite",
-        choices=("scheduling", "autoscaling", "replan", "page"),
+        choices=("scheduling", "autoscaling", "replan", "why", "page"),
         help="page: the Markdown page of --records",
     )
     sp.add_argument("--seed", type=int)
     sp.add_argument("--runs", type=int, default=5, help="seeds / repetitions (default 5)")
     sp.add_argument("--quick", action="store_true", help="smaller instances, for a smoke run")
-    sp.add_argument("--robots", default="100,300,1000", help="replan: fleet sizes, comma-separated")
+    sp.add_argument(
+        "--robots", default="100,300,1000", help="replan, why: fleet sizes, comma-separated"
+    )
     sp.add_argument("--json", action="store_true")
     sp.add_argument("--record", metavar="FILE", help="also write the result as a record (JSON)")
     sp.add_argument("--records", help="page: record files, comma-separated")

@@ -22,7 +22,7 @@ from fogfleet.errors import DanglingReference, InvalidSpec
 
 from .fallback import standbys
 from .network import Link, uplink
-from .pairs import Block, Pair, PairTable, pad_rungs
+from .pairs import Block, Pair, PairTable, Refusal, pad_rungs
 from .problem import (
     TIER_CODE,
     Allocation,
@@ -36,7 +36,7 @@ from .problem import (
 from .rows import Learnt, ProfileRow
 from .taxonomy import module_priority
 
-__all__ = ["build_problem", "resolve_nodes"]
+__all__ = ["build_problem", "refusals", "resolve_nodes"]
 
 F64 = NDArray[np.float64]
 
@@ -270,6 +270,41 @@ def build_problem(
         current=freeze(_current_nodes(nodes, inst.instances, current, grid.allowed)),
         reasons=grid.reasons,
     )
+
+
+def refusals(
+    fleet: RobotFleet,
+    catalog: Catalog,
+    instance: Instance,
+    current: Mapping[tuple[str, str, int], str] | None = None,
+    pools: Mapping[str, Mapping[str, int]] | None = None,
+    corrections: Mapping[tuple[str, str], Learnt] | None = None,
+) -> dict[int, Refusal | None]:
+    """Why ``instance`` may not run on each node (by index, as ``build_problem`` orders them)
+    whose gene space it is not in: ``PairTable.pair``'s own answer, the one the build asked.
+    None: not a node it could use (another robot's computer, another pool's tier); a node it
+    may use is absent. Called with what ``build_problem`` was called with."""
+    namespace = fleet.metadata.namespace or "default"
+    robots, others = resolve_nodes(fleet, catalog)
+    nodes = robots + others
+    modules, _ = _resolve_modules(fleet, catalog, namespace)
+    resolved = next(m for m in modules if m.module.metadata.name == instance.module)
+    caps = np.array([_capacity(nd) for nd in nodes], dtype=np.float64)
+    links = [uplink(nd.spec) for nd in nodes]  # the refusals come before the transfer time
+    table = PairTable(nodes, caps, links, corrections)
+    names = [nd.metadata.name for nd in robots]
+    home = names.index(instance.robot) if instance.robot else -1
+    tier: Tier | None = None
+    if home < 0:
+        inst = _expand_instances([resolved], robots, nodes, current, pools)
+        tier = inst.pool_tier[instance.replica] if instance.replica < len(inst.pool_tier) else None
+    link = links[home] if home >= 0 else _mean_link(links[: len(robots)])
+    out: dict[int, Refusal | None] = {}
+    for j in range(len(nodes)):
+        got = table.pair(resolved.module, resolved.cycle, tier, j, home, link)
+        if not isinstance(got, Pair):
+            out[j] = got
+    return out
 
 
 def _resolve_modules(

@@ -29,7 +29,7 @@ from .problem import EXEC_SHARE_OF_CYCLE
 from .rows import Learnt, ProfileRow
 from .taxonomy import may_degrade, must_stay_onboard
 
-__all__ = ["Block", "Pair", "PairTable", "pad_rungs", "profile_rows", "rows_for"]
+__all__ = ["Block", "Pair", "PairTable", "Refusal", "pad_rungs", "profile_rows", "rows_for"]
 
 F64 = NDArray[np.float64]
 
@@ -44,6 +44,19 @@ class Pair:
     pick: ProfileRow  # the limits allocation's CPU and execution time
     top: ProfileRow  # the nominal allocation's (the largest profiled parallelism)
     rungs: tuple[ProfileRow, ...]  # pick, then the smaller profiled CPUs (may degrade), or ()
+
+
+class Refusal(str):
+    """Why a module may not run on a node, in words, and the rule that says so (``rule``:
+    taxonomy, tier, device, gpu, realtimeKernel, privacy, profile). A ``str``, so the build
+    joins refusals into its messages as before; ``fogfleet explain`` reads ``rule``."""
+
+    rule: str
+
+    def __new__(cls, text: str, rule: str) -> Refusal:
+        out = super().__new__(cls, text)
+        out.rule = rule
+        return out
 
 
 @dataclass(frozen=True)
@@ -142,7 +155,7 @@ class PairTable:
         j: int,
         home: int,
         home_link: Link,
-    ) -> Pair | str | None:
+    ) -> Pair | Refusal | None:
         """Module ``mod`` (instance of robot ``home``, -1 for a shared replica) on node ``j``:
         a Pair, or why it may not run there (None: not worth saying, such as another robot's
         computer or a node of another pool's tier)."""
@@ -154,21 +167,26 @@ class PairTable:
         if ns.tier is Tier.ROBOT and j != home:
             return None  # never another robot's computer (III-E); shared replicas never on robots
         if must_stay_onboard(spec.taxonomy) and j != home:
-            return f"{name}: module is hard real-time or safety-critical, so it stays on its robot"
+            return Refusal(
+                f"{name}: module is hard real-time or safety-critical, so it stays on its robot",
+                "taxonomy",
+            )
         if req.tiers and ns.tier not in req.tiers:
-            return f"{name}: tier {ns.tier.value} not in requirements.tiers"
+            return Refusal(f"{name}: tier {ns.tier.value} not in requirements.tiers", "tier")
         if pool_tier is not None and ns.tier is not pool_tier:
             return None  # a replica counted for another tier's pool
         have = {d.type for d in ns.devices}
         missing = [d.value for d in req.devices if d not in have]
         if missing:
-            return f"{name}: lacks device {', '.join(missing)}"
+            return Refusal(f"{name}: lacks device {', '.join(missing)}", "device")
         if req.gpu and self.caps[j, 2] < 1:
-            return f"{name}: no GPU"
+            return Refusal(f"{name}: no GPU", "gpu")
         if req.realtime_kernel and not ns.realtime_kernel:
-            return f"{name}: no real-time kernel"
+            return Refusal(f"{name}: no real-time kernel", "realtimeKernel")
         if ns.privacy < req.min_privacy:
-            return f"{name}: privacy level {ns.privacy} < required {req.min_privacy}"
+            return Refusal(
+                f"{name}: privacy level {ns.privacy} < required {req.min_privacy}", "privacy"
+            )
         key = (id(mod), ns.hardware_type, ns.speed_factor)
         if key not in self._profiles:
             rows = profile_rows(mod, nd)
@@ -179,9 +197,10 @@ class PairTable:
         rows = [r for r in self._profiles[key] if r.cpu <= self.caps[j, 0] + 1e-9]
         if not rows:
             auto = " (profiling.mode auto: the operator profiles it there first)"
-            return (
+            return Refusal(
                 f"{name}: no execution-time profile for hardware type "
-                f"{ns.hardware_type!r} that fits its CPU" + (auto if auto_profiled(spec) else "")
+                f"{ns.hardware_type!r} that fits its CPU" + (auto if auto_profiled(spec) else ""),
+                "profile",
             )
         link = LOCAL if j == home else path(home_link, self.links[j])
         if (id(mod), link) not in self._transfers:

@@ -1,0 +1,126 @@
+"""kubectl fogfleet on a running fleet (issue 38): ``why`` names the node status.placement
+names, and ``top`` shows a measured miss rate for every module whose status measured one.
+
+The plugin runs as users run it, a separate process with the test's kubeconfig
+(``python -m fogfleet.plugin``, what the ``kubectl-fogfleet`` console script calls).
+"""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from e2e.bed.kube import Kube
+from e2e.bed.operator_fixtures import (
+    ROOT,
+    Operator,
+    apply_warehouse,
+    fleet,
+    install_crds,
+    wait_ready,
+)
+
+pytestmark = [pytest.mark.e2e, pytest.mark.observability, pytest.mark.timeout(420)]
+
+
+@pytest.fixture(scope="module")
+def crds(kube: Kube) -> None:
+    install_crds(kube)
+
+
+@pytest.fixture
+def operator(
+    kube: Kube, crds: None, namespace: str, tmp_path: Path, diagnostics: list[Any]
+) -> Iterator[Operator]:
+    op = Operator(kube.kubeconfig, [namespace], tmp_path / "operator.log")
+    diagnostics.append(lambda: ("operator log", op.logs(150)))
+    op.start().wait_live()
+    yield op
+    kube.kubectl(
+        "delete",
+        "robotfleets",
+        "--all",
+        "-n",
+        namespace,
+        "--wait=true",
+        "--timeout=60s",
+        check=False,
+        timeout=90,
+    )
+    op.stop()
+
+
+def _plugin(kube: Kube, namespace: str, *args: str) -> Any:
+    """``kubectl fogfleet ARGS -o json`` against the bed, parsed."""
+    out = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "fogfleet.plugin",
+            *args,
+            "--kubeconfig",
+            str(kube.kubeconfig),
+            "-n",
+            namespace,
+            "-o",
+            "json",
+        ],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        cwd=ROOT,
+        check=False,
+    )
+    assert out.returncode == 0, out.stderr
+    return json.loads(out.stdout)
+
+
+def test_why_and_top_match_the_fleets_status(
+    kube: Kube, namespace: str, operator: Operator
+) -> None:
+    apply_warehouse(kube, namespace)
+    wait_ready(kube, namespace)
+    status = fleet(kube, namespace)["status"]
+    where = {
+        (e.get("robot") or "", e["module"], int(e.get("replica") or 0)): e["node"]
+        for e in status["placement"]
+    }
+    node_of = {
+        c["metadata"]["name"]: c["spec"].get("nodeName") or c["metadata"]["name"]
+        for c in kube.kubectl_json("get", "computenodes")["items"]
+    }
+    for module, robot in (("nav-controller", "robot-1"), ("scene-segmentation", "robot-2")):
+        doc = _plugin(kube, namespace, "why", "warehouse", module, "--robot", robot)
+        (inst,) = doc["instances"]
+        # the plugin names ComputeNodes, status.placement their Kubernetes Nodes
+        assert node_of.get(inst["node"], inst["node"]) == where[(robot, module, 0)]
+        assert doc["predictedMissRate"] is not None
+        assert inst["alternatives"], "every node it could have used is explained"
+        if module == "nav-controller":
+            edges = [a for a in inst["alternatives"] if a["tier"] == "edge"]
+            assert edges and {a["rule"] for a in edges} == {"taxonomy"}
+
+    top = _plugin(kube, namespace, "top", "warehouse")
+    assert top["split"] == status.get("split")
+    raw = kube.kubectl_json("get", "softwaremodules", "-n", namespace)
+    observed = {
+        m["metadata"]["name"]
+        for m in raw["items"]
+        if any(
+            r.get("cycles") and r.get("missedPercent") is not None
+            for r in (m.get("status") or {}).get("observed") or []
+        )
+    }
+    observed |= {
+        m["module"] for m in status.get("measured") or [] if m.get("measuredMissRate") is not None
+    }
+    for m in top["modules"]:
+        assert m["predictedMissRate"] is not None
+        if m["module"] in observed:
+            assert m["measuredMissRate"] is not None, m

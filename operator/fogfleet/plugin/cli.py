@@ -1,0 +1,122 @@
+"""``kubectl fogfleet``: argument parsing and the commands, kubectl's way (``--kubeconfig``,
+``--context``, ``-n/--namespace`` defaulting to the context's, ``-o table|json|yaml``).
+
+Exit codes: 0 ok, 1 the cluster could not be read, 2 bad arguments or input (argparse's own
+code for bad arguments)."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from collections.abc import Callable, Sequence
+
+from fogfleet.errors import FogfleetError, InvalidSpec
+
+from .commands import diff_doc, plan_doc, top_doc, why_doc, why_of
+from .live import Source, WhatIf, read_fleet
+from .output import FORMATS, diff_table, render, top_table, why_table
+
+__all__ = ["main", "parser"]
+
+Connect = Callable[[str | None, str | None], tuple[Source, str]]
+
+
+def parser() -> argparse.ArgumentParser:
+    common = argparse.ArgumentParser(add_help=False)
+    common.add_argument("--kubeconfig", help="path to the kubeconfig file (default: $KUBECONFIG)")
+    common.add_argument("--context", help="the kubeconfig context to use")
+    common.add_argument("-n", "--namespace", help="the fleet's namespace (default: the context's)")
+    common.add_argument("-o", "--output", choices=FORMATS, default="table", help="output format")
+    p = argparse.ArgumentParser(
+        prog="kubectl fogfleet", description=(__doc__ or "").split("\n\n")[0]
+    )
+    sub = p.add_subparsers(dest="command", required=True)
+    sp = sub.add_parser(
+        "why", parents=[common], help="where each instance of a module runs and why not elsewhere"
+    )
+    sp.add_argument("fleet", help="the RobotFleet")
+    sp.add_argument("module", help="the SoftwareModule")
+    sp.add_argument("--robot", help="only this robot's instance")
+    sp.add_argument("--limit", type=int, default=50, help="instances explained at most (50)")
+    sp = sub.add_parser(
+        "top", parents=[common], help="measured vs predicted misses, CPU and split per module"
+    )
+    sp.add_argument("fleet", help="the RobotFleet")
+    sp = sub.add_parser(
+        "diff", parents=[common], help="what a re-plan now would move, and each objective's change"
+    )
+    sp.add_argument("fleet", help="the RobotFleet")
+    sp = sub.add_parser("plan", parents=[common], help="plan the live fleet changed; apply nothing")
+    sp.add_argument("fleet", help="the RobotFleet")
+    sp.add_argument("--what-if", action="store_true", required=True, help="required: plans only")
+    sp.add_argument(
+        "--without-node",
+        action="append",
+        default=[],
+        metavar="NODE",
+        help="a ComputeNode removed (repeatable)",
+    )
+    sp.add_argument("--add-robot", metavar="NAME", help="a robot added (needs --like)")
+    sp.add_argument("--like", metavar="ROBOT", help="the robot --add-robot copies")
+    sp.add_argument(
+        "--link",
+        action="append",
+        default=[],
+        metavar="ROBOT=MILLIS",
+        help="a robot's uplink latency in milliseconds (repeatable)",
+    )
+    return p
+
+
+def _what_if(args: argparse.Namespace, p: argparse.ArgumentParser) -> WhatIf:
+    if bool(args.add_robot) != bool(args.like):
+        p.error("--add-robot and --like go together")
+    links: dict[str, float] = {}
+    for item in args.link:
+        robot, _, millis = item.partition("=")
+        try:
+            links[robot] = float(millis) / 1000.0
+        except ValueError:
+            p.error(f"--link {item}: expected ROBOT=MILLIS")
+        if not robot or links[robot] <= 0:
+            p.error(f"--link {item}: expected ROBOT=MILLIS with MILLIS > 0")
+    if not (args.without_node or args.add_robot or links):
+        p.error("plan --what-if needs --without-node, --add-robot or --link")
+    return WhatIf(tuple(args.without_node), args.add_robot, args.like, links)
+
+
+def _connect(kubeconfig: str | None, context: str | None) -> tuple[Source, str]:
+    from .cluster import connect
+
+    return connect(kubeconfig, context)
+
+
+def main(argv: Sequence[str] | None = None, connect: Connect = _connect) -> int:
+    p = parser()
+    args = p.parse_args(argv)
+    what_if = _what_if(args, p) if args.command == "plan" else None
+    try:
+        source, namespace = connect(args.kubeconfig, args.context)
+        ns = args.namespace or namespace
+        live = read_fleet(source, ns, args.fleet)
+        if args.command == "why":
+            doc = why_doc(why_of(live, args.module, args.robot, args.limit))
+            text = render(doc, args.output, why_table(doc) if args.output == "table" else "")
+        elif args.command == "top":
+            doc = top_doc(live)
+            text = render(doc, args.output, top_table(doc) if args.output == "table" else "")
+        else:
+            changed = read_fleet(source, ns, args.fleet, what_if) if what_if else live
+            doc = plan_doc(changed, live) if what_if else diff_doc(live)
+            text = render(doc, args.output, diff_table(doc) if args.output == "table" else "")
+    except KeyError as exc:
+        print(f"error: {exc.args[0]}", file=sys.stderr)
+        return 2
+    except InvalidSpec as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    except FogfleetError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 1
+    print(text)
+    return 0

@@ -1,0 +1,198 @@
+"""What ``kubectl fogfleet`` computes, as plain documents (``plugin.output`` prints them as
+tables, JSON or YAML): ``why``, ``top``, ``diff`` and ``plan --what-if``.
+
+Every figure comes from the planner's code: ``scheduling.why`` for the reasons,
+``objectives.module_miss_rates``/``objective_values`` for predictions, ``decision.decide``
+(what the operator runs on a full pass, migration-margin rule included) for a re-plan."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from typing import Any
+
+import numpy as np
+
+from fogfleet.domain.problem import Problem
+from fogfleet.scheduling.decision import CorePlanner, decide, fingerprint, with_defaults
+from fogfleet.scheduling.objectives import REGISTRY, module_miss_rates, objective_values
+from fogfleet.scheduling.why import ModuleWhy, explain_module
+
+from .live import Live
+
+__all__ = ["diff_doc", "plan_doc", "top_doc", "why_doc", "why_of"]
+
+Doc = dict[str, Any]
+
+
+def why_of(live: Live, module: str, robot: str | None = None, limit: int = 50) -> ModuleWhy:
+    """``scheduling.why.explain_module`` on the running fleet, with the measured miss rate."""
+    spec = live.fleet.spec.scheduler
+    w = explain_module(
+        live.problem,
+        live.placement,
+        live.with_limits,
+        module,
+        robot=robot,
+        objectives=[o.value for o in spec.objectives],
+        refused=live.refused,
+        unavailable=live.unavailable,
+        limit=limit,
+    )
+    return ModuleWhy(**{**w.__dict__, "measured_miss_rate": live.measured.get(module)})
+
+
+def why_doc(w: ModuleWhy) -> Doc:
+    """A ``ModuleWhy`` as the document ``-o json|yaml`` prints (camelCase, as kubectl)."""
+    return {
+        "fleet": w.fleet,
+        "module": w.module,
+        "predictedMissRate": w.predicted_miss_rate,
+        "measuredMissRate": w.measured_miss_rate,
+        "objectives": list(w.objectives),
+        "planObjectives": w.values,
+        "omittedInstances": w.omitted,
+        "instances": [
+            {
+                "instance": i.label,
+                "robot": i.robot,
+                "replica": i.replica,
+                "node": i.node,
+                "tier": i.tier,
+                "cpu": i.cpu,
+                "predictedMiss": i.predicted_miss,
+                "alternatives": [
+                    {
+                        "node": a.node,
+                        "tier": a.tier,
+                        "rule": a.rule,
+                        "reason": a.reason,
+                        **({"objectiveDeltas": a.deltas} if a.deltas else {}),
+                    }
+                    for a in i.alternatives
+                ],
+            }
+            for i in w.instances
+        ],
+    }
+
+
+def top_doc(live: Live) -> Doc:
+    """Per fleet and per module: measured vs predicted miss rate, CPU requested by the plan
+    and the CPU use it expects (measured CPU use is not in any status), the tier split and
+    the fallbacks active (standbys computing on board while a robot's link is lost)."""
+    p, x, status = live.problem, live.placement, live.status
+    alloc = p.allocation(live.with_limits)
+    placed = x >= 0
+    rows = np.flatnonzero(placed)
+    request = np.zeros(p.n_instances)
+    request[rows] = alloc.cpu_request[rows, x[rows]]
+    expected = np.zeros(p.n_instances)
+    expected[rows] = p.activation[rows] * alloc.cpu_use[rows, x[rows]]
+    predicted = module_miss_rates(p, x, live.with_limits)
+    by_module = {str(m["metadata"]["name"]): m for m in live.raw_modules}
+    active = {
+        str(link.get("robot")): list(link.get("standbysActive") or [])
+        for link in status.get("links") or []
+        if link.get("standbysActive")
+    }
+    modules: list[Doc] = []
+    for name in p.module_names:
+        idx = np.array([i for i, inst in enumerate(p.instances) if inst.module == name])
+        mstatus = (by_module.get(name) or {}).get("status") or {}
+        modules.append(
+            {
+                "module": name,
+                "instances": int(placed[idx].sum()),
+                "split": _split(p, x[idx]),
+                "predictedMissRate": predicted.get(name),
+                "measuredMissRate": live.measured.get(name),
+                "cpuRequested": round(float(request[idx].sum()), 3),
+                "cpuExpected": round(float(expected[idx].sum()), 3),
+                "moduleSplit": mstatus.get("split"),
+                "fallbacksActive": sorted(r for r, mods in active.items() if name in mods),
+            }
+        )
+    rates = [float(m["measuredMissRate"]) for m in modules if m["measuredMissRate"] is not None]
+    return {
+        "fleet": f"{p.namespace}/{p.fleet}",
+        "predictedMissRate": status.get("predictedMissRate"),
+        "measuredMissRate": sum(rates) / len(rates) if rates else None,
+        "split": status.get("split") or _split(p, x),
+        "cpuRequested": round(float(request.sum()), 3),
+        "cpuExpected": round(float(expected.sum()), 3),
+        "fallbacksActive": {r: sorted(m) for r, m in sorted(active.items())},
+        "modules": modules,
+    }
+
+
+def diff_doc(live: Live) -> Doc:
+    """The plan a full re-plan would deploy now against the running one."""
+    return plan_doc(live, live)
+
+
+def plan_doc(live: Live, running: Live) -> Doc:
+    """Plan ``live`` (perhaps a what-if of ``running``) as the operator would, apply nothing,
+    and compare with the placement that runs: the moves and each objective's change."""
+    p = live.problem
+    fleet = live.fleet
+    settings = with_defaults(fleet.spec.scheduler, {})
+    before = _before(p, running)
+    decision = decide(
+        CorePlanner(),
+        p,
+        settings,
+        fleet=fleet.metadata.name,
+        fp=fingerprint(p, settings),
+        before=before,
+    )
+    planned = p.with_levels(decision.schedule.levels)
+    names = list(REGISTRY)
+    after = objective_values(planned, decision.placement, live.with_limits, names)
+    known = before >= 0
+    now = (
+        objective_values(p, before, live.with_limits, names)
+        if bool(known.all())
+        else dict.fromkeys(names, float("nan"))
+    )
+    moves = [
+        {
+            "instance": p.label(i),
+            "from": p.nodes[int(before[i])].name if before[i] >= 0 else None,
+            "to": p.nodes[int(decision.placement[i])].name,
+        }
+        for i in range(p.n_instances)
+        if decision.placement[i] >= 0 and decision.placement[i] != before[i]
+    ]
+    return {
+        "fleet": f"{p.namespace}/{p.fleet}",
+        "applied": False,
+        "choiceReason": decision.choice_reason,
+        "moves": moves,
+        "objectives": [
+            {"name": n, "running": now[n], "planned": after[n], "change": after[n] - now[n]}
+            for n in names
+        ],
+        "predictedMissRate": module_miss_rates(planned, decision.placement, live.with_limits),
+    }
+
+
+def _before(p: Problem, running: Live) -> np.ndarray:
+    """The running placement on ``p``'s instances (a what-if may add some: -1 for those)."""
+    index: Mapping[tuple[str, str, int], int] = {
+        (inst.robot, inst.module, inst.replica): int(running.placement[i])
+        for i, inst in enumerate(running.problem.instances)
+    }
+    names = {nd.name: j for j, nd in enumerate(p.nodes)}
+    out = np.full(p.n_instances, -1, dtype=np.int64)
+    for i, inst in enumerate(p.instances):
+        j = index.get((inst.robot, inst.module, inst.replica), -1)
+        if j >= 0:
+            out[i] = names.get(running.problem.nodes[j].name, -1)
+    return out
+
+
+def _split(p: Problem, x: np.ndarray) -> str:
+    """Instances on robots/edge/cloud, as status writes it ("3/2/0")."""
+    placed = x[x >= 0]
+    counts = np.bincount(p.tier[placed], minlength=3) if placed.size else np.zeros(3, int)
+    return "/".join(str(int(c)) for c in counts[:3])

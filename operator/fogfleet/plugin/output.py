@@ -1,0 +1,142 @@
+"""``kubectl fogfleet`` output: kubectl-style tables (upper-case headers, columns padded), or
+the same document as JSON or YAML (``-o json|yaml``)."""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Sequence
+from typing import Any
+
+import yaml
+
+__all__ = ["FORMATS", "diff_table", "render", "top_table", "why_table"]
+
+FORMATS = ("table", "json", "yaml")
+Doc = dict[str, Any]
+
+
+def render(doc: Doc, fmt: str, table: str) -> str:
+    """``doc`` as JSON or YAML, else the ``table`` made from it."""
+    if fmt == "json":
+        return json.dumps(doc, indent=2)
+    if fmt == "yaml":
+        return yaml.safe_dump(doc, sort_keys=False).rstrip()
+    return table
+
+
+def _rate(value: float | None) -> str:
+    return "<none>" if value is None else f"{100 * value:.4g}%"
+
+
+def _columns(rows: Sequence[Sequence[object]], indent: str = "") -> list[str]:
+    widths = [max(len(str(r[k])) for r in rows) for k in range(len(rows[0]))]
+    return [
+        (indent + "   ".join(str(c).ljust(w) for c, w in zip(r, widths, strict=True))).rstrip()
+        for r in rows
+    ]
+
+
+def why_table(doc: Doc) -> str:
+    """Where each instance runs, then each node it could have used and why not."""
+    lines = [
+        f"RobotFleet {doc['fleet']}, module {doc['module']}: predicted miss rate "
+        f"{_rate(doc['predictedMissRate'])}, measured {_rate(doc['measuredMissRate'])}"
+    ]
+    for inst in doc["instances"]:
+        cpu = "-" if inst["cpu"] is None else f"{inst['cpu']:g}"
+        lines.append("")
+        lines += _columns(
+            [
+                ["INSTANCE", "NODE", "TIER", "CPU", "PREDICTED-MISS"],
+                [
+                    inst["instance"],
+                    inst["node"] or "<none>",
+                    inst["tier"] or "-",
+                    cpu,
+                    _rate(inst["predictedMiss"]),
+                ],
+            ]
+        )
+        alts = [[a["node"], a["tier"], a["rule"], a["reason"]] for a in inst["alternatives"]]
+        if alts:
+            lines += _columns(
+                [["  NOT ON", "TIER", "RULE", "WHY"], *[["  " + a[0], *a[1:]] for a in alts]]
+            )
+    if doc.get("omittedInstances"):
+        lines.append(f"\n({doc['omittedInstances']} more instances: pass --robot to see one)")
+    return "\n".join(lines)
+
+
+def top_table(doc: Doc) -> str:
+    """The fleet's line, then one line per module."""
+    head = _columns(
+        [
+            [
+                "FLEET",
+                "PREDICTED-MISS",
+                "MEASURED-MISS",
+                "CPU-REQUESTED",
+                "CPU-EXPECTED",
+                "SPLIT",
+                "FALLBACKS-ACTIVE",
+            ],
+            [
+                doc["fleet"],
+                _rate(doc["predictedMissRate"]),
+                _rate(doc["measuredMissRate"]),
+                f"{doc['cpuRequested']:g}",
+                f"{doc['cpuExpected']:g}",
+                doc["split"],
+                ",".join(f"{r}:{'+'.join(m)}" for r, m in doc["fallbacksActive"].items()) or "-",
+            ],
+        ]
+    )
+    rows = [
+        [
+            "MODULE",
+            "INSTANCES",
+            "SPLIT",
+            "PREDICTED-MISS",
+            "MEASURED-MISS",
+            "CPU-REQUESTED",
+            "CPU-EXPECTED",
+            "FALLBACKS-ACTIVE",
+        ]
+    ]
+    for m in doc["modules"]:
+        rows.append(
+            [
+                m["module"],
+                m["instances"],
+                m["split"],
+                _rate(m["predictedMissRate"]),
+                _rate(m["measuredMissRate"]),
+                f"{m['cpuRequested']:g}",
+                f"{m['cpuExpected']:g}",
+                ",".join(m["fallbacksActive"]) or "-",
+            ]
+        )
+    return "\n".join([*head, "", *_columns(rows)])
+
+
+def diff_table(doc: Doc) -> str:
+    """The moves, then each objective running vs planned."""
+    lines = [f"RobotFleet {doc['fleet']}: a re-plan now (not applied): {doc['choiceReason']}"]
+    if doc["moves"]:
+        lines += [
+            "",
+            *_columns(
+                [
+                    ["INSTANCE", "FROM", "TO"],
+                    *[[m["instance"], m["from"] or "<new>", m["to"]] for m in doc["moves"]],
+                ]
+            ),
+        ]
+    else:
+        lines += ["", "no moves: the re-plan keeps every instance where it runs"]
+    rows = [["OBJECTIVE", "RUNNING", "PLANNED", "CHANGE"]]
+    rows += [
+        [o["name"], f"{o['running']:.6g}", f"{o['planned']:.6g}", f"{o['change']:+.4g}"]
+        for o in doc["objectives"]
+    ]
+    return "\n".join([*lines, "", *_columns(rows)])

@@ -1,0 +1,161 @@
+"""kubectl fogfleet over a fake cluster holding the warehouse example (a fake Source: the
+objects as the API server sends them), its output formats and its argument errors."""
+
+from __future__ import annotations
+
+import copy
+import json
+from collections.abc import Mapping
+from functools import cache
+from pathlib import Path
+from typing import Any
+
+import pytest
+import yaml
+
+from fogfleet.api.loader import load_paths
+from fogfleet.api.v1alpha1.robotfleet import SchedulerSettings
+from fogfleet.domain.build import build_problem
+from fogfleet.plugin.cli import main
+from fogfleet.scheduling.heuristics import greedy_schedule
+
+WAREHOUSE = Path(__file__).resolve().parents[3] / "manifests" / "examples" / "warehouse"
+Obj = dict[str, Any]
+
+
+@cache
+def _objects() -> tuple[Obj, list[Obj], list[Obj]]:
+    docs = [
+        d for f in sorted(WAREHOUSE.glob("*.yaml")) for d in yaml.safe_load_all(f.read_text()) if d
+    ]
+    fleet = next(d for d in docs if d["kind"] == "RobotFleet")
+    modules = [d for d in docs if d["kind"] == "SoftwareModule"]
+    nodes = [d for d in docs if d["kind"] == "ComputeNode"]
+    cat = load_paths([str(WAREHOUSE)])
+    problem = build_problem(cat.fleets[0], cat)
+    x = greedy_schedule(problem, SchedulerSettings(seed=1)).placement
+    fleet = copy.deepcopy(fleet)
+    fleet["metadata"]["namespace"] = "warehouse"
+    fleet["status"] = {
+        "predictedMissRate": 0.001,
+        "split": "20/21/0",
+        "placement": [
+            {
+                "robot": inst.robot,
+                "module": inst.module,
+                "replica": inst.replica,
+                "node": problem.nodes[int(j)].node_name,
+                "tier": problem.nodes[int(j)].tier.value,
+            }
+            for inst, j in zip(problem.instances, x, strict=True)
+        ],
+        "links": [{"robot": "robot-2", "standbysActive": ["nav-motion-planning"]}],
+    }
+    modules = copy.deepcopy(modules)
+    for m in modules:
+        if m["metadata"]["name"] == "scene-segmentation":
+            m["status"] = {
+                "observed": [
+                    {"cycles": 300, "missedPercent": 2.0},
+                    {"cycles": 100, "missedPercent": 6.0},
+                ]
+            }
+    return fleet, modules, nodes
+
+
+class FakeCluster:
+    """The Source the plugin reads, over fixed objects (every Node Ready)."""
+
+    def __init__(self) -> None:
+        self.fleet, self.modules, self.compute_nodes = _objects()
+
+    def get_fleet(self, namespace: str, name: str) -> Obj | None:
+        meta = self.fleet["metadata"]
+        return self.fleet if (meta["namespace"], meta["name"]) == (namespace, name) else None
+
+    def list_modules(self, namespace: str | None) -> list[Obj]:
+        return self.modules
+
+    def list_compute_nodes(self) -> list[Obj]:
+        return self.compute_nodes
+
+    def list_nodes(self) -> list[Obj]:
+        names = {(c["spec"].get("nodeName") or c["metadata"]["name"]) for c in self.compute_nodes}
+        ready = {"conditions": [{"type": "Ready", "status": "True"}]}
+        return [{"metadata": {"name": n}, "status": ready} for n in sorted(names)]
+
+    def list_deployments(self, namespace: str, selector: Mapping[str, str]) -> list[Obj]:
+        return []
+
+
+def _run(argv: list[str], capsys: pytest.CaptureFixture[str]) -> tuple[int, str, str]:
+    code = main(argv, connect=lambda kubeconfig, context: (FakeCluster(), "warehouse"))
+    out = capsys.readouterr()
+    return code, out.out, out.err
+
+
+def test_why_table_names_the_node_and_each_refusal(capsys: pytest.CaptureFixture[str]) -> None:
+    code, out, _ = _run(["why", "warehouse", "nav-controller", "--robot", "robot-3"], capsys)
+    assert code == 0
+    assert "robot-3/nav-controller   robot-3" in out
+    assert out.count("taxonomy") == 6
+    assert "predicted miss rate" in out and "measured <none>" in out
+
+
+def test_why_json_has_the_deployed_node_and_the_measured_rate(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    fleet, _, _ = _objects()
+    code, out, _ = _run(["why", "warehouse", "scene-segmentation", "-o", "json"], capsys)
+    assert code == 0
+    doc = json.loads(out)
+    where = {(e["robot"], e["module"]): e["node"] for e in fleet["status"]["placement"]}
+    for inst in doc["instances"]:
+        assert inst["node"] == where[(inst["robot"], "scene-segmentation")]
+    assert doc["measuredMissRate"] == pytest.approx(0.03)  # (300 x 2% + 100 x 6%) / 400
+
+
+def test_why_yaml_parses(capsys: pytest.CaptureFixture[str]) -> None:
+    code, out, _ = _run(["why", "warehouse", "nav-localization", "-o", "yaml"], capsys)
+    assert code == 0
+    doc = yaml.safe_load(out)
+    assert {a["rule"] for i in doc["instances"] for a in i["alternatives"]} == {"device"}
+
+
+def test_top_shows_measured_and_predicted_and_active_fallbacks(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    code, out, _ = _run(["top", "warehouse", "-o", "json"], capsys)
+    assert code == 0
+    doc = json.loads(out)
+    seg = next(m for m in doc["modules"] if m["module"] == "scene-segmentation")
+    assert seg["measuredMissRate"] == pytest.approx(0.03)
+    assert seg["predictedMissRate"] is not None and seg["cpuRequested"] > 0
+    nav = next(m for m in doc["modules"] if m["module"] == "nav-motion-planning")
+    assert nav["fallbacksActive"] == ["robot-2"]
+    code, table, _ = _run(["top", "warehouse"], capsys)
+    assert "MEASURED-MISS" in table and "3%" in table
+
+
+def test_unknown_fleet_and_module_exit_2(capsys: pytest.CaptureFixture[str]) -> None:
+    code, _, err = _run(["why", "nope", "nav-controller"], capsys)
+    assert code == 2 and "not found" in err
+    code, _, err = _run(["why", "warehouse", "nope"], capsys)
+    assert code == 2 and "no instance of module nope" in err
+
+
+@pytest.mark.parametrize(
+    "argv",
+    [
+        ["why", "warehouse"],
+        ["why", "warehouse", "m", "-o", "wide"],
+        ["plan", "warehouse", "--without-node", "edge-1"],
+        ["plan", "warehouse", "--what-if"],
+        ["plan", "warehouse", "--what-if", "--add-robot", "robot-6"],
+        ["plan", "warehouse", "--what-if", "--link", "robot-1"],
+    ],
+)
+def test_bad_arguments_exit_2(argv: list[str], capsys: pytest.CaptureFixture[str]) -> None:
+    with pytest.raises(SystemExit) as exc:
+        _run(argv, capsys)
+    assert exc.value.code == 2
