@@ -243,5 +243,10 @@ class PrometheusMetrics:
     def count_request(self, code: str, method: str, host: str) -> None:
         self.requests.labels(code, method, host).inc()
 
+    def init_watch(self, kind: str) -> None:
+        """Zero restart series for a kind (so its panel and rate() have a series at once)."""
+        for reason in ("expired", "error", "unexpected"):
+            self.watch_restarts.labels(kind, reason)
+
     def count_watch_restart(self, kind: str, reason: str) -> None:
         self.watch_restarts.labels(kind, reason).inc()

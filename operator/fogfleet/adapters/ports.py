@@ -178,6 +178,10 @@ class ClientMetrics(Protocol):
 
     def count_watch_restart(self, kind: str, reason: str) -> None: ...
 
+    def init_watch(self, kind: str) -> None:
+        """A kind is watched: its restart series start at zero."""
+        ...
+
 
 class NullMetrics:
     """Metrics that go nowhere (tests, the CLI)."""

@@ -123,6 +123,10 @@ class WatchedKube(KubeClient):
             on_restart=restarts,
         )
 
+        if self.metrics is not None:
+            for kind in sorted({i.kind for i in self.informers()}):
+                self.metrics.init_watch(kind)
+
     def informers(self) -> list[Informer]:
         return [
             self.nodes,
