@@ -40,10 +40,10 @@ test: venv lint crds-check docs-check cluster-tools unit integration chart-lint 
 	else $(BIN)/python e2e/bed/harness.py down || status=1; fi; \
 	exit $$status
 
-crds: venv ## Write the CRD YAML in crds/ from the pydantic models
+crds: venv ## Write the CRD YAML in crds/ and the chart's generated files (CRD templates, Grafana dashboard, alert rules)
 	$(BIN)/fogfleet crds --out crds
 
-crds-check: venv ## Fail when crds/ drifts from the models
+crds-check: venv ## Fail when crds/ or the chart's generated files drift from the models and contract/dashboard.py
 	$(BIN)/fogfleet crds --check crds
 
 docs-check: venv ## Fail when README.md or docs/ name a missing file, anchor, make target or CLI flag

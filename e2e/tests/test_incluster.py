@@ -99,6 +99,9 @@ def watched(kube: Kube, cluster: Cluster) -> Iterator[str]:
         # a real node (kwok would only pretend to run it); the chart already keeps it off robots
         "--set-string", "nodeSelector.fogfleet\\.io/e2e-real=true",
         "--set", "logFormat=plain",
+        # the bed's CRDs come from crds/ (install_crds above, as every e2e test has them);
+        # test_helm_crd_upgrade.py tests the chart's own CRD templates
+        "--set", "crds.install=false",
         "--wait", "--timeout", "240s",
     )  # fmt: skip
     yield ns

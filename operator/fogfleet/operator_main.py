@@ -36,9 +36,13 @@ FORMATS = {"plain": kopf.LogFormat.PLAIN, "full": kopf.LogFormat.FULL, "json": k
 def build_runtime(settings: Settings, *, serve_metrics: bool = True) -> Runtime:
     """Adapters and the controller runtime, from settings (no kopf here)."""
     api = load_config(settings.kubeconfig)
-    watched = WatchedKube(api, namespaces=settings.namespaces) if settings.watch_cache else None
-    kube = watched or KubeClient(api)
     metrics = PrometheusMetrics()
+    watched = (
+        WatchedKube(api, namespaces=settings.namespaces, metrics=metrics)
+        if settings.watch_cache
+        else None
+    )
+    kube = watched or KubeClient(api, metrics=metrics)
     if serve_metrics and settings.metrics_port:
         metrics.serve(settings.metrics_port, settings.metrics_host)
     deps = Deps(

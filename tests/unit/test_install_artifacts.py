@@ -290,11 +290,16 @@ def test_chart_clusterrole_template_has_the_same_rules_as_the_manifest() -> None
 
 
 def test_chart_crds_are_the_generated_crds() -> None:
+    """The chart templates the generated CRDs (kept on uninstall), and has no crds/ folder."""
+    from fogfleet.api.crdgen import render_chart_crd_text
+
     for path in sorted((REPO / "crds").glob("*.yaml")):
-        assert (CHART / "crds" / path.name).read_text() == path.read_text(), path.name
-    assert {p.name for p in (CHART / "crds").glob("*.yaml")} == {
+        want = render_chart_crd_text(yaml.safe_load(path.read_text()))
+        assert (CHART / "templates" / "crds" / path.name).read_text() == want, path.name
+    assert {p.name for p in (CHART / "templates" / "crds").glob("*.yaml")} == {
         p.name for p in (REPO / "crds").glob("*.yaml")
     }
+    assert not (CHART / "crds").exists()
 
 
 def _helm() -> str | None:

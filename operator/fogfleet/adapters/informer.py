@@ -5,7 +5,9 @@ applies every event to an in-memory store, so reads cost no API call and no JSON
 the watch falls too far behind (HTTP 410 Gone, or a watch ``ERROR`` event) it lists again; when
 the connection breaks it re-watches from the last resourceVersion it saw, backing off up to
 :data:`MAX_BACKOFF_SECONDS` while the API server is unreachable. Watch bookmarks keep that
-resourceVersion fresh on quiet kinds.
+resourceVersion fresh on quiet kinds. Each restart but the API server's routine end of a watch
+is reported (``on_restart(kind, reason)``: ``expired``, ``error`` or ``unexpected``), for
+``fogfleet_watch_restarts_total``.
 
 Objects are trimmed on the way in (``trim``): ``metadata.managedFields`` always, and for bulky
 kinds everything the controllers never read, so the cache's memory grows with the number of
@@ -40,6 +42,9 @@ Obj = dict[str, Any]
 Key = tuple[str, str]  # (namespace or "", name)
 Trim = Callable[[Obj], Obj]
 OnEvent = Callable[[str, Obj, Obj | None], None]
+OnRestart = Callable[[str, str], None]
+"""(kind, reason): a watch restarted (expired: listed again; error: watched again; unexpected:
+listed again after a bug)."""
 """(event type, the object (its last state when DELETED), its previous state or None)."""
 
 MAX_BACKOFF_SECONDS = 30.0
@@ -112,6 +117,8 @@ class Informer:
         trim: Trim = trim_metadata,
         on_event: OnEvent | None = None,
         name: str = "",
+        kind: str = "",
+        on_restart: OnRestart | None = None,
     ) -> None:
         self.source = source
         self.path = path
@@ -119,6 +126,8 @@ class Informer:
         self.trim = trim
         self.on_event = on_event
         self.name = name or path
+        self.kind = kind or self.name
+        self.on_restart = on_restart
         self.synced = threading.Event()
         self.lists = 0  # how many times the whole kind was listed (1 + re-lists)
         self._objects: dict[Key, Obj] = {}
@@ -191,16 +200,23 @@ class Informer:
                 backoff = 0.5
             except WatchExpired:
                 log.info("Watch of %s expired; listing again", self.name)
+                self._restarted("expired")
                 version = None
             except DependencyUnavailable as exc:
                 log.warning("Watch of %s failed (%s); retrying in %.1fs", self.name, exc, backoff)
+                self._restarted("error")
                 self._stop.wait(backoff)
                 backoff = min(backoff * 2, MAX_BACKOFF_SECONDS)
             except Exception:  # a bug must not end the cache silently: log, list again
                 log.exception("Watch of %s broke; listing again", self.name)
+                self._restarted("unexpected")
                 version = None
                 self._stop.wait(backoff)
                 backoff = min(backoff * 2, MAX_BACKOFF_SECONDS)
+
+    def _restarted(self, reason: str) -> None:
+        if self.on_restart is not None:
+            self.on_restart(self.kind, reason)
 
     def _relist(self) -> str:
         items, version = self.source.list_versioned(self.path, self.selector or None)

@@ -5,6 +5,9 @@ client models would only be converted back. Every call blocks; controllers run i
 thread. Library exceptions are translated into the fogfleet error tree in one place,
 :func:`map_errors` (httpx's ``map_httpcore_exceptions``), always ``raise ... from exc``.
 
+Every request is counted as client-go counts it, ``rest_client_requests_total{code,method,
+host}`` (``metrics``): the API writes per second are its rate over PATCH, POST, PUT and DELETE.
+
 Verbs used (the chart's ClusterRole must grant exactly these):
 
     fogfleet.io  robotfleets                 get list watch patch   (kopf: patch annotations)
@@ -38,6 +41,7 @@ from kubernetes.config.config_exception import ConfigException
 
 from fogfleet import GROUP, VERSION
 from fogfleet.adapters.informer import WatchExpired
+from fogfleet.adapters.ports import ClientMetrics
 from fogfleet.api.labels import LABEL_FLEET, LABEL_MANAGED_BY, MANAGER
 from fogfleet.api.timestamps import timestamp
 from fogfleet.api.v1alpha1.computenode import ComputeNode
@@ -105,11 +109,18 @@ class KubeClient:
     """KubePort over one ApiClient (thread-safe: urllib3's pool is)."""
 
     def __init__(
-        self, api: client.ApiClient, *, manager: str = MANAGER, instance: str = "fogfleet"
+        self,
+        api: client.ApiClient,
+        *,
+        manager: str = MANAGER,
+        instance: str = "fogfleet",
+        metrics: ClientMetrics | None = None,
     ) -> None:
         self.api = api
         self.manager = manager
         self.instance = instance
+        self.metrics = metrics
+        self.host = urllib.parse.urlsplit(str(api.configuration.host or "")).netloc
 
     def connection_info(self) -> dict[str, Any]:
         """Our credentials, as keyword arguments of kopf.ConnectionInfo (kopf logs in with them)."""
@@ -180,7 +191,19 @@ class KubeClient:
             body=body,
             auth_settings=["BearerToken"],
         )
-        return self.api.call_api(m, url, header_params=hdrs, body=payload, _request_timeout=timeout)
+        try:
+            resp = self.api.call_api(
+                m, url, header_params=hdrs, body=payload, _request_timeout=timeout
+            )
+        except Exception:
+            self._count(method, "<error>")  # no response: client-go's code for it
+            raise
+        self._count(method, str(resp.status))
+        return resp
+
+    def _count(self, method: str, code: str) -> None:
+        if self.metrics is not None:
+            self.metrics.count_request(code, method, self.host)
 
     def _list(self, path: str, what: str, selector: Mapping[str, str] | None = None) -> list[Obj]:
         query = {"labelSelector": _selector(selector)} if selector else None

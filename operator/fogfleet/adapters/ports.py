@@ -12,7 +12,15 @@ from __future__ import annotations
 from collections.abc import Callable, Mapping
 from typing import Any, Protocol
 
-__all__ = ["KubePort", "Listener", "MetricsPort", "NullMetrics", "SeriesPort", "Watches"]
+__all__ = [
+    "ClientMetrics",
+    "KubePort",
+    "Listener",
+    "MetricsPort",
+    "NullMetrics",
+    "SeriesPort",
+    "Watches",
+]
 
 Obj = dict[str, Any]
 
@@ -145,6 +153,35 @@ class MetricsPort(Protocol):
 
     def count_apply(self, fleet: str, applied: int, pruned: int) -> None: ...
 
+    def observe_fleet_status(self, namespace: str, name: str, status: Mapping[str, Any]) -> None:
+        """The fleet's status as just computed (its conditions, links, active standbys)."""
+        ...
+
+    def forget_fleet(self, namespace: str, name: str) -> None: ...
+
+    def init_controller(self, controller: str) -> None: ...
+
+    def observe_reconcile(self, controller: str, result: str, seconds: float) -> None:
+        """One reconcile (controller-runtime's result: success, error, requeue,
+        requeue_after)."""
+        ...
+
+    def set_queue_depth(self, name: str, depth: int) -> None: ...
+
+    def count_queue_add(self, name: str, retry: bool = False) -> None: ...
+
+
+class ClientMetrics(Protocol):
+    """What the API client and its informers count (client-go's names where it has them)."""
+
+    def count_request(self, code: str, method: str, host: str) -> None: ...
+
+    def count_watch_restart(self, kind: str, reason: str) -> None: ...
+
+    def init_watch(self, kind: str) -> None:
+        """A kind is watched: its restart series start at zero."""
+        ...
+
 
 class NullMetrics:
     """Metrics that go nowhere (tests, the CLI)."""
@@ -166,4 +203,22 @@ class NullMetrics:
         return None
 
     def count_apply(self, fleet: str, applied: int, pruned: int) -> None:
+        return None
+
+    def observe_fleet_status(self, namespace: str, name: str, status: Mapping[str, Any]) -> None:
+        return None
+
+    def forget_fleet(self, namespace: str, name: str) -> None:
+        return None
+
+    def init_controller(self, controller: str) -> None:
+        return None
+
+    def observe_reconcile(self, controller: str, result: str, seconds: float) -> None:
+        return None
+
+    def set_queue_depth(self, name: str, depth: int) -> None:
+        return None
+
+    def count_queue_add(self, name: str, retry: bool = False) -> None:
         return None

@@ -82,6 +82,7 @@ class WatchedKube(KubeClient):
         self.namespaces: tuple[str, ...] = tuple(namespaces)
         scopes: tuple[str | None, ...] = self.namespaces or (None,)
         managed = {LABEL_MANAGED_BY: MANAGER}
+        restarts = self.metrics.count_watch_restart if self.metrics is not None else None
 
         def per_scope(collection: str, prefix: str, kind: str, **kw: Any) -> dict[Any, Informer]:
             return {
@@ -89,21 +90,42 @@ class WatchedKube(KubeClient):
                     self,
                     f"{prefix}/namespaces/{ns}/{collection}" if ns else f"{prefix}/{collection}",
                     name=f"{kind} {ns or '*'}",
+                    kind=kind.removesuffix("s"),
+                    on_restart=restarts,
                     **kw,
                 )
                 for ns in scopes
             }
 
         crds = f"/apis/{GROUP}/{VERSION}"
-        self.nodes = Informer(self, "/api/v1/nodes", trim=trim_node, name="Nodes")
-        self.compute_nodes = Informer(self, f"{crds}/{ComputeNode.PLURAL}", name="ComputeNodes")
+        self.nodes = Informer(
+            self, "/api/v1/nodes", trim=trim_node, name="Nodes", kind="Node", on_restart=restarts
+        )
+        self.compute_nodes = Informer(
+            self,
+            f"{crds}/{ComputeNode.PLURAL}",
+            name="ComputeNodes",
+            kind="ComputeNode",
+            on_restart=restarts,
+        )
         self.modules = per_scope(SoftwareModule.PLURAL, crds, "SoftwareModules")
         self.deployments = per_scope(
             "deployments", "/apis/apps/v1", "Deployments", selector=managed, trim=trim_deployment
         )
         self.pods = per_scope("pods", "/api/v1", "Pods", selector=managed, trim=trim_pod)
         # every Pod on every node, trimmed to its requests: what fleets share nodes with
-        self.node_load = Informer(self, "/api/v1/pods", trim=pod_load, name="Pods (node load)")
+        self.node_load = Informer(
+            self,
+            "/api/v1/pods",
+            trim=pod_load,
+            name="Pods (node load)",
+            kind="Pod",
+            on_restart=restarts,
+        )
+
+        if self.metrics is not None:
+            for kind in sorted({i.kind for i in self.informers()}):
+                self.metrics.init_watch(kind)
 
     def informers(self) -> list[Informer]:
         return [

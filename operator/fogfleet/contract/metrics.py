@@ -28,6 +28,34 @@ the label the Prometheus Operator itself attaches to every target.
 ``fogfleet_response_time_seconds`` is measured where the request is admitted and includes the
 network round trip to the tier. ``fogfleet_requests_rejected_total`` has no ``tier`` label: a
 rejected request was served by none. Offered load = served + rejected.
+
+The operator's own metrics (its ``/metrics``, ``adapters.metrics``) follow the names
+controller-runtime and client-go use, so the dashboards and alerts written for kubebuilder
+operators fit fogfleet as they are; fogfleet's own names sit beside them:
+
+==========================================  =========  ==========================  =========
+metric                                      type       labels                      unit
+==========================================  =========  ==========================  =========
+controller_runtime_reconcile_total          counter    controller, result          reconciles
+controller_runtime_reconcile_errors_total   counter    controller                  reconciles
+controller_runtime_reconcile_time_seconds   histogram  controller                  seconds
+workqueue_depth                             gauge      name                        objects
+workqueue_adds_total                        counter    name                        adds
+workqueue_retries_total                     counter    name                        retries
+rest_client_requests_total                  counter    code, method, host          requests
+fogfleet_watch_restarts_total               counter    kind, reason                restarts
+fogfleet_plans_total                        counter    fleet, scheduler            plans
+fogfleet_degraded_instances                 gauge      fleet                       instances
+fogfleet_reconcile_errors_total             counter    fleet, reason               reconciles
+==========================================  =========  ==========================  =========
+
+``result`` is ``success``, ``error``, ``requeue`` or ``requeue_after`` (controller-runtime's);
+``controller`` and ``name`` are the lower-case kind (``robotfleet``). ``code`` is the HTTP
+status or ``<error>`` when no response came; ``method`` the HTTP verb (``PATCH``, ``POST``,
+``DELETE``, ``GET``...); ``host`` the API server's host:port. controller-runtime has no
+watch-restart metric (client-go's reflector metrics were removed), hence fogfleet's own:
+``reason`` is ``expired`` (410 Gone: listed again), ``error`` (connection lost: watched again)
+or ``unexpected`` (listed again after a bug).
 """
 
 from __future__ import annotations
@@ -37,15 +65,25 @@ from collections.abc import Mapping
 from enum import StrEnum
 
 __all__ = [
+    "API_REQUESTS",
     "CYCLE_TIME",
     "EXECUTION_TIME",
     "HISTOGRAM_BUCKETS_SECONDS",
     "MISSED_CYCLES",
+    "OPERATOR_METRICS",
     "QUEUE_LENGTH",
+    "RECONCILE_ERRORS",
+    "RECONCILE_TIME",
+    "RECONCILE_TOTAL",
     "REPLICAS",
     "REQUESTS_REJECTED",
     "REQUESTS_SERVED",
     "RESPONSE_TIME",
+    "WATCH_RESTARTS",
+    "WORKLOAD_METRICS",
+    "WORKQUEUE_ADDS",
+    "WORKQUEUE_DEPTH",
+    "WORKQUEUE_RETRIES",
     "Label",
     "histogram_of",
     "offered_rate_query",
@@ -61,6 +99,27 @@ REQUESTS_REJECTED = "fogfleet_requests_rejected_total"
 RESPONSE_TIME = "fogfleet_response_time_seconds"
 QUEUE_LENGTH = "fogfleet_queue_length"
 REPLICAS = "fogfleet_replicas"
+WORKLOAD_METRICS = (
+    CYCLE_TIME, MISSED_CYCLES, EXECUTION_TIME, REQUESTS_SERVED, REQUESTS_REJECTED,
+    RESPONSE_TIME, QUEUE_LENGTH, REPLICAS,
+)  # fmt: skip
+
+# the operator's, in controller-runtime's and client-go's names (see the module docstring)
+RECONCILE_TOTAL = "controller_runtime_reconcile_total"
+RECONCILE_ERRORS = "controller_runtime_reconcile_errors_total"
+RECONCILE_TIME = "controller_runtime_reconcile_time_seconds"
+WORKQUEUE_DEPTH = "workqueue_depth"
+WORKQUEUE_ADDS = "workqueue_adds_total"
+WORKQUEUE_RETRIES = "workqueue_retries_total"
+API_REQUESTS = "rest_client_requests_total"
+WATCH_RESTARTS = "fogfleet_watch_restarts_total"
+OPERATOR_METRICS = (
+    RECONCILE_TOTAL, RECONCILE_ERRORS, RECONCILE_TIME, WORKQUEUE_DEPTH, WORKQUEUE_ADDS,
+    WORKQUEUE_RETRIES, API_REQUESTS, WATCH_RESTARTS,
+    "fogfleet_plans_total", "fogfleet_planning_seconds", "fogfleet_objective",
+    "fogfleet_degraded_instances", "fogfleet_migrations_total", "fogfleet_reconcile_errors_total",
+    "fogfleet_deployments_applied_total", "fogfleet_deployments_pruned_total",
+)  # fmt: skip
 
 # Bucket bounds chosen around robot control periods (10 ms - 1 s) and the tinyKube targets
 # (0.35 s, 0.5 s) so that histogram_quantile interpolates inside a narrow bucket there.

@@ -18,6 +18,11 @@ One lock per fleet: two reconciles of the same fleet never overlap. ``forget(key
 everything the queue holds for a fleet that is gone (its timer, burst, failure count and lock;
 the lock once its last holder or waiter leaves), as kopf's queueing drops a resource's worker
 and its stream when the resource is deleted.
+
+Instrumented as controller-runtime's controllers and client-go's workqueue are (``metrics``):
+every run's result and duration (``controller_runtime_reconcile_*{controller=name}``), the
+fleets waiting for a run (``workqueue_depth{name}``: debounced, requeued or backing off), each
+add and retry; forgetting a fleet drops its status series too.
 """
 
 from __future__ import annotations
@@ -25,8 +30,10 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
+import time
 from collections.abc import AsyncIterator, Awaitable, Callable
 
+from fogfleet.adapters.ports import MetricsPort, NullMetrics
 from fogfleet.errors import DependencyUnavailable, InvalidSpec
 
 from .outcome import Outcome
@@ -55,6 +62,8 @@ class ReconcileQueue:
         max_wait: float | None = None,
         retry: float = 10.0,
         on_error: Callable[[FleetKey, str], None] | None = None,
+        metrics: MetricsPort | None = None,
+        name: str = "robotfleet",
     ) -> None:
         self.runner = runner
         self.debounce = debounce
@@ -67,6 +76,9 @@ class ReconcileQueue:
         self._burst: dict[FleetKey, float] = {}  # when the pending debounced burst began
         self._users: dict[FleetKey, int] = {}  # holders and waiters of each fleet's lock
         self._forgotten: set[FleetKey] = set()  # locks to drop once their users left
+        self.metrics: MetricsPort = metrics or NullMetrics()
+        self.name = name
+        self.metrics.init_controller(name)
 
     @contextlib.asynccontextmanager
     async def _locked(self, key: FleetKey) -> AsyncIterator[None]:
@@ -88,6 +100,7 @@ class ReconcileQueue:
         """The fleet is gone: drop its timer, burst, failures and (once unused) its lock."""
         self.cancel(key)
         self._failures.pop(key, None)
+        self.metrics.forget_fleet(*key)
         if key in self._users:
             self._forgotten.add(key)
         else:
@@ -101,14 +114,32 @@ class ReconcileQueue:
         self.cancel(key)
         self._forgotten.discard(key)  # a fleet created again under the same name
         async with self._locked(key):
-            outcome = await self.runner(key)
+            outcome = await self._reconcile(key)
         self._follow_up(key, outcome)
         return outcome
 
-    def schedule(self, key: FleetKey, delay: float | None = None) -> None:
+    async def _reconcile(self, key: FleetKey) -> Outcome | None:
+        """One run of the runner, counted and timed as controller-runtime counts a reconcile."""
+        t0 = time.perf_counter()
+        try:
+            outcome = await self.runner(key)
+        except Exception:
+            self.metrics.observe_reconcile(self.name, "error", time.perf_counter() - t0)
+            raise
+        requeue = outcome is not None and outcome.requeue_after is not None
+        result = "requeue_after" if requeue else "success"
+        self.metrics.observe_reconcile(self.name, result, time.perf_counter() - t0)
+        return outcome
+
+    def schedule(self, key: FleetKey, delay: float | None = None, *, retry: bool = False) -> None:
         self.cancel(key)
         wait = self.debounce if delay is None else delay
         self._timers[key] = asyncio.get_running_loop().create_task(self._later(key, wait))
+        self.metrics.count_queue_add(self.name, retry)
+        self._depth()
+
+    def _depth(self) -> None:
+        self.metrics.set_queue_depth(self.name, len(self._timers))
 
     def schedule_debounced(
         self, key: FleetKey, quiet: float | None = None, max_wait: float | None = None
@@ -128,6 +159,8 @@ class ReconcileQueue:
         task = self._timers.pop(key, None)
         if task is not None and task is not asyncio.current_task():
             task.cancel()
+        if task is not None:
+            self._depth()
 
     def pending(self) -> set[FleetKey]:
         return set(self._timers)
@@ -136,10 +169,11 @@ class ReconcileQueue:
         await asyncio.sleep(wait)
         if self._timers.get(key) is asyncio.current_task():
             del self._timers[key]
+            self._depth()
         outcome: Outcome | None = None
         try:
             async with self._locked(key):
-                outcome = await self.runner(key)
+                outcome = await self._reconcile(key)
         except InvalidSpec as exc:
             log.info("Left RobotFleet %s/%s as is: %s", *key, exc)
             return
@@ -159,7 +193,7 @@ class ReconcileQueue:
         self._failures[key] = attempt + 1
         delay = backoff_delay(self.retry, attempt)
         self._error(key, reason)
-        self.schedule(key, delay)
+        self.schedule(key, delay, retry=True)
         return delay
 
     def _follow_up(self, key: FleetKey, outcome: Outcome | None) -> None:
@@ -173,6 +207,7 @@ class ReconcileQueue:
     async def close(self) -> None:
         tasks = list(self._timers.values())
         self._timers.clear()
+        self._depth()
         for t in tasks:
             t.cancel()
         await asyncio.gather(*tasks, return_exceptions=True)

@@ -62,6 +62,7 @@ class Runtime:
             debounce=debounce,
             retry=deps.retry_seconds,
             on_error=lambda key, reason: deps.metrics.count_error(key[1], reason),
+            metrics=deps.metrics,
         )
         self.store = deps.store  # every fleet's state (its rollout progress among it)
         # the change filters: what was last seen of each related object

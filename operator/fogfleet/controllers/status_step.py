@@ -127,6 +127,7 @@ def _write(
 ) -> float | None:
     """Patch ``status`` when it differs from the fleet's, then post ``events``; the seconds
     the patch took (None: nothing changed)."""
+    deps.metrics.observe_fleet_status(*obj.key, status)
     if same_status(obj.old_status, status):
         return None
     t0 = time.perf_counter()

@@ -102,13 +102,46 @@ def test_write_crds_also_writes_and_checks_the_chart_copy(tmp_path: Path) -> Non
     chart.mkdir(parents=True)
     (chart / "Chart.yaml").write_text("name: fogfleet\n")
     written = write_crds(tmp_path / "crds")
-    assert {p.parent.name for p in written} == {"crds"}
-    assert len(written) == 2 * len(render_crds())
-    (chart / "crds" / "softwaremodules.fogfleet.io.yaml").write_text("old\n")
+    assert {p.parent.name for p in written} == {"crds", "dashboards"}
+    assert len(written) == 2 * len(render_crds()) + 2  # and the dashboard and alerts
+    templates = chart / "templates" / "crds"
+    (templates / "softwaremodules.fogfleet.io.yaml").write_text("old\n")
+    (chart / "dashboards" / "alerts.yaml").write_text("old\n")
     assert check_crds(tmp_path / "crds") == [
-        f"{chart / 'crds' / 'softwaremodules.fogfleet.io.yaml'}: differs from the models "
-        "(run `make crds`)"
+        f"{templates / 'softwaremodules.fogfleet.io.yaml'}: differs from the models "
+        "(run `make crds`)",
+        f"{chart / 'dashboards' / 'alerts.yaml'}: differs from the models (run `make crds`)",
     ]
+
+
+def test_the_charts_crds_are_kept_templates_behind_a_value(tmp_path: Path) -> None:
+    """Helm upgrades templates but never a chart's crds/ folder; keep survives uninstall."""
+    chart = tmp_path / "charts" / "fogfleet"
+    chart.mkdir(parents=True)
+    (chart / "Chart.yaml").write_text("name: fogfleet\n")
+    write_crds(tmp_path / "crds")
+    for name, crd in render_crds().items():
+        text = (chart / "templates" / "crds" / name).read_text()
+        lines = [line for line in text.splitlines() if not line.startswith("#")]
+        assert lines[0] == "{{- if .Values.crds.install }}" and lines[-1] == "{{- end }}"
+        body = yaml.safe_load("\n".join(lines[1:-1]))
+        assert body["metadata"]["annotations"] == {"helm.sh/resource-policy": "keep"}
+        body["metadata"].pop("annotations")
+        assert body == crd
+    (chart / "crds").mkdir()
+    (chart / "crds" / "robotfleets.fogfleet.io.yaml").write_text("old\n")
+    assert any("templates now" in p for p in check_crds(tmp_path / "crds"))
+
+
+def test_conditions_are_a_map_keyed_by_type() -> None:
+    for crd in render_crds().values():
+        schema = crd["spec"]["versions"][0]["schema"]["openAPIV3Schema"]
+        conditions = schema["properties"]["status"]["properties"]["conditions"]
+        assert conditions["x-kubernetes-list-type"] == "map"
+        assert conditions["x-kubernetes-list-map-keys"] == ["type"]
+        assert "type" in conditions["items"]["required"]
+        assert "observedGeneration" in conditions["items"]["properties"]
+        assert "observedGeneration" in schema["properties"]["status"]["properties"]
 
 
 def test_rendering_is_deterministic_and_round_trips_through_yaml() -> None:
