@@ -66,9 +66,7 @@ cluster-status: venv ## Show the local control plane's processes and health
 # the portable part on that cluster instead, with kubectl and helm from FOGFLEET_E2E_KUBECTL /
 # FOGFLEET_E2E_HELM, else the bed's (when built), else PATH; tests needing the bed are deselected.
 E2E_KUBECONFIG := $(if $(filter command line,$(origin KUBECONFIG)),$(abspath $(KUBECONFIG)))
-E2E_PORTABLE_ENV := FOGFLEET_E2E_EXTERNAL=1 FOGFLEET_E2E_KUBECONFIG=$(E2E_KUBECONFIG) \
-	FOGFLEET_E2E_KUBECTL=$(or $(FOGFLEET_E2E_KUBECTL),$(wildcard $(CACHE_HOME)/bin/kubectl)) \
-	FOGFLEET_E2E_HELM=$(or $(FOGFLEET_E2E_HELM),$(wildcard $(CACHE_HOME)/bin/helm))
+E2E_PORTABLE_ENV := FOGFLEET_E2E_EXTERNAL=1 FOGFLEET_E2E_KUBECONFIG=$(E2E_KUBECONFIG)
 e2e: venv $(if $(E2E_KUBECONFIG),,cluster-tools images) ## End-to-end tests on the local bed (started if not running); KUBECONFIG=<file>: the portable part on that cluster
 	$(if $(E2E_KUBECONFIG),$(E2E_PORTABLE_ENV) $(BIN)/pytest e2e/tests -q --with-e2e,$(BIN)/pytest e2e -q --with-e2e)
 

@@ -34,7 +34,10 @@ class Settings:
     @classmethod
     def from_env(cls, env: dict[str, str] | None = None) -> Settings:
         env = dict(os.environ if env is None else env)
-        helm = env.get(ENV_HELM) or shutil.which("helm") or ""
+        cache = Path(env.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "fogfleet"
+        built = cache / "bin" / "helm"  # the bed's, when it was built here (make cluster-tools)
+        helm = env.get(ENV_HELM) or (str(built) if built.exists() else None)
+        helm = helm or shutil.which("helm", path=env.get("PATH", "")) or ""
         if not helm or not Path(helm).exists():
             raise ValueError(f"no helm: set {ENV_HELM} or put helm on PATH")
         policy = env.get(ENV_PULL_POLICY) or "IfNotPresent"
