@@ -2,7 +2,10 @@
 
 By default the tests run on the local control plane of e2e/bed/harness.py (started on
 demand, left running). With ``FOGFLEET_E2E_EXTERNAL=1 FOGFLEET_E2E_KUBECONFIG=<path>`` they run
-against that one explicit cluster instead (e2e/bed/k3d/run.sh does this).
+against that one explicit cluster instead (``make e2e KUBECONFIG=<path>``, ``make e2e-kind``,
+``make e2e-k3d``): only the tests marked ``portable`` run there; every other e2e test says in
+one line, ``pytest.mark.bed("<what of the bed it needs>")``, why it cannot, and is deselected
+(the summary prints each reason with its count). An e2e test with neither marker is an error.
 
 Fixtures (generic, for the smoke tests and the operator suites that come later):
 
@@ -53,8 +56,41 @@ def pytest_addoption(parser: pytest.Parser) -> None:
         )
 
 
+_DESELECTED = pytest.StashKey[dict[str, int]]()
+
+
+def _bed_reason(item: pytest.Item) -> str | None:
+    """Why an e2e test cannot run on another cluster (its ``bed`` marker), None if portable."""
+    if item.get_closest_marker("portable") is not None:
+        return None
+    marker = item.get_closest_marker("bed")
+    if marker is None or len(marker.args) != 1 or not str(marker.args[0]).strip():
+        raise pytest.UsageError(
+            f'{item.nodeid}: an e2e test is marked portable or bed("<what of the bed it needs>")'
+        )
+    return str(marker.args[0])
+
+
+def _keep_portable(config: pytest.Config, items: list[pytest.Item]) -> None:
+    """On another cluster: deselect (never skip) every e2e test that needs the bed."""
+    kept, dropped, reasons = [], [], {}
+    for item in items:
+        reason = _bed_reason(item) if item.get_closest_marker("e2e") is not None else None
+        if reason is None:
+            kept.append(item)
+        else:
+            dropped.append(item)
+            reasons[reason] = reasons.get(reason, 0) + 1
+    if dropped:
+        config.hook.pytest_deselected(items=dropped)
+        items[:] = kept
+    config.stash[_DESELECTED] = reasons
+
+
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
     if config.getoption("--with-e2e"):
+        if _external():
+            _keep_portable(config, items)
         # a test on the paper bed restarts the bed with the paper profile: it runs last, so
         # every other test has the suite's bed (the order is otherwise kept)
         items.sort(key=lambda item: item.get_closest_marker("paperbed") is not None)
@@ -73,6 +109,12 @@ def pytest_terminal_summary(terminalreporter: Any, exitstatus: int, config: pyte
     controls, emulated links, the harness's Prometheus)."""
     if not config.getoption("--with-e2e"):
         return
+    deselected = config.stash.get(_DESELECTED, {})
+    if deselected:
+        total = sum(deselected.values())
+        terminalreporter.section(f"e2e tests deselected: they need the local bed ({total})")
+        for reason, count in sorted(deselected.items()):
+            terminalreporter.line(f"{count:4d}  {reason}")
     skipped = terminalreporter.stats.get("skipped", [])
     if not skipped:
         return
@@ -160,9 +202,11 @@ def kube(_e2e_target: tuple[Kube, harness.Cluster | None]) -> Kube:
 
 @pytest.fixture(scope="session")
 def cluster(_e2e_target: tuple[Kube, harness.Cluster | None]) -> harness.Cluster:
-    """The local control plane (Prometheus, kwok node controls); skips on external clusters."""
+    """The local control plane (Prometheus, kwok node controls). On another cluster a test
+    that asks for it is mislabelled (a portable test must not need it): it errors."""
     if _e2e_target[1] is None:
-        pytest.skip("needs the local control plane (not available with an external cluster)")
+        pytest.fail("needs the local bed, which another cluster is not: mark the test "
+                    'bed("<why>") so it is deselected there', pytrace=False)  # fmt: skip
     return _e2e_target[1]
 
 

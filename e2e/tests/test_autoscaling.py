@@ -39,7 +39,11 @@ from fogfleet.controllers.scaling import ScalingDeps, reconcile_scaling
 from fogfleet.render.ros import PLANNED_TOLERATION
 from fogfleet.twin.app import Twin
 
-pytestmark = [pytest.mark.e2e, pytest.mark.timeout(300)]  # ticks are slower on a loaded 2-core bed
+pytestmark = [
+    pytest.mark.e2e,
+    pytest.mark.bed("the bed's Prometheus (file_sd targets) and its kwok warehouse nodes"),
+    pytest.mark.timeout(300),
+]  # ticks are slower on a loaded 2-core bed
 
 MODULE = "object-detector"
 PERIOD = 2.0  # seconds between decisions (Prometheus scrapes every 2 s)

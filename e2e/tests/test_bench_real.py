@@ -25,7 +25,13 @@ from e2e.bench.real.record import document
 from e2e.bench.real.run import connect, run_bench
 from e2e.bench.real.scenario import Scenario
 
-pytestmark = [pytest.mark.e2e, pytest.mark.real, pytest.mark.paperbed, pytest.mark.timeout(900)]
+pytestmark = [
+    pytest.mark.e2e,
+    pytest.mark.bed("restarts the bed with the paper profile (nodes-paper.yaml)"),
+    pytest.mark.real,
+    pytest.mark.paperbed,
+    pytest.mark.timeout(900),
+]
 
 
 def test_one_run_on_the_paper_bed_is_measured_simulated_and_summarised(

@@ -18,7 +18,11 @@ from e2e.bed.cpu_meter import CONTROL_PLANE
 from e2e.bed.kube import Kube
 from e2e.bench import scale as bench_scale
 
-pytestmark = [pytest.mark.e2e, pytest.mark.timeout(600)]
+pytestmark = [
+    pytest.mark.e2e,
+    pytest.mark.bed("replaces the bed's kwok nodes (hundreds of fake robots)"),
+    pytest.mark.timeout(600),
+]
 
 
 def test_a_small_fleet_goes_through_every_step_of_the_scale_benchmark(

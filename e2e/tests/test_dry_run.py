@@ -20,7 +20,7 @@ from e2e.bed.kube import Kube
 from e2e.bed.operator_fixtures import EXAMPLES, example_docs, install_crds, of_kind
 from fogfleet.cli import main
 
-pytestmark = [pytest.mark.e2e, pytest.mark.dryrun, pytest.mark.timeout(180)]
+pytestmark = [pytest.mark.e2e, pytest.mark.portable, pytest.mark.dryrun, pytest.mark.timeout(180)]
 
 HPA_SCALING = (
     "  scaling:\n    minReplicas: 2\n    maxReplicas: 6\n    backend: hpa\n"

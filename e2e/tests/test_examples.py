@@ -38,6 +38,7 @@ GONE_SECONDS = 180  # a namespace goes once its pods have (real ones stop in sec
 
 pytestmark = [
     pytest.mark.e2e,
+    pytest.mark.bed("the examples' ComputeNodes name the bed's kwok nodes (nodes.yaml)"),
     pytest.mark.examples,
     pytest.mark.timeout(READY_SECONDS + GONE_SECONDS + 240),
 ]

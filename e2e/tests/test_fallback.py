@@ -40,7 +40,13 @@ from e2e.tests.rosbed import (
     scrape_series,
 )
 
-pytestmark = [pytest.mark.e2e, pytest.mark.real, pytest.mark.disconnect, pytest.mark.timeout(600)]
+pytestmark = [
+    pytest.mark.e2e,
+    pytest.mark.bed("emulated links: cuts and slows a real robot's link"),
+    pytest.mark.real,
+    pytest.mark.disconnect,
+    pytest.mark.timeout(600),
+]
 
 CUT_SECONDS = 60
 CYCLE_S = 0.1

@@ -34,6 +34,7 @@ from e2e.bed.operator_fixtures import (
 
 pytestmark = [
     pytest.mark.e2e,
+    pytest.mark.bed("the bed's real node names and its helm; test_portable.py installs portably"),
     pytest.mark.real,
     pytest.mark.incluster,
     pytest.mark.timeout(600),

@@ -14,7 +14,7 @@ import pytest
 from e2e.bed.kube import Kube
 from fogfleet.adapters.leases import LeaseLock, LeaseSettings
 
-pytestmark = [pytest.mark.e2e, pytest.mark.timeout(120)]
+pytestmark = [pytest.mark.e2e, pytest.mark.portable, pytest.mark.timeout(120)]
 
 
 def _lock(kube: Kube, namespace: str, identity: str) -> LeaseLock:

@@ -25,7 +25,12 @@ from e2e.bed.operator_fixtures import (
 )
 from fogfleet.api.v1alpha1.base import parse_cpu
 
-pytestmark = [pytest.mark.e2e, pytest.mark.multifleet, pytest.mark.timeout(600)]
+pytestmark = [
+    pytest.mark.e2e,
+    pytest.mark.bed("the bed's kwok warehouse nodes (robot-1..5, edge-1..6)"),
+    pytest.mark.multifleet,
+    pytest.mark.timeout(600),
+]
 
 ROBOTS = {"a": ["robot-1", "robot-2"], "b": ["robot-3", "robot-4"], "c": ["robot-1"]}
 INSTANCES = 16  # 2 robots x 8 modules

@@ -42,7 +42,11 @@ from e2e.bed.operator_fixtures import (
 from fogfleet.api.v1alpha1.base import parse_cpu
 from fogfleet.controllers.ros import is_ros_object
 
-pytestmark = [pytest.mark.e2e, pytest.mark.timeout(420)]
+pytestmark = [
+    pytest.mark.e2e,
+    pytest.mark.bed("the bed's kwok warehouse nodes and the operator run as a host process"),
+    pytest.mark.timeout(420),
+]
 
 FULL_TEMPLATE: dict[str, Any] = yaml.safe_load(
     (ROOT / "manifests" / "examples" / "pod-template" / "module.yaml").read_text()

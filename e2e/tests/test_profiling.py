@@ -24,7 +24,13 @@ from e2e.bed.kube import Kube
 from e2e.bed.operator_fixtures import conditions, events, fleet
 from e2e.tests.rosbed import ROBOTS, bed_objects, operated_fleet, ros_module
 
-pytestmark = [pytest.mark.e2e, pytest.mark.real, pytest.mark.closedloop, pytest.mark.timeout(600)]
+pytestmark = [
+    pytest.mark.e2e,
+    pytest.mark.bed("the bed's Prometheus scraping pod IPs from the host"),
+    pytest.mark.real,
+    pytest.mark.closedloop,
+    pytest.mark.timeout(600),
+]
 
 FLEET = "profiledfleet"
 MODULE = "mapper"

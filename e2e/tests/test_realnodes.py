@@ -21,7 +21,12 @@ from e2e.bed import cgroups, realnodes
 from e2e.bed.harness import NODES_FILE, Cluster
 from e2e.bed.kube import Kube
 
-pytestmark = [pytest.mark.e2e, pytest.mark.real, pytest.mark.timeout(300)]
+pytestmark = [
+    pytest.mark.e2e,
+    pytest.mark.bed("the real nodes' cgroups and emulated links"),
+    pytest.mark.real,
+    pytest.mark.timeout(300),
+]
 
 BUSYBOX = "localhost/fogfleet/busybox:bed"
 

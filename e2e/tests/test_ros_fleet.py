@@ -28,7 +28,12 @@ from e2e.tests.rosbed import (
     scrape,
 )
 
-pytestmark = [pytest.mark.e2e, pytest.mark.real, pytest.mark.timeout(600)]
+pytestmark = [
+    pytest.mark.e2e,
+    pytest.mark.bed("the bed's Prometheus scraping pod IPs; test_portable.py checks messages"),
+    pytest.mark.real,
+    pytest.mark.timeout(600),
+]
 
 
 def _fleet_objects(ns: str) -> list[dict[str, Any]]:

@@ -23,7 +23,11 @@ from e2e.bed.harness import Cluster
 from e2e.bed.kube import Kube
 from fogfleet.render.ros import PLANNED_TOLERATION
 
-pytestmark = [pytest.mark.e2e, pytest.mark.timeout(300)]
+pytestmark = [
+    pytest.mark.e2e,
+    pytest.mark.bed("kwok node controls and the bed's Prometheus"),
+    pytest.mark.timeout(300),
+]
 
 PAUSE_IMAGE = "registry.k8s.io/pause:3.10"  # never pulled on kwok; tiny and real on k3d
 

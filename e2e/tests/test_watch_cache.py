@@ -13,7 +13,11 @@ import pytest
 from e2e.bed.kube import Kube
 from e2e.tests.test_smoke import _deployment, _ready_nodes
 
-pytestmark = [pytest.mark.e2e, pytest.mark.timeout(180)]
+pytestmark = [
+    pytest.mark.e2e,
+    pytest.mark.bed("a kwok robot node (fogfleet.io/tier=robot without e2e-real)"),
+    pytest.mark.timeout(180),
+]
 
 MANAGED = {"app.kubernetes.io/managed-by": "fogfleet"}
 
