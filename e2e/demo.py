@@ -50,7 +50,8 @@ def install(kube: Kube) -> None:
     """The README's Helm install (upgrade --install, so a second demo finds it in place)."""
     say(f"helm install {RELEASE} charts/fogfleet -n {SYSTEM} --create-namespace  (the README's)")
     t0 = time.monotonic()
-    helm("upgrade", "--install", RELEASE, "charts/fogfleet", "-n", SYSTEM, "--create-namespace",
+    helm("upgrade", "--install", "--take-ownership", RELEASE, "charts/fogfleet", "-n", SYSTEM,
+         "--create-namespace",
          "--wait", "--timeout", "300s")  # fmt: skip
     pods = kube.kubectl_json(
         "get", "pods", "-n", SYSTEM, "-l", "app.kubernetes.io/component=operator"
