@@ -22,7 +22,12 @@ import pytest
 from e2e.bed.kube import Kube
 from e2e.bed.operator_fixtures import Operator, apply_warehouse, fleet, install_crds, wait_ready
 
-pytestmark = [pytest.mark.e2e, pytest.mark.observability, pytest.mark.timeout(420)]
+pytestmark = [
+    pytest.mark.e2e,
+    pytest.mark.bed("the operator runs as a local process beside the bed"),
+    pytest.mark.observability,
+    pytest.mark.timeout(420),
+]
 
 
 @pytest.fixture

@@ -41,6 +41,7 @@ from e2e.bed.operator_fixtures import (
 
 pytestmark = [
     pytest.mark.e2e,
+    pytest.mark.bed("the bed's helm and its CRDs, restored after the upgrade"),
     pytest.mark.real,
     pytest.mark.incluster,
     pytest.mark.observability,

@@ -39,6 +39,7 @@ from fogfleet.contract.dashboard import ALERTS
 
 pytestmark = [
     pytest.mark.e2e,
+    pytest.mark.bed("the bed's Prometheus scrapes the operator and the workloads"),
     pytest.mark.real,
     pytest.mark.observability,
     pytest.mark.timeout(600),

@@ -26,7 +26,12 @@ from e2e.bed.operator_fixtures import (
     wait_ready,
 )
 
-pytestmark = [pytest.mark.e2e, pytest.mark.observability, pytest.mark.timeout(420)]
+pytestmark = [
+    pytest.mark.e2e,
+    pytest.mark.bed("the operator runs as a local process beside the bed"),
+    pytest.mark.observability,
+    pytest.mark.timeout(420),
+]
 
 
 @pytest.fixture(scope="module")

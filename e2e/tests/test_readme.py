@@ -26,7 +26,13 @@ from e2e.bed.harness import Cluster
 from e2e.bed.kube import Kube
 from e2e.bed.operator_fixtures import ROOT, install_crds, wait_ready
 
-pytestmark = [pytest.mark.e2e, pytest.mark.real, pytest.mark.incluster, pytest.mark.timeout(900)]
+pytestmark = [
+    pytest.mark.e2e,
+    pytest.mark.bed("the README's demo and install on the local bed"),
+    pytest.mark.real,
+    pytest.mark.incluster,
+    pytest.mark.timeout(900),
+]
 
 README = ROOT / "README.md"
 SYSTEM = "fogfleet-system"
