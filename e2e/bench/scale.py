@@ -27,7 +27,10 @@ every Node a kwok node, every ComputeNode a real object validated by the real AP
 4. **CPU by part of the bed** (``plainCpuSeconds``, ``operatorCpuSeconds``): what etcd, the
    API server, kube-controller-manager, kube-scheduler, kwok, the operator and the benchmark
    itself used from apply to all Running, and the machine's busy seconds (``e2e/bed/cpu_meter.py``).
-5. **operator RSS**: ``VmHWM`` (peak, planning included) and ``VmRSS`` (what it holds once the
+5. **API writes** (``apiWrites``, ``apiWritesPerSecond``): the operator's POST/PUT/PATCH/DELETE
+   from apply to all Running, from client-go's ``rest_client_requests_total`` on its /metrics,
+   and their rate over that time.
+6. **operator RSS**: ``VmHWM`` (peak, planning included) and ``VmRSS`` (what it holds once the
    fleet is Ready again: caches, plans) of the operator process at the end of the size.
 
 Prints one table and writes ``bench-scale.json`` at the repository root (git-ignored):
@@ -59,6 +62,7 @@ import sys
 import tempfile
 import threading
 import time
+import urllib.request
 from pathlib import Path
 from typing import Any
 
@@ -88,6 +92,7 @@ from e2e.bench.cluster import (  # noqa: E402
     table,
     teardown_cluster,
 )
+from e2e.portable.metrics import parse as parse_metrics  # noqa: E402
 
 Obj = dict[str, Any]
 EDGES_PER_ROBOT = 0.4
@@ -210,11 +215,13 @@ def run_operator_size(
         poller = FleetPoller(kube, ns, spec.fleet_name, spec.pods)
         meter = CpuMeter({"fogfleet": op.proc.pid, "benchmark": os.getpid()})
         try:
+            writes_before = api_writes(op.metrics_port)
             meter.start()
             t0 = time.monotonic()
             server_side_apply(kube, [spec.fleet_in(ns)], MANAGER, timeout=timeout)
             watcher.wait(timeout)
             meter.stop()
+            writes = api_writes(op.metrics_port) - writes_before
             ready_at = poller.wait_ready(timeout)
         finally:
             watcher.close()
@@ -227,6 +234,8 @@ def run_operator_size(
             "readyLagSeconds": ready_at - watcher.all_running,
             "lastDeploymentSeconds": (watcher.last_dep or math.nan) - t0,
             "operatorCpuSeconds": meter.seconds,
+            "apiWrites": writes,
+            "apiWritesPerSecond": writes / (watcher.all_running - t0),
         }
         log(
             f"{spec.key} operator: all Running {row['operatorSeconds']:.1f}s, planning "
@@ -245,6 +254,18 @@ def run_operator_size(
     finally:
         delete_namespace(kube, ns, timeout=timeout)
         op.stop()
+
+
+WRITE_METHODS = ("POST", "PUT", "PATCH", "DELETE")
+
+
+def api_writes(metrics_port: int) -> float:
+    """The operator's API writes so far: client-go's ``rest_client_requests_total`` from its
+    /metrics, summed over the write methods (kopf's own annotation patches and the Lease are
+    not counted: they do not go through fogfleet's client)."""
+    text = urllib.request.urlopen(f"http://127.0.0.1:{metrics_port}/metrics", timeout=10).read()
+    scraped = parse_metrics(text.decode())
+    return sum(scraped.total("rest_client_requests_total", method=m) for m in WRITE_METHODS)
 
 
 def wait_quiet(window: float = QUIET_WINDOW_SECONDS) -> float:
@@ -354,7 +375,7 @@ def format_rows(rows: list[Obj]) -> str:
     header = [
         "robots", "pods", "plain s", "operator s", "first plan s", "(op-plan)/plain",
         "Ready lag s", "join re-plan s", "join->Ready s", "moved", "settled: re-plan s",
-        "join->Ready s", "peak RSS MiB", "RSS after MiB",
+        "join->Ready s", "peak RSS MiB", "RSS after MiB", "API writes", "writes/s",
     ]  # fmt: skip
     columns = [
         ("plainSeconds", "{:.1f}"),
@@ -369,6 +390,8 @@ def format_rows(rows: list[Obj]) -> str:
         ("settledJoinToReadySeconds", "{:.1f}"),
         ("operatorPeakRssMiB", "{:.0f}"),
         ("operatorRssAfterMiB", "{:.0f}"),
+        ("apiWrites", "{:.0f}"),
+        ("apiWritesPerSecond", "{:.1f}"),
     ]
     lines = [[str(r["robots"]), str(r["pods"]), *(f(r, k, fm) for k, fm in columns)] for r in rows]
     errors = [f"{r['robots']} robots: {r['error']}" for r in rows if "error" in r]
