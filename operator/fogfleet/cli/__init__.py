@@ -173,9 +173,7 @@ def _parser() -> argparse.ArgumentParser:
     sp.add_argument("--json", action="store_true")
     sp.set_defaults(func=cmd_simulate)
 
-    sp = sub.add_parser(
-        "explain", help="why each instance of a module runs where the plan puts it"
-    )
+    sp = sub.add_parser("explain", help="why each instance of a module runs where the plan puts it")
     fleet_args(sp, SCHEDULERS)
     sp.add_argument("--module", required=True, help="the SoftwareModule to explain")
     sp.add_argument("--robot", help="only this robot's instance")

@@ -396,24 +396,30 @@ def _fill_grid(inst: _Instances, table: PairTable, links: list[Link], n_robots: 
     grid = _Grid.empty(len(inst.instances), n)
     mean_robot = _mean_link(links[:n_robots])
     remote = range(n_robots, n)  # edge and cloud nodes: one block per module and link
+    sharing: dict[int, tuple[Block, list[int]]] = {}  # id(block) -> the block, its instances
     for i, (instance, resolved, h) in enumerate(
         zip(inst.instances, inst.module, inst.home, strict=True)
     ):
         mod, cycle, tier = resolved.module, resolved.cycle, inst.pool_tier[i]
         why: list[str] = []
+        at_home = False
         if h >= 0:
             own = table.pair(mod, cycle, tier, h, h, links[h])
             if isinstance(own, Pair):
                 _set_home_pair(grid, i, h, own, parse_cpu(mod.spec.resources.cpu))
+                at_home = True
             elif own is not None:
                 why.append(own)
         blk = table.block(mod, cycle, tier, remote, links[h] if h >= 0 else mean_robot)
-        _set_block(grid, i, remote.start, blk)
+        grid.blocks.append(blk)
+        sharing.setdefault(id(blk), (blk, []))[1].append(i)
         why += blk.why
-        if not grid.allowed[i].any():
+        if not at_home and not blk.any_allowed:
             where = "; ".join(why) if why else "no node in the fleet can host it"
             who = f"{instance.robot + '/' if instance.robot else ''}{instance.module}"
             grid.reasons[i] = f"{who} fits nowhere: {where}"
+    for blk, rows in sharing.values():
+        _set_block(grid, np.asarray(rows), remote.start, blk)
     return grid
 
 
@@ -430,16 +436,16 @@ def _set_home_pair(grid: _Grid, i: int, h: int, own: Pair, nominal_request: floa
         grid.home_rungs[i] = own.rungs
 
 
-def _set_block(grid: _Grid, i: int, start: int, blk: Block) -> None:
-    """Instance ``i``'s row over the edge and cloud nodes (columns ``start:``)."""
-    grid.blocks.append(blk)
-    grid.allowed[i, start:] = blk.allowed
-    grid.net_mean[i, start:] = blk.net_mean
-    grid.net_std[i, start:] = blk.net_std
+def _set_block(grid: _Grid, rows: NDArray[np.int64], start: int, blk: Block) -> None:
+    """The rows over the edge and cloud nodes (columns ``start:``) of the instances ``rows``,
+    which share ``blk``: one broadcast write per array, not one per instance."""
+    grid.allowed[rows, start:] = blk.allowed
+    grid.net_mean[rows, start:] = blk.net_mean
+    grid.net_std[rows, start:] = blk.net_std
     for arr, row in zip((*grid.lim, *grid.nom), (*blk.lim, *blk.nom), strict=True):
-        arr[i, start:] = row
-    if blk.allowed.any():
-        grid.traffic[i] = blk.bits
+        arr[rows, start:] = row
+    if blk.any_allowed:
+        grid.traffic[rows] = blk.bits
 
 
 def _current_nodes(

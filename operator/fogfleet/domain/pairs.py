@@ -73,6 +73,11 @@ class Block:
     why: tuple[str, ...]
     bits: float
 
+    @property
+    def any_allowed(self) -> bool:
+        """Whether the module may run on any node of the run."""
+        return bool(self.allowed.any())
+
 
 def profile_rows(module: SoftwareModule, node: ComputeNode) -> list[ProfileRow]:
     """Fig. 3 rows for this node's hardware type; 'default' rows scaled by speedFactor."""
