@@ -80,8 +80,7 @@ def run(
     line that often, so no step of a build is silent for longer.
     """
     argv = [str(c) for c in cmd]
-    verb = next((a for a in argv[1:] if not a.startswith("-") and "/" not in a), "")
-    step = f"{Path(argv[0]).name} {verb}".strip()  # "go build", "buildah bud", "apt-get install"
+    step = f"{Path(argv[0]).name} {_verb(argv[1:])}".strip()  # "go build", "buildah bud"
     try:
         proc = subprocess.Popen(
             argv,
@@ -121,6 +120,20 @@ def run(
             f"command failed (exit {returncode}): {' '.join(argv)}\n{tail}\n{hint}".rstrip()
         )
     return out
+
+
+def _verb(args: Sequence[str]) -> str:
+    """The subcommand of a command line: its first word that is neither an option, an option's
+    value (``--root /x``, ``--storage-driver overlay``) nor a path."""
+    skip = False
+    for a in args:
+        if skip:
+            skip = False
+        elif a.startswith("--"):
+            skip = "=" not in a
+        elif not a.startswith("-") and "/" not in a:
+            return a
+    return ""
 
 
 def _pump(proc: subprocess.Popen[str], lines: list[str], sink: TextIO | None) -> None:
