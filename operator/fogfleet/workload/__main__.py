@@ -10,6 +10,7 @@ import sys
 
 from fogfleet.contract.env import ENV_METRICS_HOST, ENV_METRICS_PORT, METRICS_PORT
 
+from .heartbeat import log_interval
 from .profile import DEFAULT_OUTPUT, ENV_PROFILE_OUTPUT, profile_cycles, run_profile
 from .spec import WorkloadSpec
 from .work import describe, work_for
@@ -82,6 +83,7 @@ def main(argv: list[str] | None = None) -> int:
                 "profile row for this node"
             )
         what = describe(spec)  # a module with neither its own work nor a row: said here
+        every = log_interval(os.environ)
     except ValueError as exc:
         print(f"fogfleet-workload: {exc}", file=sys.stderr)
         return 2
@@ -93,10 +95,11 @@ def main(argv: list[str] | None = None) -> int:
     print(
         f"fogfleet-workload: {spec.robot or 'shared'}/{spec.module} on {spec.node} "
         f"({spec.tier or 'any tier'}, {limit}): cycle {spec.cycle_s * 1e3:g} ms, "
-        f"activation {spec.activation:.0%}, {what}",
+        f"activation {spec.activation:.0%}, {what}; "
+        + (f"a line every {every:g} s" if every > 0 else "no periodic log lines"),
         flush=True,
     )
-    run_module(spec, ns.host, ns.port)
+    run_module(spec, ns.host, ns.port, log_interval=every)
     return 0
 
 
