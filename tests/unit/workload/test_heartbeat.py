@@ -68,3 +68,12 @@ def test_a_period_of_0_writes_nothing() -> None:
     out = io.StringIO()
     run_heartbeat(Tally(), "robot-1/x", 0.0, threading.Event(), out)
     assert out.getvalue() == ""
+
+
+def test_the_module_command_takes_the_period_as_an_argument() -> None:
+    """A template cannot set FOGFLEET_* variables (they are fogfleet's): its args can."""
+    from fogfleet.workload.__main__ import _log_seconds
+
+    assert _log_seconds("30") == 30.0 and _log_seconds("0") == 0.0
+    with pytest.raises(Exception, match="seconds, 0 or more"):
+        _log_seconds("-5")
