@@ -226,12 +226,12 @@ def cmd_simulate(args: argparse.Namespace) -> int:
         )
         unplaced = _unplaced_modules(problem, placement)
         predicted = module_miss_rates(problem, placement, True, allocation)
-        modules = dict(sim.module_miss_rate)
+        simulated = dict(sim.module_miss_rate)
         result[name] = {
             "missRate": sim.miss_rate,
-            "modules": modules,
+            "modules": simulated,
             "predicted": predicted,
-            "worstModule": worst_module(modules, predicted, unplaced),
+            "worstModule": worst_module(simulated, predicted, unplaced),
             "unplaced": unplaced,
             "nodeUtilisation": {
                 problem.nodes[j].name: u for j, u in enumerate(sim.node_utilisation)
