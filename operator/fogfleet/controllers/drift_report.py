@@ -19,7 +19,7 @@ from .state import DriftWatch
 __all__ = ["AS_PREDICTED", "DriftReport", "drift_events", "drift_report"]
 
 AS_PREDICTED = (
-    "Every measured module misses no more above the plan than its real-time class affords "
+    "Every measured module misses within what its real-time class affords above the plan "
     "(spec.drift.marginPercent points for soft real-time, a hundredth of that for hard "
     "real-time or safety-critical, twice that for the rest)"
 )
