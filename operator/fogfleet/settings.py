@@ -1,35 +1,8 @@
 """Operator settings from the environment (prefix ``FOGFLEET_``): the only reader of os.environ.
 
-FOGFLEET_NAMESPACES               comma-separated namespaces to serve; empty: all (cluster-wide)
-FOGFLEET_KUBECONFIG               kubeconfig file (default: $KUBECONFIG, ~/.kube/config, in-cluster)
-FOGFLEET_LOG_LEVEL                DEBUG | INFO | WARNING | ERROR (default INFO)
-FOGFLEET_LOG_FORMAT               plain | full | json (default full)
-FOGFLEET_LIVENESS_HOST            default 127.0.0.1 (in a pod: 0.0.0.0 so the kubelet can probe)
-FOGFLEET_LIVENESS_PORT            /healthz port; 0 turns it off (default 8080)
-FOGFLEET_METRICS_HOST             default 127.0.0.1
-FOGFLEET_METRICS_PORT             Prometheus /metrics port; 0 turns it off (default 9090)
-FOGFLEET_DRIFT_INTERVAL_SECONDS   how often each fleet is re-checked (default 60)
-FOGFLEET_DEBOUNCE_SECONDS         quiet time before a re-plan after related edits (default 2)
-FOGFLEET_WORKERS                  worker threads for reconciles and planning (default 4)
-FOGFLEET_API_CONCURRENCY          a reconcile's writes (Deployments, Services) in flight (default 8)
-FOGFLEET_WATCH_CACHE              true (default): reads come from watch-fed caches, not re-lists
-FOGFLEET_STANDALONE               true (default): no kopf peering objects
-FOGFLEET_SCHEDULER_POPULATION     defaults for fleets whose spec.scheduler leaves these out
-FOGFLEET_SCHEDULER_GENERATIONS    (population, generations, timeBudgetMillis); unset: the
-FOGFLEET_SCHEDULER_TIME_BUDGET_MILLIS  CRD's own defaults (100, 100, 20000)
-FOGFLEET_PROMETHEUS_URL           Prometheus for SLO-driven scaling (unset: nothing scales)
-FOGFLEET_SCALING_INTERVAL_SECONDS how often each scaled module decides (default 15, the HPA's sync)
-FOGFLEET_LINK_INTERVAL_SECONDS    how often the robots' links are measured (default 10; needs
-                                  FOGFLEET_PROMETHEUS_URL)
-FOGFLEET_LINK_NODE_LABEL          Prometheus' label of a pod target's Node (default node)
-FOGFLEET_OBSERVE_INTERVAL_SECONDS how often the modules' measured cycles are read for drift
-                                  (default 30; needs FOGFLEET_PROMETHEUS_URL)
-FOGFLEET_PEERING_NAME             kopf peering name when not standalone
-FOGFLEET_LEADER_ELECTION          true: only the holder of a Lease reconciles (several replicas)
-FOGFLEET_LEADER_ELECTION_NAMESPACE  the Lease's namespace (the chart sets the pod's namespace)
-FOGFLEET_LEADER_ELECTION_LEASE    the Lease's name (default fogfleet-operator)
-FOGFLEET_LEADER_ELECTION_IDENTITY this replica's identity (the chart sets the pod's name)
-FOGFLEET_LEASE_SECONDS            lease duration: a dead leader is replaced within this + 2 s
+Each field's description is what ``fogfleet run --help`` prints beside its variable and
+default (:func:`settings_help`), so the help cannot drift from the settings; the table in
+docs/operations.md adds the chart's value of each.
 """
 
 from __future__ import annotations
@@ -41,42 +14,99 @@ from typing import Annotated, Literal
 from pydantic import Field, field_validator
 from pydantic_settings import BaseSettings, NoDecode, SettingsConfigDict
 
-__all__ = ["Settings"]
+__all__ = ["Settings", "settings_help"]
 
 
 class Settings(BaseSettings):
     model_config = SettingsConfigDict(env_prefix="FOGFLEET_", extra="ignore", frozen=True)
 
-    namespaces: Annotated[list[str], NoDecode] = Field(default_factory=list)
-    kubeconfig: str | None = None
-    log_level: Literal["DEBUG", "INFO", "WARNING", "ERROR"] = "INFO"
-    log_format: Literal["plain", "full", "json"] = "full"
-    liveness_host: str = "127.0.0.1"
-    liveness_port: Annotated[int, Field(ge=0, le=65535)] = 8080
-    metrics_host: str = "127.0.0.1"
-    metrics_port: Annotated[int, Field(ge=0, le=65535)] = 9090
-    drift_interval_seconds: Annotated[float, Field(gt=0)] = 60.0
-    debounce_seconds: Annotated[float, Field(ge=0)] = 2.0
-    workers: Annotated[int, Field(ge=1, le=64)] = 4
-    api_concurrency: Annotated[int, Field(ge=1, le=64)] = 8
-    watch_cache: bool = True
-    standalone: bool = True
-    peering_name: str = "fogfleet"
-    scheduler_population: Annotated[int, Field(ge=4, le=2000)] | None = None
-    scheduler_generations: Annotated[int, Field(ge=1, le=10000)] | None = None
-    scheduler_time_budget_millis: Annotated[int, Field(ge=100)] | None = None
-    prometheus_url: str | None = None
-    scaling_interval_seconds: Annotated[float, Field(gt=0)] = 15.0
-    link_interval_seconds: Annotated[float, Field(gt=0)] = 10.0
-    link_node_label: Annotated[str, Field(pattern=r"^[a-zA-Z_][a-zA-Z0-9_]*$")] = "node"
-    observe_interval_seconds: Annotated[float, Field(gt=0)] = 30.0
-    leader_election: bool = False
-    leader_election_namespace: str = "fogfleet-system"
-    leader_election_lease: str = "fogfleet-operator"
-    leader_election_identity: str = Field(
-        default_factory=lambda: f"{socket.gethostname()}-{secrets.token_hex(3)}"
+    namespaces: Annotated[list[str], NoDecode] = Field(
+        default_factory=list,
+        description="comma-separated namespaces to serve; empty: all (cluster-wide)",
+        json_schema_extra={"shown_default": "all"},
     )
-    lease_seconds: Annotated[int, Field(ge=3, le=300)] = 15
+    kubeconfig: str | None = Field(
+        None,
+        description="kubeconfig file (unset: $KUBECONFIG, ~/.kube/config, then in-cluster)",
+    )
+    log_level: Literal["DEBUG", "INFO", "WARNING", "ERROR"] = Field(
+        "INFO", description="DEBUG | INFO | WARNING | ERROR"
+    )
+    log_format: Literal["plain", "full", "json"] = Field("full", description="plain | full | json")
+    liveness_host: str = Field(
+        "127.0.0.1", description="/healthz address (in a pod: 0.0.0.0, for the kubelet)"
+    )
+    liveness_port: Annotated[int, Field(ge=0, le=65535)] = Field(
+        8080, description="/healthz port; 0 turns it off"
+    )
+    metrics_host: str = Field("127.0.0.1", description="Prometheus /metrics address")
+    metrics_port: Annotated[int, Field(ge=0, le=65535)] = Field(
+        9090, description="Prometheus /metrics port; 0 turns it off"
+    )
+    drift_interval_seconds: Annotated[float, Field(gt=0)] = Field(
+        60.0, description="how often each fleet is re-checked"
+    )
+    debounce_seconds: Annotated[float, Field(ge=0)] = Field(
+        2.0, description="quiet time before a re-plan after related edits"
+    )
+    workers: Annotated[int, Field(ge=1, le=64)] = Field(
+        4, description="worker threads for reconciles and planning"
+    )
+    api_concurrency: Annotated[int, Field(ge=1, le=64)] = Field(
+        8, description="a reconcile's writes (Deployments, Services) in flight"
+    )
+    watch_cache: bool = Field(True, description="reads come from watch-fed caches, not re-lists")
+    standalone: bool = Field(True, description="no kopf peering objects")
+    peering_name: str = Field("fogfleet", description="kopf peering name when not standalone")
+    scheduler_population: Annotated[int, Field(ge=4, le=2000)] | None = Field(
+        None,
+        description="population of fleets whose spec.scheduler leaves it out (unset: the "
+        "CRD's 100)",
+    )
+    scheduler_generations: Annotated[int, Field(ge=1, le=10000)] | None = Field(
+        None,
+        description="generations of fleets whose spec.scheduler leaves them out (unset: "
+        "the CRD's 100)",
+    )
+    scheduler_time_budget_millis: Annotated[int, Field(ge=100)] | None = Field(
+        None,
+        description="time budget of fleets whose spec.scheduler leaves it out (unset: the "
+        "CRD's 20000)",
+    )
+    prometheus_url: str | None = Field(
+        None,
+        description="Prometheus for SLO-driven scaling, link health and drift (unset: none "
+        "of them runs)",
+    )
+    scaling_interval_seconds: Annotated[float, Field(gt=0)] = Field(
+        15.0, description="how often each scaled module decides (the HPA's sync period)"
+    )
+    link_interval_seconds: Annotated[float, Field(gt=0)] = Field(
+        10.0, description="how often the robots' links are measured (needs PROMETHEUS_URL)"
+    )
+    link_node_label: Annotated[str, Field(pattern=r"^[a-zA-Z_][a-zA-Z0-9_]*$")] = Field(
+        "node", description="Prometheus' label of a pod target's Node"
+    )
+    observe_interval_seconds: Annotated[float, Field(gt=0)] = Field(
+        30.0,
+        description="how often the modules' measured cycles are read for drift (needs "
+        "PROMETHEUS_URL)",
+    )
+    leader_election: bool = Field(
+        False, description="only the holder of a Lease reconciles (several replicas)"
+    )
+    leader_election_namespace: str = Field(
+        "fogfleet-system", description="the Lease's namespace (the chart sets the pod's)"
+    )
+    leader_election_lease: str = Field("fogfleet-operator", description="the Lease's name")
+    leader_election_identity: str = Field(
+        default_factory=lambda: f"{socket.gethostname()}-{secrets.token_hex(3)}",
+        description="this replica's identity (the chart sets the pod's name)",
+        json_schema_extra={"shown_default": "host name + 6 random hex digits"},
+    )
+    lease_seconds: Annotated[int, Field(ge=3, le=300)] = Field(
+        15, description="lease duration: a dead leader is replaced within this + 2 s"
+    )
 
     def scheduler_defaults(self) -> dict[str, int]:
         """Scheduler fields (SchedulerSettings names) that fleets inherit when they omit them."""
@@ -98,3 +128,27 @@ class Settings(BaseSettings):
     @classmethod
     def _upper(cls, value: object) -> object:
         return value.upper() if isinstance(value, str) else value
+
+
+def settings_help() -> list[tuple[str, str, str]]:
+    """(environment variable, default, description) of every setting, in field order."""
+    prefix = str(Settings.model_config.get("env_prefix", ""))
+    rows = []
+    for name, info in Settings.model_fields.items():
+        extra = info.json_schema_extra if isinstance(info.json_schema_extra, dict) else {}
+        shown = extra.get("shown_default")
+        if shown is None:
+            shown = _shown(info.default)
+        rows.append((f"{prefix}{name}".upper(), str(shown), info.description or ""))
+    return rows
+
+
+def _shown(value: object) -> str:
+    """A default as one writes it in the environment ("true", "60", "unset")."""
+    if value is None:
+        return "unset"
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, float) and value.is_integer():
+        return str(int(value))
+    return str(value)

@@ -9,7 +9,9 @@ Fails (exit 1, one line per problem: ``file:line: what``) when
 * ``fogfleet SUBCOMMAND --flag`` in a code span or block names a subcommand or a flag that the
   real parser (``fogfleet.cli._parser()``) does not have;
 * ``harness.py SUBCOMMAND --flag`` (the bed's harness) does the same; its parser is built
-  inside ``main()``, so its flags are read from ``harness.py SUBCOMMAND --help``.
+  inside ``main()``, so its flags are read from ``harness.py SUBCOMMAND --help``;
+* a column named for ``kubectl get KIND`` of a fogfleet kind (in capitals) is not one of the
+  CRD's printer columns (``check_columns.py``).
 
 Only commands are checked: ``make`` and ``fogfleet`` count when they start a command (after
 ``$``, ``VAR=value`` assignments, ``python -m`` or a path such as ``.venv/bin/``), so prose in
@@ -24,6 +26,7 @@ from __future__ import annotations
 
 import argparse
 import functools
+import importlib.util
 import os
 import re
 import shlex
@@ -32,6 +35,7 @@ import sys
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 __all__ = ["Problem", "check", "doc_files", "main", "make_targets"]
 
@@ -368,15 +372,32 @@ def check(
     targets = make_targets(root / "Makefile")
     cli = functools.cache(fogfleet or fogfleet_commands)
     harness = HarnessFlags(root, find_harness(root))
+    columns = _columns_checker()
+    kinds = columns.kinds_in(root)
     problems: list[Problem] = []
     for path in files if files is not None else doc_files(root):
         path = path.resolve()
-        for snip in snippets(path.read_text(encoding="utf-8")):
+        text = path.read_text(encoding="utf-8")
+        problems.extend(Problem(path, n, why) for n, why in columns.check_columns(text, kinds))
+        for snip in snippets(text):
             if snip.code:
                 problems.extend(check_code(path, snip, targets, cli, harness))
             else:
                 problems.extend(check_links(path, snip, root))
     return problems
+
+
+@functools.cache
+def _columns_checker() -> Any:
+    """check_columns.py beside this file (loaded by path: this file runs as a script too)."""
+    spec = importlib.util.spec_from_file_location(
+        "check_columns", Path(__file__).with_name("check_columns.py")
+    )
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = module  # its dataclasses look their module up
+    spec.loader.exec_module(module)
+    return module
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -210,3 +210,67 @@ def test_harness_flags_are_read_from_its_help(tmp_path: Path) -> None:
         "README.md:4: `harness.py up --proflie`: no such option",
         "README.md:5: `harness.py sideways`: no such subcommand",
     ]
+
+
+WIDGETS_CRD = """\
+apiVersion: apiextensions.k8s.io/v1
+kind: CustomResourceDefinition
+metadata: {name: widgets.example.io}
+spec:
+  group: example.io
+  names: {kind: Widget, plural: widgets, singular: widget, shortNames: [wd]}
+  versions:
+  - name: v1
+    additionalPrinterColumns:
+    - {name: Ready, type: string, jsonPath: .status.ready}
+    - {name: Miss, type: string, jsonPath: .status.miss}
+    - {name: Fleets, type: string, jsonPath: .status.fleets, priority: 1}
+"""
+
+
+def _with_crds(tmp_path: Path, readme: str) -> Path:
+    root = _repo(tmp_path, readme)
+    (root / "crds").mkdir()
+    (root / "crds" / "widgets.example.io.yaml").write_text(WIDGETS_CRD)
+    return root
+
+
+@pytest.mark.parametrize(
+    ("text", "bad"),
+    [
+        ("```bash\nkubectl get widgets -n x   # READY, MISS, SPLIT\n```\n", "SPLIT"),
+        ("```\nkubectl get wd  # NAME, FLEETS\n```\n", "FLEETS"),  # a wide column, no -o wide
+        (
+            "`kubectl get computenodes` is not ours; `kubectl get widgets` adds `FLEETZ`.\n",
+            "FLEETZ",
+        ),
+        ("- `kubectl get widgets` shows `READY`.\n  `-o wide` adds `CPU`.\n", "CPU"),
+    ],
+)
+def test_a_column_the_crd_does_not_print_is_reported(tmp_path: Path, text: str, bad: str) -> None:
+    root = _with_crds(tmp_path, text)
+    (problem,) = _messages(root)
+    line = 2 if text.startswith("```") else 1  # the command's line, or the item's first
+    assert problem.startswith(f"README.md:{line}: `kubectl get ") and f"no column {bad} " in problem
+
+
+def test_real_columns_other_kinds_and_prose_pass(tmp_path: Path) -> None:
+    text = (
+        "```bash\n"
+        "kubectl get widgets.example.io -A   # NAMESPACE, NAME, READY, MISS\n"
+        "kubectl get widget -o wide          # READY, FLEETS\n"
+        "kubectl get pods -n x               # READY, STATUS, RESTARTS\n"
+        "kubectl get widgets                 # see the status below\n"
+        "```\n\n"
+        "- `kubectl get widgets` shows `READY` and `MISS`; `-o wide` adds `FLEETS`.\n"
+        "- `kubectl get pods` shows `STATUS`.\n\n"
+        "`DEBUG` logs say more (no kubectl here).\n"
+    )
+    assert _messages(_with_crds(tmp_path, text)) == []
+
+
+def test_the_repository_columns_come_from_the_generated_crds() -> None:
+    columns = check_docs._columns_checker()
+    kinds = columns.kinds_in(HERE.parents[1])
+    assert {"MISS", "PLACED"} <= kinds["robotfleets"].columns
+    assert "FLEETS" in kinds["cn"].wide and "FLEETS" not in kinds["computenodes"].columns

@@ -221,6 +221,13 @@ class FakeApi:
             new = {**old, "status": merge_patch(old.get("status") or {}, status)}
             return copy.deepcopy(self._write(self._kind_of(old), namespace, name, new))
 
+    def delete(self, kind: str, name: str, namespace: str = "") -> Obj | None:
+        """Delete an object at once, as ``kubectl delete`` does one without finalizers (no
+        garbage collector here: what it owns stays)."""
+        with self._lock:
+            found = next((k for k in self.kinds.values() if k.kind == kind), None)
+            return None if found is None else self._delete(found, namespace, name)
+
     def requests_to(self, method: str, *, containing: str = "") -> Iterator[Request]:
         return (r for r in list(self.requests) if r.method == method and containing in r.path)
 

@@ -207,3 +207,57 @@ def test_a_new_fleet_is_planned_applied_and_reported(api: FakeApi, tmp_path: Pat
     assert all(r.content_type == "application/merge-patch+json" for r in status_patches)
     # no finalizer: deleting the fleet never waits for the operator
     assert not api.get("RobotFleet", "single-robot", NS)["metadata"].get("finalizers")
+
+
+def _usage(api: FakeApi) -> dict[str, tuple[list[str], int]]:
+    """ComputeNode -> (fleets, instances) as its status says."""
+    return {
+        cn["metadata"]["name"]: (
+            (cn.get("status") or {}).get("fleets") or [],
+            (cn.get("status") or {}).get("instances") or 0,
+        )
+        for cn in api.list("ComputeNode")
+    }
+
+
+@pytest.mark.timeout(180)
+@pytest.mark.usefixtures("single_robot")
+def test_a_deleted_fleet_leaves_the_compute_nodes_within_one_usage_pass(
+    api: FakeApi, tmp_path: Path
+) -> None:
+    """Issue 36: after its fleet was deleted, edge-4 kept showing 11 instances. The fleet
+    has no finalizer, so kopf calls no delete handler; its DELETED event must still forget it
+    and run a usage pass (here the fake has no garbage collector, so no Deployment event
+    would, and the drift tick is 60 s away)."""
+    with _operator(api, tmp_path) as runner:
+        deployments = _until(
+            "the fleet's Deployments",
+            lambda: len(api.list("Deployment", NS)) >= MODULES and api.list("Deployment", NS),
+        )
+        _run_pods(api, deployments)  # Ready: no re-check of the fleet is pending
+        _until(
+            "the fleet's Ready condition",
+            lambda: (
+                (_condition(api.get("RobotFleet", "single-robot", NS), "Ready") or {}).get("status")
+                == "True"
+            ),
+        )
+        used = _until(
+            "the ComputeNodes' usage of the fleet",
+            lambda: sum(n for _, n in _usage(api).values()) == MODULES and _usage(api),
+        )
+        assert {f for fleets, _ in used.values() for f in fleets} == {f"{NS}/single-robot"}
+        t0 = time.monotonic()
+        api.delete("RobotFleet", "single-robot", NS)
+        _until(
+            "the ComputeNodes to drop the deleted fleet",
+            lambda: all(u == ([], 0) for u in _usage(api).values()),
+            seconds=15,
+        )
+        took = time.monotonic() - t0
+        # the operator deleted its Deployments at once, too (the garbage collector would)
+        _until("the fleet's Deployments to go", lambda: not api.list("Deployment", NS), 15)
+    assert runner.exception is None, runner.output
+    assert took < 15, took
+    modules = api.list("SoftwareModule", NS)
+    assert modules and all((m.get("status") or {}).get("instances") == 0 for m in modules)

@@ -150,6 +150,7 @@ KINDS: tuple[KindInfo, ...] = (
             _ready_column(),
             {"name": "Instances", "type": "integer", "jsonPath": ".status.instances"},
             {"name": "CPU", "type": "string", "jsonPath": ".status.cpuPlanned"},
+            {"name": "Fleets", "type": "string", "jsonPath": ".status.fleets", "priority": 1},
             _AGE,
         ),
         extras={"spec.devices": _map("name"), **_CONDITIONS},
@@ -207,7 +208,7 @@ KINDS: tuple[KindInfo, ...] = (
             _ready_column(),
             {"name": "Placed", "type": "integer", "jsonPath": ".status.modulesPlaced"},
             {"name": "Split", "type": "string", "jsonPath": ".status.split"},
-            {"name": "Miss", "type": "number", "jsonPath": ".status.predictedMissRate"},
+            {"name": "Miss", "type": "string", "jsonPath": ".status.predictedMiss"},
             {
                 "name": "Degraded",
                 "type": "string",

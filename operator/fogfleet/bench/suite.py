@@ -18,6 +18,7 @@ from typing import Any
 
 from fogfleet.api.v1alpha1.robotfleet import SchedulerSettings
 from fogfleet.bench import scheduling as sbench
+from fogfleet.domain.miss_rates import format_miss_rate, worst_module
 from fogfleet.domain.problem import Problem
 from fogfleet.scheduling.solver import plan
 from fogfleet.sim import simulate
@@ -55,7 +56,8 @@ def miss_rates(
         for name in SCHEDULERS:
             med = statistics.median(rates[(name, all_active)])
             per = module_rates[(name, all_active)]
-            worst = max(per, key=lambda m: statistics.median(per[m]))
+            medians = {m: statistics.median(v) for m, v in per.items()}
+            worst = worst_module(medians) or "-"
             rows.append(
                 {
                     "bench": "missed-cycles",
@@ -64,7 +66,7 @@ def miss_rates(
                     "seeds": len(seeds),
                     "missRate_median": round(med, 5),
                     "vs_k8s_default": f"{100 * (med - base) / base:+.1f}%" if base > 0 else "n/a",
-                    "worst_module": f"{worst} {100 * statistics.median(per[worst]):.2f}%",
+                    "worst_module": f"{worst} {format_miss_rate(medians.get(worst))}",
                 }
             )
     return rows

@@ -122,6 +122,16 @@ BENCH_ABOUT = {
 }
 
 
+def _settings_epilog() -> str:
+    """Every setting of ``fogfleet.settings.Settings``: its variable, default and meaning."""
+    from fogfleet.settings import settings_help
+
+    lines = ["settings (environment variables):"]
+    for variable, default, what in settings_help():
+        lines += [f"  {variable} (default: {default})", f"      {what}"]
+    return "\n".join(lines)
+
+
 def _parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="fogfleet", description=__doc__.split("\n\n")[0])
     sub = p.add_subparsers(dest="command", required=True)
@@ -202,7 +212,14 @@ def _parser() -> argparse.ArgumentParser:
     g.add_argument("--check", help="folder to compare; exit 1 on drift")
     sp.set_defaults(func=cmd_crds)
 
-    sp = sub.add_parser("run", help="run the operator (settings from FOGFLEET_* variables)")
+    sp = sub.add_parser(
+        "run",
+        help="run the operator (settings from FOGFLEET_* variables)",
+        description="Run the operator against the cluster of the kubeconfig (or in-cluster).\n"
+        "It takes no options: every setting is an environment variable.",
+        epilog=_settings_epilog(),
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
     sp.set_defaults(func=cmd_run)
 
     sp = sub.add_parser(

@@ -13,7 +13,9 @@ from typing import Any
 import numpy as np
 
 from fogfleet.api.loader import Catalog
+from fogfleet.api.v1alpha1.objectives import ObjectiveName
 from fogfleet.api.v1alpha1.robotfleet import PLACEMENT_LIST_LIMIT
+from fogfleet.domain.miss_rates import format_miss_rate, worst_module
 from fogfleet.domain.rows import Learnt
 from fogfleet.domain.tenancy import Held, claims_of, with_held
 from fogfleet.errors import InvalidSpec
@@ -28,6 +30,7 @@ __all__ = ["REFERENCES", "cmd_plan", "cmd_simulate", "recorded_placement"]
 # place the fleet (the on-board reference on a site whose robots are too small) is a result
 # of the comparison, reported, not an error of the run.
 REFERENCES = ("k8s-default", "onboard")
+MISS_RATE = ObjectiveName.MISS_RATE.value
 
 
 def _placement_rows(problem: Any, schedule: Any) -> list[dict[str, Any]]:
@@ -86,6 +89,9 @@ def cmd_plan(args: argparse.Namespace) -> int:
             "unplaced": unplaced_reasons(problem, schedule.reasons),
             "moduleMissRates": module_miss_rates(problem, schedule.placement, schedule.with_limits),
         }
+        doc["worstModule"] = worst_module(
+            doc["moduleMissRates"], unplaced=_unplaced_modules(problem, schedule.placement)
+        )
         if not schedule.feasible:
             doc["infeasible"] = infeasible_message(problem, schedule.placement, schedule.reasons)
         if schedule.degraded:
@@ -131,14 +137,20 @@ def _print_plan(doc: dict[str, Any]) -> None:
     ]
     print(table(rows, ["ROBOT", "MODULE", "NODE", "TIER", "CPU"]))
     print()
-    print("Objectives: " + ", ".join(f"{k}={v:.4g}" for k, v in doc["objectives"].items()))
+    print(
+        "Objectives: "
+        + ", ".join(
+            f"{k}={format_miss_rate(v) if k == MISS_RATE else f'{v:.4g}'}"
+            for k, v in doc["objectives"].items()
+        )
+    )
     rates = doc["moduleMissRates"]
     if rates:
-        worst = max(rates, key=lambda m: rates[m])
         print(
             "Predicted missed cycles per module: "
-            + ", ".join(f"{m} {100 * r:.2f}%" for m, r in sorted(rates.items()))
-            + f" (worst: {worst})"
+            + ", ".join(f"{m} {format_miss_rate(r)}" for m, r in sorted(rates.items()))
+            + f" (worst: {doc['worstModule']}"
+            + (" UNPLACED)" if doc["worstModule"] not in rates else ")")
         )
     if doc["choiceReason"]:
         print(f"Choice: {doc['choiceReason']}")
@@ -212,10 +224,14 @@ def cmd_simulate(args: argparse.Namespace) -> int:
             seed=args.seed if args.seed is not None else 0,
             all_active=args.all_active,
         )
-        unplaced = sorted({problem.instances[i].module for i in np.flatnonzero(placement < 0)})
+        unplaced = _unplaced_modules(problem, placement)
+        predicted = module_miss_rates(problem, placement, True, allocation)
+        simulated = dict(sim.module_miss_rate)
         result[name] = {
             "missRate": sim.miss_rate,
-            "modules": dict(sim.module_miss_rate),
+            "modules": simulated,
+            "predicted": predicted,
+            "worstModule": worst_module(simulated, predicted, unplaced),
             "unplaced": unplaced,
             "nodeUtilisation": {
                 problem.nodes[j].name: u for j, u in enumerate(sim.node_utilisation)
@@ -231,25 +247,22 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     def cell(s: str, m: str) -> str:
         if m in result[s]["unplaced"]:
             return "UNPLACED"
-        rate = result[s]["modules"].get(m)
-        return "-" if rate is None or rate != rate else f"{100 * rate:.2f}%"  # NaN: no cycles
+        return format_miss_rate(result[s]["modules"].get(m))  # "-": no cycles
 
     def overall(s: str) -> str:
         # the fleet's rate covers the modules that ran: beside an unplaced module it would
         # read as a figure for the whole fleet, which nothing simulated
         if result[s]["unplaced"]:
             return f"n/a ({len(result[s]['unplaced'])} unplaced)"
-        rate = result[s]["missRate"]
-        return "-" if rate != rate else f"{100 * rate:.2f}%"  # NaN: no cycles
+        return format_miss_rate(result[s]["missRate"])
 
     def worst(s: str) -> str:
-        rates = {m: r for m, r in result[s]["modules"].items() if r == r}
-        if result[s]["unplaced"]:
-            return f"{result[s]['unplaced'][0]} UNPLACED"
-        if not rates:
+        m = result[s]["worstModule"]
+        if m is None:
             return "-"
-        m = max(rates, key=lambda k: rates[k])
-        return f"{m} {100 * rates[m]:.2f}%"
+        if m in result[s]["unplaced"]:
+            return f"{m} UNPLACED"
+        return f"{m} {format_miss_rate(result[s]['modules'].get(m))}"
 
     rows = [[m, *(cell(s, m) for s in result)] for m in modules]
     rows.append(["OVERALL", *(overall(s) for s in result)])
@@ -261,6 +274,11 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     )
     print(table(rows, ["MODULE", *result.keys()]))
     return 2 if infeasible else 0
+
+
+def _unplaced_modules(problem: Any, placement: Any) -> list[str]:
+    """The modules with an instance ``placement`` leaves unplaced (-1), sorted."""
+    return sorted({problem.instances[int(i)].module for i in np.flatnonzero(placement < 0)})
 
 
 def _read_placement(problem: Any, path: Path) -> tuple[Any, Any]:

@@ -1,4 +1,8 @@
-"""A fleet's measured misses against its plan, as status and Events (issue 10)."""
+"""A fleet's measured misses against its plan, as status and Events (issue 10).
+
+The rule in one sentence, as the ``Drift`` condition says it: a module drifts when it misses
+more than predicted by more than its real-time class affords (``domain.observed``).
+"""
 
 from __future__ import annotations
 
@@ -7,11 +11,18 @@ from dataclasses import dataclass
 from typing import Any
 
 from fogfleet.api.timestamps import timestamp
+from fogfleet.domain.miss_rates import format_miss_rate
 from fogfleet.domain.observed import ModuleDrift
 
 from .state import DriftWatch
 
-__all__ = ["DriftReport", "drift_events", "drift_report"]
+__all__ = ["AS_PREDICTED", "DriftReport", "drift_events", "drift_report"]
+
+AS_PREDICTED = (
+    "Every measured module misses within what its real-time class affords above the plan "
+    "(spec.drift.marginPercent points for soft real-time, a hundredth of that for hard "
+    "real-time or safety-critical, twice that for the rest)"
+)
 
 Obj = dict[str, Any]
 
@@ -29,9 +40,13 @@ def drift_report(watch: DriftWatch | None, states: Mapping[str, ModuleDrift] | N
         return DriftReport([], None)
     entries: list[Obj] = []
     for module, d in sorted(states.items()):
-        entry: Obj = {"module": module, "predictedMissRate": round(d.predicted, 4)}
+        entry: Obj = {
+            "module": module,
+            "predictedMissRate": round(d.predicted, 6),
+            "driftMargin": round(d.budget.allowance, 6),
+        }
         if d.measured is not None:
-            entry["measuredMissRate"] = round(d.measured, 4)
+            entry["measuredMissRate"] = round(d.measured, 6)
             entry["cycles"] = round(d.cycles, 1)
         if d.since is not None:
             entry["driftingSince"] = timestamp(d.since)
@@ -39,17 +54,15 @@ def drift_report(watch: DriftWatch | None, states: Mapping[str, ModuleDrift] | N
     drifting = [(m, d) for m, d in sorted(states.items()) if d.since is not None]
     if drifting:
         text = "; ".join(
-            f"{m} misses {(d.measured or 0) * 100:.1f}% of {d.cycles:.0f} cycles, "
-            f"predicted {d.predicted * 100:.1f}%"
+            f"{m} misses {format_miss_rate(d.measured or 0)} of {d.cycles:.0f} cycles, "
+            f"predicted {format_miss_rate(d.predicted)}: more than the "
+            f"{d.budget.describe()} it affords"
             for m, d in drifting
         )
         return DriftReport(entries, (True, "MissesAbovePlan", text))
     if not any(d.measured is not None for d in states.values()):
         return DriftReport(entries, (None, "NotMeasured", "No measured cycles since the plan yet"))
-    return DriftReport(
-        entries,
-        (False, "AsPredicted", "Every measured module misses within the margin of the plan"),
-    )
+    return DriftReport(entries, (False, "AsPredicted", AS_PREDICTED))
 
 
 def drift_events(old: list[Obj], new: list[Obj]) -> list[tuple[str, str, str]]:
@@ -62,8 +75,16 @@ def drift_events(old: list[Obj], new: list[Obj]) -> list[tuple[str, str, str]]:
                 (
                     "Warning",
                     "Drift",
-                    f"{e['module']} misses {e.get('measuredMissRate', 0) * 100:.1f}% of its "
-                    f"cycles, the plan predicted {e['predictedMissRate'] * 100:.1f}%",
+                    f"{e['module']} misses {format_miss_rate(e.get('measuredMissRate', 0))} of "
+                    f"its cycles, the plan predicted {format_miss_rate(e['predictedMissRate'])}"
+                    + _margin_text(e),
                 )
             )
     return out
+
+
+def _margin_text(entry: Obj) -> str:
+    """", more than 0.05 points above it" (a status written before the margin was kept says
+    nothing)."""
+    margin = entry.get("driftMargin")
+    return "" if margin is None else f", more than {margin * 100:.3g} points above it"

@@ -14,6 +14,7 @@ import numpy as np
 
 from fogfleet.api.v1alpha1.objectives import ObjectiveName
 from fogfleet.api.v1alpha1.robotfleet import PLACEMENT_LIST_LIMIT, RobotFleet, RobotFleetStatus
+from fogfleet.domain.miss_rates import format_miss_rate
 from fogfleet.domain.problem import Problem
 from fogfleet.render.deployments import format_cpu, identity_of
 from fogfleet.scheduling.decision import Decision
@@ -230,7 +231,7 @@ def _plan_figures(rendered: Rendered, placement: list[Obj]) -> Obj:
                 for k, v in objectives.items()
                 if finite(v) is not None
             ],
-            "predicted_miss_rate": finite(objectives.get(ObjectiveName.MISS_RATE)),
+            **_miss(objectives.get(ObjectiveName.MISS_RATE)),
             "planning_millis": round(plan.schedule.duration_seconds * 1000),
             "choice_reason": plan.choice_reason,
             "migrations": plan.migrations,
@@ -247,7 +248,16 @@ def _plan_figures(rendered: Rendered, placement: list[Obj]) -> Obj:
     values = objective_values(problem, x, False, [str(n) for n in names])
     return {
         "objectives": [{"name": k, "value": finite(v)} for k, v in values.items()],
-        "predicted_miss_rate": finite(values.get(ObjectiveName.MISS_RATE)),
+        **_miss(values.get(ObjectiveName.MISS_RATE)),
+    }
+
+
+def _miss(rate: float | None) -> Obj:
+    """The plan's predicted miss rate, as a fraction and as people read it (MISS column)."""
+    value = finite(rate)  # rounded to 1e-6: the text says "<0.0001%" where it reads 0
+    return {
+        "predicted_miss_rate": value,
+        "predicted_miss": None if value is None or rate is None else format_miss_rate(rate),
     }
 
 
@@ -282,7 +292,9 @@ def plan_events(problem: Problem, cached: Decision) -> list[tuple[str, str, str]
     split = Counter(problem.nodes[j].tier.value for j in p if j >= 0)
     miss = cached.objectives.get(ObjectiveName.MISS_RATE)
     miss_txt = (
-        f"; predicted miss rate {miss * 100:.2f}%" if miss is not None and np.isfinite(miss) else ""
+        f"; predicted miss rate {format_miss_rate(miss)}"
+        if miss is not None and np.isfinite(miss)
+        else ""
     )
     events = [
         (

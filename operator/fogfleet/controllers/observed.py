@@ -34,6 +34,7 @@ from fogfleet.api.timestamps import timestamp
 from fogfleet.api.v1alpha1.base import parse_cpu
 from fogfleet.api.v1alpha1.robotfleet import RobotFleet
 from fogfleet.api.v1alpha1.softwaremodule import SoftwareModule
+from fogfleet.domain.miss_rates import format_miss_rate
 from fogfleet.domain.observed import (
     ModuleDrift,
     Observation,
@@ -41,6 +42,7 @@ from fogfleet.domain.observed import (
     declared_row,
     drift_due,
     drifting,
+    miss_budget,
     timings,
 )
 from fogfleet.domain.pairs import profile_rows
@@ -103,8 +105,19 @@ def drift_watch(
     if decision is None:
         return DriftWatch(fleet.spec.drift, {}, hardware, problem, None, "")
     predicted = module_miss_rates(problem, decision.placement, decision.schedule.with_limits)
+    margin = float(fleet.spec.drift.margin_percent)
+    budgets = {}
+    for name in predicted:
+        module = catalog.module(problem.namespace, name)
+        budgets[name] = miss_budget(module.spec.taxonomy if module else None, margin)
     return DriftWatch(
-        fleet.spec.drift, predicted, hardware, problem, decision.placement, decision.plan_id
+        fleet.spec.drift,
+        predicted,
+        hardware,
+        problem,
+        decision.placement,
+        decision.plan_id,
+        budgets,
     )
 
 
@@ -255,11 +268,12 @@ def _fleet_round(
     for module, predicted in sorted(watch.predicted.items()):
         rate, n = measured.get(module, (None, 0.0))
         prev = before.get(module)
-        bad = drifting(predicted, rate, float(settings.margin_percent))
+        budget = watch.budgets.get(module) or miss_budget(None, float(settings.margin_percent))
+        bad = drifting(predicted, rate, budget)
         since = (
             (prev.since if prev is not None and prev.since is not None else now) if bad else None
         )
-        after[module] = ModuleDrift(predicted, rate, n, since)
+        after[module] = ModuleDrift(predicted, rate, n, since, budget)
     due = [
         m
         for m, d in after.items()
@@ -313,8 +327,8 @@ def _adopt(
             continue
         d = states[name]
         why = (
-            f"RobotFleet {key[1]} measured {name} missing {(d.measured or 0) * 100:.1f}% of its "
-            f"cycles, predicted {d.predicted * 100:.1f}%"
+            f"RobotFleet {key[1]} measured {name} missing {format_miss_rate(d.measured)} of its "
+            f"cycles, predicted {format_miss_rate(d.predicted)}"
         )
         if name not in modules:
             why += f" (re-planned for the drift of {', '.join(modules)})"

@@ -35,7 +35,7 @@ from fogfleet.api.v1alpha1.linkhealth import LinkHealth
 from fogfleet.api.v1alpha1.observed import DriftSettings
 from fogfleet.domain.linkhealth import RobotLink
 from fogfleet.domain.network import Link
-from fogfleet.domain.observed import ModuleDrift
+from fogfleet.domain.observed import MissBudget, ModuleDrift
 from fogfleet.domain.problem import Problem
 from fogfleet.scheduling.decision import Decision
 
@@ -117,7 +117,8 @@ class FleetLinks:
 class DriftWatch:
     """What drift detection needs of a fleet, from its last full pass: its settings, the
     plan's predicted miss rate per module, one ComputeNode per hardware type (declared rows),
-    the plan's problem and placement."""
+    the plan's problem and placement, and what each module can afford to miss above its
+    prediction (its real-time class's share of the margin)."""
 
     settings: DriftSettings | None
     predicted: Mapping[str, float]
@@ -125,6 +126,7 @@ class DriftWatch:
     problem: Problem
     placement: NDArray[np.int64] | None
     plan_id: str
+    budgets: Mapping[str, MissBudget] = field(default_factory=dict)
 
     @property
     def enabled(self) -> bool:

@@ -8,7 +8,10 @@ there and counts from its first reconcile, seconds after the operator starts). S
 state of its own and any replica of the operator can rebuild it. One pass
 (``reconcile_usage``) lists the fleets, modules, ComputeNodes and Nodes
 and patches only the statuses that changed; each patch carries every field this pass owns
-(no ``None``), so a merge patch never leaves a stale value behind. The autoscaler owns
+(no ``None``), so a merge patch never leaves a stale value behind. A fleet being deleted
+(``deletionTimestamp`` set, its Deployments going) counts no more, and a deleted one is not
+listed: the first pass after a fleet's deletion drops it from every node and module it used
+(the runtime runs one when the fleet's DELETED event arrives). The autoscaler owns
 ``status.scaling`` and the ``Scaling``/``MetricsUnavailable`` conditions of a module; this
 pass never writes them.
 """
@@ -68,6 +71,8 @@ def _placements(
 ) -> Iterable[tuple[str, str, Obj]]:
     for fleet in fleets:
         meta = fleet.get("metadata") or {}
+        if meta.get("deletionTimestamp"):
+            continue  # going: what it placed is being deleted with it
         key = (meta.get("namespace") or "default", meta.get("name", ""))
         entries = known.get(key)
         if entries is None:

@@ -36,9 +36,21 @@ planner adds it to each row's std and gives a module the CPU that leaves room fo
 the mean alone misses (``mu >= T``) or half the cycles miss, the factor explains it and the
 observation adds no noise.
 
-**Drift** is a module's measured miss rate above the plan's prediction by more than the
-margin; it counts once it has lasted ``forSeconds``, and a fleet re-plans for it at most
-every ``minIntervalSeconds`` (no flapping: after a re-plan the measures start again).
+**Drift** is a module's measured miss rate above the plan's prediction by more than what the
+module can afford (:func:`miss_budget`), which its real-time class decides
+(multi-robot-edge-cloud-scheduling III-A 2: a hard real-time module's missed deadline "can
+lead to catastrophic results or system failure", a soft one's "might lead to performance
+degradation", a non-real-time one's "usually do[es] not")::
+
+    drift  <=>  measured - predicted > share(class) x spec.drift.marginPercent / 100
+
+    share: hard real-time or safety-critical 1/100, soft real-time 1, none 2
+
+With the default margin of 5: 0.05 percentage points for a hard real-time controller (4.9 %
+missed against 0.007 % predicted is drift), 5 points for a soft module (noise around its
+prediction is not), 10 points for a non-real-time one. It counts once it has lasted
+``forSeconds``, and a fleet re-plans for it at most every ``minIntervalSeconds`` (no
+flapping: after a re-plan the measures start again).
 """
 
 from __future__ import annotations
@@ -51,11 +63,15 @@ from statistics import NormalDist
 import numpy as np
 from numpy.typing import NDArray
 
+from fogfleet.api.v1alpha1.softwaremodule import RealtimeClass, Taxonomy, must_run_on_board
+
 from .problem import Problem
 from .rows import Learnt, ProfileRow
 
 __all__ = [
+    "SOFT_BUDGET",
     "Z95",
+    "MissBudget",
     "ModuleDrift",
     "Observation",
     "Timing",
@@ -64,6 +80,7 @@ __all__ = [
     "declared_row",
     "drift_due",
     "drifting",
+    "miss_budget",
     "timings",
 ]
 
@@ -100,13 +117,50 @@ class Timing:
 
 
 @dataclass(frozen=True)
+class MissBudget:
+    """What a module can miss above its predicted rate before it drifts (module docstring)."""
+
+    allowance: float  # fraction of its cycles (0-1)
+    realtime: str  # its class, as people say it: "hard real-time", "soft real-time", ...
+
+    def describe(self) -> str:
+        """"0.05 points (hard real-time)"."""
+        return f"{self.allowance * 100:.3g} points ({self.realtime})"
+
+
+# The share of spec.drift.marginPercent each real-time class affords (III-A 2).
+HARD_SHARE, SOFT_SHARE, NONE_SHARE = 0.01, 1.0, 2.0
+
+
+def miss_budget(taxonomy: Taxonomy | None, margin_percent: float) -> MissBudget:
+    """The module's drift allowance: its real-time class's share of ``margin_percent``
+    (a safety-critical module counts as hard real-time, as III-B keeps both on board); a
+    module whose taxonomy is unknown gets the soft real-time share."""
+    if taxonomy is not None and must_run_on_board(taxonomy):
+        share, label = HARD_SHARE, "hard real-time"
+        if taxonomy.realtime is not RealtimeClass.HARD:
+            label = "safety-critical"
+    elif taxonomy is not None and taxonomy.realtime is RealtimeClass.NONE:
+        share, label = NONE_SHARE, "non-real-time"
+    else:
+        share, label = SOFT_SHARE, "soft real-time"
+    return MissBudget(share * margin_percent / 100.0, label)
+
+
+SOFT_BUDGET = miss_budget(None, 5.0)
+"""The default margin's budget of a module whose taxonomy is unknown."""
+
+
+@dataclass(frozen=True)
 class ModuleDrift:
-    """One module of a fleet: predicted and measured miss rate, since when it drifts."""
+    """One module of a fleet: predicted and measured miss rate, since when it drifts, and
+    the budget it was judged by."""
 
     predicted: float
     measured: float | None
     cycles: float
     since: float | None  # wall time; None: not drifting
+    budget: MissBudget = SOFT_BUDGET
 
 
 def declared_row(rows: Sequence[ProfileRow], cpu: float | None) -> ProfileRow | None:
@@ -186,9 +240,10 @@ def correction(
     return out
 
 
-def drifting(predicted: float, measured: float | None, margin_percent: float) -> bool:
-    """Whether a module misses more than its plan predicts by more than the margin."""
-    return measured is not None and measured - predicted > margin_percent / 100.0
+def drifting(predicted: float, measured: float | None, budget: MissBudget) -> bool:
+    """Whether a module misses more than its plan predicts by more than it can afford
+    (``miss_budget``)."""
+    return measured is not None and measured - predicted > budget.allowance
 
 
 def drift_due(

@@ -29,6 +29,9 @@ def register(registry: kopf.OperatorRegistry, settings: Settings) -> kopf.Operat
     # the drift re-check and scaling are the runtime's own loops (lifecycle.startup), since
     # kopf timers would put a finalizer on every fleet and scaled module.
     kopf.on.delete(*FLEETS, registry=registry, optional=True)(robotfleet.fleet_deleted)
+    # ... which kopf calls only while the object still exists (another finalizer holds it):
+    # a fleet simply deleted is seen as its DELETED watch event
+    kopf.on.event(*FLEETS, registry=registry)(robotfleet.fleet_event)
     if settings.watch_cache:
         return registry  # one watch per kind: the runtime's caches report the other kinds
     kopf.on.event(GROUP, VERSION, SoftwareModule.PLURAL, registry=registry)(related.module_event)

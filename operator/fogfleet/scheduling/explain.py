@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 
 from fogfleet.api.v1alpha1.base import format_cores
+from fogfleet.domain.miss_rates import format_miss_rate
 from fogfleet.domain.problem import Problem
 
 from .objectives import constraint_names, constraints, module_miss_rates
@@ -137,7 +138,7 @@ def degraded_message(problem: Problem, x: np.ndarray) -> str:
             f"requests {format_cores(float(lad.cpu[i, j, k]))} cpu of the "
             f"{format_cores(float(lad.cpu[i, j, 0]))} its deadline needs (its limit: it bursts "
             f"when the node has idle CPU; priority {prio}, predicted miss "
-            f"{rates.get(module, 0.0):.1%})"
+            f"{format_miss_rate(rates.get(module, 0.0))})"
         )
     total = sum(len(v) for v in by_module.values())
     return (

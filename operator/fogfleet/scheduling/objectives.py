@@ -222,14 +222,17 @@ def evaluate(
 
 
 def module_miss_rates(
-    problem: Problem, x: NDArray[np.integer], with_limits: bool
+    problem: Problem,
+    x: NDArray[np.integer],
+    with_limits: bool,
+    allocation: Allocation | None = None,
 ) -> dict[str, float]:
     """The predicted miss rate of each module of one plan ``x`` (I,): the activation-weighted
     mean over its placed instances of ``missRate``'s per-instance prediction; the fleet's
-    ``missRate`` is the mean of these rates."""
-    ev = Evaluation(
-        problem, np.asarray(x, dtype=np.int64)[None, :], problem.allocation(with_limits)
-    )
+    ``missRate`` is the mean of these rates. ``allocation``: the CPU the plan runs with, when
+    it is not the problem's own (a degraded plan's, one under learnt corrections)."""
+    given = allocation if allocation is not None else problem.allocation(with_limits)
+    ev = Evaluation(problem, np.asarray(x, dtype=np.int64)[None, :], given)
     p = ev.instance_miss()[0]
     a = np.where(ev.valid[0], problem.activation, 0.0)
     out: dict[str, float] = {}

@@ -8,8 +8,14 @@ import dataclasses
 import os
 import sys
 
-from fogfleet.contract.env import ENV_METRICS_HOST, ENV_METRICS_PORT, METRICS_PORT
+from fogfleet.contract.env import (
+    ENV_LOG_INTERVAL,
+    ENV_METRICS_HOST,
+    ENV_METRICS_PORT,
+    METRICS_PORT,
+)
 
+from .heartbeat import log_interval
 from .profile import DEFAULT_OUTPUT, ENV_PROFILE_OUTPUT, profile_cycles, run_profile
 from .spec import WorkloadSpec
 from .work import describe, work_for
@@ -37,6 +43,14 @@ def main(argv: list[str] | None = None) -> int:
         help="milliseconds of CPU per cycle, single-threaded: the module's true work, burnt as "
         "fast as its CPU limit lets it (the kernel's CFS quota decides how long it takes); "
         "without it the workload plays its profile row",
+    )
+    m.add_argument(
+        "--log-interval",
+        type=_log_seconds,
+        default=None,
+        metavar="SECONDS",
+        help="seconds between the log lines of cycles, misses and messages (default: "
+        "$FOGFLEET_LOG_INTERVAL_SECONDS, else 10; 0: none)",
     )
     p = sub.add_parser(
         "probe", help="measure the cycle times of the module in $FOGFLEET_MODULE_SPEC (sidecar)"
@@ -82,6 +96,7 @@ def main(argv: list[str] | None = None) -> int:
                 "profile row for this node"
             )
         what = describe(spec)  # a module with neither its own work nor a row: said here
+        every = ns.log_interval if ns.log_interval is not None else log_interval(os.environ)
     except ValueError as exc:
         print(f"fogfleet-workload: {exc}", file=sys.stderr)
         return 2
@@ -93,10 +108,11 @@ def main(argv: list[str] | None = None) -> int:
     print(
         f"fogfleet-workload: {spec.robot or 'shared'}/{spec.module} on {spec.node} "
         f"({spec.tier or 'any tier'}, {limit}): cycle {spec.cycle_s * 1e3:g} ms, "
-        f"activation {spec.activation:.0%}, {what}",
+        f"activation {spec.activation:.0%}, {what}; "
+        + (f"a line every {every:g} s" if every > 0 else "no periodic log lines"),
         flush=True,
     )
-    run_module(spec, ns.host, ns.port)
+    run_module(spec, ns.host, ns.port, log_interval=every)
     return 0
 
 
@@ -139,6 +155,14 @@ def _bounded(text: str, most: float, what: str, given: str = "") -> float:
 def _cpu_work(text: str) -> float:
     """``MILLIS``: above 0, at most 10000."""
     return _bounded(text, 10000, "milliseconds of CPU per cycle,")
+
+
+def _log_seconds(text: str) -> float:
+    """``SECONDS``: 0 or more."""
+    try:
+        return log_interval({ENV_LOG_INTERVAL: text})
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(f"{text!r}: seconds, 0 or more") from exc
 
 
 def _work_factor(text: str) -> tuple[float, str]:

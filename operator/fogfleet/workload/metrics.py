@@ -21,6 +21,8 @@ from fogfleet.contract.metrics import (
     MISSED_CYCLES,
 )
 
+from .heartbeat import Tally
+
 __all__ = ["GAP_BUCKETS_SECONDS", "WorkloadMetrics"]
 
 # input gaps: a cycle or two (10-30 Hz topics), a fallback's takeover (a few cycles), a lost
@@ -127,9 +129,11 @@ class WorkloadMetrics:
         self._last_seen: dict[str, tuple[float, int]] = {}  # topic -> (monotonic s, origin)
         self._ids = ids
         self.healthy = True
+        self.tally = Tally()  # the same counts for the module's log line (heartbeat)
 
     def received(self, topic: str) -> None:
         self._received.labels(**self._ids, topic=topic).inc()
+        self.tally.received()
 
     def input_seen(self, topic: str, now_s: float, origin_ns: int) -> None:
         """A message of input ``topic`` arrived at ``now_s`` (monotonic), answering the input
@@ -148,6 +152,7 @@ class WorkloadMetrics:
 
     def published(self, topic: str) -> None:
         self._published.labels(**self._ids, topic=topic).inc()
+        self.tally.published()
 
     def held_back(self, topic: str) -> None:
         self._held_back.labels(**self._ids, topic=topic).inc()
@@ -157,6 +162,7 @@ class WorkloadMetrics:
             self.cycle.observe(seconds)
             if seconds > limit:
                 self.missed.inc()
+        self.tally.cycle(seconds > limit)
 
     def exposition(self) -> bytes:
         """The registry in Prometheus' text format, cycles and misses read at one moment."""

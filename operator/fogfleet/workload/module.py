@@ -16,7 +16,10 @@ import threading
 import time
 from typing import Any
 
+from fogfleet.contract.env import LOG_INTERVAL_SECONDS
+
 from .fallback import FirstResponse, Role, Source, Takeover, remote_topic
+from .heartbeat import run_heartbeat
 from .messages import Header, decode, encode
 from .metrics import WorkloadMetrics
 from .spec import WorkloadSpec, mean_episode_s
@@ -225,8 +228,10 @@ def run_module(
     port: int = 9100,
     seed: int | None = None,
     duration: float | None = None,
+    log_interval: float = LOG_INTERVAL_SECONDS,
 ) -> WorkloadMetrics:
-    """Run until SIGTERM (or `duration` seconds, for tests); returns the metrics."""
+    """Run until SIGTERM (or `duration` seconds, for tests), logging a line of its cycles,
+    misses and messages every ``log_interval`` seconds (``heartbeat``); returns the metrics."""
     rng = random.Random(seed)
     work = work_for(spec, rng)  # forks a row's workers: before ROS starts
     import rclpy
@@ -243,7 +248,13 @@ def run_module(
     if threading.current_thread() is threading.main_thread():
         for sig in (signal.SIGTERM, signal.SIGINT):
             signal.signal(sig, lambda *_: stop.set())
+    who = f"{spec.robot or 'shared'}/{spec.module}"
     workers = [threading.Thread(target=f, daemon=True) for f in (module.cycles, module.streams)]
+    workers.append(
+        threading.Thread(
+            target=run_heartbeat, args=(metrics.tally, who, log_interval, stop), daemon=True
+        )
+    )
     for w in workers:
         w.start()
     executor = EventsExecutor()

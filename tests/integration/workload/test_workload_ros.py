@@ -117,14 +117,19 @@ class Fleet:
         server: str | None,
         role: str = "primary",
         name: str | None = None,
+        extra_env: dict[str, str] | None = None,
     ) -> subprocess.Popen[bytes]:
-        """Start an instance, served under (robot, name or module)."""
+        """Start an instance, served under (robot, name or module); its output goes to
+        ``log(robot, name or module)``."""
         port = _port()
         self.ports[(robot, name or module)] = port
         argv = [sys.executable, "-m", "fogfleet.workload", "module", "--host", "127.0.0.1",
                 "--port", str(port)]  # fmt: skip
-        env = _env(robot, module, spec, server, role)
+        env = {**_env(robot, module, spec, server, role), **(extra_env or {})}
         return self._start(argv, env, f"{robot}-{name or module}")
+
+    def log(self, robot: str, name: str) -> str:
+        return (self.tmp / f"{robot}-{name}.log").read_text(errors="replace")
 
     def recorder(self, topic: str, server: str) -> Path:
         """A plain rclpy subscriber writing "arrival_ns origin_ns" per message on ``topic``."""
@@ -186,8 +191,22 @@ def test_per_robot_discovery_servers_isolate_robots_and_cycles_are_measured(
     servers = {r: fleet.server() for r in ("robot-1", "robot-2")}
     for robot, server in servers.items():
         fleet.module(robot, "lidar", SENSOR, server)
-        fleet.module(robot, "localizer", LOCALIZER, server)
+        every = {"FOGFLEET_LOG_INTERVAL_SECONDS": "2"} if robot == "robot-1" else {}
+        fleet.module(robot, "localizer", LOCALIZER, server, extra_env=every)
     time.sleep(12)
+    # a sign of life in `kubectl logs`: a line of cycles, misses and messages every period
+    # (2 s here, by the environment; the default 10 s on robot-2, started ~12 s ago)
+    beats = [
+        line
+        for line in fleet.log("robot-1", "localizer").splitlines()
+        if line.startswith("fogfleet-workload: robot-1/localizer: ") and "in the last 2 s" in line
+    ]
+    assert len(beats) >= 3, fleet.log("robot-1", "localizer")
+    period = re.match(r".*: (\d+) cycles \((\d+) missed\), (\d+) messages in, (\d+) out", beats[-1])
+    assert period is not None, beats[-1]
+    cycles, _, received, published = map(int, period.groups())
+    assert cycles >= 10 and received >= 10 and published >= 10, beats[-1]  # 10 Hz for 2 s
+    assert "a line every 10 s" in fleet.log("robot-2", "localizer")
     for robot in servers:
         m = fleet.metrics(robot, "localizer")
         assert _total(m, "fogfleet_messages_received_total") > 20, m

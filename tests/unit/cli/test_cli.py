@@ -476,3 +476,22 @@ def test_render_of_a_degraded_fleet_warns_on_stderr(
     lines = err.strip().splitlines()
     assert len(lines) == 1, err
     assert lines[0].startswith("DEGRADED single-robot/single-robot: degraded: the nodes are short")
+
+
+def test_plan_and_simulate_name_the_same_worst_module(capsys: pytest.CaptureFixture[str]) -> None:
+    """Issue 36: one definition of the worst module (domain.miss_rates) for the same plan;
+    the warehouse's short simulation sees no miss, so the prediction names it in both."""
+    from fogfleet.cli.planning import _print_plan
+
+    args = ("--seed", "1", "--population", "16", "--generations", "3")
+    code, out, _ = run(capsys, "plan", str(WAREHOUSE), "--json", *args)
+    assert code == 0
+    planned = json.loads(out)
+    rates = planned["moduleMissRates"]
+    assert planned["worstModule"] == max(sorted(rates), key=lambda m: rates[m])
+    _print_plan(planned)
+    assert f"(worst: {planned['worstModule']})" in capsys.readouterr().out
+    code, out, _ = run(capsys, "simulate", str(WAREHOUSE), "--duration", "2", *args)
+    assert code == 0
+    worst = next(line for line in out.splitlines() if line.startswith("WORST MODULE"))
+    assert worst.split()[2] == planned["worstModule"]

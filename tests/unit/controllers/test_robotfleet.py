@@ -51,6 +51,20 @@ def test_first_reconcile_plans_applies_every_instance_and_waits_for_pods(kube, d
     assert [e[1] for e in kube.events] == ["Planned"]
 
 
+def test_the_miss_column_shows_the_prediction_as_the_cli_does(kube, deps):
+    """kubectl's MISS column reads status.predictedMiss: the fraction as a percentage in the
+    CLI's format (issue 36), and the Planned Event says the same."""
+    from fogfleet.domain.miss_rates import format_miss_rate
+
+    run(kube, deps)
+    status = kube.fleets[KEY]["status"]
+    shown = status["predictedMiss"]
+    assert shown.endswith("%") and shown != "0.00%"
+    objective = next(o["value"] for o in status["objectives"] if o["name"] == "missRate")
+    assert shown == format_miss_rate(objective) or shown == "<0.0001%"
+    assert f"predicted miss rate {shown}" in kube.events[0][2]
+
+
 def test_ready_once_pods_run_where_planned(kube, deps):
     run(kube, deps)
     kube.run_pods()

@@ -101,6 +101,19 @@ def test_a_deleted_fleet_leaves_no_stale_usage(kube, deps):
         assert cn["status"]["cpuPlanned"] == "0"
 
 
+def test_a_fleet_being_deleted_counts_no_more(kube, deps):
+    """Foreground deletion keeps the fleet listed, with a deletionTimestamp, while its
+    Deployments go: the pass drops it then, not only once it is gone."""
+    planned(kube, deps)
+    reconcile_usage(deps)
+    assert any(cn["status"]["instances"] for cn in kube.compute_nodes.values())
+    kube.fleets[KEY]["metadata"]["deletionTimestamp"] = "2025-01-01T00:00:00Z"
+    assert reconcile_usage(deps) > 0
+    for cn in kube.compute_nodes.values():
+        assert (cn["status"]["fleets"], cn["status"]["instances"]) == ([], 0)
+    assert all(m["status"]["instances"] == 0 for m in kube.modules.values())
+
+
 def test_usage_keeps_the_autoscalers_status(kube, deps):
     (ns, name), module = next(iter(kube.modules.items()))
     scaling = {"desiredReplicas": 3, "pools": [{"tier": "edge", "replicas": 3}]}

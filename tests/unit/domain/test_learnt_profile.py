@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from fogfleet.api.loader import load_paths
+from fogfleet.api.v1alpha1.softwaremodule import Taxonomy
 from fogfleet.domain.build import build_problem
 from fogfleet.domain.observed import (
     Observation,
@@ -17,6 +18,7 @@ from fogfleet.domain.observed import (
     declared_row,
     drift_due,
     drifting,
+    miss_budget,
     timings,
 )
 from fogfleet.domain.rows import Learnt, ProfileRow
@@ -63,9 +65,46 @@ def test_a_large_prior_keeps_the_declared_profile_until_many_cycles_say_otherwis
     assert few["robot-nuc"][0].factor < 1.05 and many["robot-nuc"][0].factor > 2.9
 
 
-def test_drift_is_a_miss_rate_above_the_prediction_by_the_margin() -> None:
-    assert drifting(0.01, 0.07, 5) and not drifting(0.01, 0.05, 5)
-    assert not drifting(0.01, None, 5)
+def _tax(realtime: str, safety: str = "relevant") -> Taxonomy:
+    return Taxonomy(execution_pattern="continuous", realtime=realtime, safety=safety)
+
+
+def test_drift_is_a_miss_rate_above_the_prediction_by_what_the_class_affords() -> None:
+    soft = miss_budget(_tax("soft"), 5)
+    assert soft.allowance == pytest.approx(0.05)
+    assert drifting(0.01, 0.07, soft) and not drifting(0.01, 0.05, soft)
+    assert not drifting(0.01, None, soft)
+
+
+def test_a_hard_real_time_module_missing_4_9_percent_against_0_007_drifts() -> None:
+    """Issue 36's case: 4.9 % measured, 0.007 % predicted, default margin 5."""
+    hard = miss_budget(_tax("hard", "critical"), 5)
+    assert hard.allowance == pytest.approx(0.0005)
+    assert hard.describe() == "0.05 points (hard real-time)"
+    assert drifting(0.00007, 0.049, hard)
+    # the old rule (5 points for every module) let it pass: a soft module still does
+    assert not drifting(0.00007, 0.049, miss_budget(_tax("soft"), 5))
+    # a safety-critical module affords as little, whatever its real-time class
+    critical = miss_budget(_tax("soft", "critical"), 5)
+    assert critical.allowance == hard.allowance and critical.realtime == "safety-critical"
+    # a handful of misses in 100 000 cycles is not drift even there
+    assert not drifting(0.00007, 0.0003, hard)
+
+
+def test_noise_around_a_soft_modules_prediction_is_not_drift() -> None:
+    soft = miss_budget(_tax("soft"), 5)
+    for measured in (0.0, 0.015, 0.02, 0.035, 0.06):  # around 2 % predicted, up to +4 points
+        assert not drifting(0.02, measured, soft), measured
+    assert drifting(0.02, 0.071, soft)
+
+
+def test_a_non_real_time_module_affords_twice_the_margin() -> None:
+    best_effort = miss_budget(_tax("none", "irrelevant"), 5)
+    assert best_effort.allowance == pytest.approx(0.10)
+    assert best_effort.describe() == "10 points (non-real-time)"
+    assert not drifting(0.0, 0.09, best_effort) and drifting(0.0, 0.11, best_effort)
+    # a module whose taxonomy is unknown gets the soft share
+    assert miss_budget(None, 5).allowance == pytest.approx(0.05)
 
 
 def test_drift_re_plans_after_lasting_and_never_twice_within_the_interval() -> None:

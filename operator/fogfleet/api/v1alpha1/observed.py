@@ -29,8 +29,10 @@ class DriftSettings(FogModel):
     window_seconds: Annotated[int, Field(ge=10, le=86400)] = 120
     """Window of the measured miss rates and execution times."""
     margin_percent: Number = 5
-    """Drift: a module's measured miss rate above its predicted one by more than this many
-    percentage points."""
+    """Drift: a module's measured miss rate above its predicted one by more than its
+    real-time class affords: this many percentage points for soft real-time, a hundredth of
+    it for hard real-time or safety-critical (a missed deadline is a failure there), twice it
+    for the rest."""
     for_seconds: Annotated[int, Field(ge=0, le=86400)] = 60
     """... for at least this long (a passing burst is not drift)."""
     min_interval_seconds: Annotated[int, Field(ge=0, le=86400)] = 300

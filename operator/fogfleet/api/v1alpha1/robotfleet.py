@@ -362,12 +362,16 @@ class ModuleMissStatus(FogModel):
     """The SoftwareModule."""
     predicted_miss_rate: float
     """What the plan predicts (0-1)."""
+    drift_margin: float | None = None
+    """How much more than predicted it may miss before it drifts (0-1): its real-time class's
+    share of spec.drift.marginPercent (a hundredth for hard real-time or safety-critical, all
+    of it for soft real-time, twice it for the rest)."""
     measured_miss_rate: float | None = None
     """What its pods' counters show over spec.drift.windowSeconds (0-1)."""
     cycles: float = 0
     """Cycles measured in the window."""
     drifting_since: str | None = None
-    """Since when it misses more than predicted by the margin (RFC 3339)."""
+    """Since when it misses more than predicted by more than driftMargin (RFC 3339)."""
 
 
 class SharedNodeStatus(FogModel):
@@ -407,6 +411,9 @@ class RobotFleetStatus(FogModel):
     """The deployed plan's objective values."""
     predicted_miss_rate: float | None = None
     """Predicted fraction of missed cycles of the deployed plan (0-1)."""
+    predicted_miss: str | None = None
+    """predictedMissRate as people read it, a percentage ("0.007%"; kubectl's MISS column),
+    in the format of the CLI and the Events."""
     modules_placed: int | None = None
     """Instances placed."""
     modules_total: int | None = None
