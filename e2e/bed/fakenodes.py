@@ -78,9 +78,8 @@ def _apply_nodes(cluster: Cluster, manifest: str, timeout: float = 120) -> list[
     out = cluster.kubectl("apply", "-f", "-", "-o", "name", input=manifest).stdout
     names = {line.split("/", 1)[1] for line in out.split() if line.startswith("node/")}
     t0 = time.monotonic()
-    wait_for(
-        f"{len(names)} nodes Ready with no taint but the bed's", lambda: _nodes_ready(cluster, names), timeout
-    )
+    what = f"{len(names)} nodes Ready with no taint but the bed's"
+    wait_for(what, lambda: _nodes_ready(cluster, names), timeout)
     log(f"{len(names)} nodes Ready (no taint but the bed's) after {time.monotonic() - t0:.1f}s")
     return sorted(names)
 
