@@ -117,12 +117,26 @@ def test_every_dashboard_and_alert_query_parses_and_returns_series(
             time.sleep(5)
     lines = "\n".join(f"{k}: {v}" for k, v in missing.items())
     assert not missing, f"no series after {SERIES_TIMEOUT_S}s:\n{lines}"
-    # the operator's own series carry this fleet
-    rows = cluster.prometheus_query(
+    # the operator's own series carry this fleet: its Ready condition as the API has it (the
+    # fleet may re-plan meanwhile, so compare with the API until a scrape agrees, at most 60 s)
+    query = (
         f'fogfleet_fleet_condition{{fleet_namespace="{scraped_fleet}",fleet="{FLEET}",'
-        'type="Ready",status="True"}'
+        'type="Ready"} == 1'
     )
-    assert rows and float(rows[0]["value"][1]) == 1.0, rows
+    seen: tuple[str | None, list[Any]] = (None, [])
+    deadline = time.monotonic() + 60
+    while time.monotonic() < deadline:
+        body = cluster.kubectl_json("get", "robotfleet", FLEET, "-n", scraped_fleet)
+        ready = next(
+            (c["status"] for c in body["status"]["conditions"] if c["type"] == "Ready"), None
+        )
+        rows = cluster.prometheus_query(query)
+        seen = (ready, rows)
+        if [r["metric"].get("status") for r in rows] == [ready]:
+            break
+        time.sleep(5)
+    else:
+        raise AssertionError(f"Ready in the API and in the metric disagree for 60 s: {seen}")
     writes = cluster.prometheus_query(
         'sum(rest_client_requests_total{method=~"POST|PUT|PATCH|DELETE"})'
     )
