@@ -27,6 +27,9 @@ from fogfleet.controllers.ros import is_ros_object
 ROOT = Path(__file__).resolve().parents[2]
 EXAMPLES = ROOT / "manifests" / "examples"
 CRDS = ROOT / "crds"
+CHART = ROOT / "charts" / "fogfleet"
+HARNESS = ROOT / "e2e" / "bed" / "harness.py"
+OPERATOR_LABELS = "app.kubernetes.io/name=fogfleet,app.kubernetes.io/component=operator"
 Obj = dict[str, Any]
 
 
@@ -285,3 +288,13 @@ def assert_pods_where_planned(
         assert bound_node(dep) == [want]
         assert pods[dname]["spec"]["nodeName"] == want, dname
     return pods
+
+
+def helm(*args: str, timeout: float = 300) -> str:
+    """The bed's helm (``harness.py helm``, its kubeconfig); asserts it succeeded."""
+    proc = subprocess.run(
+        [sys.executable, str(HARNESS), "helm", *args],
+        capture_output=True, text=True, timeout=timeout, check=False,
+    )  # fmt: skip
+    assert proc.returncode == 0, f"helm {' '.join(args)}:\n{proc.stdout}\n{proc.stderr}"
+    return proc.stdout

@@ -36,6 +36,7 @@ import pytest
 
 from e2e.bed import harness, realnodes
 from e2e.bed.kube import Kube, UnsafeKubeconfig, guard_kubeconfig
+from e2e.bed.operator_fixtures import Operator, install_crds
 
 ENV_EXTERNAL = "FOGFLEET_E2E_EXTERNAL"
 ENV_KUBECONFIG = "FOGFLEET_E2E_KUBECONFIG"
@@ -235,6 +236,28 @@ def namespace(kube: Kube, request: pytest.FixtureRequest) -> Iterator[str]:
     if os.environ.get(ENV_KEEP_NAMESPACES):
         return
     kube.kubectl("delete", "namespace", name, "--wait=false", "--ignore-not-found", check=False)
+
+
+@pytest.fixture(scope="module")
+def crds(kube: Kube) -> None:
+    """fogfleet's CRDs, applied from crds/ and Established."""
+    install_crds(kube)
+
+
+@pytest.fixture
+def operator(
+    kube: Kube, crds: None, namespace: str, tmp_path: Path, diagnostics: list[Diagnostic]
+) -> Iterator[Operator]:
+    """``fogfleet run`` as a local process serving the test's namespace; its log is dumped
+    when the test fails. A suite that needs another operator defines its own."""
+    op = Operator(kube.kubeconfig, [namespace], tmp_path / "operator.log")
+    diagnostics.append(lambda: ("operator log", op.logs(150)))
+    op.start().wait_live()
+    yield op
+    # delete the fleets while the operator still runs, so their finalizers are removed
+    kube.kubectl("delete", "robotfleets", "--all", "-n", namespace, "--wait=true",
+                 "--timeout=60s", check=False, timeout=90)  # fmt: skip
+    op.stop()
 
 
 @pytest.fixture

@@ -30,7 +30,6 @@ from e2e.bed.operator_fixtures import (
     Operator,
     bound_node,
     free_port,
-    install_crds,
     of_kind,
 )
 from fogfleet.adapters.kube import KubeClient, load_config
@@ -173,11 +172,6 @@ class Rig:
                     + json.dumps(status, indent=1)
                 )
             time.sleep(PERIOD)
-
-
-@pytest.fixture(scope="module")
-def crds(kube: Kube) -> None:
-    install_crds(kube)
 
 
 def _scenario(path: Path, namespace: str, rate: float) -> Path:

@@ -29,7 +29,7 @@ import yaml
 from e2e.bed import fakenodes
 from e2e.bed.base import NODES_FILE
 from e2e.bed.kube import Kube
-from e2e.bed.operator_fixtures import EXAMPLES, Operator, install_crds, wait_ready
+from e2e.bed.operator_fixtures import EXAMPLES, Operator, wait_ready
 from fogfleet.api.labels import LABEL_FLEET
 from fogfleet.render.deployments import label_value
 
@@ -174,11 +174,6 @@ def _wait_running(kube: Kube, namespace: str, fleet: str, timeout: float = 120) 
     except AssertionError as exc:
         raise AssertionError(f"{exc}: {seen[0]}") from None
     return seen[0]
-
-
-@pytest.fixture(scope="module")
-def crds(kube: Kube) -> None:
-    install_crds(kube)
 
 
 @pytest.mark.parametrize("example", _folders())

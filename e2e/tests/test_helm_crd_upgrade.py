@@ -19,7 +19,6 @@ import json
 import secrets
 import shutil
 import subprocess
-import sys
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -30,10 +29,13 @@ import yaml
 from e2e.bed.harness import Cluster
 from e2e.bed.kube import Kube
 from e2e.bed.operator_fixtures import (
+    CHART,
+    OPERATOR_LABELS,
     ROOT,
     apply_warehouse,
     example_docs,
     fleet,
+    helm,
     install_crds,
     of_kind,
     wait_ready,
@@ -50,20 +52,8 @@ pytestmark = [
 
 RELEASE = "fogfleet-crdup"
 SYSTEM = "fogfleet-crdup-system"
-CHART = ROOT / "charts" / "fogfleet"
-HARNESS = ROOT / "e2e" / "bed" / "harness.py"
 CRD_FILE = "robotfleets.fogfleet.io.yaml"
 NEW_FIELD = "e2eNote"
-OPERATOR_LABELS = "app.kubernetes.io/name=fogfleet,app.kubernetes.io/component=operator"
-
-
-def helm(*args: str, timeout: float = 300) -> str:
-    proc = subprocess.run(
-        [sys.executable, str(HARNESS), "helm", *args],
-        capture_output=True, text=True, timeout=timeout, check=False,
-    )  # fmt: skip
-    assert proc.returncode == 0, f"helm {' '.join(args)}:\n{proc.stdout}\n{proc.stderr}"
-    return proc.stdout
 
 
 def chart_with_new_field(tmp: Path) -> Path:

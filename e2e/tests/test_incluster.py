@@ -10,8 +10,6 @@ from __future__ import annotations
 
 import json
 import secrets
-import subprocess
-import sys
 import time
 from collections.abc import Iterator
 from typing import Any
@@ -21,13 +19,15 @@ import pytest
 from e2e.bed.harness import Cluster
 from e2e.bed.kube import Kube
 from e2e.bed.operator_fixtures import (
+    CHART,
     N_INSTANCES,
-    ROOT,
+    OPERATOR_LABELS,
     apply_warehouse,
     assert_pods_where_planned,
     deployment_versions,
     deployments,
     fleet,
+    helm,
     install_crds,
     wait_ready,
 )
@@ -42,18 +42,6 @@ pytestmark = [
 
 RELEASE = "fogfleet"
 SYSTEM = "fogfleet-system"
-CHART = ROOT / "charts" / "fogfleet"
-HARNESS = ROOT / "e2e" / "bed" / "harness.py"
-OPERATOR_LABELS = "app.kubernetes.io/name=fogfleet,app.kubernetes.io/component=operator"
-
-
-def helm(*args: str, timeout: float = 300) -> str:
-    proc = subprocess.run(
-        [sys.executable, str(HARNESS), "helm", *args],
-        capture_output=True, text=True, timeout=timeout, check=False,
-    )  # fmt: skip
-    assert proc.returncode == 0, f"helm {' '.join(args)}:\n{proc.stdout}\n{proc.stderr}"
-    return proc.stdout
 
 
 def operator_pods(kube: Kube, *, terminating: bool = False) -> list[dict[str, Any]]:

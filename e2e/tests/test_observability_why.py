@@ -10,8 +10,6 @@ from __future__ import annotations
 import json
 import subprocess
 import sys
-from collections.abc import Iterator
-from pathlib import Path
 from typing import Any
 
 import pytest
@@ -22,7 +20,6 @@ from e2e.bed.operator_fixtures import (
     Operator,
     apply_warehouse,
     fleet,
-    install_crds,
     wait_ready,
 )
 
@@ -32,33 +29,6 @@ pytestmark = [
     pytest.mark.observability,
     pytest.mark.timeout(420),
 ]
-
-
-@pytest.fixture(scope="module")
-def crds(kube: Kube) -> None:
-    install_crds(kube)
-
-
-@pytest.fixture
-def operator(
-    kube: Kube, crds: None, namespace: str, tmp_path: Path, diagnostics: list[Any]
-) -> Iterator[Operator]:
-    op = Operator(kube.kubeconfig, [namespace], tmp_path / "operator.log")
-    diagnostics.append(lambda: ("operator log", op.logs(150)))
-    op.start().wait_live()
-    yield op
-    kube.kubectl(
-        "delete",
-        "robotfleets",
-        "--all",
-        "-n",
-        namespace,
-        "--wait=true",
-        "--timeout=60s",
-        check=False,
-        timeout=90,
-    )
-    op.stop()
 
 
 def _plugin(kube: Kube, namespace: str, *args: str) -> Any:

@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import copy
 import time
-from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -34,7 +33,6 @@ from e2e.bed.operator_fixtures import (
     events,
     example_docs,
     fleet,
-    install_crds,
     of_kind,
     pods_by_instance,
     wait_ready,
@@ -51,34 +49,6 @@ pytestmark = [
 FULL_TEMPLATE: dict[str, Any] = yaml.safe_load(
     (ROOT / "manifests" / "examples" / "pod-template" / "module.yaml").read_text()
 )["spec"]["template"]
-
-
-@pytest.fixture(scope="module")
-def crds(kube: Kube) -> None:
-    install_crds(kube)
-
-
-@pytest.fixture
-def operator(
-    kube: Kube, crds: None, namespace: str, tmp_path: Path, diagnostics: list[Any]
-) -> Iterator[Operator]:
-    op = Operator(kube.kubeconfig, [namespace], tmp_path / "operator.log")
-    diagnostics.append(lambda: ("operator log", op.logs(150)))
-    op.start().wait_live()
-    yield op
-    # delete the fleets while the operator still runs, so their finalizers are removed
-    kube.kubectl(
-        "delete",
-        "robotfleets",
-        "--all",
-        "-n",
-        namespace,
-        "--wait=true",
-        "--timeout=60s",
-        check=False,
-        timeout=90,
-    )
-    op.stop()
 
 
 def test_warehouse_runs_where_planned_replans_once_and_cleans_up(
