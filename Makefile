@@ -34,7 +34,7 @@ unit: venv ## Unit tests: the fast tier, each under 1 s (no cluster, no processe
 integration: venv ## Integration tests: rclpy workload processes, the operator under KopfRunner on a fake API, tests over 1 s
 	$(BIN)/pytest tests -q -m integration
 
-test: venv lint crds-check docs-check cluster-tools unit integration chart-lint checkov images ## Everything CI runs: lint, CRD drift, docs check, unit and integration tests, chart lint, checkov, e2e on the local bed (real and kwok nodes); stops the bed after (KEEP_BED=1 keeps it)
+test: venv lint crds-check docs-check cluster-tools unit integration chart-lint checkov dashboard-check images ## Everything CI runs: lint, CRD drift, docs check, unit and integration tests, chart lint, checkov, e2e on the local bed (real and kwok nodes); stops the bed after (KEEP_BED=1 keeps it)
 	@status=0; $(MAKE) --no-print-directory e2e || status=$$?; \
 	if [ "$(KEEP_BED)" = 1 ]; then echo "KEEP_BED=1: the bed keeps running (make cluster-down stops it)"; \
 	else $(BIN)/python e2e/bed/harness.py down || status=1; fi; \
@@ -83,6 +83,17 @@ e2e-k3d: venv ## The same on k3d (Docker); refuses where Docker cannot run privi
 chart-lint: venv ## helm lint + helm template of charts/fogfleet (helm from the cluster tools)
 	$(BIN)/python e2e/bed/harness.py helm lint --strict charts/fogfleet
 	$(BIN)/python e2e/bed/harness.py helm template fogfleet charts/fogfleet -n fogfleet-system > /dev/null
+
+# Grafana's dashboard schema types, in their own venv outside the repo (like checkov).
+GRAFANA_SDK_VERSION ?= 1769699998!10.1.0
+GRAFANA_SDK_VENV ?= $(CACHE_HOME)/grafana-sdk-10.1.0
+
+$(GRAFANA_SDK_VENV)/bin/python:
+	$(PY) -m venv $(GRAFANA_SDK_VENV)
+	$(GRAFANA_SDK_VENV)/bin/pip install -q 'grafana-foundation-sdk==$(GRAFANA_SDK_VERSION)'
+
+dashboard-check: $(GRAFANA_SDK_VENV)/bin/python ## The chart's Grafana dashboard read back through Grafana's schema types (grafana-foundation-sdk): nothing unknown, nothing changed
+	$(GRAFANA_SDK_VENV)/bin/python tests/dashboard/check_dashboard.py charts/fogfleet/dashboards/fogfleet.json
 
 $(CHECKOV_VENV)/bin/checkov:
 	$(PY) -m venv $(CHECKOV_VENV)
@@ -138,4 +149,4 @@ clean: ## Remove the virtualenv and caches in the repo
 	rm -rf $(VENV) .pytest_cache .mypy_cache .ruff_cache
 
 
-.PHONY: help venv lint unit integration docs-check test checkov images crds crds-check demo-offline bench-replan bench-cluster bench-scale bench-real bench-real-report cluster-tools cluster-up cluster-down cluster-status e2e e2e-kind e2e-k3d chart-lint bench demo clean
+.PHONY: dashboard-check kubectl help venv lint unit integration docs-check test checkov images crds crds-check demo-offline bench-replan bench-cluster bench-scale bench-real bench-real-report cluster-tools cluster-up cluster-down cluster-status e2e e2e-kind e2e-k3d chart-lint bench demo clean
