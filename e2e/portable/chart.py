@@ -29,11 +29,14 @@ def install_args(
     watch: str, image: str, pull_policy: str, node_selector: dict[str, str]
 ) -> list[str]:
     """``helm install`` arguments: one replica (nothing here tests failover; it leaves room on a
-    small edge node), the given image, watching ``watch`` only, pinned by ``node_selector``."""
+    small edge node), the given image, watching ``watch`` only, pinned by ``node_selector``.
+    The suite applies the CRDs itself (``kubectl apply``): another release may own them, and
+    this one must neither take them over nor keep them after it is gone."""
     repo, tag = split_image(image)
     args = [
         "install", RELEASE, str(CHART), "-n", NAMESPACE, "--create-namespace",
         "--set", f"watchNamespaces={{{watch}}}",
+        "--set", "crds.install=false",
         "--set", "replicaCount=1",
         "--set", "resources.requests.cpu=100m",
         "--set", "logFormat=plain",
