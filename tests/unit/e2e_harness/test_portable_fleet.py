@@ -123,7 +123,7 @@ def test_the_chart_is_installed_with_the_image_the_policy_and_the_pin() -> None:
     joined = " ".join(args)
     assert args[:3] == ["install", chart.RELEASE, str(chart.CHART)]
     assert "watchNamespaces={ns-1}" in joined and "replicaCount=1" in joined
-    assert "crds.install=false" in joined  # the suite applies the CRDs; another release may own them
+    assert "crds.install=false" in joined  # the suite applies them; another release may own them
     assert "image.repository=localhost:5000/fogfleet" in joined and "image.tag=0.2" in joined
     assert "image.pullPolicy=Never" in joined
     assert "nodeSelector.fogfleet\\.io/e2e-real=true" in joined
