@@ -9,6 +9,8 @@ from typing import Any
 
 import yaml
 
+from fogfleet.domain.miss_rates import format_miss_rate
+
 __all__ = ["FORMATS", "diff_table", "render", "top_table", "why_table"]
 
 FORMATS = ("table", "json", "yaml")
@@ -25,7 +27,8 @@ def render(doc: Doc, fmt: str, table: str) -> str:
 
 
 def _rate(value: float | None) -> str:
-    return "<none>" if value is None else f"{100 * value:.4g}%"
+    """A miss rate in the one format of the CLI and kubectl's MISS column (``-``: none)."""
+    return format_miss_rate(value)
 
 
 def _columns(rows: Sequence[Sequence[object]], indent: str = "") -> list[str]:
