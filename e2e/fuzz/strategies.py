@@ -178,8 +178,14 @@ def _wrong_type(schema: Schema) -> Any:
     kind = schema.get("type")
     if schema.get("x-kubernetes-int-or-string"):
         return {"not": "a quantity"}
-    return {"object": 7, "array": "x", "string": ["x"], "integer": "many", "number": "many",
-            "boolean": "perhaps"}.get(str(kind), [1])
+    return {
+        "object": 7,
+        "array": "x",
+        "string": ["x"],
+        "integer": "many",
+        "number": "many",
+        "boolean": "perhaps",
+    }.get(str(kind), [1])
 
 
 def _setter(path: list[Any], value: Any) -> Callable[[Obj], None]:
@@ -220,17 +226,24 @@ def mutations(obj: Obj, schema: Schema, path: list[Any] | None = None) -> list[M
         found.append((f"below minimum at {_dotted(path)}", _setter(path, schema["minimum"] - 1)))
     if isinstance(obj, dict) and schema.get("properties"):
         props = schema["properties"]
-        found.append((f"unknown field in {_dotted(path) or '<root>'}",
-                      _setter([*path, "fuzzUnknownField"], 1)))
+        found.append(
+            (
+                f"unknown field in {_dotted(path) or '<root>'}",
+                _setter([*path, "fuzzUnknownField"], 1),
+            )
+        )
         for key in sorted(_forbidden(schema)):
-            found.append((f"forbidden field {_dotted([*path, key])}",
-                          _setter([*path, key], {} if props[key].get("type") == "object" else 1)))
+            found.append(
+                (
+                    f"forbidden field {_dotted([*path, key])}",
+                    _setter([*path, key], {} if props[key].get("type") == "object" else 1),
+                )
+            )
         for key, value in obj.items():
             if key not in props:
                 continue
             if key in schema.get("required", ()):
-                found.append((f"missing required {_dotted([*path, key])}",
-                              _deleter([*path, key])))
+                found.append((f"missing required {_dotted([*path, key])}", _deleter([*path, key])))
             found.extend(mutations(value, props[key], [*path, key]))
     if isinstance(obj, list) and "items" in schema:
         for i, item in enumerate(obj):

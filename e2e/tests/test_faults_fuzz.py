@@ -64,8 +64,11 @@ def test_the_api_server_refuses_broken_fields_with_a_path(kube: Kube, crds: None
 
     @settings(max_examples=200, deadline=None, database=None,
               suppress_health_check=list(HealthCheck))  # fmt: skip
-    @given(case=st.sampled_from(sorted(KINDS)).flatmap(
-        lambda k: st.one_of(custom_resources(k).map(lambda o: (o, None)), mutated_resources(k))))
+    @given(
+        case=st.sampled_from(sorted(KINDS)).flatmap(
+            lambda k: st.one_of(custom_resources(k).map(lambda o: (o, None)), mutated_resources(k))
+        )
+    )
     def check(case: tuple[dict[str, Any], str | None]) -> None:
         doc, broken = case
         ours = _ours(doc)
@@ -78,7 +81,9 @@ def test_the_api_server_refuses_broken_fields_with_a_path(kube: Kube, crds: None
         if refused is not None:
             assert refused.status == 422, f"{where}: {refused.status} {refused.body}"
             assert "spec." in str(refused.body), f"{where}: no field path: {refused.body}"
-            assert ours is not None, f"{where}: the API server refused what we accept: {refused.body}"
+            assert ours is not None, (
+                f"{where}: the API server refused what we accept: {refused.body}"
+            )
             seen["refused"] += 1
         elif ours is None:
             seen["accepted"] += 1
@@ -116,7 +121,7 @@ def test_the_operator_reports_what_it_refuses_and_keeps_reconciling(
     kube.apply(docs, namespace=namespace)
     wait_ready(kube, namespace, "single-robot", timeout=240)
     api = client.CustomObjectsApi(kube.api_client())
-    stored = []
+    stored: list[dict[str, Any]] = []
     for doc in _stored_but_ours_refused(8):
         doc["metadata"]["name"] = f"fuzz-{len(stored)}"
         try:

@@ -17,10 +17,10 @@ from typing import Any
 
 import pytest
 import yaml
+from e2e.fuzz.strategies import KINDS, custom_resources, mutated_resources
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from e2e.fuzz.strategies import KINDS, custom_resources, mutated_resources
 from fogfleet.api.loader import parse_object
 from fogfleet.cli import main
 from fogfleet.errors import InvalidSpec
@@ -68,7 +68,7 @@ def _check(argv: list[str], doc: dict[str, Any], broken: str | None, capsys: Any
         assert code == 2, f"{where} ({broken}) passed {argv[0]} though: {ours}"
         assert f"{where}: {ours.field}" in err, f"{where} ({broken}): {err}"
     elif code == 2:  # a well-formed object the fleet check refused: still named
-        assert "error: " in err and where in err or "single-robot" in err, err
+        assert ("error: " in err and where in err) or "single-robot" in err, err
     TRIED[f"{argv[0]} {'broken' if broken else 'whole'} {'refused' if code else 'ok'}"] += 1
 
 

@@ -11,8 +11,8 @@ from typing import Any
 
 import pytest
 import yaml
-
 from e2e.podsecurity.restricted import violations
+
 from fogfleet.cli import main
 
 EXAMPLES = Path(__file__).resolve().parents[3] / "manifests" / "examples"
@@ -57,7 +57,8 @@ def test_standbys_meet_restricted(tmp_path: Path, capsys: pytest.CaptureFixture[
     (tmp_path / "modules.yaml").write_text(yaml.safe_dump_all(modules))
     docs = _render(tmp_path, capsys)
     standbys = [
-        d for d in docs
+        d
+        for d in docs
         if d["kind"] == "Deployment"
         and d["metadata"].get("labels", {}).get("app.kubernetes.io/component") == "fallback-standby"
     ]
@@ -71,14 +72,23 @@ def test_the_rules_refuse_what_restricted_refuses() -> None:
     spec = {
         "volumes": [{"name": "camera", "hostPath": {"path": "/dev/video0"}}],
         "securityContext": {"seccompProfile": {"type": "Unconfined"}},
-        "containers": [{
-            "name": "m",
-            "securityContext": {"capabilities": {"add": ["SYS_NICE"]}, "privileged": True},
-        }],
+        "containers": [
+            {
+                "name": "m",
+                "securityContext": {"capabilities": {"add": ["SYS_NICE"]}, "privileged": True},
+            }
+        ],
     }
     found = " ".join(violations(spec))
-    for word in ("hostPath", "privileged", "SYS_NICE", "drop ALL", "runAsNonRoot",
-                 "allowPrivilegeEscalation", "Unconfined"):
+    for word in (
+        "hostPath",
+        "privileged",
+        "SYS_NICE",
+        "drop ALL",
+        "runAsNonRoot",
+        "allowPrivilegeEscalation",
+        "Unconfined",
+    ):
         assert word in found, (word, found)
 
 
