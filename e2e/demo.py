@@ -129,6 +129,8 @@ Run a fleet on the bed's real nodes (real containers, real ROS 2 traffic) and cu
 (With a fallback in the fleet's spec, the robot's standbys take over: docs/ros2.md.)
 
 Every example applies on its own: kubectl apply -f manifests/examples/<name>/
+(shared-detector plans onto the warehouse's robots robot-1..5: it is Infeasible, and says why,
+until you free them: kubectl delete namespace warehouse)
 Stop everything: make cluster-down (it says what, if anything, it could not remove)
 """
 
