@@ -74,6 +74,11 @@ E2E_PORTABLE_ENV := FOGFLEET_E2E_EXTERNAL=1 FOGFLEET_E2E_KUBECONFIG=$(E2E_KUBECO
 e2e: venv $(if $(E2E_KUBECONFIG),,cluster-tools images) ## End-to-end tests on the local bed (started if not running; a demo left on it is removed first), each test named as it runs; KUBECONFIG=<file>: the portable part on that cluster
 	$(if $(E2E_KUBECONFIG),$(E2E_PORTABLE_ENV) $(BIN)/pytest e2e/tests -v --durations=10 --with-e2e,$(BIN)/python e2e/demo.py remove && $(BIN)/pytest e2e -v --durations=25 --with-e2e)
 
+test-faults: venv cluster-tools images ## The fault suite alone (issue 37: discovery server, kubelet, containerd, control plane, leader, long link cut, node reboot, fuzzing, Pod Security, NetworkPolicy) on the local bed; records faults.json and regenerates the table of docs/survives.md
+	rm -f faults.json
+	FOGFLEET_FAULTS_RECORD=$(CURDIR)/faults.json $(BIN)/pytest e2e -v --durations=25 --with-e2e -m faults
+	$(BIN)/python -m e2e.faults.report --json faults.json --docs docs/survives.md
+
 e2e-kind: venv ## A kind cluster (Docker) labelled for the portable suite, images loaded, the suite run; refuses where Docker cannot run privileged containers
 	$(BIN)/python -m e2e.clusters kind
 
@@ -149,4 +154,4 @@ clean: ## Remove the virtualenv and caches in the repo
 	rm -rf $(VENV) .pytest_cache .mypy_cache .ruff_cache
 
 
-.PHONY: dashboard-check kubectl help venv lint unit integration docs-check test checkov images crds crds-check demo-offline bench-replan bench-cluster bench-scale bench-real bench-real-report cluster-tools cluster-up cluster-down cluster-status e2e e2e-kind e2e-k3d chart-lint bench demo clean
+.PHONY: test-faults dashboard-check kubectl help venv lint unit integration docs-check test checkov images crds crds-check demo-offline bench-replan bench-cluster bench-scale bench-real bench-real-report cluster-tools cluster-up cluster-down cluster-status e2e e2e-kind e2e-k3d chart-lint bench demo clean

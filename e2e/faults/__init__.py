@@ -1,0 +1,1 @@
+"""Fault injection on the bed (issue 37): what each fault cost, recorded and rendered."""
