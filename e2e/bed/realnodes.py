@@ -90,7 +90,11 @@ KUBE_ROUTER_RBAC: list[dict[str, Any]] = [
                 "resources": ["endpointslices"],
                 "verbs": ["get", "list", "watch"],
             },
-            {"apiGroups": ["", "events.k8s.io"], "resources": ["events"], "verbs": ["create", "patch"]},
+            {
+                "apiGroups": ["", "events.k8s.io"],
+                "resources": ["events"],
+                "verbs": ["create", "patch"],
+            },
         ],
     },
     {

@@ -51,11 +51,11 @@ __all__ = [
     "fleet_network_policies",
     "module_env",
     "network_policy_name",
-    "robot_network_policy_name",
-    "shared_network_policy_name",
     "pod_security",
     "render_discovery",
+    "robot_network_policy_name",
     "service_address",
+    "shared_network_policy_name",
     "stay_on_robot",
 ]
 

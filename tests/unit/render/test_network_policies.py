@@ -19,7 +19,12 @@ ROBOTS = ["robot-1", "robot-2"]
 
 
 def _pod(robot: str, **extra: str) -> dict[str, str]:
-    return {**FLEET, "fogfleet.io/robot": robot, "app.kubernetes.io/managed-by": "fogfleet", **extra}
+    return {
+        **FLEET,
+        "fogfleet.io/robot": robot,
+        "app.kubernetes.io/managed-by": "fogfleet",
+        **extra,
+    }
 
 
 A_MODULE = _pod("robot-1", **{"fogfleet.io/module": "planner"})
