@@ -476,14 +476,14 @@ def _remove_mountpoints() -> None:
 def _check_host() -> None:
     import os
 
-    missing = [c for c in ("containerd", "runc", "ctr", "iptables", "nsenter", "unshare")
+    missing = [c for c in ("containerd", "runc", "ctr", "iptables", "ipset", "nsenter", "unshare")
                if shutil.which(c) is None]  # fmt: skip
     if not Path(CNI_BIN_DIR, "bridge").exists():
         missing.append(f"{CNI_BIN_DIR}/bridge (containernetworking-plugins)")
     if missing:
         raise HarnessError(
             f"real nodes need {', '.join(missing)}: `make cluster-tools` installs the Debian "
-            "packages containerd runc containernetworking-plugins iptables (as root)"
+            "packages containerd runc containernetworking-plugins iptables ipset (as root)"
         )
     if os.geteuid() != 0:
         raise HarnessError("real nodes need root (network namespaces, cgroups, containerd)")
