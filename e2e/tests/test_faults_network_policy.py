@@ -202,7 +202,7 @@ def test_a_robots_pods_reach_their_own_robot_and_the_shared_services_only(
     t0 = time.monotonic()
     policies = kube.kubectl_json("get", "networkpolicies", "-n", ns)["items"]
     names = sorted(p["metadata"]["name"] for p in policies)
-    assert names == sorted([f"{FLEET}-pods", f"{FLEET}-shared",
+    assert names == sorted([f"{FLEET}-pods", f"{FLEET}-shared", f"{FLEET}-metrics",
                             *(f"{FLEET}-{r}-net" for r in ROBOTS)]), names  # fmt: skip
     status = fleet(kube, ns, FLEET)["status"]
     where = {(p.get("robot", ""), p["module"]): p["node"] for p in status["placement"]}

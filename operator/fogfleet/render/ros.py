@@ -49,6 +49,7 @@ __all__ = [
     "discovery_servers",
     "discovery_service_name",
     "fleet_network_policies",
+    "metrics_network_policy_name",
     "module_env",
     "network_policy_name",
     "pod_security",
@@ -381,6 +382,11 @@ def robot_network_policy_name(fleet: str, robot: str) -> str:
     return dns_label(f"{fleet}-{robot}-net")
 
 
+def metrics_network_policy_name(fleet: str) -> str:
+    """``<fleet>-metrics``, the NetworkPolicy opening the metrics ports to Prometheus."""
+    return dns_label(f"{fleet}-metrics")
+
+
 def shared_network_policy_name(fleet: str) -> str:
     """``<fleet>-shared``, the NetworkPolicy of the fleet's shared services."""
     return dns_label(f"{fleet}-shared")
@@ -399,8 +405,12 @@ def fleet_network_policies(
     out: a pod of one robot cannot reach another robot's pods even knowing their addresses.
     NetworkPolicies add up, so each policy grants one group's flows:
 
-    * ``<fleet>-pods`` (every fleet pod): in from shared pods and on metrics ports; out to
-      shared pods. Selecting every pod also closes whatever the others do not open.
+    * ``<fleet>-pods`` (every fleet pod): in from shared pods; out to shared pods. Selecting
+      every pod also closes whatever the others do not open.
+    * ``<fleet>-metrics`` (every fleet pod, ingress only): metrics ports from anywhere. Its own
+      ingress-only policy: kube-router runs a pod's outgoing packets through every policy of
+      both types that selects the pod, ingress rules included, so an "any source" metrics
+      rule there would let one robot's pods reach another's metrics port.
     * ``<fleet>-shared`` (shared pods): in from and out to every fleet pod.
     * ``<fleet>-<robot>-net`` (one robot's pods): in from and out to that robot's pods.
 
@@ -413,7 +423,10 @@ def fleet_network_policies(
     if owner_refs:
         meta_extra["ownerReferences"] = [dict(o) for o in owner_refs]
 
-    def policy(name: str, pods: Mapping[str, str], ingress: list[Any], egress: list[Any]) -> Any:
+    def policy(
+        name: str, pods: Mapping[str, str], ingress: list[Any], egress: list[Any] | None
+    ) -> Any:
+        types = ["Ingress", "Egress"] if egress is not None else ["Ingress"]
         return {
             "apiVersion": "networking.k8s.io/v1",
             "kind": "NetworkPolicy",
@@ -425,21 +438,22 @@ def fleet_network_policies(
             },
             "spec": {
                 "podSelector": {"matchLabels": dict(pods)},
-                "policyTypes": ["Ingress", "Egress"],
+                "policyTypes": types,
                 "ingress": ingress,
-                "egress": egress,
+                **({"egress": egress} if egress is not None else {}),
             },
         }
 
     def peers(pods: Mapping[str, str]) -> list[dict[str, Any]]:
         return [{"podSelector": {"matchLabels": dict(pods)}}]
 
-    base_in: list[dict[str, Any]] = [{"from": peers(shared)}]
-    if metrics_ports:
-        ports = [{"protocol": "TCP", "port": p} for p in sorted(set(metrics_ports))]
-        base_in.append({"ports": ports})
     out = [
-        policy(network_policy_name(fleet), fleet_pods, base_in, [{"to": peers(shared)}]),
+        policy(
+            network_policy_name(fleet),
+            fleet_pods,
+            [{"from": peers(shared)}],
+            [{"to": peers(shared)}],
+        ),
         policy(
             shared_network_policy_name(fleet),
             shared,
@@ -447,6 +461,9 @@ def fleet_network_policies(
             [{"to": peers(fleet_pods)}],
         ),
     ]
+    if metrics_ports:
+        ports = [{"protocol": "TCP", "port": p} for p in sorted(set(metrics_ports))]
+        out.append(policy(metrics_network_policy_name(fleet), fleet_pods, [{"ports": ports}], None))
     for robot in sorted(set(robots) - {""}):
         own = {**fleet_pods, LABEL_ROBOT: label_value(robot)}
         name = robot_network_policy_name(fleet, robot)

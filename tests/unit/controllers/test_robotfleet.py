@@ -340,7 +340,7 @@ def test_a_robot_leaving_the_fleet_takes_its_network_policy_along(kube, deps):
     run(kube, deps)
     robots = list(kube.fleets[KEY]["spec"]["robots"])
     names = {name for _, name in kube.network_policies}
-    assert names == {"warehouse-pods", "warehouse-shared"} | {
+    assert names == {"warehouse-pods", "warehouse-shared", "warehouse-metrics"} | {
         f"warehouse-{r}-net" for r in robots
     }
     for policy in kube.network_policies.values():
@@ -349,7 +349,7 @@ def test_a_robot_leaving_the_fleet_takes_its_network_policy_along(kube, deps):
     gone = _drop_a_robot(kube)
     run(kube, deps)
     assert ("warehouse", f"warehouse-{gone}-net") not in kube.network_policies
-    assert len(kube.network_policies) == len(robots) + 1
+    assert len(kube.network_policies) == len(robots) + 2
 
 
 def _drop_a_robot(kube) -> str:

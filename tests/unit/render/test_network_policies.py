@@ -2,7 +2,9 @@
 
 Policies add up, so a flow is allowed when any policy selecting the receiver admits it on
 ingress and any policy selecting the sender admits it on egress. ``allowed`` evaluates the
-rendered objects that way (label selectors, ports), as an enforcing CNI does.
+rendered objects that way (label selectors, ports), as an enforcing CNI does, and with the
+looser reading of kube-router (the bed's enforcer) on top, so a refusal here is a refusal
+under both.
 """
 
 from __future__ import annotations
@@ -59,9 +61,16 @@ def _admits(rules: list[dict[str, Any]], key: str, peer: dict[str, str] | None, 
 def allowed(src: dict[str, str] | None, dst: dict[str, str], port: int) -> bool:
     policies = [p["spec"] for p in _policies()]
     on_dst = [p for p in policies if _selects(p["podSelector"], dst)]
-    on_src = [p for p in policies if _selects(p["podSelector"], src)]
+    on_src = [p for p in policies if _selects(p["podSelector"], src) and "egress" in p]
     ingress = not on_dst or any(_admits(p["ingress"], "from", src, port) for p in on_dst)
     egress = not on_src or any(_admits(p["egress"], "to", dst, port) for p in on_src)
+    # kube-router also runs a sender's packets through the ingress rules of its two-way
+    # policies: one admitting (src, dst) with dst selected by that policy lets them out too
+    egress = egress or any(
+        "Egress" in p["policyTypes"] and _selects(p["podSelector"], dst)
+        and _admits(p["ingress"], "from", src, port)
+        for p in on_src
+    )  # fmt: skip
     return ingress and egress
 
 
@@ -100,16 +109,22 @@ def test_metrics_ports_are_open_to_prometheus_but_not_to_another_robots_pods() -
     assert not allowed(A_MODULE, B_MODULE, 9100)
 
 
-def test_every_policy_closes_both_directions_and_is_labelled_for_pruning() -> None:
+def test_every_policy_but_the_metrics_one_closes_both_directions_and_is_labelled() -> None:
     for policy in _policies():
-        assert policy["spec"]["policyTypes"] == ["Ingress", "Egress"]
+        name = policy["metadata"]["name"]
+        # an "any source" rule in a two-way policy would open robot-1's egress to robot-2's
+        # metrics port under kube-router, which runs outgoing packets through it too
+        want = ["Ingress"] if name == "warehouse-metrics" else ["Ingress", "Egress"]
+        assert policy["spec"]["policyTypes"] == want, name
+        open_to_all = [r for r in policy["spec"]["ingress"] if "from" not in r]
+        assert not open_to_all or want == ["Ingress"], name
         assert policy["metadata"]["labels"] == FLEET
 
 
 def test_one_policy_per_robot_with_names_that_fit() -> None:
     names = [p["metadata"]["name"] for p in _policies()]
-    assert names == ["warehouse-pods", "warehouse-shared", "warehouse-robot-1-net",
-                     "warehouse-robot-2-net"]  # fmt: skip
+    assert names == ["warehouse-pods", "warehouse-shared", "warehouse-metrics",
+                     "warehouse-robot-1-net", "warehouse-robot-2-net"]  # fmt: skip
     long = robot_network_policy_name("f" * 60, "r" * 60)
     assert len(long) <= MAX_NAME
     assert long != robot_network_policy_name("f" * 60, "r" * 59 + "s")
