@@ -49,7 +49,7 @@ crds-check: venv ## Fail when crds/ or the chart's generated files drift from th
 docs-check: venv ## Fail when README.md or docs/ name a missing file, anchor, make target or CLI flag
 	$(BIN)/pytest tests/docs -q
 
-cluster-tools: venv ## Build (or reuse from ~/.cache/fogfleet) etcd, kube-*, kwok, helm and Prometheus
+cluster-tools: venv ## Build (or reuse from ~/.cache/fogfleet) etcd, kube-*, kwok, helm, kube-router and Prometheus
 	$(BIN)/python e2e/bed/harness.py build
 
 images: venv ## Build (or reuse from ~/.cache/fogfleet/images) the operator, workload, pause and busybox images without Docker

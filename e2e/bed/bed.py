@@ -84,6 +84,10 @@ def _start_real_nodes(cluster: Cluster, real: list[realnodes.RealNode]) -> None:
         20,
     )
     _kubernetes_endpoints(cluster)
+    cluster.kubectl(
+        "apply", "-f", "-",
+        input=json.dumps({"apiVersion": "v1", "kind": "List", "items": realnodes.KUBE_ROUTER_RBAC}),
+    )  # fmt: skip
     _start(
         POD_DISCOVERY,
         [

@@ -7,7 +7,8 @@
 It makes the node's private view of the paths that containerd and the kubelet hard-code
 (``/run/containerd``, ``/var/lib/kubelet``, ``/var/log/pods`` ...; a fresh tmpfs or a bind of
 the node's own directory, invisible to the host and gone with the namespace), then starts
-containerd in the node's ``runtime`` cgroup and the kubelet and kube-proxy in its ``agents``
+containerd in the node's ``runtime`` cgroup and the kubelet, kube-proxy and kube-router (its
+NetworkPolicy firewall) in its ``agents``
 cgroup, restarts any of them that dies, and on SIGTERM stops them and kills every process left
 in the node's cgroups (by pid). Stdlib only.
 """
@@ -83,8 +84,13 @@ def main(config_path: str) -> int:
     signal.signal(signal.SIGTERM, _on_term)
     signal.signal(signal.SIGINT, _on_term)
     _private_paths(cfg)
+    if "kube-router" in cfg["processes"]:
+        # NetworkPolicy between two pods of this node: their packets cross cni0, a bridge, and
+        # iptables sees bridged packets only with this on (per network namespace).
+        Path("/proc/sys/net/bridge/bridge-nf-call-iptables").write_text("1\n")
     runtime, agents = cfg["cgroups"]["runtime"], cfg["cgroups"]["agents"]
     order = [("containerd", runtime), ("kubelet", agents), ("kube-proxy", agents)]
+    order += [(name, agents) for name in ("kube-router",) if name in cfg["processes"]]
     procs: dict[str, subprocess.Popen[bytes]] = {}
     restarts: dict[str, float] = {}
     for name, cg in order:
@@ -108,7 +114,9 @@ def main(config_path: str) -> int:
             procs[name] = _spawn(name, cfg["processes"][name], logs, cg)
             cgroups.join(os.getpid(), agents)
     _say("stopping")
-    for name in ("kubelet", "kube-proxy", "containerd"):
+    for name in ("kube-router", "kubelet", "kube-proxy", "containerd"):
+        if name not in procs:
+            continue
         proc = procs[name]
         if proc.poll() is None:
             proc.terminate()

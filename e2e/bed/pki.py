@@ -65,6 +65,7 @@ def _make_pki() -> None:
     ]
     issue_cert("admin", "/O=system:masters/CN=fogfleet-e2e-admin", sans)
     issue_cert("kube-proxy", "/CN=system:kube-proxy", [], usage="clientAuth")
+    issue_cert("kube-router", "/CN=system:kube-router", [], usage="clientAuth")
     _openssl("genrsa", "-out", "sa.key", "2048")
     for key in pki.glob("*.key"):
         key.chmod(0o600)

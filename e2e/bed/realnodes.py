@@ -1,4 +1,5 @@
-"""Real nodes: one containerd, one kubelet and one kube-proxy per node, each node a small host.
+"""Real nodes: one containerd, one kubelet, one kube-proxy and one kube-router (only its
+NetworkPolicy firewall) per node, each node a small host.
 
 A real node is declared in ``nodes.yaml`` beside the kwok nodes (the ``default`` bed profile)
 or in a profile's own file (``nodes-<profile>.yaml``, real nodes only: ``PROFILES``), as a
@@ -16,7 +17,8 @@ Layout of a node (see bednet.py for its network, cgroups.py for its size, nodeho
 what runs inside its namespaces)::
 
     STATE_DIR/nodes/<node>/  nodehost.json  containerd.toml  containerd.sock  containerd/
-                             kubelet.json  kubelet.kubeconfig  kube-proxy.json  pki/ logs/
+                             kubelet.json  kubelet.kubeconfig  kube-proxy.json
+                             kube-router.kubeconfig  pki/ logs/
                              kubelet/ (= /var/lib/kubelet inside)  pod-logs/ cni-conf/ cni/
 """
 
@@ -65,6 +67,50 @@ BIND_PATHS = {
     "cni": "/var/lib/cni",
 }
 NODE_READY_TIMEOUT = 120
+# What kube-router's firewall reads (its informers also watch Services and Endpoints).
+KUBE_ROUTER_USER = "system:kube-router"
+KUBE_ROUTER_RBAC: list[dict[str, Any]] = [
+    {
+        "apiVersion": "rbac.authorization.k8s.io/v1",
+        "kind": "ClusterRole",
+        "metadata": {"name": "fogfleet-bed:kube-router"},
+        "rules": [
+            {
+                "apiGroups": [""],
+                "resources": ["pods", "namespaces", "nodes", "services", "endpoints"],
+                "verbs": ["get", "list", "watch"],
+            },
+            {
+                "apiGroups": ["networking.k8s.io"],
+                "resources": ["networkpolicies"],
+                "verbs": ["get", "list", "watch"],
+            },
+            {
+                "apiGroups": ["discovery.k8s.io"],
+                "resources": ["endpointslices"],
+                "verbs": ["get", "list", "watch"],
+            },
+            {
+                "apiGroups": ["", "events.k8s.io"],
+                "resources": ["events"],
+                "verbs": ["create", "patch"],
+            },
+        ],
+    },
+    {
+        "apiVersion": "rbac.authorization.k8s.io/v1",
+        "kind": "ClusterRoleBinding",
+        "metadata": {"name": "fogfleet-bed:kube-router"},
+        "roleRef": {
+            "apiGroup": "rbac.authorization.k8s.io",
+            "kind": "ClusterRole",
+            "name": "fogfleet-bed:kube-router",
+        },
+        "subjects": [
+            {"apiGroup": "rbac.authorization.k8s.io", "kind": "User", "name": KUBE_ROUTER_USER}
+        ],
+    },
+]
 
 
 @dataclass(frozen=True)
@@ -326,6 +372,10 @@ def _write_node_files(node: RealNode, api_server: str) -> Path:
         kubeconfig(api_server, "system:kube-proxy", ca_pki / "kube-proxy.crt",
                    ca_pki / "kube-proxy.key")
     )  # fmt: skip
+    (d / "kube-router.kubeconfig").write_text(
+        kubeconfig(api_server, KUBE_ROUTER_USER, ca_pki / "kube-router.crt",
+                   ca_pki / "kube-router.key")
+    )  # fmt: skip
     (d / "containerd.toml").write_text(_containerd_config(node))
     _write_json(d / "cni-conf" / "10-fogfleet-bed.conflist", _cni_config(node))
     _write_json(d / "kubelet.json", _kubelet_config(node, pki))
@@ -367,6 +417,27 @@ def _write_node_files(node: RealNode, api_server: str) -> Path:
                 "argv": [str(BIN_DIR / "kube-proxy"), f"--config={d / 'kube-proxy.json'}", "--v=1"],
                 "path": path,
             },
+            # NetworkPolicy, enforced in the node's netns (iptables + ipset on cni0 and eth0):
+            # only the firewall; CNI, routes and Services stay the bed's (bednet, kube-proxy).
+            "kube-router": {
+                "argv": [
+                    str(BIN_DIR / "kube-router"),
+                    f"--kubeconfig={d / 'kube-router.kubeconfig'}",
+                    f"--hostname-override={node.name}",
+                    "--run-firewall=true",
+                    "--run-router=false",
+                    "--run-service-proxy=false",
+                    "--run-loadbalancer=false",
+                    "--enable-cni=false",
+                    "--enable-ipv6=false",
+                    f"--service-cluster-ip-range={bednet.SERVICE_CIDR}",
+                    "--iptables-sync-period=30s",
+                    "--health-port=0",
+                    "--metrics-port=0",
+                    "--v=1",
+                ],
+                "path": path,
+            },
         },
     }
     return _write_json(d / "nodehost.json", cfg)
@@ -405,14 +476,14 @@ def _remove_mountpoints() -> None:
 def _check_host() -> None:
     import os
 
-    missing = [c for c in ("containerd", "runc", "ctr", "iptables", "nsenter", "unshare")
+    missing = [c for c in ("containerd", "runc", "ctr", "iptables", "ipset", "nsenter", "unshare")
                if shutil.which(c) is None]  # fmt: skip
     if not Path(CNI_BIN_DIR, "bridge").exists():
         missing.append(f"{CNI_BIN_DIR}/bridge (containernetworking-plugins)")
     if missing:
         raise HarnessError(
             f"real nodes need {', '.join(missing)}: `make cluster-tools` installs the Debian "
-            "packages containerd runc containernetworking-plugins iptables (as root)"
+            "packages containerd runc containernetworking-plugins iptables ipset (as root)"
         )
     if os.geteuid() != 0:
         raise HarnessError("real nodes need root (network namespaces, cgroups, containerd)")
@@ -486,7 +557,7 @@ def _tail(path: Path, lines: int = 30) -> str:
 def diagnose(node: RealNode) -> str:
     """The last lines of every log of a node, for errors and failed tests."""
     parts = [f"--- {node.process_name} ---\n{log_tail(node.process_name)}"]
-    for name in ("containerd", "kubelet", "kube-proxy"):
+    for name in ("containerd", "kubelet", "kube-proxy", "kube-router"):
         parts.append(f"--- {node.name}/{name} ---\n{_tail(node.dir / 'logs' / f'{name}.log')}")
     return "\n".join(parts)
 

@@ -28,9 +28,10 @@ from e2e.bed.base import (
     run,
 )
 
-TOOLS = ("k8s", "etcd", "kwok", "helm", "prometheus", "node-runtime")
+TOOLS = ("k8s", "etcd", "kwok", "helm", "prometheus", "node-runtime", "kube-router")
 # Debian packages a real node runs on (the kubelet and kube-proxy come from the k8s build).
-NODE_PACKAGES = ("containerd", "runc", "containernetworking-plugins", "iptables")
+# ipset: kube-router's NetworkPolicy firewall keeps each policy's peers in ip sets.
+NODE_PACKAGES = ("containerd", "runc", "containernetworking-plugins", "iptables", "ipset")
 K8S_COMMANDS = (
     "kube-apiserver",
     "kube-controller-manager",
@@ -167,6 +168,11 @@ def tool_specs(v: Mapping[str, str]) -> dict[str, Tool]:
         (Path("/usr/sbin/iptables"), ["--version"], "iptables"),
     ]
     runtime.files += [Path("/usr/lib/cni/bridge"), Path("/usr/lib/cni/host-local")]
+    runtime.files.append(Path("/usr/sbin/ipset"))
+    krv = v["KUBE_ROUTER_VERSION"]
+    kr_root = TOOLS_DIR / f"kube-router-{krv}"
+    kube_router = Tool("kube-router", kr_root, {"kube-router": kr_root / "bin" / "kube-router"})
+    kube_router.checks.append((kube_router.binaries["kube-router"], ["--version"], f"v{krv}"))
     return {
         "k8s": k8s,
         "etcd": etcd,
@@ -174,6 +180,7 @@ def tool_specs(v: Mapping[str, str]) -> dict[str, Tool]:
         "helm": helm,
         "prometheus": prom,
         "node-runtime": runtime,
+        "kube-router": kube_router,
     }
 
 
@@ -341,6 +348,23 @@ def _build_prometheus(tool: Tool, v: Mapping[str, str], go: GoToolchain | None, 
     shutil.rmtree(dl, ignore_errors=True)
 
 
+def _build_kube_router(tool: Tool, v: Mapping[str, str], go: GoToolchain, blog: Path) -> None:
+    """kube-router, run by the real nodes only as a NetworkPolicy firewall (realnodes.py)."""
+    krv = v["KUBE_ROUTER_VERSION"]
+    module = "github.com/cloudnativelabs/kube-router/v2"
+    (tool.root / "bin").mkdir(parents=True, exist_ok=True)
+    go(
+        "install",
+        "-v",
+        "-trimpath",
+        "-ldflags",
+        f"-s -w -X {module}/pkg/version.Version=v{krv}",
+        f"{module}/cmd/kube-router@v{krv}",
+        log_file=blog,
+        extra_env={"GOBIN": str(tool.root / "bin")},
+    )
+
+
 def install_debian_packages(packages: Sequence[str], blog: Path | None = None) -> None:
     """apt-get install what is missing, as root, without starting any service.
 
@@ -394,6 +418,7 @@ BUILDERS: dict[str, Callable[..., None]] = {
     "kwok": _build_kwok,
     "helm": _build_helm,
     "prometheus": _build_prometheus,
+    "kube-router": _build_kube_router,
 }
 
 

@@ -324,6 +324,18 @@ class KubeClient:
             "NetworkPolicy", "/apis/networking.k8s.io/v1/namespaces/{ns}/networkpolicies", body
         )
 
+    def list_network_policies(self, namespace: str, selector: Mapping[str, str]) -> list[Obj]:
+        return self._list(
+            f"/apis/networking.k8s.io/v1/namespaces/{namespace}/networkpolicies",
+            f"list NetworkPolicies in {namespace}",
+            selector,
+        )
+
+    def delete_network_policy(self, namespace: str, name: str) -> None:
+        path = f"/apis/networking.k8s.io/v1/namespaces/{namespace}/networkpolicies/{name}"
+        with map_errors(f"delete NetworkPolicy {namespace}/{name}"):
+            self._call("DELETE", path, missing_ok=True)
+
     def list_services(self, namespace: str, selector: Mapping[str, str]) -> list[Obj]:
         return self._list(
             f"/api/v1/namespaces/{namespace}/services", f"list Services in {namespace}", selector

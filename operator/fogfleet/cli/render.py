@@ -29,8 +29,7 @@ def cmd_render(args: argparse.Namespace) -> int:
     from fogfleet.render.ros import (
         RosWiring,
         discovery_servers,
-        fleet_network_policy,
-        network_policy_name,
+        fleet_network_policies,
         service_address,
     )
 
@@ -64,14 +63,13 @@ def cmd_render(args: argparse.Namespace) -> int:
             for _, service, deployment in servers:
                 docs += [service, deployment]
             ports = sorted({p for m in modules.values() for p in m.spec.template.metrics_ports()})
-            docs.append(
-                fleet_network_policy(
-                    name=network_policy_name(problem.fleet),
-                    namespace=ns,
-                    selector={LABEL_FLEET: label_value(problem.fleet)},
-                    metrics_ports=ports,
-                    owner_refs=[],
-                )
+            docs += fleet_network_policies(
+                fleet=problem.fleet,
+                namespace=ns,
+                selector={LABEL_FLEET: label_value(problem.fleet)},
+                robots=sorted({inst.robot for inst in problem.instances}),
+                metrics_ports=ports,
+                owner_refs=[],
             )
         deployments = render_fleet(
             problem,

@@ -1,5 +1,7 @@
 """Apply a fleet's ROS 2 wiring: one discovery server (Service + Deployment) per robot, and
-the fleet's NetworkPolicy (its pods talk to each other; metrics ports are open).
+the fleet's NetworkPolicies (each robot's pods talk with each other and with the shared
+services; metrics ports are open; ``render.ros.fleet_network_policies``). Policies of robots
+that left the fleet are deleted.
 
 The Service is applied first, so its cluster IP (allocated once by the API server and kept)
 can go into every module's ``ROS_DISCOVERY_SERVER``: no cluster DNS is needed. Servers of
@@ -26,8 +28,7 @@ from fogfleet.render.ros import (
     COMPONENT_DISCOVERY,
     RosWiring,
     discovery_servers,
-    fleet_network_policy,
-    network_policy_name,
+    fleet_network_policies,
     service_address,
 )
 
@@ -117,17 +118,23 @@ def apply_ros_wiring(
     servers = {robot: service_address(stored[name]) for robot, name in names.items()}
     run_all([functools.partial(kube.apply_deployment, d) for d in deployments], concurrency)
     ports = sorted({p for m in modules for p in m.spec.template.metrics_ports()})
-    kube.apply_network_policy(
-        fleet_network_policy(
-            name=network_policy_name(problem.fleet),
-            namespace=ns,
-            selector=dict(fleet_labels),
-            metrics_ports=ports,
-            owner_refs=_owner_refs(owner),
-        )
+    policies = fleet_network_policies(
+        fleet=problem.fleet,
+        namespace=ns,
+        selector=dict(fleet_labels),
+        robots=sorted({inst.robot for inst in problem.instances}),
+        metrics_ports=ports,
+        owner_refs=_owner_refs(owner),
     )
+    run_all([functools.partial(kube.apply_network_policy, p) for p in policies], concurrency)
     wanted = set(names.values())
     stale = [functools.partial(kube.delete_deployment, ns, n) for n in have if n not in wanted]
     stale += [functools.partial(kube.delete_service, ns, n) for n in services if n not in wanted]
+    keep = {p["metadata"]["name"] for p in policies}
+    stale += [
+        functools.partial(kube.delete_network_policy, ns, p["metadata"]["name"])
+        for p in kube.list_network_policies(ns, fleet_labels)
+        if p["metadata"]["name"] not in keep
+    ]
     run_all(stale, concurrency)
     return RosWiring(settings, servers)

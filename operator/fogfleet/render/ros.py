@@ -48,12 +48,15 @@ __all__ = [
     "RosWiring",
     "discovery_servers",
     "discovery_service_name",
-    "fleet_network_policy",
+    "fleet_network_policies",
+    "metrics_network_policy_name",
     "module_env",
     "network_policy_name",
     "pod_security",
     "render_discovery",
+    "robot_network_policy_name",
     "service_address",
+    "shared_network_policy_name",
     "stay_on_robot",
 ]
 
@@ -110,7 +113,7 @@ def discovery_service_name(fleet: str, robot: str) -> str:
 
 
 def network_policy_name(fleet: str) -> str:
-    """``<fleet>-pods``, the fleet's NetworkPolicy."""
+    """``<fleet>-pods``, the NetworkPolicy of every pod of the fleet."""
     return dns_label(f"{fleet}-pods")
 
 
@@ -374,29 +377,95 @@ def service_address(service: Mapping[str, Any]) -> str:
     return f"{host}:{spec['ports'][0]['port']}"
 
 
-def fleet_network_policy(
-    *, name: str, namespace: str, selector: Mapping[str, str], metrics_ports: Sequence[int],
-    owner_refs: Sequence[Mapping[str, Any]],
-) -> dict[str, Any]:  # fmt: skip
-    """The fleet's pods take traffic only from each other (DDS, any port) and, on their
-    metrics ports, from anywhere (Prometheus). Egress stays open: a robot's modules talk to
-    shared services and discovery servers wherever they run."""
-    ingress: list[dict[str, Any]] = [{"from": [{"podSelector": {"matchLabels": dict(selector)}}]}]
-    if metrics_ports:
-        ingress.append(
-            {"ports": [{"protocol": "TCP", "port": p} for p in sorted(set(metrics_ports))]}
-        )
-    meta: dict[str, Any] = {"name": name, "namespace": namespace, "labels": dict(selector)}
+def robot_network_policy_name(fleet: str, robot: str) -> str:
+    """``<fleet>-<robot>-net``, the NetworkPolicy of one robot's pods."""
+    return dns_label(f"{fleet}-{robot}-net")
+
+
+def metrics_network_policy_name(fleet: str) -> str:
+    """``<fleet>-metrics``, the NetworkPolicy opening the metrics ports to Prometheus."""
+    return dns_label(f"{fleet}-metrics")
+
+
+def shared_network_policy_name(fleet: str) -> str:
+    """``<fleet>-shared``, the NetworkPolicy of the fleet's shared services."""
+    return dns_label(f"{fleet}-shared")
+
+
+def fleet_network_policies(
+    *, fleet: str, namespace: str, selector: Mapping[str, str], robots: Sequence[str],
+    metrics_ports: Sequence[int], owner_refs: Sequence[Mapping[str, Any]],
+) -> list[dict[str, Any]]:  # fmt: skip
+    """The fleet's NetworkPolicies: only the flows its plan needs (issue 37, item 9).
+
+    A robot's pods (its modules wherever they run, its standbys, its discovery server) and
+    the fleet's shared services (instances of no robot) form groups. A robot's pods talk
+    with each other and with the shared services, both ways; shared services talk with every
+    pod of the fleet; metrics ports take TCP from anywhere (Prometheus). Nothing else, in or
+    out: a pod of one robot cannot reach another robot's pods even knowing their addresses.
+    NetworkPolicies add up, so each policy grants one group's flows:
+
+    * ``<fleet>-pods`` (every fleet pod): in from shared pods; out to shared pods. Selecting
+      every pod also closes whatever the others do not open.
+    * ``<fleet>-metrics`` (every fleet pod, ingress only): metrics ports from anywhere. Its own
+      ingress-only policy: kube-router runs a pod's outgoing packets through every policy of
+      both types that selects the pod, ingress rules included, so an "any source" metrics
+      rule there would let one robot's pods reach another's metrics port.
+    * ``<fleet>-shared`` (shared pods): in from and out to every fleet pod.
+    * ``<fleet>-<robot>-net`` (one robot's pods): in from and out to that robot's pods.
+
+    Traffic to a Service's cluster IP is translated to a pod address before the policy sees
+    it, so the discovery server is reached through its robot's group.
+    """
+    fleet_pods = dict(selector)
+    shared = {**fleet_pods, LABEL_ROBOT: ""}
+    meta_extra: dict[str, Any] = {}
     if owner_refs:
-        meta["ownerReferences"] = [dict(o) for o in owner_refs]
-    return {
-        "apiVersion": "networking.k8s.io/v1",
-        "kind": "NetworkPolicy",
-        "metadata": meta,
-        "spec": {
-            "podSelector": {"matchLabels": dict(selector)},
-            "policyTypes": ["Ingress", "Egress"],
-            "ingress": ingress,
-            "egress": [{}],
-        },
-    }
+        meta_extra["ownerReferences"] = [dict(o) for o in owner_refs]
+
+    def policy(
+        name: str, pods: Mapping[str, str], ingress: list[Any], egress: list[Any] | None
+    ) -> Any:
+        types = ["Ingress", "Egress"] if egress is not None else ["Ingress"]
+        return {
+            "apiVersion": "networking.k8s.io/v1",
+            "kind": "NetworkPolicy",
+            "metadata": {
+                "name": name,
+                "namespace": namespace,
+                "labels": dict(fleet_pods),
+                **meta_extra,
+            },
+            "spec": {
+                "podSelector": {"matchLabels": dict(pods)},
+                "policyTypes": types,
+                "ingress": ingress,
+                **({"egress": egress} if egress is not None else {}),
+            },
+        }
+
+    def peers(pods: Mapping[str, str]) -> list[dict[str, Any]]:
+        return [{"podSelector": {"matchLabels": dict(pods)}}]
+
+    out = [
+        policy(
+            network_policy_name(fleet),
+            fleet_pods,
+            [{"from": peers(shared)}],
+            [{"to": peers(shared)}],
+        ),
+        policy(
+            shared_network_policy_name(fleet),
+            shared,
+            [{"from": peers(fleet_pods)}],
+            [{"to": peers(fleet_pods)}],
+        ),
+    ]
+    if metrics_ports:
+        ports = [{"protocol": "TCP", "port": p} for p in sorted(set(metrics_ports))]
+        out.append(policy(metrics_network_policy_name(fleet), fleet_pods, [{"ports": ports}], None))
+    for robot in sorted(set(robots) - {""}):
+        own = {**fleet_pods, LABEL_ROBOT: label_value(robot)}
+        name = robot_network_policy_name(fleet, robot)
+        out.append(policy(name, own, [{"from": peers(own)}], [{"to": peers(own)}]))
+    return out

@@ -115,7 +115,8 @@ def test_render_binds_each_deployment_to_its_node(capsys: pytest.CaptureFixture[
     # the ROS wiring is visible: one discovery server (Service + Deployment) per robot
     others = [d for d in docs if d not in modules]
     kinds = sorted(d["kind"] for d in others)
-    assert kinds == ["Deployment"] * 5 + ["NetworkPolicy"] + ["Service"] * 5
+    # the fleet's, its metrics', the shared services' and one NetworkPolicy per robot
+    assert kinds == ["Deployment"] * 5 + ["NetworkPolicy"] * 8 + ["Service"] * 5
     env = {
         e["name"]: e.get("value", "")
         for e in modules[0]["spec"]["template"]["spec"]["containers"][0]["env"]

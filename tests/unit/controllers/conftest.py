@@ -182,6 +182,18 @@ class FakeKube:
         self.network_policies[(body["metadata"]["namespace"], body["metadata"]["name"])] = body
         return copy.deepcopy(body)
 
+    def list_network_policies(self, namespace: str, selector: Mapping[str, str]) -> list[Obj]:
+        return copy.deepcopy(
+            [
+                p
+                for (ns, _), p in self.network_policies.items()
+                if ns == namespace and _match(p["metadata"]["labels"], selector)
+            ]
+        )
+
+    def delete_network_policy(self, namespace: str, name: str) -> None:
+        self.network_policies.pop((namespace, name), None)
+
     def list_services(self, namespace: str, selector: Mapping[str, str]) -> list[Obj]:
         return copy.deepcopy(
             [

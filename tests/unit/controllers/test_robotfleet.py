@@ -336,6 +336,22 @@ def test_a_robot_leaving_the_fleet_takes_its_discovery_server_along(kube, deps):
     assert len(kube.services) == 4
 
 
+def test_a_robot_leaving_the_fleet_takes_its_network_policy_along(kube, deps):
+    run(kube, deps)
+    robots = list(kube.fleets[KEY]["spec"]["robots"])
+    names = {name for _, name in kube.network_policies}
+    assert names == {"warehouse-pods", "warehouse-shared", "warehouse-metrics"} | {
+        f"warehouse-{r}-net" for r in robots
+    }
+    for policy in kube.network_policies.values():
+        refs = policy["metadata"]["ownerReferences"]
+        assert [r["kind"] for r in refs] == ["RobotFleet"]  # they go with the fleet
+    gone = _drop_a_robot(kube)
+    run(kube, deps)
+    assert ("warehouse", f"warehouse-{gone}-net") not in kube.network_policies
+    assert len(kube.network_policies) == len(robots) + 2
+
+
 def _drop_a_robot(kube) -> str:
     robots = kube.fleets[KEY]["spec"]["robots"]
     kube.fleets[KEY]["spec"]["robots"] = robots[:-1]
