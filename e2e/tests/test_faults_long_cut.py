@@ -62,13 +62,13 @@ CUT_SECONDS = 60
 GRACE_S = 10  # the bed's --node-monitor-grace-period (e2e/bed/cluster.py)
 TOLERATION_S = 10  # the bed's --default-{unreachable,not-ready}-toleration-seconds
 # the control pod is marked for deletion by then (grace + toleration + the taint manager's
-# and our polling's delays: measured 21-23 s on the 2-core machine)
+# and our polling's delays: measured 19 s on the 2-core machine)
 EVICTED_WITHIN_S = GRACE_S + TOLERATION_S + 15
 CONTROL = "control-pause"
 UNREACHABLE = "node.kubernetes.io/unreachable"
 NOT_READY = "node.kubernetes.io/not-ready"
-RECOVERY_BOUND_S = 120  # link back -> the fleet as planned again (measured: see the docstring)
-LOST_BOUND = 20  # messages: two takeovers' silence windows plus in-flight answers
+RECOVERY_BOUND_S = 60  # link back -> the fleet as planned again (measured 7 s)
+LOST_BOUND = 15  # messages: two takeovers' silence windows plus in-flight answers (measured 3)
 
 
 def _control_pod(ns: str, node: str) -> dict[str, Any]:
@@ -250,6 +250,8 @@ def test_a_cut_longer_than_the_eviction_timeout_evicts_nothing_of_the_fleet(
     )
     time.sleep(max(0.0, 10 - (time.monotonic() - base["t"])))
     before = _counters(urls)
+    other_standby = metrics_url(fleet_pod(by_instance, other, "detector", standby=True))
+    other_before = scrape(other_standby)
 
     # ---- the cut: watch the API (the host still reaches it) until CUT_SECONDS have passed
     cut = time.monotonic()
@@ -258,6 +260,7 @@ def test_a_cut_longer_than_the_eviction_timeout_evicts_nothing_of_the_fleet(
     new_pods: dict[str, str] = {}  # uid -> "name on node"
     deleted: set[str] = set()
     reasons: set[str] = set()
+    states: set[str] = set()  # status.links' state of the cut robot
     while (now := time.monotonic()) - cut < CUT_SECONDS:
         seen = _fleet_pods(kube, ns)
         for uid, p in seen.items():
@@ -272,17 +275,23 @@ def test_a_cut_longer_than_the_eviction_timeout_evicts_nothing_of_the_fleet(
             ctl = kube.kubectl("get", "pod", CONTROL, "-n", ns, "-o", "json", check=False)
             if ctl.returncode != 0 or json.loads(ctl.stdout)["metadata"].get("deletionTimestamp"):
                 evicted_at = now - cut
+        seen_fleet = fleet(kube, ns, FLEET)
         reasons |= {
             f"{c['type']}={c['status']}/{c['reason']}"
-            for c in conditions(fleet(kube, ns, FLEET)).values()
+            for c in conditions(seen_fleet).values()
             if c["type"] in ("Ready", "Degraded")
         }
+        links = (seen_fleet.get("status") or {}).get("links") or []
+        states |= {e.get("state", "") for e in links if e["robot"] == robot}
         time.sleep(1)
     cluster.reset_link(robot)
     back = time.monotonic()
-    print(f"cut {back - cut:.0f} s; {robot} tainted {UNREACHABLE}:NoExecute after {tainted_at} s, "
-          f"the control pod marked for deletion after {evicted_at} s")  # fmt: skip
-    print(f"the fleet's Ready/Degraded conditions seen during the cut: {sorted(reasons)}")
+    print(f"cut {back - cut:.0f} s; {robot} tainted {UNREACHABLE}:NoExecute after "
+          f"{tainted_at or -1:.1f} s, the control pod marked for deletion after "
+          f"{evicted_at or -1:.1f} s")  # fmt: skip
+    print(f"the fleet's Ready/Degraded conditions seen during the cut: {sorted(reasons)}; "
+          f"{robot}'s link: {sorted(states)}")  # fmt: skip
+    assert "Lost" in states and "Degraded=True/NodeUnavailable" in reasons, (states, reasons)
     assert tainted_at is not None and tainted_at <= GRACE_S + 10, tainted_at
     assert evicted_at is not None and evicted_at <= EVICTED_WITHIN_S, evicted_at
     assert CUT_SECONDS - evicted_at >= 20, "the cut outlasted the eviction by too little"
@@ -374,9 +383,9 @@ def test_a_cut_longer_than_the_eviction_timeout_evicts_nothing_of_the_fleet(
     tracks_lost = images - (after["tracks"] - before["tracks"])
     print(f"tracks (no fallback) lost over the cut: {tracks_lost:.0f} of {images:.0f}")
     assert tracks_lost >= 0.8 * CUT_SECONDS / CYCLE_S  # the control of the figures
-    rate = images / max(1.0, base_images)
-    lost_objects = no_object - base_objects * rate
-    lost_segments = no_segment - base_segments * rate
+    # the steady state answers every image (but the one or two in flight at a reading)
+    assert abs(base_objects) <= 2 and abs(base_segments) <= 2, (base_objects, base_segments)
+    lost_objects, lost_segments = no_object, no_segment
     print(
         f"steady state over {before['t'] - base['t']:.0f} s: {base_images:.0f} images, "
         f"{base_objects:.0f} without an object, {base_segments:.0f} without a segment"
@@ -395,8 +404,10 @@ def test_a_cut_longer_than_the_eviction_timeout_evicts_nothing_of_the_fleet(
         assert ran >= 0.9 * elapsed / CYCLE_S and late <= 0.01 * ran, who
         missed += late
     # the other robot never noticed; the Events said what happened
-    other_standby = metrics_url(fleet_pod(by_instance, other, "detector", standby=True))
-    assert scrape(other_standby).get("fogfleet_fallback_takeovers_total") == 0.0
+    other_after = scrape(other_standby)
+    took = (other_after["fogfleet_fallback_takeovers_total"]
+            - other_before["fogfleet_fallback_takeovers_total"])  # fmt: skip
+    assert took == 0 and other_after["fogfleet_fallback_active"] == 0.0, took
     said = {e["reason"] for e in events(kube, ns, name=FLEET)}
     assert {"LinkLost", "LinkHealthy"} <= said, said
     print(
@@ -406,13 +417,17 @@ def test_a_cut_longer_than_the_eviction_timeout_evicts_nothing_of_the_fleet(
                 "fault": f"robot link cut {back - cut:.0f} s (eviction after {GRACE_S} s grace"
                 f" + {TOLERATION_S} s toleration; control pod evicted at {evicted_at:.0f} s)",
                 "messagesLost": round(lost),
+                "objectsLost": round(lost_objects),
+                "segmentsLost": round(lost_segments),
                 "cyclesMissed": round(missed),
                 "recoverySeconds": round(recovery, 1),
                 "tracksLostWithoutFallback": round(tracks_lost),
-                "fogfleetDid": "kept every pod on the robot (NoExecute tolerations without "
-                "tolerationSeconds), re-created nothing, standbys computed through the cut, "
-                "no container restarted when the link returned",
-                "beforeFix": "no fix needed: the same",
+                "fogfleetDid": "kept its 5 pods on the robot (NoExecute tolerations without "
+                "tolerationSeconds) while the control pod was evicted, created no pod, "
+                "standbys computed through the cut, reported Lost/NodeUnavailable and moved "
+                "nothing; no container restarted when the link returned",
+                "beforeFix": "nothing to fix: robot-pinned pods already tolerated the taints "
+                "for ever (issue 13)",
             }
         )
     )
