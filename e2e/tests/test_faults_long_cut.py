@@ -385,14 +385,14 @@ def test_a_cut_longer_than_the_eviction_timeout_evicts_nothing_of_the_fleet(
     assert tracks_lost >= 0.8 * CUT_SECONDS / CYCLE_S  # the control of the figures
     # the steady state answers every image (but the one or two in flight at a reading)
     assert abs(base_objects) <= 2 and abs(base_segments) <= 2, (base_objects, base_segments)
-    lost_objects, lost_segments = no_object, no_segment
+    lost_objects, lost_segments = max(0.0, no_object), max(0.0, no_segment)
     print(
         f"steady state over {before['t'] - base['t']:.0f} s: {base_images:.0f} images, "
         f"{base_objects:.0f} without an object, {base_segments:.0f} without a segment"
     )
     print(f"over the cut ({after['t'] - before['t']:.0f} s): {images:.0f} images, "
           f"{no_object:.0f} without an object, {no_segment:.0f} without a segment")  # fmt: skip
-    lost = max(0.0, lost_objects) + max(0.0, lost_segments)
+    lost = lost_objects + lost_segments
     assert lost <= LOST_BOUND, (lost_objects, lost_segments)
     # cycles: the safety module and the camera (both hard real time, on board) kept theirs
     elapsed = after["t"] - before["t"]
