@@ -2,11 +2,11 @@
 
 The fleet (``cutfleet.py``): each robot's camera and safety module on board, its detector
 (``fallback: onboard``), segmenter (``fallback: variant``) and tracker (no fallback) on the
-edge; the safety module consumes all three. Cutting robot-1's emulated
-link (100 % loss both ways: its kubelet loses the API server too) must leave its objects and
-segments flowing - the standbys take over within the silence window plus two cycles, with no
-input answered twice on the robot - while its tracks stop for the whole cut; after the link
-returns the remote instances serve again. The operator reports the link Lost and moves
+edge; the safety module consumes all three. Cutting robot-1's emulated link (100 % loss both
+ways: its kubelet loses the API server too) must leave its objects and segments flowing - the
+standbys take over within the silence window plus two cycles, with no input answered twice on
+the robot - while its tracks stop for the whole cut; after the link returns the remote
+instances serve again. The operator reports the link Lost and moves
 nothing. A second test slows the link instead (150 ms one way): the operator measures it,
 plans the detector on board, and moves it back once the link has been healthy long enough.
 
