@@ -1,14 +1,12 @@
 """A robot's link cut for 60 s while its perception runs on the edge (issue 13), on real nodes.
 
-Each robot runs a camera and a safety module on board (hard real time, critical) and three
-offloaded modules on the edge: the detector, with ``fallback: onboard`` (a standby on the
-robot relays its outputs and takes over when they go silent), the segmenter, too heavy for
-the robot, with ``fallback: variant`` (its standby runs segmenter-lite at half the rate),
-and the tracker with none. The safety module consumes all three. Cutting robot-1's emulated
-link (100 % loss both ways: its kubelet loses the API server too) must leave its objects and
-segments flowing - the standbys take over within the silence window plus two cycles, with no
-input answered twice on the robot - while its tracks stop for the whole cut; after the link
-returns the remote instances serve again. The operator reports the link Lost and moves
+The fleet (``cutfleet.py``): each robot's camera and safety module on board, its detector
+(``fallback: onboard``), segmenter (``fallback: variant``) and tracker (no fallback) on the
+edge; the safety module consumes all three. Cutting robot-1's emulated link (100 % loss both
+ways: its kubelet loses the API server too) must leave its objects and segments flowing - the
+standbys take over within the silence window plus two cycles, with no input answered twice on
+the robot - while its tracks stop for the whole cut; after the link returns the remote
+instances serve again. The operator reports the link Lost and moves
 nothing. A second test slows the link instead (150 ms one way): the operator measures it,
 plans the detector on board, and moves it back once the link has been healthy long enough.
 
@@ -29,16 +27,22 @@ import pytest
 from e2e.bed.harness import Cluster
 from e2e.bed.kube import Kube
 from e2e.bed.operator_fixtures import all_pods, conditions, events, fleet, pods_by_instance
-from e2e.tests.rosbed import (
-    EDGE,
-    ROBOTS,
-    bed_objects,
-    operated_fleet,
-    ros_module,
-    scrape,
-    scrape_buckets,
-    scrape_series,
+from e2e.tests.cutfleet import (
+    CYCLE_S,
+    LINK_STABLE_S,
+    LINK_WINDOW_S,
+    LITE_CYCLE_MS,
+    fleet_pod,
+    gaps_since,
+    input_gaps,
+    link_of,
+    metrics_url,
+    reachable,
+    running_cut_fleet,
+    since,
+    took_over,
 )
+from e2e.tests.rosbed import EDGE, ROBOTS, scrape, scrape_series
 
 pytestmark = [
     pytest.mark.e2e,
@@ -49,127 +53,16 @@ pytestmark = [
 ]
 
 CUT_SECONDS = 60
-CYCLE_S = 0.1
-SILENT_CYCLES = 3
 FLEET = "cutfleet"
-LINK_WINDOW_S = 10  # spec.linkHealth.windowSeconds
-LINK_STABLE_S = 30  # spec.linkHealth.stableSeconds
 SLOW_MS = 150  # one way: the detector's 100 ms cycle cannot be served across it
-LITE_CYCLE_MS = 200  # the segmenter's variant
-
-
-def _objects(ns: str) -> list[dict[str, Any]]:
-    image = [("image", 8192, 10)]
-    modules = [
-        ros_module("camera", ns, cycle_ms=100, taxonomy=("periodic", "hard", "critical"),
-                   subscribes=[], publishes=image, profile=[("bed-robot", "50m", 3, 0.3)]),
-        # the edge is preferred, and with a fallback the robot keeps its share for the standby
-        ros_module("detector", ns, cycle_ms=100, taxonomy=("continuous", "soft", "relevant"),
-                   subscribes=image, publishes=[("objects", 512, 10)],
-                   profile=[("bed-robot", "100m", 30, 3), ("bed-edge", "100m", 15, 1.5)],
-                   preferredTiers=["edge"],
-                   fallback={"mode": "onboard", "silentCycles": SILENT_CYCLES,
-                             "stepBackCycles": 10}),
-        # too heavy for the robot (no robot row): its standby runs a lighter variant
-        ros_module("segmenter", ns, cycle_ms=100, taxonomy=("continuous", "soft", "relevant"),
-                   subscribes=image, publishes=[("segments", 1024, 10)],
-                   profile=[("bed-edge", "50m", 10, 1)],
-                   fallback={"mode": "variant", "variant": "segmenter-lite",
-                             "silentCycles": SILENT_CYCLES, "stepBackCycles": 10}),
-        # the control: offloaded without a fallback
-        ros_module("tracker", ns, cycle_ms=100, taxonomy=("continuous", "soft", "relevant"),
-                   subscribes=image, publishes=[("tracks", 256, 10)],
-                   profile=[("bed-edge", "50m", 5, 0.5)], tiers=["edge"]),
-        ros_module("safety", ns, cycle_ms=100, taxonomy=("periodic", "hard", "critical"),
-                   subscribes=[("objects", 512, 10), ("tracks", 256, 10), ("segments", 1024, 10)],
-                   publishes=[("stop", 64, 10)], profile=[("bed-robot", "50m", 3, 0.3)]),
-    ]  # fmt: skip
-    # the segmenter's variant: half the rate, a robot row; not a module of the fleet itself
-    lite = ros_module("segmenter-lite", ns, cycle_ms=LITE_CYCLE_MS,
-                      taxonomy=("continuous", "soft", "relevant"), subscribes=image,
-                      publishes=[("segments", 1024, 5)],
-                      profile=[("bed-robot", "50m", 20, 2)])  # fmt: skip
-    for m in [*modules, lite]:
-        m["spec"]["resources"]["memory"] = "192Mi"
-    objects = [lite, *bed_objects(ns, FLEET, modules)]
-    objects[-1]["spec"]["linkHealth"] = {
-        "windowSeconds": LINK_WINDOW_S,
-        "stableSeconds": LINK_STABLE_S,
-    }
-    return objects
 
 
 @pytest.fixture
 def cut_fleet(
     kube: Kube, cluster: Cluster, namespace: str, tmp_path: Path, diagnostics: list[Any]
 ) -> Iterator[str]:
-    objects = _objects(namespace)
-    # the operator measures the robots' links from the bed's Prometheus (every 2 s)
-    env = {"FOGFLEET_PROMETHEUS_URL": cluster.prometheus_url, "FOGFLEET_LINK_INTERVAL_SECONDS": "2"}
-    try:
-        with operated_fleet(
-            kube, cluster, namespace, tmp_path, diagnostics, objects, FLEET, env
-        ) as ns:
-            yield ns
-    finally:
-        cluster.reset_link(ROBOTS[0])
-
-
-def _pod(pods: dict[str, Any], robot: str, module: str, standby: bool = False) -> Any:
-    for pod in pods.values():
-        labels = pod["metadata"]["labels"]
-        is_standby = labels.get("app.kubernetes.io/component") == "fallback-standby"
-        if (
-            labels.get("fogfleet.io/robot") == robot
-            and labels.get("fogfleet.io/module") == module
-            and is_standby == standby
-        ):
-            return pod
-    raise AssertionError(f"no {'standby ' if standby else ''}{module} pod of {robot}")
-
-
-def _url(pod: Any) -> str:
-    return f"http://{pod['status']['podIP']}:9100/metrics"
-
-
-def _gaps(url: str, topic: str) -> dict[float, float]:
-    """The input-gap histogram of ``topic`` at the safety module (le -> cumulative count)."""
-    return scrape_buckets(url, "fogfleet_input_gap_seconds", topic=topic)
-
-
-def _since(after: dict[float, float], before: dict[float, float]) -> dict[float, float]:
-    return {le: after[le] - before.get(le, 0.0) for le in after}
-
-
-def _took_over(after: dict[str, float], before: dict[str, float], remote_s: float,
-               own_s: float) -> float:  # fmt: skip
-    """A standby's takeover over the cut, from its counters: once, within the silence window
-    (in the remote's cycles) plus two of its own cycles, and its own cycles for the whole
-    cut. Returns its takeover gap (s)."""
-    gap = after["fogfleet_fallback_takeover_gap_seconds"]
-    silence = SILENT_CYCLES * remote_s
-    assert silence <= gap <= silence + 2 * own_s + 0.1, gap
-    took = after["fogfleet_fallback_takeovers_total"] - before["fogfleet_fallback_takeovers_total"]
-    assert took == 1, took
-    own = after["fogfleet_cycle_time_seconds_count"] - before["fogfleet_cycle_time_seconds_count"]
-    assert own >= 0.8 * CUT_SECONDS / own_s, own
-    return float(gap)
-
-
-def _flow(url: str, topic: str, before: dict[float, float]) -> tuple[float, float]:
-    """Gaps of input ``topic`` since ``before``: how many, and the smallest bucket bound (s)
-    that holds them all (the longest gap is at most that)."""
-    since = _since(_gaps(url, topic), before)
-    count = since[math.inf]
-    return count, min(le for le, n in since.items() if n == count)
-
-
-def _reachable(url: str) -> bool:
-    try:
-        scrape(url)
-    except OSError:
-        return False
-    return True
+    with running_cut_fleet(kube, cluster, namespace, tmp_path, diagnostics, FLEET) as ns:
+        yield ns
 
 
 def test_a_cut_link_leaves_the_fallbacks_outputs_flowing_and_stops_the_others(
@@ -190,8 +83,8 @@ def test_a_cut_link_leaves_the_fallbacks_outputs_flowing_and_stops_the_others(
         assert cuts[r]["stopped"] == ["tracker"]
         assert cuts[r]["reservedCpu"] == "150m"  # the detector's on-board row, the variant's
     pods = pods_by_instance(kube, ns)
-    standby = {r: _pod(pods, r, "detector", standby=True) for r in ROBOTS}
-    variant = {r: _pod(pods, r, "segmenter", standby=True) for r in ROBOTS}
+    standby = {r: fleet_pod(pods, r, "detector", standby=True) for r in ROBOTS}
+    variant = {r: fleet_pod(pods, r, "segmenter", standby=True) for r in ROBOTS}
     for r in ROBOTS:
         assert standby[r]["spec"]["nodeName"] == r  # the standby runs on its robot
         assert variant[r]["spec"]["nodeName"] == r
@@ -199,8 +92,11 @@ def test_a_cut_link_leaves_the_fallbacks_outputs_flowing_and_stops_the_others(
         env = {e["name"]: e.get("value") for e in c["env"]}
         assert env["FOGFLEET_VARIANT"] == "segmenter-lite" and env["FOGFLEET_MODULE"] == "segmenter"
         assert c["resources"]["requests"]["cpu"] == "50m"
-    safety_url, standby_url = _url(_pod(pods, robot, "safety")), _url(standby[robot])
-    variant_url = _url(variant[robot])
+    safety_url, standby_url = (
+        metrics_url(fleet_pod(pods, robot, "safety")),
+        metrics_url(standby[robot]),
+    )
+    variant_url = metrics_url(variant[robot])
 
     # both inputs flow and the standby only relays (the remote detector serves); a pod whose
     # metrics server is not listening yet (Ready came from its probe a moment before) is
@@ -223,9 +119,9 @@ def test_a_cut_link_leaves_the_fallbacks_outputs_flowing_and_stops_the_others(
     before: dict[str, Any] = {
         "safety": scrape(safety_url),
         "standby": scrape(standby_url),
-        "objects": _gaps(safety_url, "objects"),
-        "tracks": _gaps(safety_url, "tracks"),
-        "segments": _gaps(safety_url, "segments"),
+        "objects": input_gaps(safety_url, "objects"),
+        "tracks": input_gaps(safety_url, "tracks"),
+        "segments": input_gaps(safety_url, "segments"),
         "variant": scrape(variant_url),
         "out_of_order": scrape_series(
             safety_url, "fogfleet_out_of_order_messages_total", topic="objects"
@@ -234,17 +130,17 @@ def test_a_cut_link_leaves_the_fallbacks_outputs_flowing_and_stops_the_others(
     }
     kube.wait_for(
         "both robots' links measured healthy",
-        lambda: all(_link(kube, ns, r).get("state") == "Healthy" for r in ROBOTS),
+        lambda: all(link_of(kube, ns, FLEET, r).get("state") == "Healthy" for r in ROBOTS),
         60,
         interval=1,
     )
-    print(f"links before the cut: {[_link(kube, ns, r) for r in ROBOTS]}")
+    print(f"links before the cut: {[link_of(kube, ns, FLEET, r) for r in ROBOTS]}")
     cut = time.monotonic()
     cluster.set_link(robot, loss_percent=100)
     # the control plane sees the robot go silent: Lost, Degraded=True, and nothing is moved
     kube.wait_for(
         "robot-1's link reported lost",
-        lambda: _link(kube, ns, robot).get("state") == "Lost",
+        lambda: link_of(kube, ns, FLEET, robot).get("state") == "Lost",
         CUT_SECONDS - 10,
         interval=0.5,
     )
@@ -253,11 +149,11 @@ def test_a_cut_link_leaves_the_fallbacks_outputs_flowing_and_stops_the_others(
     print(f"link reported lost {lost_after:.1f} s into the cut; Degraded: {degraded}")
     assert degraded["status"] == "True"
     assert f"link lost to {robot}: on-board standbys take over" in degraded["message"]
-    assert _link(kube, ns, other)["state"] == "Healthy"
+    assert link_of(kube, ns, FLEET, other)["state"] == "Healthy"
     time.sleep(max(0.0, CUT_SECONDS - (time.monotonic() - cut)))
     cluster.reset_link(robot)
     back = time.monotonic()
-    kube.wait_for("robot-1's pods reachable again", lambda: _reachable(standby_url), 60)
+    kube.wait_for("robot-1's pods reachable again", lambda: reachable(standby_url), 60)
     kube.wait_for(
         "the standby hands back to the remote detector",
         lambda: scrape(standby_url).get("fogfleet_fallback_active") == 0.0,
@@ -281,22 +177,22 @@ def test_a_cut_link_leaves_the_fallbacks_outputs_flowing_and_stops_the_others(
 
     # the standby took over once, within the silence window and two cycles of the remote's
     # last output (its own measure), and computed the objects for the whole cut
-    gap = _took_over(scrape(standby_url), before["standby"], CYCLE_S, CYCLE_S)
+    gap = took_over(scrape(standby_url), before["standby"], CYCLE_S, CYCLE_S, CUT_SECONDS)
     print(f"takeover: {gap:.3f} s from the remote's last output to the standby's first")
     # at the safety module: no gap in objects longer than the takeover (silence window plus
     # two cycles; the histogram's bucket above it is 0.6 s), tracks gone for the whole cut
-    gaps, longest = _flow(safety_url, "objects", before["objects"])
+    gaps, longest = gaps_since(safety_url, "objects", before["objects"])
     print(f"objects at robot-1's safety module over the cut: {gaps:.0f} gaps, all <= {longest} s")
     assert gaps >= 0.8 * CUT_SECONDS / CYCLE_S and longest <= 0.6
-    tracks = _since(_gaps(safety_url, "tracks"), before["tracks"])
+    tracks = since(input_gaps(safety_url, "tracks"), before["tracks"])
     print(f"tracks at robot-1's safety module over the cut (gaps up to le s): {tracks}")
     assert tracks[math.inf] - tracks[30.0] == 1, "the tracker (no fallback) left no >30 s gap"
     # the segmenter's variant took over as fast (silence counted in the segmenter's cycles)
     # and ran its own slower cycles; the safety module saw segments all through the cut
     lite_s = LITE_CYCLE_MS / 1e3
-    vgap = _took_over(scrape(variant_url), before["variant"], CYCLE_S, lite_s)
+    vgap = took_over(scrape(variant_url), before["variant"], CYCLE_S, lite_s, CUT_SECONDS)
     print(f"variant takeover: {vgap:.3f} s from the remote segmenter's last output")
-    sgaps, slongest = _flow(safety_url, "segments", before["segments"])
+    sgaps, slongest = gaps_since(safety_url, "segments", before["segments"])
     print(f"segments at robot-1's safety module over the cut: {sgaps:.0f} gaps, <= {slongest} s")
     assert sgaps >= 0.8 * CUT_SECONDS / lite_s and slongest <= 1.0
     # and no input answered twice
@@ -317,7 +213,7 @@ def test_a_cut_link_leaves_the_fallbacks_outputs_flowing_and_stops_the_others(
     print(f"safety module over the cut: {cycles:.0f} cycles, {missed:.0f} missed")
     assert cycles >= 0.9 * (back - cut) / CYCLE_S and missed <= 0.01 * cycles
     # the other robot never noticed
-    other_sb = scrape(_url(standby[other]))
+    other_sb = scrape(metrics_url(standby[other]))
     assert other_sb.get("fogfleet_fallback_active") == 0.0
     # nothing was restarted or moved by the cut (the operator kept the cut robot's standby)
     after = pods_by_instance(kube, ns)
@@ -327,7 +223,7 @@ def test_a_cut_link_leaves_the_fallbacks_outputs_flowing_and_stops_the_others(
     # the link is healthy again without a re-plan, and the Events said what happened
     kube.wait_for(
         "robot-1's link healthy again",
-        lambda: _link(kube, ns, robot).get("state") == "Healthy",
+        lambda: link_of(kube, ns, FLEET, robot).get("state") == "Healthy",
         LINK_WINDOW_S + 30,
         interval=1,
     )
@@ -346,11 +242,11 @@ def test_a_slow_link_brings_the_offloaded_detector_on_board_and_back_once_stable
     robot, other = ROBOTS
     kube.wait_for(
         "both robots' links measured healthy",
-        lambda: all(_link(kube, ns, r).get("state") == "Healthy" for r in ROBOTS),
+        lambda: all(link_of(kube, ns, FLEET, r).get("state") == "Healthy" for r in ROBOTS),
         60,
         interval=1,
     )
-    healthy = {r: _link(kube, ns, r)["measuredLatencyMillis"] for r in ROBOTS}
+    healthy = {r: link_of(kube, ns, FLEET, r)["measuredLatencyMillis"] for r in ROBOTS}
     print(f"measured one-way latency on the declared 4 ms links: {healthy} ms")
     assert all(ms < 32 for ms in healthy.values())  # the limit: 3 x 4 + 20 ms
     slowed = time.monotonic()
@@ -358,12 +254,12 @@ def test_a_slow_link_brings_the_offloaded_detector_on_board_and_back_once_stable
     try:
         kube.wait_for(
             "robot-1's link measured degraded",
-            lambda: _link(kube, ns, robot).get("state") == "Degraded",
+            lambda: link_of(kube, ns, FLEET, robot).get("state") == "Degraded",
             LINK_WINDOW_S + 30,
             interval=0.5,
         )
         detected = time.monotonic() - slowed
-        seen = _link(kube, ns, robot)
+        seen = link_of(kube, ns, FLEET, robot)
         print(f"degraded after {detected:.1f} s: {seen}")
         assert 0.95 * SLOW_MS <= seen["measuredLatencyMillis"] <= 1.2 * SLOW_MS + 20  # one RTT
         assert seen["plannedLatencyMillis"] == seen["measuredLatencyMillis"]
@@ -387,7 +283,7 @@ def test_a_slow_link_brings_the_offloaded_detector_on_board_and_back_once_stable
     restored = time.monotonic()
     kube.wait_for(
         "robot-1's link recovering",
-        lambda: _link(kube, ns, robot).get("state") in ("Recovering", "Healthy"),
+        lambda: link_of(kube, ns, FLEET, robot).get("state") in ("Recovering", "Healthy"),
         LINK_WINDOW_S + 30,
         interval=0.5,
     )
@@ -401,7 +297,7 @@ def test_a_slow_link_brings_the_offloaded_detector_on_board_and_back_once_stable
     back = time.monotonic() - restored
     print(f"detector back on the edge {back:.1f} s after the link was restored")
     assert back >= LINK_STABLE_S
-    assert _link(kube, ns, robot)["state"] == "Healthy"
+    assert link_of(kube, ns, FLEET, robot)["state"] == "Healthy"
     kube.wait_for(
         "the fleet Ready and not degraded",
         lambda: (
@@ -412,12 +308,6 @@ def test_a_slow_link_brings_the_offloaded_detector_on_board_and_back_once_stable
         interval=1,
     )
     assert "LinkHealthy" in {e["reason"] for e in events(kube, ns, name=FLEET)}
-
-
-def _link(kube: Kube, ns: str, robot: str) -> dict[str, Any]:
-    """status.links' entry of ``robot`` ({} until measured)."""
-    links = (fleet(kube, ns, FLEET).get("status") or {}).get("links") or []
-    return next((e for e in links if e["robot"] == robot), {})
 
 
 def _placement(kube: Kube, ns: str) -> dict[tuple[str, str], str]:
