@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import json
 import os
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -27,15 +27,17 @@ ENV_RECORD = "FOGFLEET_FAULTS_RECORD"
 class FaultResult:
     """One fault and its cost. ``messages_lost`` and ``cycles_missed`` are counts summed over
     the fleet's workloads (from their own counters); ``recovery_seconds`` runs from the fault
-    to the fleet being as planned again (Ready, every pod on its planned node)."""
+    to the fleet being as planned again (Ready, every pod on its planned node, inputs
+    flowing)."""
 
     fault: str
-    messages_lost: float
-    cycles_missed: float
+    messages_lost: float | None  # None: the test sends no counted messages
+    cycles_missed: float | None  # None: not a fault the fleet's cycles can feel
     recovery_seconds: float
     fogfleet_did: str
     before_fix: str = "the same (no fix needed)"
     test: str = ""
+    details: dict[str, Any] = field(default_factory=dict)  # the test's own figures
 
     def line(self) -> str:
         return "FAULT-RESULT " + json.dumps(asdict(self), sort_keys=True)

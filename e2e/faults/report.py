@@ -23,8 +23,8 @@ BEGIN, END = "<!-- faults-table:begin -->", "<!-- faults-table:end -->"
 COMMAND = "make test-faults"
 
 
-def _count(value: float) -> str:
-    return f"{value:g}"
+def _count(value: float | None) -> str:
+    return "-" if value is None else f"{value:g}"
 
 
 def table(results: Sequence[Mapping[str, Any]]) -> str:
@@ -57,7 +57,7 @@ def replace_block(page: str, new_block: str) -> str:
     start, end = page.find(BEGIN), page.find(END)
     if start < 0 or end < start:
         raise ValueError(f"the page has no {BEGIN} ... {END} block")
-    return page[:start] + new_block + page[end + len(END):]
+    return page[:start] + new_block + page[end + len(END) :]
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -32,9 +32,19 @@ def test_a_line_that_is_not_a_result_is_named(tmp_path: Path) -> None:
 
 def test_the_page_keeps_its_prose_and_gets_the_table(tmp_path: Path) -> None:
     results = tmp_path / "faults.json"
-    results.write_text(json.dumps({"fault": "link cut | 90 s", "messages_lost": 0,
-                                   "cycles_missed": 0, "recovery_seconds": 3.25,
-                                   "fogfleet_did": "kept the standby", "machine": "m"}) + "\n")
+    results.write_text(
+        json.dumps(
+            {
+                "fault": "link cut | 90 s",
+                "messages_lost": 0,
+                "cycles_missed": 0,
+                "recovery_seconds": 3.25,
+                "fogfleet_did": "kept the standby",
+                "machine": "m",
+            }
+        )
+        + "\n"
+    )
     docs = tmp_path / "survives.md"
     docs.write_text(f"# Page\n\nprose\n\n{report.BEGIN}\nold\n{report.END}\n\nafter\n")
     assert report.main(["--json", str(results), "--docs", str(docs)]) == 0
@@ -46,8 +56,18 @@ def test_the_page_keeps_its_prose_and_gets_the_table(tmp_path: Path) -> None:
 
 def test_a_page_without_the_markers_is_refused(tmp_path: Path) -> None:
     results = tmp_path / "faults.json"
-    results.write_text(json.dumps({"fault": "f", "messages_lost": 0, "cycles_missed": 0,
-                                   "recovery_seconds": 1, "fogfleet_did": "x"}) + "\n")
+    results.write_text(
+        json.dumps(
+            {
+                "fault": "f",
+                "messages_lost": 0,
+                "cycles_missed": 0,
+                "recovery_seconds": 1,
+                "fogfleet_did": "x",
+            }
+        )
+        + "\n"
+    )
     docs = tmp_path / "survives.md"
     docs.write_text("# Page\n")
     assert report.main(["--json", str(results), "--docs", str(docs)]) == 2

@@ -29,7 +29,6 @@ matches). Robot-2, whose server is untouched, is the control.
 
 from __future__ import annotations
 
-import json
 import math
 import os
 import re
@@ -47,6 +46,7 @@ from e2e.bed import realnodes
 from e2e.bed.harness import Cluster
 from e2e.bed.kube import Kube
 from e2e.bed.operator_fixtures import conditions, fleet, pods_by_instance
+from e2e.faults.record import FaultResult, record
 from e2e.tests.rosbed import EDGE, ROBOTS, bed_objects, operated_fleet, ros_module
 
 pytestmark = [
@@ -360,27 +360,21 @@ def _fault(
     rejoin = _rejoin(kube, ns, robot, rejoiner)
     lost = sum(f["lost"] for f in losses.values())
     longest = max(f["longestGap"] for f in losses.values())
-    result = {
-        "fault": name,
-        "messagesLost": lost,
-        "cyclesMissed": missed,
+    result = record(FaultResult(
+        fault=name,
+        messages_lost=lost,
+        cycles_missed=missed,
         # as planned again: the server Ready (its pod or container back) and every input
         # flowing (the longest gap of any input, at most the histogram bound, is shorter)
-        "recoverySeconds": round(max(server_back, longest), 1),
-        "serverBackSeconds": round(server_back, 1),
-        "rejoinSeconds": round(rejoin, 1),
-        "rejoined": f"{robot}/{rejoiner}",
-        "windowSeconds": round(window, 1),
-        "cycles": cycles,
-        "longestGapSeconds": longest,
-        "foreignMessages": foreign,
-        "serverPodIp": [ip, new["status"]["podIP"]],
-        "flows": losses,
-        "fogfleetDid": fogfleet_did,
+        recovery_seconds=round(max(server_back, longest), 1),
+        fogfleet_did=fogfleet_did,
         # measured first: Fast DDS 3.2.3's clients recover on their own, nothing to fix
-        "beforeFix": "the same (no fix needed)",
-    }
-    print("FAULT-RESULT " + json.dumps(result))
+        before_fix="the same (no fix needed)",
+        details={"serverBackSeconds": round(server_back, 1), "rejoinSeconds": round(rejoin, 1),
+                 "rejoined": f"{robot}/{rejoiner}", "windowSeconds": round(window, 1),
+                 "cycles": cycles, "longestGapSeconds": longest, "foreignMessages": foreign,
+                 "serverPodIp": [ip, new["status"]["podIP"]], "flows": losses},
+    ))  # fmt: skip
     for flow, f in losses.items():
         assert f["sent"] >= 0.8 * window * RATE_HZ, (flow, f)
         assert f["lost"] <= LOST_PER_FLOW, (flow, f)
@@ -389,7 +383,7 @@ def _fault(
     assert foreign == 0, "a module got the other robot's messages: discovery leaked"
     assert missed <= MISSED_CYCLES, (cycles, missed)
     assert rejoin <= REJOIN_S
-    return result
+    return result.details
 
 
 def test_a_killed_or_deleted_discovery_server_leaves_every_module_talking(

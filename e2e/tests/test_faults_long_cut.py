@@ -42,6 +42,7 @@ from e2e.bed.harness import Cluster
 from e2e.bed.images import PAUSE_REF
 from e2e.bed.kube import Kube
 from e2e.bed.operator_fixtures import all_pods, conditions, deployments, events, fleet
+from e2e.faults.record import FaultResult, record
 from e2e.tests.cutfleet import (
     CYCLE_S,
     LITE_CYCLE_MS,
@@ -418,24 +419,17 @@ def test_a_cut_longer_than_the_eviction_timeout_evicts_nothing_of_the_fleet(
     assert took == 0 and other_after["fogfleet_fallback_active"] == 0.0, took
     said = {e["reason"] for e in events(kube, ns, name=FLEET)}
     assert {"LinkLost", "LinkHealthy"} <= said, said
-    print(
-        "FAULT-RESULT "
-        + json.dumps(
-            {
-                "fault": f"robot link cut {back - cut:.0f} s (eviction after {GRACE_S} s grace"
-                f" + {TOLERATION_S} s toleration; control pod evicted at {evicted_at:.0f} s)",
-                "messagesLost": round(lost),
-                "objectsLost": round(lost_objects),
-                "segmentsLost": round(lost_segments),
-                "cyclesMissed": round(missed),
-                "recoverySeconds": round(recovery, 1),
-                "tracksLostWithoutFallback": round(tracks_lost),
-                "fogfleetDid": "kept its 5 pods on the robot (NoExecute tolerations without "
-                "tolerationSeconds) while the control pod was evicted, created no pod, "
-                "standbys computed through the cut, reported Lost/NodeUnavailable and moved "
-                "nothing; no container restarted when the link returned",
-                "beforeFix": "nothing to fix: robot-pinned pods already tolerated the taints "
-                "for ever (issue 13)",
-            }
-        )
-    )
+    record(FaultResult(
+        fault=f"robot link cut {back - cut:.0f} s, past eviction ({GRACE_S} s grace + "
+        f"{TOLERATION_S} s toleration; a control pod evicted at {evicted_at:.0f} s)",
+        messages_lost=round(lost),
+        cycles_missed=round(missed),
+        recovery_seconds=round(recovery, 1),
+        fogfleet_did="kept its 5 pods on the robot (NoExecute tolerations without "
+        "tolerationSeconds), created no pod elsewhere, standbys computed through the cut, "
+        "reported Lost/NodeUnavailable and moved nothing; no container restarted after",
+        before_fix="nothing to fix: robot-pinned pods already tolerated the taints for ever "
+        "(issue 13)",
+        details={"objectsLost": round(lost_objects), "segmentsLost": round(lost_segments),
+                 "tracksLostWithoutFallback": round(tracks_lost)},
+    ))  # fmt: skip

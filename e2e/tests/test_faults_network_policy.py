@@ -35,6 +35,7 @@ from e2e.bed.base import HERE
 from e2e.bed.harness import Cluster
 from e2e.bed.kube import Kube
 from e2e.bed.operator_fixtures import fleet, helm, pods_by_instance
+from e2e.faults.record import FaultResult, record
 from e2e.tests.rosbed import (
     EDGE,
     IMAGE,
@@ -270,15 +271,15 @@ def test_a_robots_pods_reach_their_own_robot_and_the_shared_services_only(
             assert udp == want, (tag, matrix)
             assert (tag in tcp_heard) == want, (tag, matrix)
     print("NETPOL-MATRIX " + json.dumps(matrix, sort_keys=True))
-    print("FAULT-RESULT " + json.dumps({
-        "fault": "a robot-1 pod sends to robot-2's pods by address (UDP, TCP)",
-        "messagesLost": 0, "cyclesMissed": None, "recoverySeconds": 0,
-        "plannedFlowsSeconds": round(flows_s, 1),
-        "denied": sorted(t for t, m in matrix.items() if not m["want"]),
-        "fogfleetDid": "per-robot NetworkPolicies (own robot, shared services, metrics), "
-                       "enforced by kube-router",
-        "beforeFix": "one fleet-wide policy: every fleet pod reached every other robot's pods",
-    }))  # fmt: skip
+    record(FaultResult(
+        fault="a robot-1 pod sends to robot-2's pods by address (UDP, TCP)",
+        messages_lost=0, cycles_missed=None, recovery_seconds=0,
+        fogfleet_did="per-robot NetworkPolicies (own robot, shared services, metrics), "
+                     "enforced by kube-router: every probe of robot-2 refused",
+        before_fix="one fleet-wide policy: every fleet pod reached every other robot's pods",
+        details={"plannedFlowsSeconds": round(flows_s, 1),
+                 "denied": sorted(t for t, m in matrix.items() if not m["want"])},
+    ))  # fmt: skip
 
 
 # --------------------------------------------------------------------------------------------
