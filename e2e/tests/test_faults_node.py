@@ -387,3 +387,86 @@ def test_a_rebooted_edge_node_gets_its_modules_back_and_the_fleet_says_so(
                        " left them bound to the edge (edge only), Ready again once they ran",
         "beforeFix": "no Event named the node or its modules (only the Ready condition)",
     }))  # fmt: skip
+
+
+def test_a_rebooted_robot_restores_its_modules_in_their_pods(kube: Kube, node_fleet: str) -> None:
+    """Robot-1 reboots (down DOWN_SECONDS): its camera, safety module and discovery server are
+    pinned to it and tolerate its NotReady taints, so they are not evicted: its kubelet starts
+    them again in the same pods. Nothing else restarts; its detector on the edge hears its
+    camera again once both are back."""
+    ns = node_fleet
+    robot, other = ROBOTS
+    node = realnodes.declared(robot)
+    kube.wait_for("objects flowing to both safety modules", lambda: _flowing(kube, ns), 120, 2)
+    pods = _module_pods(kube, ns)
+    ids = {k: _identity(p) for k, p in pods.items()}
+    servers = _discovery_servers(kube, ns)
+    detector = pods[(robot, "detector")]  # on the edge: it keeps running and counting
+
+    def images() -> float:
+        return _counter(detector, "fogfleet_messages_received_total", topic="image")
+
+    first, t_first = images(), time.monotonic()
+    time.sleep(10)
+    rate = (images() - first) / (time.monotonic() - t_first)
+    before = _read(pods)
+    with ReadyWatch(kube, ns, (robot,)) as watch:
+        t0 = time.monotonic()
+        rebooted = nodefaults.reboot(node, down_seconds=DOWN_SECONDS)
+        realnodes.wait_ready(kube.kubectl, [robot], timeout=120)
+        node_ready = time.monotonic() - t0
+        kube.wait_for("everything where planned", lambda: _all_where_planned(kube, ns), 240, 1)
+        recovery = time.monotonic() - t0
+        seen = images()
+        kube.wait_for("images at the detector again", lambda: images() > seen + 20, 120, 1)
+        flowing = time.monotonic() - t0
+        time.sleep(SETTLE_SECONDS)
+    pods = _module_pods(kube, ns)
+    after = _read(pods)
+    now = {k: _identity(p) for k, p in pods.items()}
+    print(f"{rebooted}; node Ready after {node_ready:.0f} s, all as planned after "
+          f"{recovery:.0f} s, images at the detector again after {flowing:.0f} s; fleet not "
+          f"Ready: {watch.messages()}")  # fmt: skip
+    # restored in place: the robot's pods are the same pods, their containers started again
+    for m in ("camera", "safety"):
+        new, old = now[(robot, m)], ids[(robot, m)]
+        assert new["uid"] == old["uid"] and new["restarts"] > old["restarts"], (m, new, old)
+    restored = _discovery_servers(kube, ns)
+    assert restored.keys() == servers.keys(), (restored, servers)
+    # nothing else restarted
+    for key in [(other, "camera"), (other, "safety"), (robot, "detector"), (other, "detector")]:
+        assert now[key] == ids[key], key
+    # what robot-1's detector did not hear: the outage, and not much more
+    window = after["t"] - before["t"]
+    heard = after[f"images_at_{robot}"] - before[f"images_at_{robot}"]
+    lost = int(max(0.0, rate * window - heard))
+    missed = _missed(before, after, {"detector"}) + int(
+        sum(after["missed"][f"{other}/{m}"] - before["missed"][f"{other}/{m}"]
+            for m in ("camera", "safety"))
+    )  # fmt: skip
+    print(f"images robot-1's detector did not get: {lost} at {rate:.1f}/s; cycles missed by "
+          f"the modules that kept running: {missed}")  # fmt: skip
+    assert DOWN_SECONDS * rate * 0.8 <= lost <= (flowing + 5) * rate, lost
+    assert missed <= 0.02 * 3 * RATE_HZ * window, missed
+    assert recovery <= 150 and flowing <= 180, (recovery, flowing)
+    said = " | ".join(watch.messages())
+    assert robot in said, said
+    reasons = [(e["type"], e["reason"], e["message"]) for e in events(kube, ns, name=FLEET)]
+    print(f"events: {reasons}")
+    down = [m for t, r, m in reasons if r == "NodeUnavailable" and t == "Warning"]
+    assert down and robot in down[0] and "wait for it" in down[0], reasons
+    assert all(f"{robot}/{m}" in down[0] for m in ("camera", "safety")), down
+    assert any(r == "NodeAvailable" and robot in m for _, r, m in reasons), reasons
+    print("FAULT-RESULT " + json.dumps({
+        "fault": f"{robot} rebooted: every process in its cgroups SIGKILLed, down "
+                 f"{DOWN_SECONDS} s, booted with an empty /run",
+        "messagesLost": lost, "cyclesMissed": missed,
+        "recoverySeconds": round(recovery, 1), "flowingAgainSeconds": round(flowing, 1),
+        "nodeReadySeconds": round(node_ready, 1),
+        "fleetNotReadySeconds": round(watch.not_ready_seconds(), 1),
+        "fogfleetDid": "kept the robot's pods bound to it (robot-pinned pods tolerate its "
+                       "NotReady taints: restarted in place, not re-created), reported it "
+                       "(Ready=False NodeUnavailable, Warning Event NodeUnavailable naming "
+                       "node and modules, NodeAvailable on return)",
+        "beforeFix": "the same recovery; no Event named the node or its modules",
+    }))  # fmt: skip
