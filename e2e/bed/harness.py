@@ -4,6 +4,7 @@
     python e2e/bed/harness.py build | up [--profile default|paper] | down | status
     python e2e/bed/harness.py nodes [--robots N --edges M --cloud K]
     python e2e/bed/harness.py kubectl ARGS... | helm ARGS...
+    python e2e/bed/harness.py fault NODE restart kubelet|containerd|kube-proxy | reboot
 
 Why it looks like this (see e2e/README.md and /work/shared/design/CLUSTER.md):
 
@@ -98,6 +99,27 @@ def _link(argv: list[str]) -> int:
     return 0
 
 
+def _fault(argv: list[str]) -> int:
+    """``harness.py fault NODE restart COMPONENT | reboot [--down S]``: a real node's own
+    processes fail (nodefaults.py)."""
+    from e2e.bed import nodefaults
+
+    parser = argparse.ArgumentParser(prog="harness.py fault")
+    parser.add_argument("node")
+    sub = parser.add_subparsers(dest="what", required=True)
+    r = sub.add_parser("restart", help="SIGTERM one component by pid; its nodehost restarts it")
+    r.add_argument("component", choices=nodefaults.COMPONENTS)
+    b = sub.add_parser("reboot", help="SIGKILL everything in the node's cgroups, boot it again")
+    b.add_argument("--down", type=float, default=0.0, help="seconds to stay down")
+    ns = parser.parse_args(argv)
+    node = realnodes.declared(ns.node)
+    if ns.what == "restart":
+        print(nodefaults.restart(node, ns.component))
+    else:
+        print(nodefaults.reboot(node, ns.down))
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     args = list(sys.argv[1:] if argv is None else argv)
     # passthroughs first: their arguments are not ours to parse
@@ -109,6 +131,8 @@ def main(argv: list[str] | None = None) -> int:
         _exec([str(BIN_DIR / "kubectl"), f"--kubeconfig={KUBECONFIG}", *args[1:]])
     if args and args[0] == "link":
         return _link(args[1:])
+    if args and args[0] == "fault":
+        return _fault(args[1:])
     if args and args[0] == "helm":
         with locked():
             ensure_built(["helm"], quiet=True)
@@ -146,6 +170,7 @@ def main(argv: list[str] | None = None) -> int:
     sub.add_parser(
         "link", help="NODE [--delay 20ms] [--jitter 5ms] [--rate 50mbit] [--loss 100%%] [--reset]"
     )
+    sub.add_parser("fault", help="NODE restart kubelet|containerd|kube-proxy | NODE reboot")
     ns = parser.parse_args(args)
 
     if ns.cmd == "build":

@@ -8,9 +8,10 @@ It makes the node's private view of the paths that containerd and the kubelet ha
 (``/run/containerd``, ``/var/lib/kubelet``, ``/var/log/pods`` ...; a fresh tmpfs or a bind of
 the node's own directory, invisible to the host and gone with the namespace), then starts
 containerd in the node's ``runtime`` cgroup and the kubelet, kube-proxy and kube-router (its
-NetworkPolicy firewall) in its ``agents``
-cgroup, restarts any of them that dies, and on SIGTERM stops them and kills every process left
-in the node's cgroups (by pid). Stdlib only.
+NetworkPolicy firewall) in its ``agents`` cgroup, restarts any of them that dies, and on
+SIGTERM stops them and kills every process left in the node's cgroups (by pid). The pids of what runs now (itself included) are kept in
+``NODE_DIR/pids.json`` ({name: {"pid", "starttime"}}), rewritten at every (re)start, so a
+fault can be injected into exactly that process (nodefaults.py). Stdlib only.
 """
 
 from __future__ import annotations
@@ -53,6 +54,23 @@ def _private_paths(cfg: dict[str, Any]) -> None:
         _mount("--bind", source, target)
 
 
+def _starttime(pid: int) -> str | None:
+    """Field 22 of /proc/PID/stat: with the pid, it names one process for good."""
+    try:
+        stat = Path(f"/proc/{pid}/stat").read_text()
+    except OSError:
+        return None
+    return stat[stat.rindex(")") + 2 :].split()[19]
+
+
+def _write_pids(path: Path, procs: dict[str, subprocess.Popen[bytes]]) -> None:
+    pids = {"nodehost": os.getpid(), **{name: p.pid for name, p in procs.items()}}
+    table = {name: {"pid": pid, "starttime": _starttime(pid)} for name, pid in pids.items()}
+    tmp = path.with_suffix(".tmp")
+    tmp.write_text(json.dumps(table) + "\n")
+    tmp.replace(path)  # readers never see half a table
+
+
 def _spawn(name: str, spec: dict[str, Any], logs: Path, cgroup: str) -> subprocess.Popen[bytes]:
     cgroups.join(os.getpid(), cgroup)  # the child is forked into this cgroup
     out = (logs / f"{name}.log").open("ab")
@@ -93,6 +111,7 @@ def main(config_path: str) -> int:
     order += [(name, agents) for name in ("kube-router",) if name in cfg["processes"]]
     procs: dict[str, subprocess.Popen[bytes]] = {}
     restarts: dict[str, float] = {}
+    pids_file = Path(config_path).parent / "pids.json"
     for name, cg in order:
         procs[name] = _spawn(name, cfg["processes"][name], logs, cg)
         if name == "containerd":
@@ -101,6 +120,7 @@ def main(config_path: str) -> int:
             ready = Path(cfg["containerd_ready_file"])
             ready.write_text(str(procs[name].pid))
     cgroups.join(os.getpid(), agents)
+    _write_pids(pids_file, procs)
     while not _stopping:
         time.sleep(0.5)
         for name, cg in order:
@@ -113,7 +133,9 @@ def main(config_path: str) -> int:
             restarts[name] = time.monotonic()
             procs[name] = _spawn(name, cfg["processes"][name], logs, cg)
             cgroups.join(os.getpid(), agents)
+            _write_pids(pids_file, procs)
     _say("stopping")
+    pids_file.unlink(missing_ok=True)
     for name in ("kube-router", "kubelet", "kube-proxy", "containerd"):
         if name not in procs:
             continue

@@ -501,21 +501,28 @@ def start(nodes: Sequence[RealNode], api_server: str, images: Sequence[Path]) ->
         cgroups.create(node.name, node.cpu_millis, node.memory_bytes)
         bednet.add_node(node.net, nets)
         spec = set_link(node)
-        cfg = _write_node_files(node, api_server)
-        (node.dir / "containerd.ready").unlink(missing_ok=True)
-        argv = [
-            "nsenter", f"--net=/run/netns/{node.net.netns}", "--",
-            "unshare", "--mount", "--propagation", "private", "--",
-            sys.executable, str(HERE / "nodehost.py"), str(cfg),
-        ]  # fmt: skip
-        _start(node.process_name, argv)
-        deadline = time.monotonic() + 60
-        while _node_alive(node) and not (node.dir / "containerd.ready").exists():
-            if time.monotonic() > deadline:
-                raise HarnessError(f"{node.name}: containerd not up after 60 s\n{diagnose(node)}")
-            time.sleep(0.2)
+        _write_node_files(node, api_server)
+        boot(node)
         log(f"{node.name}: containerd up, link {spec.describe()} in {time.monotonic() - t0:.1f}s")
     import_everywhere(nodes, images)
+
+
+def boot(node: RealNode) -> None:
+    """Start the node's nodehost from the files in its directory (a fresh mount namespace:
+    empty ``/run/containerd``, the node's own kubelet and containerd roots) and wait until
+    its containerd answers. ``start`` boots a new node; nodefaults.reboot boots one again."""
+    (node.dir / "containerd.ready").unlink(missing_ok=True)
+    argv = [
+        "nsenter", f"--net=/run/netns/{node.net.netns}", "--",
+        "unshare", "--mount", "--propagation", "private", "--",
+        sys.executable, str(HERE / "nodehost.py"), str(node.dir / "nodehost.json"),
+    ]  # fmt: skip
+    _start(node.process_name, argv)
+    deadline = time.monotonic() + 60
+    while _node_alive(node) and not (node.dir / "containerd.ready").exists():
+        if time.monotonic() > deadline:
+            raise HarnessError(f"{node.name}: containerd not up after 60 s\n{diagnose(node)}")
+        time.sleep(0.2)
 
 
 def import_everywhere(nodes: Sequence[RealNode], images: Sequence[Path]) -> None:

@@ -241,3 +241,36 @@ def test_down_exits_1_and_names_what_it_could_not_remove(
     (planted / "cgroup.procs").unlink()
     assert bed.down() == 0 or "cgroup" not in capsys.readouterr().err  # host links may remain
     assert not (v2 / cgroups.TOP).exists()
+
+
+def test_a_node_fault_signals_only_a_pid_whose_start_time_matches(tmp_path, monkeypatch):
+    """nodefaults reads the nodehost's pids.json and trusts a pid only with its start time:
+    a recycled pid (another process now) is never signalled."""
+    import os
+    import subprocess
+    import sys
+
+    from e2e.bed import nodefaults, realnodes
+    from e2e.bed.base import HarnessError
+    from e2e.bed.processes import _proc_starttime
+
+    monkeypatch.setattr(realnodes, "NODES_DIR", tmp_path)
+    node = realnodes.RealNode("n", 1, {}, 100, 2**20)
+    node.dir.mkdir()
+    child = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"])
+    try:
+        table = {
+            "nodehost": {"pid": os.getpid(), "starttime": _proc_starttime(os.getpid())},
+            "kubelet": {"pid": child.pid, "starttime": "1"},  # the pid of another process
+            "containerd": {"pid": child.pid, "starttime": _proc_starttime(child.pid)},
+        }
+        (node.dir / "pids.json").write_text(json.dumps(table))
+        assert nodefaults.pids(node) == {"nodehost": os.getpid(), "containerd": child.pid}
+        with pytest.raises(HarnessError, match="no running kubelet"):
+            nodefaults.restart(node, "kubelet")
+        with pytest.raises(HarnessError, match="unknown node component"):
+            nodefaults.restart(node, "etcd")
+        assert child.poll() is None  # nothing was signalled
+    finally:
+        child.kill()
+        child.wait()

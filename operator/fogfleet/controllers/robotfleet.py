@@ -32,7 +32,9 @@ from .deps import Deps
 from .fleet_plan import Planned, plan_step
 from .fleet_render import render_step
 from .fleet_status import plan_events
+from .inputs import current_placement
 from .links import link_watch
+from .node_events import hosted_modules, node_events
 from .observe import (
     FleetInputs,
     FleetObject,
@@ -115,6 +117,7 @@ def _full_pass(
         if recorded:  # the rows just written are part of the modules now
             parsed = parse(inputs)
         planned = plan_step(deps, state, inputs, parsed, last)
+    unavailable, events = _node_events(state, inputs, parsed, planned)
     desired = render_step(deps, inputs, parsed, planned)
     applied, pruned = apply_step(
         deps, *obj.key, desired, inputs.deployments, planned.problem, planned.stranded
@@ -124,10 +127,34 @@ def _full_pass(
     outcome, _ = refresh(deps, state, inputs, rendered, planned.planned)
     decision = planned.decision if planned.planned else None
     if decision is not None:
-        for kind, reason, message in plan_events(planned.problem, decision):
-            deps.kube.emit_event(obj.involved, kind, reason, message)
+        events += plan_events(planned.problem, decision)
+    for kind, reason, message in events:
+        deps.kube.emit_event(obj.involved, kind, reason, message)
+    state.unavailable = unavailable  # once its Events are out (a failed pass posts them again)
     migrations = decision.migrations if decision is not None else 0
     return replace(outcome, applied=applied, pruned=pruned, migrations=migrations)
+
+
+def _node_events(
+    state: FleetState, inputs: FleetInputs, parsed: Parsed, planned: Planned
+) -> tuple[dict[str, str], list[tuple[str, str, str]]]:
+    """The fleet's unavailable nodes now (Kubernetes Node -> why), and NodeUnavailable /
+    NodeAvailable for those whose health changed since the last full pass (node_events.py),
+    naming the modules bound to them before this pass."""
+    problem = planned.problem
+    now = {
+        n.node_name: parsed.inputs.unavailable[n.name]
+        for n in problem.nodes
+        if n.name in parsed.inputs.unavailable
+    }
+    before = state.unavailable
+    if now.keys() == before.keys():
+        return now, []
+    hosted = hosted_modules(problem, current_placement(inputs.deployments))
+    waiting = {problem.label(i) for i in planned.stranded}
+    for node in sorted(now.keys() - before.keys()):
+        log.warning("Node %s of RobotFleet %s/%s is %s", node, *inputs.obj.key, now[node])
+    return now, node_events(before, now, hosted, waiting)
 
 
 def _remember(

@@ -175,6 +175,9 @@ class FleetState:
     links: FleetLinks = field(default_factory=FleetLinks)
     drift: FleetDrift = field(default_factory=FleetDrift)
     rollout: RolloutProgress = field(default_factory=RolloutProgress)
+    # Kubernetes Node -> why it is unavailable, as the last full pass saw the fleet's nodes
+    # (node_events.py: a cache, so a restarted operator reports a node still down once more)
+    unavailable: dict[str, str] = field(default_factory=dict)
 
 
 class FleetStore:
