@@ -35,7 +35,7 @@ from e2e.bed.realnodes import RealNode, boot
 
 __all__ = ["COMPONENTS", "Rebooted", "Restarted", "pids", "reboot", "restart"]
 
-COMPONENTS = ("containerd", "kubelet", "kube-proxy")
+COMPONENTS = ("containerd", "kubelet", "kube-proxy", "kube-router")
 
 
 @dataclass(frozen=True)

@@ -9,9 +9,10 @@ It makes the node's private view of the paths that containerd and the kubelet ha
 the node's own directory, invisible to the host and gone with the namespace), then starts
 containerd in the node's ``runtime`` cgroup and the kubelet, kube-proxy and kube-router (its
 NetworkPolicy firewall) in its ``agents`` cgroup, restarts any of them that dies, and on
-SIGTERM stops them and kills every process left in the node's cgroups (by pid). The pids of what runs now (itself included) are kept in
-``NODE_DIR/pids.json`` ({name: {"pid", "starttime"}}), rewritten at every (re)start, so a
-fault can be injected into exactly that process (nodefaults.py). Stdlib only.
+SIGTERM stops them and kills every process left in the node's cgroups (by pid). The pids of
+what runs now (itself included) are kept in ``NODE_DIR/pids.json`` ({name: {"pid",
+"starttime"}}), rewritten at every (re)start, so a fault can be injected into exactly that
+process (nodefaults.py). Stdlib only.
 """
 
 from __future__ import annotations

@@ -12,13 +12,14 @@ from __future__ import annotations
 
 import json
 import os
+from collections.abc import Mapping
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
 from fogfleet.bench.record import machine
 
-__all__ = ["ENV_RECORD", "FaultResult", "read_results", "record"]
+__all__ = ["ENV_RECORD", "FaultResult", "read_results", "record", "record_measured"]
 
 ENV_RECORD = "FOGFLEET_FAULTS_RECORD"
 
@@ -55,6 +56,23 @@ def record(result: FaultResult) -> FaultResult:
         with Path(path).open("a") as out:
             out.write(json.dumps(entry, sort_keys=True) + "\n")
     return result
+
+
+_FIELDS = {"fault": "fault", "messagesLost": "messages_lost", "cyclesMissed": "cycles_missed",
+           "recoverySeconds": "recovery_seconds", "fogfleetDid": "fogfleet_did",
+           "beforeFix": "before_fix"}  # fmt: skip
+
+
+def record_measured(measured: Mapping[str, Any]) -> FaultResult:
+    """:func:`record` from a test's figures as JSON names them (``messagesLost`` ...): the
+    table's fields by their names, every other figure kept in ``details``."""
+    missing = {"fault", "messagesLost", "cyclesMissed", "recoverySeconds", "fogfleetDid"}
+    missing -= set(measured)
+    if missing:
+        raise ValueError(f"a fault result lacks {', '.join(sorted(missing))}")
+    fields = {_FIELDS[k]: v for k, v in measured.items() if k in _FIELDS}
+    details = {k: v for k, v in measured.items() if k not in _FIELDS}
+    return record(FaultResult(**fields, details=details))
 
 
 def read_results(path: Path) -> list[dict[str, Any]]:

@@ -8,7 +8,7 @@ from pathlib import Path
 import pytest
 
 from e2e.faults import report
-from e2e.faults.record import ENV_RECORD, FaultResult, read_results, record
+from e2e.faults.record import ENV_RECORD, FaultResult, read_results, record, record_measured
 
 
 def test_a_recorded_result_is_printed_and_appended(
@@ -71,3 +71,25 @@ def test_a_page_without_the_markers_is_refused(tmp_path: Path) -> None:
     docs = tmp_path / "survives.md"
     docs.write_text("# Page\n")
     assert report.main(["--json", str(results), "--docs", str(docs)]) == 2
+
+
+def test_measured_figures_keep_their_extras_as_details(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    path = tmp_path / "faults.json"
+    monkeypatch.setenv(ENV_RECORD, str(path))
+    got = record_measured(
+        {
+            "fault": "f",
+            "messagesLost": 2,
+            "cyclesMissed": 0,
+            "recoverySeconds": 1.5,
+            "fogfleetDid": "x",
+            "nodeReadySeconds": 9,
+        }
+    )
+    assert got.messages_lost == 2 and got.details == {"nodeReadySeconds": 9}
+    with pytest.raises(ValueError, match="lacks fogfleetDid"):
+        record_measured(
+            {"fault": "f", "messagesLost": 2, "cyclesMissed": 0, "recoverySeconds": 1.5}
+        )

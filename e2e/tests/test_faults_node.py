@@ -37,6 +37,7 @@ from e2e.bed import nodefaults, realnodes
 from e2e.bed.harness import Cluster
 from e2e.bed.kube import Kube
 from e2e.bed.operator_fixtures import all_pods, conditions, events, fleet
+from e2e.faults.record import record_measured
 from e2e.tests.rosbed import EDGE, ROBOTS, bed_objects, operated_fleet, ros_module, scrape_series
 
 pytestmark = [
@@ -299,7 +300,7 @@ def test_a_restarted_kubelet_and_containerd_leave_every_pod_running(
     not_ready = watch.not_ready_seconds()
     assert not_ready <= 30, watch.messages()
     assert max(back.values()) <= 30, back
-    print("FAULT-RESULT " + json.dumps({
+    record_measured({
         "fault": f"kubelet, then containerd, of {EDGE} and then of {ROBOTS[0]} restarted "
                  "(SIGTERM by pid, restarted by the node's supervisor)",
         "messagesLost": lost, "cyclesMissed": missed,
@@ -308,7 +309,7 @@ def test_a_restarted_kubelet_and_containerd_leave_every_pod_running(
         "fogfleetDid": "nothing needed: no pod re-created, no container restarted, nodes and "
                        "fleet Ready throughout",
         "beforeFix": "same (no fix needed)",
-    }))  # fmt: skip
+    })  # fmt: skip
 
 
 def _discovery_servers(kube: Kube, ns: str) -> dict[str, dict[str, Any]]:
@@ -374,7 +375,7 @@ def test_a_rebooted_edge_node_gets_its_modules_back_and_the_fleet_says_so(
     assert down and EDGE in down[0] and all(f"{r}/detector" in down[0] for r in ROBOTS), reasons
     assert any(reason == "NodeAvailable" and EDGE in m for _, reason, m in reasons), reasons
     assert conditions(fleet(kube, ns, FLEET))["Ready"]["status"] == "True"
-    print("FAULT-RESULT " + json.dumps({
+    record_measured({
         "fault": f"{EDGE} rebooted: every process in its cgroups SIGKILLed, down "
                  f"{DOWN_SECONDS} s, booted with an empty /run",
         "messagesLost": objects_lost, "cyclesMissed": missed,
@@ -386,7 +387,7 @@ def test_a_rebooted_edge_node_gets_its_modules_back_and_the_fleet_says_so(
                        "NodeUnavailable, Warning Event NodeUnavailable naming node and modules),"
                        " left them bound to the edge (edge only), Ready again once they ran",
         "beforeFix": "no Event named the node or its modules (only the Ready condition)",
-    }))  # fmt: skip
+    })  # fmt: skip
 
 
 def test_a_rebooted_robot_restores_its_modules_in_their_pods(kube: Kube, node_fleet: str) -> None:
@@ -457,7 +458,7 @@ def test_a_rebooted_robot_restores_its_modules_in_their_pods(kube: Kube, node_fl
     assert down and robot in down[0] and "wait for it" in down[0], reasons
     assert all(f"{robot}/{m}" in down[0] for m in ("camera", "safety")), down
     assert any(r == "NodeAvailable" and robot in m for _, r, m in reasons), reasons
-    print("FAULT-RESULT " + json.dumps({
+    record_measured({
         "fault": f"{robot} rebooted: every process in its cgroups SIGKILLed, down "
                  f"{DOWN_SECONDS} s, booted with an empty /run",
         "messagesLost": lost, "cyclesMissed": missed,
@@ -469,4 +470,4 @@ def test_a_rebooted_robot_restores_its_modules_in_their_pods(kube: Kube, node_fl
                        "(Ready=False NodeUnavailable, Warning Event NodeUnavailable naming "
                        "node and modules, NodeAvailable on return)",
         "beforeFix": "the same recovery; no Event named the node or its modules",
-    }))  # fmt: skip
+    })  # fmt: skip
