@@ -11,7 +11,7 @@ import urllib.parse
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from e2e.bed.base import (
     BIN_DIR,
@@ -24,6 +24,9 @@ from e2e.bed.base import (
     insecure_tls,
 )
 from e2e.bed.processes import _alive, log_tail
+
+if TYPE_CHECKING:
+    from e2e.bed.controlplane import Restart
 
 COMPONENTS = (
     "etcd",
@@ -221,6 +224,15 @@ class Cluster:
         if name not in self.real_nodes:
             raise HarnessError(f"{name} is not a real node of this bed ({self.real_nodes})")
         return realnodes.declared(name)
+
+    def restart_control_plane(self, *, kill: bool = False, pause_seconds: float = 0.0) -> Restart:
+        """Stop kube-apiserver and etcd by pid (SIGTERM, or SIGKILL with ``kill``), start
+        them again with the same flags, ports and data, and wait until both are healthy.
+        Returns a ``controlplane.Restart`` (pids, how long the API was down). The other
+        components, the real nodes and the operator keep running and must reconnect."""
+        from e2e.bed import controlplane
+
+        return controlplane.restart_components(self.ports, kill=kill, pause_seconds=pause_seconds)
 
     def log_tail(self, component: str, lines: int = 40) -> str:
         return log_tail(component, lines)
