@@ -93,7 +93,7 @@ def test_apiserver_and_etcd_restart_mid_rollout_keeps_the_plan_and_loses_nothing
         )
         deps = _fleet_deployments(kube, ns, "warehouse")
         (plan_id,) = _plan_ids(deps)
-        planned_at = (fleet(kube, ns)["status"] or {}).get("lastPlanTime")
+        planned_at = (fleet(kube, ns).get("status") or {}).get("lastPlanTime")
         ready_at_restart = condition_is(kube, ns, "Ready", "True")
         at_restart = len(deps)
         print(f"restart at {at_restart}/{N_INSTANCES} Deployments, plan {plan_id}")
@@ -102,7 +102,15 @@ def test_apiserver_and_etcd_restart_mid_rollout_keeps_the_plan_and_loses_nothing
         restart = cluster.restart_control_plane()
         print(f"control plane: {restart}")
         assert restart.down_seconds <= DOWN_BOUND_S
-        wait_ready(kube, ns, timeout=240)
+        # kube-controller-manager marks the pods of nodes whose Leases went stale while the
+        # API was down unready; kubelets report them ready again, kwok's fake ones need help
+        re_readied: set[str] = set()
+
+        def warehouse_ready() -> bool:
+            re_readied.update(cluster.ready_fake_pods_again(ns))
+            return condition_is(kube, ns, "Ready", "True")
+
+        kube.wait_for("RobotFleet warehouse Ready", warehouse_ready, 240, interval=2)
         ready_s = time.monotonic() - t0
         wait_ready(kube, ns, ROS_FLEET, timeout=60)
         after = snapshot(kube, ns, ROS_FLEET)
@@ -120,8 +128,10 @@ def test_apiserver_and_etcd_restart_mid_rollout_keeps_the_plan_and_loses_nothing
         )  # fmt: skip
         assert len(ids) == N_INSTANCES and max(ids.values()) == 1, ids
         assert _plan_ids(deps) == {plan_id}, _plan_ids(deps)
+        # planned once: before the restart (its status may not have been written by then)
+        assert log.count(f"Planned RobotFleet {ns}/warehouse") == 1, op.logs(200)
         status = fleet(kube, ns)["status"]
-        assert status.get("lastPlanTime") == planned_at, (planned_at, status.get("lastPlanTime"))
+        assert planned_at in (None, status.get("lastPlanTime")), (planned_at, status)
         owner = fleet(kube, ns)["metadata"]["uid"]
         assert all(d["metadata"]["ownerReferences"][0]["uid"] == owner for d in deps)
         # nothing orphaned: every Deployment in the namespace has a fleet as its owner
@@ -142,6 +152,7 @@ def test_apiserver_and_etcd_restart_mid_rollout_keeps_the_plan_and_loses_nothing
             apiDownSeconds=round(restart.down_seconds, 1),
             deploymentsAtRestart=at_restart,
             readyAtRestart=ready_at_restart,
+            fakePodsMarkedUnready=len(re_readied),
             fogfleetDid="reconnected its watches; finished the rollout with the same plan id",
             beforeFix="(no fix needed)",
         )
