@@ -6,12 +6,13 @@ import json
 import re
 import ssl
 import subprocess
+import time
 import urllib.error
 import urllib.parse
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from e2e.bed.base import (
     BIN_DIR,
@@ -24,6 +25,9 @@ from e2e.bed.base import (
     insecure_tls,
 )
 from e2e.bed.processes import _alive, log_tail
+
+if TYPE_CHECKING:
+    from e2e.bed.controlplane import Restart
 
 COMPONENTS = (
     "etcd",
@@ -62,6 +66,13 @@ PROMETHEUS_SCRAPE_INTERVAL = "2s"
 HEARTBEAT_LABEL = "fogfleet.io/e2e-heartbeat"
 # kwok's own chaos stage: a node with this label set to "true" reports Ready=False.
 KWOK_NOT_READY_LABEL = "node-not-ready.stage.kwok.x-k8s.io"
+
+
+def _condition(obj: Mapping[str, Any], type_: str) -> str | None:
+    for c in (obj.get("status") or {}).get("conditions") or []:
+        if c.get("type") == type_:
+            return str(c.get("status"))
+    return None
 
 
 def _read_state() -> dict[str, Any] | None:
@@ -221,6 +232,49 @@ class Cluster:
         if name not in self.real_nodes:
             raise HarnessError(f"{name} is not a real node of this bed ({self.real_nodes})")
         return realnodes.declared(name)
+
+    def restart_control_plane(self, *, kill: bool = False, pause_seconds: float = 0.0) -> Restart:
+        """Stop kube-apiserver and etcd by pid (SIGTERM, or SIGKILL with ``kill``), start
+        them again with the same flags, ports and data, and wait until both are healthy.
+        Returns a ``controlplane.Restart`` (pids, how long the API was down). The other
+        components, the real nodes and the operator keep running and must reconnect."""
+        from e2e.bed import controlplane
+
+        return controlplane.restart_components(self.ports, kill=kill, pause_seconds=pause_seconds)
+
+    def ready_fake_pods_again(self, namespace: str) -> list[str]:
+        """Do for kwok's fake pods what a kubelet does after its node was unreachable.
+
+        When a node's Lease is late (an API server down for longer than the bed's 10 s node
+        grace period), kube-controller-manager marks the node's pods Ready=False. A kubelet
+        reports its running pods Ready again once it reaches the API server; kwok does not
+        (its pod stage fired once), so its pods would stay unready for ever. This sets
+        Ready=True on the Running pods of ``namespace`` on fake nodes that are Ready again
+        and whose containers are ready; returns the pods it changed."""
+        nodes = self.kubectl_json("get", "nodes")["items"]
+        fake_ready = {
+            n["metadata"]["name"]
+            for n in nodes
+            if (n["metadata"].get("annotations") or {}).get("kwok.x-k8s.io/node") == "fake"
+            and _condition(n, "Ready") == "True"
+        }
+        changed = []
+        for pod in self.kubectl_json("get", "pods", "-n", namespace)["items"]:
+            if (
+                pod["spec"].get("nodeName") in fake_ready
+                and not pod["metadata"].get("deletionTimestamp")
+                and pod["status"].get("phase") == "Running"
+                and _condition(pod, "ContainersReady") == "True"
+                and _condition(pod, "Ready") == "False"
+            ):
+                now = time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())
+                ready = {"type": "Ready", "status": "True", "lastTransitionTime": now}
+                patch = json.dumps({"status": {"conditions": [ready]}})
+                name = pod["metadata"]["name"]
+                self.kubectl("patch", "pod", name, "-n", namespace, "--subresource=status",
+                             "--type=strategic", "-p", patch)  # fmt: skip
+                changed.append(name)
+        return changed
 
     def log_tail(self, component: str, lines: int = 40) -> str:
         return log_tail(component, lines)

@@ -10,6 +10,7 @@ import os
 import time
 from collections.abc import Mapping
 from dataclasses import dataclass
+from functools import partial
 from typing import Any
 
 from e2e.bed.base import (
@@ -24,6 +25,7 @@ from e2e.bed.base import (
     log,
     port_is_free,
     run,
+    wait_for,
 )
 from e2e.bed.bednet import SERVICE_CIDR
 from e2e.bed.cluster import (
@@ -40,7 +42,7 @@ from e2e.bed.cluster import (
     _health,
 )
 from e2e.bed.pki import _make_pki, _write_kubeconfig
-from e2e.bed.processes import _alive, _stop, log_tail
+from e2e.bed.processes import _alive, _proc_starttime, _start, _stop, log_tail
 
 
 def _prometheus_config(ports: Mapping[str, int]) -> dict[str, Any]:
@@ -341,3 +343,59 @@ def _wait_healthy(name: str, ports: Mapping[str, int]) -> None:
 def _stop_all() -> None:
     for name in reversed(COMPONENTS):
         _stop(name)
+
+
+# what a control-plane restart stops, in stop order (started again in reverse)
+API_AND_STORE = ("kube-apiserver", "etcd")
+
+
+@dataclass(frozen=True)
+class Restart:
+    """A control-plane restart as it happened: when the API went away and came back."""
+
+    components: tuple[str, ...]
+    old_pids: dict[str, int]
+    new_pids: dict[str, int]
+    stopped_seconds: float  # from the first stop signal until every process had exited
+    down_seconds: float  # from the first stop signal until the API server was ready again
+
+
+def restart_components(
+    ports: Mapping[str, int],
+    components: tuple[str, ...] = API_AND_STORE,
+    *,
+    kill: bool = False,
+    pause_seconds: float = 0.0,
+) -> Restart:
+    """Stop ``components`` by pid (in the order given: SIGTERM, or SIGKILL with ``kill``), wait
+    ``pause_seconds``, start them again in reverse order with their argv, ports and data
+    directories of start-up, each healthy before the next starts.
+
+    Everything else keeps running and has to reconnect: kube-controller-manager, the
+    scheduler, kwok, the real nodes' kubelets and kube-proxies, the operator, the gateway.
+    """
+    unknown = [c for c in components if c not in COMPONENTS]
+    if unknown:
+        raise HarnessError(f"unknown components {unknown}: {COMPONENTS}")
+    argv = _argv(ports)
+    old: dict[str, int] = {}
+    for name in components:
+        pid = _alive(name)
+        if pid is None:
+            raise HarnessError(f"{name} is not running: nothing to restart")
+        old[name] = pid
+    t0 = time.monotonic()
+    for name in components:
+        pid, starttime = old[name], _proc_starttime(old[name])
+        _stop(name, grace=0 if kill else 10)
+        gone = partial(lambda p, t: _proc_starttime(p) != t, pid, starttime)
+        wait_for(f"{name} pid {pid} gone", gone, 10, 0.05)
+    stopped = time.monotonic() - t0
+    time.sleep(pause_seconds)
+    new: dict[str, int] = {}
+    for name in reversed(components):
+        new[name] = _start(name, *argv[name])
+        _wait_healthy(name, ports)
+    down = time.monotonic() - t0
+    log(f"restarted {', '.join(components)}: stopped in {stopped:.1f}s, down {down:.1f}s")
+    return Restart(components, old, new, stopped, down)

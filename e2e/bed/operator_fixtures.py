@@ -280,7 +280,11 @@ def assert_pods_where_planned(
     planned = {(p["robot"], p["module"]): p["node"] for p in status["placement"]}
     assert len(planned) == instances
     pods = pods_by_instance(kube, namespace)
-    deps = {d["metadata"]["name"]: d for d in deployments(kube, namespace)}
+    deps = {
+        d["metadata"]["name"]: d
+        for d in deployments(kube, namespace)
+        if d["metadata"].get("labels", {}).get("fogfleet.io/fleet", name) == name
+    }  # the fleet's own: other fleets may share the namespace
     assert len(deps) == instances, sorted(deps)
     for dname, dep in deps.items():
         ann = dep["metadata"]["annotations"]

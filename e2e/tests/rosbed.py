@@ -26,6 +26,7 @@ __all__ = [
     "scrape",
     "scrape_buckets",
     "scrape_series",
+    "split_fleet",
 ]
 
 ROBOTS = ("bed-robot-1", "bed-robot-2")
@@ -110,6 +111,29 @@ def bed_objects(ns: str, fleet: str, modules: list[dict[str, Any]]) -> list[dict
         },
     }
     return [*nodes, *modules, fleet_obj]
+
+
+def split_fleet(ns: str, fleet: str = "bedfleet") -> list[dict[str, Any]]:
+    """Two robots whose lidar and localizer run on board and whose planner runs on the edge
+    (through the robot's discovery server): scan (10 Hz) lidar -> localizer, pose (10 Hz)
+    localizer -> planner, across the emulated Wi-Fi link."""
+    modules = [
+        # the lidar driver: hard real time, stays on its robot
+        ros_module("lidar", ns, cycle_ms=100, taxonomy=("periodic", "hard", "critical"),
+                   subscribes=[], publishes=[("scan", 4096, 10)],
+                   profile=[("bed-robot", "50m", 4, 0.5)]),
+        # localization: runs on the robot here
+        ros_module("localizer", ns, cycle_ms=100, taxonomy=("continuous", "soft", "relevant"),
+                   subscribes=[("scan", 4096, 10)], publishes=[("pose", 256, 10)],
+                   profile=[("bed-robot", "100m", 15, 2), ("bed-edge", "100m", 10, 1)],
+                   tiers=["robot"]),
+        # the planner: offloaded to the edge, talks to its robot through the discovery server
+        ros_module("planner", ns, cycle_ms=1000, taxonomy=("periodic", "soft", "relevant"),
+                   subscribes=[("pose", 256, 10)], publishes=[("plan", 2048, 1)],
+                   profile=[("bed-robot", "200m", 300, 20), ("bed-edge", "200m", 120, 10)],
+                   tiers=["edge"], probe=True),
+    ]  # fmt: skip
+    return bed_objects(ns, fleet, modules)
 
 
 @contextmanager

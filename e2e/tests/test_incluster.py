@@ -9,10 +9,8 @@ elect a leader on a Lease. The tests run in file order: install, upgrade, failov
 from __future__ import annotations
 
 import json
-import secrets
 import time
 from collections.abc import Iterator
-from typing import Any
 
 import pytest
 
@@ -21,15 +19,21 @@ from e2e.bed.kube import Kube
 from e2e.bed.operator_fixtures import (
     CHART,
     N_INSTANCES,
-    OPERATOR_LABELS,
     apply_warehouse,
     assert_pods_where_planned,
     deployment_versions,
     deployments,
     fleet,
     helm,
-    install_crds,
     wait_ready,
+)
+from e2e.tests.incluster import (
+    RELEASE,
+    SYSTEM,
+    installed,
+    leader,
+    operator_pods,
+    running_pod_names,
 )
 
 pytestmark = [
@@ -40,64 +44,12 @@ pytestmark = [
     pytest.mark.timeout(600),
 ]
 
-RELEASE = "fogfleet"
-SYSTEM = "fogfleet-system"
-
-
-def operator_pods(kube: Kube, *, terminating: bool = False) -> list[dict[str, Any]]:
-    items: list[dict[str, Any]] = kube.kubectl_json(
-        "get", "pods", "-n", SYSTEM, "-l", OPERATOR_LABELS
-    )["items"]
-    return [p for p in items if terminating or not p["metadata"].get("deletionTimestamp")]
-
-
-def leader(kube: Kube) -> str | None:
-    proc = kube.kubectl(
-        "get", "lease", "fogfleet-operator", "-n", SYSTEM, "-o", "json", check=False
-    )
-    if proc.returncode != 0:
-        return None
-    holder: str | None = json.loads(proc.stdout)["spec"].get("holderIdentity")
-    return holder
-
-
-def running_pod_names(kube: Kube) -> set[str]:
-    return {
-        p["metadata"]["name"] for p in operator_pods(kube) if p["status"].get("phase") == "Running"
-    }
-
 
 @pytest.fixture(scope="module")
 def watched(kube: Kube, cluster: Cluster) -> Iterator[str]:
     """The namespace the installed operator watches (the release itself is in fogfleet-system)."""
-    install_crds(kube)
-    # an interrupted earlier run may have left the plain-manifest install (not Helm's) behind
-    for what in (
-        ["clusterrolebinding", "fogfleet-operator"],
-        ["clusterrole", "fogfleet-operator"],
-        ["serviceaccount", "fogfleet-operator", "-n", SYSTEM],
-    ):
-        obj = kube.kubectl("get", *what, "-o", "json", check=False)
-        if obj.returncode == 0 and "Helm" not in obj.stdout:
-            kube.kubectl("delete", *what, check=False)
-    ns = f"e2e-incluster-{secrets.token_hex(3)}"
-    kube.apply({"apiVersion": "v1", "kind": "Namespace", "metadata": {"name": ns}})
-    helm(
-        "install", RELEASE, str(CHART), "-n", SYSTEM, "--create-namespace",
-        "--set", f"watchNamespaces={{{ns}}}",
-        # a real node (kwok would only pretend to run it); the chart already keeps it off robots
-        "--set-string", "nodeSelector.fogfleet\\.io/e2e-real=true",
-        "--set", "logFormat=plain",
-        # the bed's CRDs come from crds/ (install_crds above, as every e2e test has them);
-        # test_helm_crd_upgrade.py tests the chart's own CRD templates
-        "--set", "crds.install=false",
-        "--wait", "--timeout", "240s",
-    )  # fmt: skip
-    yield ns
-    helm_list = helm("list", "-n", SYSTEM, "-q")
-    if RELEASE in helm_list.split():
-        helm("uninstall", RELEASE, "-n", SYSTEM, "--wait")
-    kube.kubectl("delete", "namespace", ns, "--wait=false", "--ignore-not-found", check=False)
+    with installed(kube) as ns:
+        yield ns
 
 
 def test_helm_install_runs_the_operator_image_on_a_real_node_that_is_not_a_robot(

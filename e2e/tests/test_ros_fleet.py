@@ -22,10 +22,9 @@ from e2e.tests.rosbed import (
     EDGE,
     PROBE_PORT,
     ROBOTS,
-    bed_objects,
     operated_fleet,
-    ros_module,
     scrape,
+    split_fleet,
 )
 
 pytestmark = [
@@ -36,31 +35,11 @@ pytestmark = [
 ]
 
 
-def _fleet_objects(ns: str) -> list[dict[str, Any]]:
-    modules = [
-        # the lidar driver: hard real time, stays on its robot
-        ros_module("lidar", ns, cycle_ms=100, taxonomy=("periodic", "hard", "critical"),
-                   subscribes=[], publishes=[("scan", 4096, 10)],
-                   profile=[("bed-robot", "50m", 4, 0.5)]),
-        # localization: runs on the robot here
-        ros_module("localizer", ns, cycle_ms=100, taxonomy=("continuous", "soft", "relevant"),
-                   subscribes=[("scan", 4096, 10)], publishes=[("pose", 256, 10)],
-                   profile=[("bed-robot", "100m", 15, 2), ("bed-edge", "100m", 10, 1)],
-                   tiers=["robot"]),
-        # the planner: offloaded to the edge, talks to its robot through the discovery server
-        ros_module("planner", ns, cycle_ms=1000, taxonomy=("periodic", "soft", "relevant"),
-                   subscribes=[("pose", 256, 10)], publishes=[("plan", 2048, 1)],
-                   profile=[("bed-robot", "200m", 300, 20), ("bed-edge", "200m", 120, 10)],
-                   tiers=["edge"], probe=True),
-    ]  # fmt: skip
-    return bed_objects(ns, "bedfleet", modules)
-
-
 @pytest.fixture
 def ros_fleet(
     kube: Kube, cluster: Cluster, namespace: str, tmp_path: Path, diagnostics: list[Any]
 ) -> Iterator[str]:
-    objects = _fleet_objects(namespace)
+    objects = split_fleet(namespace)
     with operated_fleet(kube, cluster, namespace, tmp_path, diagnostics, objects, "bedfleet") as ns:
         yield ns
 

@@ -1,0 +1,155 @@
+"""What a fault cost a running ROS 2 fleet, from its workloads' own counters: messages lost
+on each flow, cycles missed, and whether any of its pods was re-created or restarted. Shared
+by the fault tests (issue 37); the fleet is ``rosbed.split_fleet``.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+import threading
+import urllib.request
+from dataclasses import dataclass
+from typing import Any
+
+from e2e.bed.kube import Kube
+
+__all__ = ["FLOWS", "NodeHistory", "Snapshot", "fault_result", "snapshot"]
+
+# (producer, topic, consumer) of rosbed.split_fleet, per robot
+FLOWS = (("lidar", "scan", "localizer"), ("localizer", "pose", "planner"))
+
+
+@dataclass(frozen=True)
+class Snapshot:
+    """One scrape of every module pod of a fleet: per (robot, module) its counters, and its
+    pod's uid and container restarts (a re-created or restarted pod shows here)."""
+
+    counters: dict[tuple[str, str], dict[str, float]]
+    pods: dict[tuple[str, str], tuple[str, int]]
+
+    def messages_lost(self, later: Snapshot) -> int:
+        """Messages published on a flow since this snapshot and not received: per flow and
+        robot, the producer's published minus the consumer's received (never below 0)."""
+        lost = 0.0
+        for robot in {r for r, _ in self.counters}:
+            for producer, topic, consumer in FLOWS:
+                sent = _delta(self, later, (robot, producer), f"published:{topic}")
+                got = _delta(self, later, (robot, consumer), f"received:{topic}")
+                lost += max(0.0, sent - got)
+        return round(lost)
+
+    def cycles_missed(self, later: Snapshot) -> int:
+        return round(sum(_delta(self, later, key, "missed") for key in self.counters))
+
+    def cycles(self, later: Snapshot) -> int:
+        return round(sum(_delta(self, later, key, "cycles") for key in self.counters))
+
+    def replaced(self, later: Snapshot) -> list[str]:
+        """The module pods re-created or restarted since this snapshot."""
+        return [f"{r}/{m}" for (r, m), pod in self.pods.items() if later.pods.get((r, m)) != pod]
+
+
+def _delta(a: Snapshot, b: Snapshot, key: tuple[str, str], name: str) -> float:
+    return b.counters.get(key, {}).get(name, 0.0) - a.counters.get(key, {}).get(name, 0.0)
+
+
+_LINE = re.compile(r"^(fogfleet_\w+)(?:\{([^}]*)\})?\s+([0-9.eE+-]+)$")
+
+
+def _counters(url: str) -> dict[str, float]:
+    text = urllib.request.urlopen(url, timeout=5).read().decode()
+    out: dict[str, float] = {}
+    for line in text.splitlines():
+        m = _LINE.match(line)
+        if not m:
+            continue
+        labels = dict(re.findall(r'(\w+)="([^"]*)"', m.group(2) or ""))
+        name, value = m.group(1), float(m.group(3))
+        key = {
+            "fogfleet_messages_published_total": f"published:{labels.get('topic')}",
+            "fogfleet_messages_received_total": f"received:{labels.get('topic')}",
+            "fogfleet_missed_cycles_total": "missed",
+            "fogfleet_cycle_time_seconds_count": "cycles",
+        }.get(name)
+        if key:
+            out[key] = out.get(key, 0.0) + value
+    return out
+
+
+def snapshot(kube: Kube, namespace: str, fleet: str) -> Snapshot:
+    """Scrape every running module pod of ``fleet`` (not its standbys or discovery server)."""
+    items = kube.kubectl_json(
+        "get", "pods", "-n", namespace, "-l", f"fogfleet.io/fleet={fleet},fogfleet.io/instance"
+    )["items"]
+    counters: dict[tuple[str, str], dict[str, float]] = {}
+    pods: dict[tuple[str, str], tuple[str, int]] = {}
+    for pod in items:
+        meta, status = pod["metadata"], pod.get("status") or {}
+        if meta.get("deletionTimestamp") or status.get("phase") != "Running":
+            continue
+        key = (meta["labels"]["fogfleet.io/robot"], meta["labels"]["fogfleet.io/module"])
+        restarts = sum(c.get("restartCount", 0) for c in status.get("containerStatuses") or [])
+        pods[key] = (meta["uid"], restarts)
+        counters[key] = _counters(f"http://{status['podIP']}:9100/metrics")
+    return Snapshot(counters, pods)
+
+
+def fault_result(fault: str, **fields: Any) -> str:
+    """The machine-readable line every fault test prints (issue 37)."""
+    line = "FAULT-RESULT " + json.dumps({"fault": fault, **fields})
+    print(line)
+    return line
+
+
+class NodeHistory:
+    """Where each instance's pod ran, polled every ``interval`` seconds in a thread: per
+    instance (its fogfleet.io/instance label), the nodes in the order its pods were bound to
+    them. ``moves()`` counts how often an instance changed node."""
+
+    def __init__(self, kube: Kube, namespace: str, selector: str, interval: float = 0.5) -> None:
+        self.nodes: dict[str, list[str]] = {}
+        self.polls = 0
+        self.errors = 0
+        self._stop = threading.Event()
+        self._args = (kube, namespace, selector, interval)
+        self._thread = threading.Thread(target=self._run, daemon=True)
+
+    def __enter__(self) -> NodeHistory:
+        self._thread.start()
+        return self
+
+    def __exit__(self, *_: object) -> None:
+        self._stop.set()
+        self._thread.join(10)
+
+    def _run(self) -> None:
+        from kubernetes import client
+
+        kube, namespace, selector, interval = self._args
+        api = client.CoreV1Api(kube.api_client())
+        while not self._stop.is_set():
+            try:
+                resp = api.list_namespaced_pod(
+                    namespace, label_selector=selector, _preload_content=False
+                )
+                pods: list[dict[str, Any]] = json.loads(resp.data)["items"]  # type: ignore[attr-defined]
+            except Exception:  # the API may be away (a fault): poll again
+                self.errors += 1
+            else:
+                self.polls += 1
+                newest: dict[str, str] = {}  # per instance, the node of its newest bound pod
+                for pod in sorted(pods, key=lambda p: str(p["metadata"]["creationTimestamp"])):
+                    meta, node = pod["metadata"], pod["spec"].get("nodeName")
+                    instance = (meta.get("labels") or {}).get("fogfleet.io/instance")
+                    if instance and node and not meta.get("deletionTimestamp"):
+                        newest[instance] = node
+                for instance, node in newest.items():
+                    seen = self.nodes.setdefault(instance, [])
+                    if not seen or seen[-1] != node:
+                        seen.append(node)
+            self._stop.wait(interval)
+
+    def moves(self) -> dict[str, int]:
+        """Instance -> times its pod changed node (0: it stayed where it was first bound)."""
+        return {i: len(nodes) - 1 for i, nodes in self.nodes.items()}

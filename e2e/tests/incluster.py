@@ -1,0 +1,80 @@
+"""The operator installed in-cluster by its chart (two replicas electing a leader on a Lease,
+from its image, on a real node), and reading who leads: shared by test_incluster.py and the
+leader-failover fault test."""
+
+from __future__ import annotations
+
+import json
+import secrets
+from collections.abc import Iterator
+from contextlib import contextmanager
+from typing import Any
+
+from e2e.bed.kube import Kube
+from e2e.bed.operator_fixtures import CHART, OPERATOR_LABELS, helm, install_crds
+
+__all__ = ["RELEASE", "SYSTEM", "installed", "leader", "operator_pods", "running_pod_names"]
+
+RELEASE = "fogfleet"
+SYSTEM = "fogfleet-system"
+
+
+def operator_pods(kube: Kube, *, terminating: bool = False) -> list[dict[str, Any]]:
+    items: list[dict[str, Any]] = kube.kubectl_json(
+        "get", "pods", "-n", SYSTEM, "-l", OPERATOR_LABELS
+    )["items"]
+    return [p for p in items if terminating or not p["metadata"].get("deletionTimestamp")]
+
+
+def leader(kube: Kube) -> str | None:
+    proc = kube.kubectl(
+        "get", "lease", "fogfleet-operator", "-n", SYSTEM, "-o", "json", check=False
+    )
+    if proc.returncode != 0:
+        return None
+    holder: str | None = json.loads(proc.stdout)["spec"].get("holderIdentity")
+    return holder
+
+
+def running_pod_names(kube: Kube) -> set[str]:
+    return {
+        p["metadata"]["name"] for p in operator_pods(kube) if p["status"].get("phase") == "Running"
+    }
+
+
+@contextmanager
+def installed(kube: Kube, prefix: str = "e2e-incluster") -> Iterator[str]:
+    """The chart installed (release ``fogfleet`` in fogfleet-system) watching a fresh
+    namespace, which it yields; uninstalled and the namespace deleted afterwards."""
+    install_crds(kube)
+    # an interrupted earlier run may have left the plain-manifest install (not Helm's) behind
+    for what in (
+        ["clusterrolebinding", "fogfleet-operator"],
+        ["clusterrole", "fogfleet-operator"],
+        ["serviceaccount", "fogfleet-operator", "-n", SYSTEM],
+    ):
+        obj = kube.kubectl("get", *what, "-o", "json", check=False)
+        if obj.returncode == 0 and "Helm" not in obj.stdout:
+            kube.kubectl("delete", *what, check=False)
+    # and an interrupted run of a suite may have left its release
+    if RELEASE in helm("list", "-n", SYSTEM, "-q").split():
+        helm("uninstall", RELEASE, "-n", SYSTEM, "--wait")
+    ns = f"{prefix}-{secrets.token_hex(3)}"
+    kube.apply({"apiVersion": "v1", "kind": "Namespace", "metadata": {"name": ns}})
+    helm(
+        "install", RELEASE, str(CHART), "-n", SYSTEM, "--create-namespace",
+        "--set", f"watchNamespaces={{{ns}}}",
+        # a real node (kwok would only pretend to run it); the chart already keeps it off robots
+        "--set-string", "nodeSelector.fogfleet\\.io/e2e-real=true",
+        "--set", "logFormat=plain",
+        # the bed's CRDs come from crds/ (install_crds above, as every e2e test has them);
+        # test_helm_crd_upgrade.py tests the chart's own CRD templates
+        "--set", "crds.install=false",
+        "--wait", "--timeout", "240s",
+    )  # fmt: skip
+    try:
+        yield ns
+    finally:
+        if RELEASE in helm("list", "-n", SYSTEM, "-q").split():
+            helm("uninstall", RELEASE, "-n", SYSTEM, "--wait")
+        kube.kubectl("delete", "namespace", ns, "--wait=false", "--ignore-not-found", check=False)
