@@ -13,6 +13,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from e2e.bed.kube import Kube
+from e2e.faults.record import FaultResult, record_measured
 
 __all__ = ["FLOWS", "NodeHistory", "Snapshot", "fault_result", "snapshot"]
 
@@ -95,11 +96,10 @@ def snapshot(kube: Kube, namespace: str, fleet: str) -> Snapshot:
     return Snapshot(counters, pods)
 
 
-def fault_result(fault: str, **fields: Any) -> str:
-    """The machine-readable line every fault test prints (issue 37)."""
-    line = "FAULT-RESULT " + json.dumps({"fault": fault, **fields})
-    print(line)
-    return line
+def fault_result(fault: str, **fields: Any) -> FaultResult:
+    """Record what a fault cost (``e2e.faults.record``: printed, and kept for
+    docs/survives.md when ``make test-faults`` runs)."""
+    return record_measured({"fault": fault, **fields})
 
 
 class NodeHistory:

@@ -127,6 +127,7 @@ def _report(
     needed: int = 0,
 ) -> None:
     lost, missed = before.messages_lost(after), before.cycles_missed(after)
+    moved = sum(1 for n in moves.values() if n)
     fault_result(
         fault,
         messagesLost=lost,
@@ -134,11 +135,11 @@ def _report(
         cycles=before.cycles(after),
         recoverySeconds=round(ready, 1),
         failoverSeconds=round(failover, 1),
-        instancesMoved=sum(1 for n in moves.values() if n),
+        instancesMoved=moved,
         movedTwice=sum(1 for n in moves.values() if n > 1),
         hadToMove=needed,
-        fogfleetDid=did,
-        beforeFix="(no fix needed)",
+        fogfleetDid=f"{did}; {moved} instances moved, {needed} had to",
+        beforeFix="(no fix yet)" if moved > needed else "(no fix needed)",
     )
     assert not before.replaced(after), before.replaced(after)
     assert lost <= 12, lost  # in flight at the two scrapes (2 robots x 2 flows, 10 Hz)
