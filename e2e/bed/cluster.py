@@ -12,7 +12,7 @@ import urllib.parse
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 from e2e.bed.base import (
     BIN_DIR,
@@ -25,9 +25,6 @@ from e2e.bed.base import (
     insecure_tls,
 )
 from e2e.bed.processes import _alive, log_tail
-
-if TYPE_CHECKING:
-    from e2e.bed.controlplane import Restart
 
 COMPONENTS = (
     "etcd",
@@ -232,15 +229,6 @@ class Cluster:
         if name not in self.real_nodes:
             raise HarnessError(f"{name} is not a real node of this bed ({self.real_nodes})")
         return realnodes.declared(name)
-
-    def restart_control_plane(self, *, kill: bool = False, pause_seconds: float = 0.0) -> Restart:
-        """Stop kube-apiserver and etcd by pid (SIGTERM, or SIGKILL with ``kill``), start
-        them again with the same flags, ports and data, and wait until both are healthy.
-        Returns a ``controlplane.Restart`` (pids, how long the API was down). The other
-        components, the real nodes and the operator keep running and must reconnect."""
-        from e2e.bed import controlplane
-
-        return controlplane.restart_components(self.ports, kill=kill, pause_seconds=pause_seconds)
 
     def ready_fake_pods_again(self, namespace: str) -> list[str]:
         """Do for kwok's fake pods what a kubelet does after its node was unreachable.

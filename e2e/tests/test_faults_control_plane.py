@@ -20,6 +20,7 @@ from typing import Any
 
 import pytest
 
+from e2e.bed import controlplane
 from e2e.bed.harness import Cluster
 from e2e.bed.kube import Kube
 from e2e.bed.operator_fixtures import (
@@ -99,7 +100,7 @@ def test_apiserver_and_etcd_restart_mid_rollout_keeps_the_plan_and_loses_nothing
         print(f"restart at {at_restart}/{N_INSTANCES} Deployments, plan {plan_id}")
 
         t0 = time.monotonic()
-        restart = cluster.restart_control_plane()
+        restart = controlplane.restart_components(cluster.ports)
         print(f"control plane: {restart}")
         assert restart.down_seconds <= DOWN_BOUND_S
         # kube-controller-manager marks the pods of nodes whose Leases went stale while the
