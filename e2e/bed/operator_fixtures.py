@@ -215,11 +215,16 @@ def add_module_to_fleet(kube: Kube, namespace: str, module: str, fleet: str = "w
 
 
 def deployment_versions(kube: Kube, namespace: str) -> dict[str, str]:
-    """Deployment name -> resourceVersion: equal before and after means nothing was touched."""
+    """Deployment name -> its generation, labels and annotations: equal before and after means
+    nothing wrote the Deployment (its status, which kube-controller-manager keeps writing,
+    is left out: a resourceVersion would change with it)."""
     return {
-        d["metadata"]["name"]: d["metadata"]["resourceVersion"]
+        d["metadata"]["name"]: json.dumps(
+            [d["metadata"]["generation"], d["metadata"].get("labels"),
+             d["metadata"].get("annotations")], sort_keys=True
+        )
         for d in deployments(kube, namespace)
-    }
+    }  # fmt: skip
 
 
 def deployments(kube: Kube, namespace: str) -> list[Obj]:

@@ -262,7 +262,8 @@ def test_a_slow_link_brings_the_offloaded_detector_on_board_and_back_once_stable
         seen = link_of(kube, ns, FLEET, robot)
         print(f"degraded after {detected:.1f} s: {seen}")
         assert 0.95 * SLOW_MS <= seen["measuredLatencyMillis"] <= 1.2 * SLOW_MS + 20  # one RTT
-        assert seen["plannedLatencyMillis"] == seen["measuredLatencyMillis"]
+        # planned from a measurement; a newer one (every 2 s) may differ by a jitter's worth
+        assert abs(seen["plannedLatencyMillis"] - seen["measuredLatencyMillis"]) <= 0.1 * SLOW_MS
         kube.wait_for(
             "robot-1's detector running on board",
             lambda: _runs(kube, ns, robot, "detector") == robot,

@@ -84,18 +84,20 @@ while time.time() < end:
             c.close()
 """
 
-# Sends each tag over UDP (three datagrams) and TCP; prints "tcp TAG ok|fail".
+# Sends each tag over TCP, then UDP (five datagrams 50 ms apart: the first ones to an address
+# not yet resolved may wait on ARP, and UDP does not retry); prints "tcp TAG ok|fail".
 SENDER = r"""
-import json, socket, sys
+import json, socket, sys, time
 for ip, port, tag in json.loads(sys.argv[1]):
-    u = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-    for _ in range(3):
-        u.sendto(tag.encode(), (ip, port))
     try:
         socket.create_connection((ip, port), timeout=3).sendall(tag.encode())
         print("tcp", tag, "ok", flush=True)
     except OSError as exc:
         print("tcp", tag, "fail", exc, flush=True)
+    u = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    for _ in range(5):
+        u.sendto(tag.encode(), (ip, port))
+        time.sleep(0.05)
 """
 
 
