@@ -8,14 +8,15 @@ from __future__ import annotations
 import json
 import re
 import threading
+import time
 import urllib.request
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Self
 
 from e2e.bed.kube import Kube
 from e2e.faults.record import FaultResult, record_measured
 
-__all__ = ["FLOWS", "NodeHistory", "Snapshot", "fault_result", "snapshot"]
+__all__ = ["FLOWS", "NodeHistory", "Poller", "Snapshot", "fault_result", "snapshot"]
 
 # (producer, topic, consumer) of rosbed.split_fleet, per robot
 FLOWS = (("lidar", "scan", "localizer"), ("localizer", "pose", "planner"))
@@ -102,20 +103,18 @@ def fault_result(fault: str, **fields: Any) -> FaultResult:
     return record_measured({"fault": fault, **fields})
 
 
-class NodeHistory:
-    """Where each instance's pod ran, polled every ``interval`` seconds in a thread: per
-    instance (its fogfleet.io/instance label), the nodes in the order its pods were bound to
-    them. ``moves()`` counts how often an instance changed node."""
+class Poller:
+    """Calls ``poll()`` every ``interval`` seconds in a thread while used as a context
+    manager (``t0``: when it started); a fault test's view of the cluster during the fault."""
 
-    def __init__(self, kube: Kube, namespace: str, selector: str, interval: float = 0.5) -> None:
-        self.nodes: dict[str, list[str]] = {}
-        self.polls = 0
-        self.errors = 0
+    def __init__(self, interval: float) -> None:
+        self.interval = interval
+        self.t0 = 0.0
         self._stop = threading.Event()
-        self._args = (kube, namespace, selector, interval)
         self._thread = threading.Thread(target=self._run, daemon=True)
 
-    def __enter__(self) -> NodeHistory:
+    def __enter__(self) -> Self:
+        self.t0 = time.monotonic()
         self._thread.start()
         return self
 
@@ -124,31 +123,49 @@ class NodeHistory:
         self._thread.join(10)
 
     def _run(self) -> None:
+        while not self._stop.is_set():
+            self.poll()
+            self._stop.wait(self.interval)
+
+    def poll(self) -> None:
+        raise NotImplementedError
+
+
+class NodeHistory(Poller):
+    """Where each instance's pod ran, polled every ``interval`` seconds in a thread: per
+    instance (its fogfleet.io/instance label), the nodes in the order its pods were bound to
+    them. ``moves()`` counts how often an instance changed node."""
+
+    def __init__(self, kube: Kube, namespace: str, selector: str, interval: float = 0.5) -> None:
         from kubernetes import client
 
-        kube, namespace, selector, interval = self._args
-        api = client.CoreV1Api(kube.api_client())
-        while not self._stop.is_set():
-            try:
-                resp = api.list_namespaced_pod(
-                    namespace, label_selector=selector, _preload_content=False
-                )
-                pods: list[dict[str, Any]] = json.loads(resp.data)["items"]  # type: ignore[attr-defined]
-            except Exception:  # the API may be away (a fault): poll again
-                self.errors += 1
-            else:
-                self.polls += 1
-                newest: dict[str, str] = {}  # per instance, the node of its newest bound pod
-                for pod in sorted(pods, key=lambda p: str(p["metadata"]["creationTimestamp"])):
-                    meta, node = pod["metadata"], pod["spec"].get("nodeName")
-                    instance = (meta.get("labels") or {}).get("fogfleet.io/instance")
-                    if instance and node and not meta.get("deletionTimestamp"):
-                        newest[instance] = node
-                for instance, node in newest.items():
-                    seen = self.nodes.setdefault(instance, [])
-                    if not seen or seen[-1] != node:
-                        seen.append(node)
-            self._stop.wait(interval)
+        super().__init__(interval)
+        self.nodes: dict[str, list[str]] = {}
+        self.polls = 0
+        self.errors = 0
+        self._api = client.CoreV1Api(kube.api_client())
+        self._namespace, self._selector = namespace, selector
+
+    def poll(self) -> None:
+        try:
+            resp = self._api.list_namespaced_pod(
+                self._namespace, label_selector=self._selector, _preload_content=False
+            )
+            pods: list[dict[str, Any]] = json.loads(resp.data)["items"]  # type: ignore[attr-defined]
+        except Exception:  # the API may be away (a fault): poll again
+            self.errors += 1
+            return
+        self.polls += 1
+        newest: dict[str, str] = {}  # per instance, the node of its newest bound pod
+        for pod in sorted(pods, key=lambda p: str(p["metadata"]["creationTimestamp"])):
+            meta, node = pod["metadata"], pod["spec"].get("nodeName")
+            instance = (meta.get("labels") or {}).get("fogfleet.io/instance")
+            if instance and node and not meta.get("deletionTimestamp"):
+                newest[instance] = node
+        for instance, node in newest.items():
+            seen = self.nodes.setdefault(instance, [])
+            if not seen or seen[-1] != node:
+                seen.append(node)
 
     def moves(self) -> dict[str, int]:
         """Instance -> times its pod changed node (0: it stayed where it was first bound)."""

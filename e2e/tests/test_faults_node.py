@@ -25,7 +25,6 @@ time until everything is as planned again.
 from __future__ import annotations
 
 import json
-import threading
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -38,6 +37,7 @@ from e2e.bed.harness import Cluster
 from e2e.bed.kube import Kube
 from e2e.bed.operator_fixtures import all_pods, conditions, events, fleet
 from e2e.faults.record import record_measured
+from e2e.tests.faultbed import Poller
 from e2e.tests.rosbed import EDGE, ROBOTS, bed_objects, operated_fleet, ros_module, scrape_series
 
 pytestmark = [
@@ -146,40 +146,28 @@ def _flowing(kube: Kube, ns: str) -> bool:
         return False
 
 
-class ReadyWatch:
+class ReadyWatch(Poller):
     """The fleet's Ready condition, polled every ``interval`` s in a thread: how long it was
     not Ready (first to last such sample) and what its messages said meanwhile."""
 
     def __init__(self, kube: Kube, ns: str, nodes: tuple[str, ...] = (), interval: float = 1.0):
-        self.kube, self.ns, self.nodes, self.interval = kube, ns, nodes, interval
+        super().__init__(interval)
+        self.kube, self.ns, self.nodes = kube, ns, nodes
         self.samples: list[tuple[float, str, str, str]] = []  # (t, status, reason, message)
         self.node_samples: list[tuple[float, str, str]] = []  # (t, node, its Ready status)
-        self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._run, daemon=True)
 
-    def __enter__(self) -> ReadyWatch:
-        self.t0 = time.monotonic()
-        self._thread.start()
-        return self
-
-    def __exit__(self, *_: object) -> None:
-        self._stop.set()
-        self._thread.join(10)
-
-    def _run(self) -> None:
-        while not self._stop.is_set():
-            try:
-                c = conditions(fleet(self.kube, self.ns, FLEET)).get("Ready", {})
-                sample = (time.monotonic() - self.t0, c.get("status", "?"), c.get("reason", ""),
-                          c.get("message", ""))  # fmt: skip
-                self.samples.append(sample)
-                for node in self.nodes:
-                    obj = self.kube.kubectl_json("get", "node", node)
-                    ready = conditions(obj).get("Ready", {}).get("status", "?")
-                    self.node_samples.append((time.monotonic() - self.t0, node, ready))
-            except Exception as exc:  # an unanswered poll is a sample too
-                self.samples.append((time.monotonic() - self.t0, "?", "Unreadable", str(exc)))
-            self._stop.wait(self.interval)
+    def poll(self) -> None:
+        try:
+            c = conditions(fleet(self.kube, self.ns, FLEET)).get("Ready", {})
+            sample = (time.monotonic() - self.t0, c.get("status", "?"), c.get("reason", ""),
+                      c.get("message", ""))  # fmt: skip
+            self.samples.append(sample)
+            for node in self.nodes:
+                obj = self.kube.kubectl_json("get", "node", node)
+                ready = conditions(obj).get("Ready", {}).get("status", "?")
+                self.node_samples.append((time.monotonic() - self.t0, node, ready))
+        except Exception as exc:  # an unanswered poll is a sample too
+            self.samples.append((time.monotonic() - self.t0, "?", "Unreadable", str(exc)))
 
     def not_ready_seconds(self) -> float:
         bad = [t for t, status, _, _ in self.samples if status != "True"]
