@@ -24,6 +24,7 @@ from pymoo.operators.survival.rank_and_crowding.metrics import calc_crowding_dis
 from .choice import dominance, non_dominated
 from .objectives import EVALUATORS, NODE_OBJECTIVES, Evaluation, miss_probability
 from .problem import PlacementProblem
+from .schedule import Clock
 
 __all__ = ["MoveEvaluator", "dominated_by", "pareto_local_search"]
 
@@ -261,6 +262,7 @@ def pareto_local_search(
     max_moves: int | None = None,
     deadline: float = float("inf"),
     max_archive: int = 300,
+    clock: Clock = time.perf_counter,
 ) -> tuple[I64, F64, int]:
     """Improve the archive (X genes, F quantised objectives; feasible plans) by one-gene moves.
 
@@ -269,8 +271,8 @@ def pareto_local_search(
     about one pass over the nodes, so at most ``max_cells`` (moves x nodes) of work are done,
     and at most ``max_moves`` moves when it is given: by default ~180k moves on the warehouse
     fleet (it needs ~100k), ~14k on 100 robots x 40 edges. The result depends only on the
-    inputs unless ``deadline`` (a ``time.perf_counter`` value, checked between batches) cuts
-    it short.
+    inputs unless ``deadline`` (a ``clock()`` value, checked between batches) cuts it
+    short.
     The archive is bounded: beyond ``max_archive`` plans it keeps the most spread ones
     (NSGA-II's crowding distance, every objective's extremes included), so a sixth or seventh
     objective does not grow the front, and the planning time, by an order of magnitude.
@@ -291,7 +293,7 @@ def pareto_local_search(
         newF: list[F64] = []
         explore, explore_F = X[todo], F[todo]
         for s in range(0, len(explore), step):
-            if n_eval >= max_moves or time.perf_counter() > deadline:
+            if n_eval >= max_moves or clock() > deadline:
                 break
             fulls = pp.full(explore[s : s + step])
             ev = me.parents(fulls)

@@ -2,12 +2,18 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
 from numpy.typing import NDArray
 
-__all__ = ["Schedule"]
+__all__ = ["Clock", "Schedule"]
+
+# Seconds on a monotonic clock (``time.perf_counter`` in production). The planners read their
+# time budget and durations from it; tests pass a clock they advance themselves, so whether a
+# budget cuts a search never depends on how fast or loaded the machine is.
+Clock = Callable[[], float]
 
 
 @dataclass(frozen=True)

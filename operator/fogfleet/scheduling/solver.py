@@ -39,7 +39,7 @@ from .operators import (
 )
 from .preference import polish, tie_breakers
 from .problem import PlacementProblem
-from .schedule import Schedule
+from .schedule import Clock, Schedule
 from .spread import spread_note, spread_plans, stacked
 
 ENUMERATE_LIMIT = 20_000  # plans; smaller search spaces are enumerated exactly
@@ -49,7 +49,7 @@ ENUMERATE_LIMIT = 20_000  # plans; smaller search spaces are enumerated exactly
 LOCAL_SEARCH_SAFETY = 10.0
 LOCAL_SEARCH_FLOOR_SECONDS = 60.0
 
-__all__ = ["Progress", "choose_plan", "nsga2", "plan", "weights_of"]
+__all__ = ["Clock", "Progress", "choose_plan", "nsga2", "plan", "weights_of"]
 
 Progress = Callable[[int, int], None]
 I64 = NDArray[np.int64]
@@ -71,21 +71,25 @@ def weights_of(settings: SchedulerSettings) -> dict[str, float]:
 
 
 def plan(
-    problem: Problem, settings: SchedulerSettings, progress: Progress | None = None
+    problem: Problem,
+    settings: SchedulerSettings,
+    progress: Progress | None = None,
+    *,
+    clock: Clock = time.perf_counter,
 ) -> Schedule:
     """Plan the fleet with ``settings.algorithm``. Instances with an empty gene space
     (``problem.reasons``) get -1 and make the schedule infeasible, with their reasons. When
     NSGA-II finds no plan that gives every instance its deadline's CPU and
     ``settings.allowDegraded`` holds, the lowest-priority instances get less
-    (``scheduling.degrade``; ``Schedule.degraded``)."""
+    (``scheduling.degrade``; ``Schedule.degraded``). ``clock`` times NSGA-II's budget."""
     algo = SchedulerName(settings.algorithm)
     if algo is SchedulerName.NSGA2:
-        sched = nsga2(problem, settings, progress)
+        sched = nsga2(problem, settings, progress, clock=clock)
         if not sched.feasible and settings.allow_degraded:
-            t0 = time.perf_counter()
-            degraded = degrade(problem, lambda p: nsga2(p, settings, progress))
+            t0 = clock()
+            degraded = degrade(problem, lambda p: nsga2(p, settings, progress, clock=clock))
             if degraded is not None:
-                spent = sched.duration_seconds + time.perf_counter() - t0
+                spent = sched.duration_seconds + clock() - t0
                 return replace(degraded, duration_seconds=spent)
         return sched
     if algo is SchedulerName.K8S_DEFAULT:
@@ -115,6 +119,7 @@ def nsga2(
     *,
     paper: bool = False,
     local_search: bool | None = None,
+    clock: Clock = time.perf_counter,
 ) -> Schedule:
     """NSGA-II over the gene spaces with the limits allocation.
 
@@ -128,16 +133,18 @@ def nsga2(
     ``time_budget_millis`` has passed (``Schedule.generations`` tells how many ran); the
     Pareto local search after it is bounded by work, so the same seed and the same number of
     generations give the same plan whatever the clock did (rerun with ``generations`` set to
-    the count a budget-cut run reached to reproduce it).
+    the count a budget-cut run reached to reproduce it). ``clock`` is read for the budget and
+    the durations (``time.perf_counter`` unless a test steers it).
     """
-    t0 = time.perf_counter()
+    t0 = clock()
     if local_search is None:
         local_search = not paper
     names = tuple(str(n) for n in settings.objectives)
     pp = PlacementProblem(problem, names, with_limits=True, penalty=1e3 if paper else None)
     if pp.n_var == 0:
         x = np.full(problem.n_instances, -1, dtype=np.int64)
-        return finish(problem, "nsga2", x, True, t0, "no instance has a node it may run on")
+        done = finish(problem, "nsga2", x, True, t0, "no instance has a node it may run on")
+        return replace(done, duration_seconds=clock() - t0)
     budget = parse_millis(settings.time_budget_millis)
     log_space = float(np.log(pp.counts.astype(np.float64)).sum())  # log: no overflow
     exhaustive = not paper and log_space <= np.log(ENUMERATE_LIMIT)
@@ -149,7 +156,7 @@ def nsga2(
         generations, n_eval, stop = settings.generations, len(X), Stop.EXHAUSTIVE
         local_search = False
     else:
-        X, generations, n_eval, stop = _evolve(pp, settings, paper, progress, t0, budget)
+        X, generations, n_eval, stop = _evolve(pp, settings, paper, progress, clock, t0 + budget)
     # objectives and constraints without any penalty, for an honest report
     clean = PlacementProblem(problem, names, with_limits=True)
     out: dict[str, NDArray[np.float64]] = {}
@@ -164,7 +171,7 @@ def nsga2(
         # reproduces the plan; the deadline is only a safety net for pathological fleets
         deadline = t0 + max(LOCAL_SEARCH_SAFETY * budget, LOCAL_SEARCH_FLOOR_SECONDS)
         X, F = with_levelled(clean, X[idx], F[idx])
-        X, F, n_local = pareto_local_search(clean, X, F, deadline=deadline)
+        X, F, n_local = pareto_local_search(clean, X, F, deadline=deadline, clock=clock)
         cv = np.zeros(len(X))
         feasible = np.ones(len(X), dtype=bool)
     full = pp.full(X)
@@ -211,7 +218,7 @@ def nsga2(
         generations=generations,
         time_budget_reached=stop is Stop.BUDGET,
         evaluations=n_eval + n_local,
-        duration_seconds=time.perf_counter() - t0,
+        duration_seconds=clock() - t0,
     )
 
 
@@ -243,11 +250,12 @@ def _evolve(
     settings: SchedulerSettings,
     paper: bool,
     progress: Progress | None,
-    t0: float,
-    budget: float,
+    clock: Clock,
+    budget_ends: float,
 ) -> tuple[NDArray[np.int64], int, int, Stop]:
     """Run NSGA-II; the final population's genes, generations run, evaluations and why it
-    stopped. fogfleet's configuration stops early once converged (``convergence``); the
+    stopped. The budget is checked after each generation: once ``clock()`` passes
+    ``budget_ends`` the evolution stops. fogfleet's configuration stops early once converged (``convergence``); the
     paper's stand-in runs every generation."""
     mut = settings.mutation_percent / 100.0
     crossover = GeneCrossover("single_point" if paper else "uniform")
@@ -282,7 +290,7 @@ def _evolve(
             if watch.update(F, np.array([ind.CV[0] for ind in pop], dtype=np.float64)):
                 stop = Stop.STALLED
                 break
-        if time.perf_counter() - t0 > budget and generations < settings.generations:
+        if clock() > budget_ends and generations < settings.generations:
             stop = Stop.BUDGET
             break
     X = np.asarray(algorithm.pop.get("X")).astype(np.int64)

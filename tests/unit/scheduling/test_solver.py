@@ -94,19 +94,37 @@ def test_nsga2_misses_less_than_k8s_default_on_a_tight_warehouse() -> None:
     assert s.objectives["missRate"] < k8s.objectives["missRate"]
 
 
+class GenerationClock:
+    """A clock that only moves when NSGA-II finishes a generation (through ``progress``), by
+    ``per_generation`` seconds: the budget cuts the search at the same generation on any
+    machine, however fast or loaded."""
+
+    def __init__(self, per_generation: float) -> None:
+        self.now, self.per_generation = 0.0, per_generation
+
+    def __call__(self) -> float:
+        return self.now
+
+    def tick(self, generation: int, total: int) -> None:
+        self.now += self.per_generation
+
+
 def test_a_budget_cut_plan_is_reproduced_by_its_generation_count() -> None:
     """Same seed, same generations reached: same plan, whatever the clock did."""
     catalog = load_paths([WAREHOUSE])
     fleet = catalog.fleets[0]
     problem = build_problem(fleet, catalog)
+    # 100 ms at 30 ms a generation: cut after the 4th (120 ms), long before the warehouse converges
+    # (about 30 generations), so the clock, not convergence, ends this search
     cut = fleet.spec.scheduler.model_copy(update={"time_budget_millis": 100, "generations": 500})
-    first = plan(problem, cut)
-    assert first.generations < 500 and "to reproduce this plan" in first.choice_reason
+    clock = GenerationClock(per_generation=0.030)
+    first = plan(problem, cut, clock.tick, clock=clock)
+    assert first.generations == 4 and "to reproduce this plan" in first.choice_reason
     assert first.time_budget_reached
     again = fleet.spec.scheduler.model_copy(
         update={"time_budget_millis": 600_000, "generations": first.generations}
     )
-    second = plan(problem, again)
+    second = plan(problem, again, clock=GenerationClock(per_generation=0.030))
     assert second.generations == first.generations
     assert not second.time_budget_reached  # every generation ran
     assert np.array_equal(np.asarray(first.placement), np.asarray(second.placement))
