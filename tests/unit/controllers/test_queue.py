@@ -1,10 +1,17 @@
-"""The per-fleet queue: a burst of triggers makes one reconcile; runs never overlap."""
+"""The per-fleet queue: a burst of triggers makes one reconcile; runs never overlap.
+
+Every test runs on a virtual clock (``virtualtime``): the delays the queue waits are the
+delays asserted, exactly, however fast or loaded the machine is.
+"""
 
 from __future__ import annotations
 
 import asyncio
 import itertools
 from collections.abc import Awaitable, Callable
+
+import pytest
+from virtualtime import run_in_virtual_time
 
 from fogfleet.controllers.outcome import Outcome
 from fogfleet.controllers.queue import ReconcileQueue
@@ -26,7 +33,7 @@ def test_a_burst_of_triggers_makes_one_reconcile() -> None:
         await asyncio.sleep(0.2)
         await q.close()
 
-    asyncio.run(main())
+    run_in_virtual_time(main())
     assert sorted(calls) == [("ns", "fleet"), ("ns", "other")]
 
 
@@ -50,7 +57,7 @@ def test_reconciles_of_one_fleet_never_overlap_and_requeue_until_ready() -> None
         await asyncio.sleep(0.2)
         await q.close()
 
-    asyncio.run(main())
+    run_in_virtual_time(main())
     assert peak == 1 and runs >= 3
 
 
@@ -74,10 +81,10 @@ def test_failing_background_runs_back_off_exponentially_and_a_success_resets() -
         await q.close()
         return q
 
-    q = asyncio.run(main())
+    q = run_in_virtual_time(main())
     gaps = [b - a for a, b in itertools.pairwise(stamps)]
     assert len(stamps) == 4, stamps  # three failures, then the success: no more runs
-    assert gaps[0] >= 0.02 and gaps[1] >= 0.04 and gaps[2] >= 0.08, gaps
+    assert gaps == pytest.approx([0.02, 0.04, 0.08]), gaps
     assert q._failures == {}
 
 
@@ -109,12 +116,13 @@ def test_a_stream_of_events_still_reconciles_every_max_wait() -> None:
         await q.close()
         return end - start
 
-    stream = asyncio.run(main())
+    stream = run_in_virtual_time(main())
     during = [t for t in runs if t - runs[0] < stream]
     assert len(during) >= 3, runs
     gaps = [b - a for a, b in itertools.pairwise(runs)]
-    # max_wait plus room for a slow event loop; plain debouncing fails the count above
-    assert max(gaps[: len(during) - 1], default=0.0) < 0.15 + 0.2, gaps
+    # a burst begins at the first event after a run (events come every 20 ms) and runs at
+    # most max_wait later; plain debouncing fails the count above
+    assert max(gaps[: len(during) - 1], default=0.0) <= 0.15 + 0.02 + 1e-9, gaps
 
 
 def test_a_quiet_burst_still_makes_one_reconcile_after_the_quiet_period() -> None:
@@ -133,8 +141,8 @@ def test_a_quiet_burst_still_makes_one_reconcile_after_the_quiet_period() -> Non
         await q.close()
         return last
 
-    last = asyncio.run(main())
-    assert len(runs) == 1 and runs[0] - last >= 0.09, (runs, last)
+    last = run_in_virtual_time(main())
+    assert len(runs) == 1 and runs[0] - last == pytest.approx(0.1), (runs, last)
 
 
 def test_a_longer_max_wait_per_call_holds_a_stream_back() -> None:
@@ -154,7 +162,7 @@ def test_a_longer_max_wait_per_call_holds_a_stream_back() -> None:
         await q.close()
         return end
 
-    end = asyncio.run(main())
+    end = run_in_virtual_time(main())
     assert len(runs) == 1 and runs[0] >= end, (runs, end)
 
 
@@ -182,5 +190,5 @@ def test_forgetting_a_fleet_drops_its_lock_timer_and_failures() -> None:
         return left
 
     q = ReconcileQueue(runner, debounce=0.01, retry=60.0)
-    assert asyncio.run(main()) == set()
+    assert run_in_virtual_time(main()) == set()
     assert held == [{gone}]  # while held, the lock stays (a waiter could be queued on it)

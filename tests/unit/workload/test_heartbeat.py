@@ -5,6 +5,7 @@ from __future__ import annotations
 import io
 import threading
 import time
+from collections.abc import Callable
 
 import pytest
 
@@ -44,24 +45,41 @@ def test_the_metrics_count_what_the_line_reports() -> None:
     assert metrics.tally.counts() == Counts(cycles=3, missed=1, received=1, published=2)
 
 
+def _lines_once(out: io.StringIO, ready: Callable[[list[str]], bool]) -> list[str]:
+    """The lines written so far, once ``ready`` holds of them (10 s: only a guard against a
+    hang; waiting on what was written, not on a sleep, holds on a loaded machine)."""
+    deadline = time.monotonic() + 10
+    while not ready(lines := out.getvalue().splitlines()):
+        assert time.monotonic() < deadline, f"timed out; lines so far: {lines}"
+        time.sleep(0.01)
+    return lines
+
+
+def _in_all(line: str) -> int:
+    return int(line.split("; ")[1].split()[0])
+
+
 def test_a_line_is_written_every_period_until_stopped() -> None:
     tally, stop, out = Tally(), threading.Event(), io.StringIO()
     worker = threading.Thread(
         target=run_heartbeat, args=(tally, "shared/detector", 0.05, stop, out)
     )
     worker.start()
-    for _ in range(10):
+    for _ in range(5):
         tally.cycle(missed=False)
-        time.sleep(0.02)
+    _lines_once(out, lambda lines: len(lines) >= 1)
+    for _ in range(5):
+        tally.cycle(missed=False)
+    _lines_once(out, lambda lines: bool(lines) and _in_all(lines[-1]) == 10)
     stop.set()
-    worker.join(timeout=1)
+    worker.join(timeout=10)
     assert not worker.is_alive()
     lines = out.getvalue().splitlines()
     assert len(lines) >= 2, lines
     assert all(line.startswith("fogfleet-workload: shared/detector: ") for line in lines)
+    # each period counts its own cycles: together, every cycle once
     in_periods = sum(int(line.split(": ")[2].split()[0]) for line in lines)
-    in_all = int(lines[-1].split("; ")[1].split()[0])
-    assert 0 < in_periods <= in_all <= 10, lines
+    assert in_periods == _in_all(lines[-1]) == 10, lines
 
 
 def test_a_period_of_0_writes_nothing() -> None:
