@@ -10,13 +10,21 @@ import re
 import threading
 import time
 import urllib.request
-from dataclasses import dataclass
-from typing import Any, Self
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from functools import partial
+from typing import Any, Self, TypeVar
 
+from e2e.bed.base import wait_for
 from e2e.bed.kube import Kube
 from e2e.faults.record import FaultResult, record_measured
 
-__all__ = ["FLOWS", "NodeHistory", "Poller", "Snapshot", "fault_result", "snapshot"]
+__all__ = [
+    "FLOWS", "NodeHistory", "Poller", "Snapshot", "fault_result", "scraped", "skew_messages",
+    "snapshot",
+]  # fmt: skip
+
+T = TypeVar("T")
 
 # (producer, topic, consumer) of rosbed.split_fleet, per robot
 FLOWS = (("lidar", "scan", "localizer"), ("localizer", "pose", "planner"))
@@ -25,20 +33,27 @@ FLOWS = (("lidar", "scan", "localizer"), ("localizer", "pose", "planner"))
 @dataclass(frozen=True)
 class Snapshot:
     """One scrape of every module pod of a fleet: per (robot, module) its counters, and its
-    pod's uid and container restarts (a re-created or restarted pod shows here)."""
+    pod's uid and container restarts (a re-created or restarted pod shows here); ``at``: when
+    each pod was scraped (time.monotonic(), the middle of its request)."""
 
     counters: dict[tuple[str, str], dict[str, float]]
     pods: dict[tuple[str, str], tuple[str, int]]
+    at: dict[tuple[str, str], float] = field(default_factory=dict)
 
     def messages_lost(self, later: Snapshot) -> int:
         """Messages published on a flow since this snapshot and not received: per flow and
-        robot, the producer's published minus the consumer's received (never below 0)."""
+        robot, the producer's published minus the consumer's received, less what only the
+        moments of the scrapes account for (``skew_messages``); never below 0."""
         lost = 0.0
         for robot in {r for r, _ in self.counters}:
             for producer, topic, consumer in FLOWS:
-                sent = _delta(self, later, (robot, producer), f"published:{topic}")
-                got = _delta(self, later, (robot, consumer), f"received:{topic}")
-                lost += max(0.0, sent - got)
+                p, c = (robot, producer), (robot, consumer)
+                sent = _delta(self, later, p, f"published:{topic}")
+                got = _delta(self, later, c, f"received:{topic}")
+                skew = 0.0
+                if {p, c} <= self.at.keys() & later.at.keys():
+                    skew = skew_messages(sent, (self.at[p], later.at[p]), (self.at[c], later.at[c]))
+                lost += max(0.0, sent - got - skew)
         return round(lost)
 
     def cycles_missed(self, later: Snapshot) -> int:
@@ -54,6 +69,29 @@ class Snapshot:
 
 def _delta(a: Snapshot, b: Snapshot, key: tuple[str, str], name: str) -> float:
     return b.counters.get(key, {}).get(name, 0.0) - a.counters.get(key, {}).get(name, 0.0)
+
+
+def skew_messages(
+    sent: float, producer: tuple[float, float], consumer: tuple[float, float]
+) -> float:
+    """Messages a flow seems to lose (negative: to gain) only because its producer and its
+    consumer were scraped at different moments: ``producer`` and ``consumer`` are the times
+    of their first and second scrapes. A consumer scraped 0.3 s after its producer at the
+    first snapshot and right after it at the second has counted 0.3 s of messages the
+    producer's delta does not hold; on a loaded machine the scrapes of a snapshot spread
+    out, so the raw difference would measure the machine's load, not the flow. The
+    producer's rate is its own: ``sent`` over the time between its scrapes."""
+    span = producer[1] - producer[0]
+    if span <= 0:
+        return 0.0
+    return sent / span * ((consumer[0] - producer[0]) - (consumer[1] - producer[1]))
+
+
+def scraped(read: Callable[[], T]) -> tuple[T, float]:
+    """``read()`` and when it read: the middle of the call (time.monotonic())."""
+    t0 = time.monotonic()
+    value = read()
+    return value, (t0 + time.monotonic()) / 2
 
 
 _LINE = re.compile(r"^(fogfleet_\w+)(?:\{([^}]*)\})?\s+([0-9.eE+-]+)$")
@@ -86,6 +124,7 @@ def snapshot(kube: Kube, namespace: str, fleet: str) -> Snapshot:
     )["items"]
     counters: dict[tuple[str, str], dict[str, float]] = {}
     pods: dict[tuple[str, str], tuple[str, int]] = {}
+    at: dict[tuple[str, str], float] = {}
     for pod in items:
         meta, status = pod["metadata"], pod.get("status") or {}
         if meta.get("deletionTimestamp") or status.get("phase") != "Running":
@@ -93,8 +132,9 @@ def snapshot(kube: Kube, namespace: str, fleet: str) -> Snapshot:
         key = (meta["labels"]["fogfleet.io/robot"], meta["labels"]["fogfleet.io/module"])
         restarts = sum(c.get("restartCount", 0) for c in status.get("containerStatuses") or [])
         pods[key] = (meta["uid"], restarts)
-        counters[key] = _counters(f"http://{status['podIP']}:9100/metrics")
-    return Snapshot(counters, pods)
+        url = f"http://{status['podIP']}:9100/metrics"
+        counters[key], at[key] = scraped(partial(_counters, url))
+    return Snapshot(counters, pods, at)
 
 
 def fault_result(fault: str, **fields: Any) -> FaultResult:
@@ -155,7 +195,6 @@ class NodeHistory(Poller):
         except Exception:  # the API may be away (a fault): poll again
             self.errors += 1
             return
-        self.polls += 1
         newest: dict[str, str] = {}  # per instance, the node of its newest bound pod
         for pod in sorted(pods, key=lambda p: str(p["metadata"]["creationTimestamp"])):
             meta, node = pod["metadata"], pod["spec"].get("nodeName")
@@ -166,6 +205,14 @@ class NodeHistory(Poller):
             seen = self.nodes.setdefault(instance, [])
             if not seen or seen[-1] != node:
                 seen.append(node)
+        self.polls += 1  # once what it saw is in ``nodes`` (``caught_up`` counts on it)
+
+    def caught_up(self, timeout: float = 60) -> None:
+        """Return once a poll begun after this call has completed: the history holds where
+        every pod is now (a fixed sleep would not, when a loaded API server answers a poll
+        slower than the sleep)."""
+        start = self.polls  # a poll under way began before this call: wait for the next one
+        wait_for("a fresh poll of the pods", lambda: self.polls >= start + 2, timeout, 0.1)
 
     def moves(self) -> dict[str, int]:
         """Instance -> times its pod changed node (0: it stayed where it was first bound)."""

@@ -6,14 +6,25 @@ from __future__ import annotations
 
 import json
 import secrets
+import time
 from collections.abc import Iterator
 from contextlib import contextmanager
+from datetime import datetime
 from typing import Any
 
 from e2e.bed.kube import Kube
 from e2e.bed.operator_fixtures import CHART, OPERATOR_LABELS, helm, install_crds
 
-__all__ = ["RELEASE", "SYSTEM", "installed", "leader", "operator_pods", "running_pod_names"]
+__all__ = [
+    "RELEASE",
+    "SYSTEM",
+    "installed",
+    "kill_leader",
+    "leader",
+    "lease_time",
+    "operator_pods",
+    "running_pod_names",
+]  # fmt: skip
 
 RELEASE = "fogfleet"
 SYSTEM = "fogfleet-system"
@@ -34,6 +45,34 @@ def leader(kube: Kube) -> str | None:
         return None
     holder: str | None = json.loads(proc.stdout)["spec"].get("holderIdentity")
     return holder
+
+
+def lease_time(
+    kube: Kube, field: str, namespace: str = SYSTEM, name: str = "fogfleet-operator"
+) -> float:
+    """The Lease's ``spec.acquireTime`` or ``spec.renewTime`` as a Unix time: written by the
+    holder itself (microseconds), so a takeover is timed by the operator's own writes, not
+    by how fast a loaded machine lets the test notice it."""
+    lease = kube.kubectl_json("get", "lease", name, "-n", namespace)
+    return datetime.fromisoformat(lease["spec"][field]).timestamp()
+
+
+def kill_leader(kube: Kube, bound_s: float) -> tuple[str, float]:
+    """Delete the leader's pod with grace 0; returns the new leader and the failover time:
+    from the delete to the new holder's ``acquireTime`` (the pods run on this machine's
+    clock). The wait for it is longer than ``bound_s``: it only guards a hang, the caller
+    asserts the failover time against its bound."""
+    old = leader(kube)
+    assert old in running_pod_names(kube), (old, running_pod_names(kube))
+    killed = time.time()
+    kube.kubectl("delete", "pod", old, "-n", SYSTEM, "--grace-period=0", "--force", "--wait=false")
+    kube.wait_for(
+        "another leader",
+        lambda: leader(kube) not in (None, old) and leader(kube) in running_pod_names(kube),
+        bound_s + 60,
+        interval=0.5,
+    )
+    return str(leader(kube)), lease_time(kube, "acquireTime") - killed
 
 
 def running_pod_names(kube: Kube) -> set[str]:

@@ -93,10 +93,14 @@ class Rig:
 
     def tick(self) -> Obj:
         """One decision, then place its pools; returns the module's status."""
-        reconcile_scaling(self.module(), self.deps, time.time())
+        module = self.module()
+        # the history keeps the time the policy decided at, not when the test read the result:
+        # on a loaded machine the reads between them take a varying second or more
+        now, at = time.time(), time.monotonic()
+        reconcile_scaling(module, self.deps, now)
         status: Obj = self.module().get("status") or {}
         pools = {p["tier"]: p["replicas"] for p in (status.get("scaling") or {}).get("pools", [])}
-        self.history.append((time.monotonic(), pools))
+        self.history.append((at, pools))
         self.place(pools)
         return status
 

@@ -31,6 +31,7 @@ from e2e.tests.incluster import (
     RELEASE,
     SYSTEM,
     installed,
+    kill_leader,
     leader,
     operator_pods,
     running_pod_names,
@@ -91,8 +92,12 @@ def test_helm_upgrade_rolls_the_operator_without_touching_running_modules(
         180,
     )
     # the old leader released the Lease on its way out: a new pod leads
-    kube.wait_for("a new leader", lambda: leader(kube) in running_pod_names(kube), 30)
-    time.sleep(10)  # a resumed operator re-checks every fleet: give it the time to (not) act
+    # generous (the new pods run already; a released Lease is taken at once): guards a hang
+    kube.wait_for("a new leader", lambda: leader(kube) in running_pod_names(kube), 60)
+    # an observation window, not a wait: a resumed operator re-checks every fleet, and must
+    # not write a Deployment when it does (a loaded machine may make the window see less of
+    # it; it cannot make the test fail)
+    time.sleep(10)
     assert deployment_versions(kube, watched) == before
     wait_ready(kube, watched)
 
@@ -100,24 +105,14 @@ def test_helm_upgrade_rolls_the_operator_without_touching_running_modules(
 def test_killing_the_leader_mid_reconcile_hands_over_within_30_s_without_duplicates(
     kube: Kube, watched: str
 ) -> None:
-    old = leader(kube)
-    assert old in running_pod_names(kube)
     # a change that re-plans the whole fleet, then the leader dies at once
     patch = {"spec": {"scheduler": {"seed": 7}}}
     kube.kubectl("patch", "robotfleet", "warehouse", "-n", watched, "--type=merge",
                  "-p", json.dumps(patch))  # fmt: skip
     generation = fleet(kube, watched)["metadata"]["generation"]
-    t0 = time.monotonic()
-    kube.kubectl("delete", "pod", old, "-n", SYSTEM, "--grace-period=0", "--force", "--wait=false")
-    kube.wait_for(
-        "another leader",
-        lambda: leader(kube) not in (None, old) and leader(kube) in running_pod_names(kube),
-        30,
-        interval=0.5,
-    )
-    took = time.monotonic() - t0
-    print(f"failover: new leader {leader(kube)} after {took:.1f}s")
-    assert took <= 30
+    new, took = kill_leader(kube, 30)
+    print(f"failover: new leader {new} after {took:.1f}s")
+    assert took <= 30  # the chart's 15 s Lease, then the standby's retry
     kube.wait_for(
         "the new leader's reconcile",
         lambda: (fleet(kube, watched).get("status") or {}).get("observedGeneration") == generation,

@@ -73,6 +73,7 @@ def test_warehouse_runs_where_planned_replans_once_and_cleans_up(
 
     # one module's cycle time changes: one re-plan, the other modules keep their pods
     before_uids = {name: pod["metadata"]["uid"] for name, pod in pods.items()}
+    first_plan = f["status"].get("lastPlanTime")
     kube.kubectl(
         "patch",
         "softwaremodule",
@@ -83,12 +84,18 @@ def test_warehouse_runs_where_planned_replans_once_and_cleans_up(
         "-p",
         '{"spec": {"cycleTimeMillis": 450}}',
     )
+    # the second plan in the status (its Ready then says whether its rollout is done), not a
+    # fixed sleep after its Event (generous: 60 s only guards a hang)
     kube.wait_for(
-        "a second Planned event", lambda: len(events(kube, namespace, "Planned")) >= 2, 60
+        "a second Planned event and the status of its plan",
+        lambda: (
+            len(events(kube, namespace, "Planned")) >= 2
+            and fleet(kube, namespace)["status"].get("lastPlanTime") != first_plan
+        ),
+        60,
     )
-    time.sleep(2)  # let the rollout start before checking readiness again
     wait_ready(kube, namespace)
-    time.sleep(3)  # a burst would have made a third plan by now
+    time.sleep(3)  # an observation window: a burst would have made a third plan by now
     assert len(events(kube, namespace, "Planned")) == 2
     pods = assert_pods_where_planned(kube, namespace)
     status = fleet(kube, namespace)["status"]
