@@ -255,8 +255,8 @@ def _evolve(
 ) -> tuple[NDArray[np.int64], int, int, Stop]:
     """Run NSGA-II; the final population's genes, generations run, evaluations and why it
     stopped. The budget is checked after each generation: once ``clock()`` passes
-    ``budget_ends`` the evolution stops. fogfleet's configuration stops early once converged (``convergence``); the
-    paper's stand-in runs every generation."""
+    ``budget_ends`` the evolution stops. fogfleet's configuration also stops early once
+    converged (``convergence``); the paper's stand-in runs every generation."""
     mut = settings.mutation_percent / 100.0
     crossover = GeneCrossover("single_point" if paper else "uniform")
     mutation = GeneMutation(prob=1.0, per_gene=mut) if paper else GeneMutation(prob=mut)
