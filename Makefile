@@ -29,10 +29,13 @@ lint: venv ## ruff, mypy (strict on the pure core) and import-linter contracts
 	$(BIN)/lint-imports
 
 unit: venv ## Unit tests: the fast tier, each under 1 s (no cluster, no processes; tests/integration/conftest.py)
-	FOGFLEET_STRICT_UNIT=1 $(BIN)/pytest tests/unit -q -m "not integration"
+	FOGFLEET_STRICT_UNIT=1 $(BIN)/pytest tests/unit -q -m "not integration" --durations=10
 
 integration: venv ## Integration tests: rclpy workload processes, the operator under KopfRunner on a fake API, tests over 1 s
 	$(BIN)/pytest tests -q -m integration
+
+test-stress: venv ## The unit and integration tiers 5 times in random order while a burner keeps every core busy (~35 min; not part of make test): run it before you stop whenever you touch tests
+	$(BIN)/python tests/stress/run.py --runs $(or $(RUNS),5)
 
 test: venv lint crds-check docs-check cluster-tools unit integration chart-lint checkov dashboard-check images ## Everything CI runs: lint, CRD drift, docs check, unit and integration tests, chart lint, checkov, e2e on the local bed (real and kwok nodes); stops the bed after (KEEP_BED=1 keeps it)
 	@status=0; $(MAKE) --no-print-directory e2e || status=$$?; \

@@ -2,8 +2,8 @@
 
 The rule: a test is in the integration tier when it carries the ``integration`` marker; every
 other test under tests/ is a unit test, run by ``make unit`` (``pytest tests/unit -m "not
-integration"``) and held under 1 s each (tests/conftest.py's guard fails one over 3 s when
-FOGFLEET_STRICT_UNIT=1). A test belongs here when it
+integration"``) and held under 1 s each (tests/conftest.py's guard fails one over 3 s of CPU
+time when FOGFLEET_STRICT_UNIT=1). A test belongs here when it
 
 * starts real processes or ROS 2 nodes (rclpy, ``python -m ...``, worker processes);
 * runs the operator itself (KopfRunner against :mod:`fakeapi`);
