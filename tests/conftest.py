@@ -13,6 +13,11 @@ is its own and nearly the same on a quiet or a loaded machine. A unit test is me
 under 1 s; the guard allows three times that, while the tests that belong in the integration
 tier (1 s to 20 s each, measured) still show up. A test that sleeps or waits for long costs no
 CPU and passes the guard; the tier's other rule (no processes, no network) keeps those out.
+
+Hypothesis runs under the ``fogfleet`` profile: no per-example deadline and no ``too_slow``
+health check, both wall-clock verdicts that a loaded machine reaches. A test's own
+``@settings`` that names ``suppress_health_check`` replaces the profile's list, so such a
+test names ``too_slow`` itself.
 """
 
 from __future__ import annotations
@@ -22,6 +27,10 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
+from hypothesis import HealthCheck, settings
+
+settings.register_profile("fogfleet", deadline=None, suppress_health_check=[HealthCheck.too_slow])
+settings.load_profile("fogfleet")
 
 INTEGRATION = Path(__file__).parent / "integration"
 STRICT_ENV = "FOGFLEET_STRICT_UNIT"

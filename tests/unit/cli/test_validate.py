@@ -17,7 +17,9 @@ REPO = Path(__file__).resolve().parents[3]
 LITE = REPO / "manifests" / "examples" / "warehouse-lite"
 LITE_DOCS = [d for f in sorted(LITE.glob("*.yaml")) for d in yaml.safe_load_all(f.read_text()) if d]
 FUZZ = settings(
-    max_examples=30, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture]
+    max_examples=30,
+    deadline=None,
+    suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow],
 )
 
 
@@ -122,7 +124,9 @@ def _mutate(doc: Any, data: st.DataObject) -> Any:
 
 @pytest.mark.integration  # 300 validations of a whole fleet: about 10 s
 @settings(
-    max_examples=300, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture]
+    max_examples=300,
+    deadline=None,
+    suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow],
 )
 @given(data=st.data())
 def test_randomly_broken_cr_files_exit_0_or_2_naming_the_object(

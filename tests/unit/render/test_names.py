@@ -76,7 +76,9 @@ def _renamed(problem: Problem, fleet: str, robots: dict[str, str], mods: dict[st
 
 
 @settings(
-    max_examples=15, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture]
+    max_examples=15,
+    deadline=None,
+    suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow],
 )
 @given(data=st.data())
 def test_long_and_near_equal_names_stay_bounded_valid_and_distinct(catalog, problem, data):
