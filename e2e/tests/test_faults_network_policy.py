@@ -23,8 +23,9 @@ from __future__ import annotations
 import json
 import socket
 import subprocess
+import threading
 import time
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -143,16 +144,33 @@ class Listener:
         assert self.proc.stdout is not None
         first = self.proc.stdout.readline().strip()
         assert first == "ready", f"listener in {pod}: {first!r}"
+        self.lines: list[str] = []
+        self._reader = threading.Thread(target=self._read, daemon=True)
+        self._reader.start()
 
-    def heard(self) -> tuple[set[str], set[str]]:
+    def _read(self) -> None:
+        assert self.proc.stdout is not None
+        for line in self.proc.stdout:
+            self.lines.append(line.strip())
+
+    def _tags(self, kind: str) -> set[str]:
+        return {ln.split()[1] for ln in list(self.lines) if ln.startswith(f"{kind} ")}
+
+    def heard(self, expect_tcp: Iterable[str] = ()) -> tuple[set[str], set[str]]:
         """(UDP tags, TCP tags) it has received (its process in the pod runs on until its
-        time is up; the test's namespace goes with it)."""
-        time.sleep(2)  # the last datagrams, and kubectl relaying them
+        time is up; the test's namespace goes with it). ``expect_tcp``: the tags whose TCP
+        connection the sender saw accepted here; they are waited for (kubectl relays them
+        later on a loaded machine; 30 s only guards a hang), then one more second is a
+        window for the datagrams sent beside them."""
+        want = set(expect_tcp)
+        deadline = time.monotonic() + 30
+        while not want <= self._tags("tcp") and time.monotonic() < deadline:
+            time.sleep(0.1)
+        time.sleep(1)  # an observation window for the last datagrams, not a wait
         self.proc.terminate()
-        out, _ = self.proc.communicate(timeout=30)
-        udp = {ln.split()[1] for ln in out.splitlines() if ln.startswith("udp ")}
-        tcp = {ln.split()[1] for ln in out.splitlines() if ln.startswith("tcp ")}
-        return udp, tcp
+        self.proc.wait(timeout=30)
+        self._reader.join(timeout=30)
+        return self._tags("udp"), self._tags("tcp")
 
 
 def _send(
@@ -255,8 +273,8 @@ def test_a_robots_pods_reach_their_own_robot_and_the_shared_services_only(
     tcp.update(_send_from_host(host))
     udp_heard: set[str] = set()
     tcp_heard: set[str] = set()
-    for listener in listeners.values():
-        u, t = listener.heard()
+    for key, listener in listeners.items():
+        u, t = listener.heard({tag for tag, ok in tcp.items() if ok and tag.split(">")[1] == key})
         udp_heard |= u
         tcp_heard |= t
 
@@ -352,8 +370,10 @@ def test_the_shipped_operator_policy_admits_only_probes_and_metrics(
     tcp.update(_send(kube, namespace, pods["operator"], [(ip["client"], PORT, "op>client")]))
     tcp.update(_send_from_host([(ip["operator"], PORT, "host>op"),
                                 (ip["operator"], metrics, "host>op:metrics")]))  # fmt: skip
-    udp_op, tcp_op = op.heard()
-    udp_cl, tcp_cl = cl.heard()
+    udp_op, tcp_op = op.heard(
+        {tag for tag, ok in tcp.items() if ok and tag.split(">")[1] != "client"}
+    )
+    udp_cl, tcp_cl = cl.heard({tag for tag, ok in tcp.items() if ok and tag == "op>client"})
     matrix = {
         "client>op": (tcp["client>op"], "client>op" in udp_op),
         "client>op:probe": (tcp["client>op:probe"], None),
