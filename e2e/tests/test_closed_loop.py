@@ -141,8 +141,16 @@ def test_a_wrong_profile_is_learnt_and_the_module_re_planned(
         120,
         interval=1,
     )
+
+    # Ready may come before the on-board pods have finished terminating: their misses must
+    # not fall into the window (120 s only guards a hang)
+    def on_board_gone() -> bool:
+        pods = kube.kubectl_json("get", "pods", "-n", ns, "-l", f"fogfleet.io/module={MODULE}")
+        return all(p["spec"].get("nodeName") == EDGE for p in pods["items"])
+
+    kube.wait_for("the on-board localizer pods gone", on_board_gone, 120, interval=1)
     settled = time.monotonic()
-    time.sleep(35)
+    time.sleep(35)  # the measurement window (the query takes its last 33 s), not a wait
     after, cycles = _miss_rate(cluster, ns, int(time.monotonic() - settled) - 2)
     print(
         f"wrong profile to corrected placement {moved:.0f} s; measured miss rate on the edge "
