@@ -45,7 +45,10 @@ def learnt_corrections(
         if module is None:
             continue
         raw = module.model_dump(by_alias=True, mode="json", exclude_none=True)
-        learnt = correction(rows, declared_rows(raw, hardware), fleet.spec.drift.prior_cycles)
+        drift = fleet.spec.drift
+        learnt = correction(
+            rows, declared_rows(raw, hardware), drift.prior_cycles, min_cycles=drift.min_cycles
+        )
         for hw, got in learnt.items():
             out[(name, hw)] = got
     return out

@@ -320,9 +320,9 @@ def _adopt(
         timing = (
             timings(watch.problem, watch.placement, name) if watch.placement is not None else {}
         )
-        factors = correction(
-            obs, declared_rows(raw, watch.hardware), watch.settings.prior_cycles, timing
-        )
+        declared = declared_rows(raw, watch.hardware)
+        drift = watch.settings
+        factors = correction(obs, declared, drift.prior_cycles, timing, drift.min_cycles)
         if not factors:
             continue
         d = states[name]

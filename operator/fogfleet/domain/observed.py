@@ -36,6 +36,27 @@ planner adds it to each row's std and gives a module the CPU that leaves room fo
 the mean alone misses (``mu >= T``) or half the cycles miss, the factor explains it and the
 observation adds no noise.
 
+**Evidence** (issue 49: a loop that never moves on noise). The noise is a fit to a tail, and a
+tail is measured by its misses, which are few: 2 misses in 140 cycles say the share is
+somewhere between 0.5 % and 4 %. A re-plan moves a module off the hardware type whose noise it
+learnt toward one it never ran on (whose noise is the prior's, none), so a noise fitted to
+the ratio of a few misses moves modules on luck. So the learnt noise is the one the evidence
+certainly shows:
+
+- each row's sigma is fitted to the lower end of the one-sided 95 % confidence bound of its
+  share of misses over the cycles seen (``miss_share_bound``: the Wilson score bound of a
+  binomial share), not to the ratio; a well-measured share barely moves (486 of 5400: 9.0 %
+  -> 8.4 %), a few misses fall far (2 of 140: 1.4 % -> 0.5 %);
+- a hardware type's noise counts only from ``spec.drift.minCycles`` cycles there (default
+  1000, a 10 Hz module's 100 s: at 1 % missed, ten misses to fit the tail to); until then the
+  prior (no noise) stands.
+
+The factor is a mean, not a tail: it is measured by every sample, is already held back by the
+prior, and a large error (a module four times slower than declared, which misses nearly every
+cycle) still corrects the profile at once. The predicted gain of a move is the planner's, on
+rows so corrected, and a move must beat the migration margin, and twice it to return an
+instance to the node it was last moved off (``scheduling.stickiness``: no back and forth).
+
 **Drift** is a module's measured miss rate above the plan's prediction by more than what the
 module can afford (:func:`miss_budget`), which its real-time class decides
 (multi-robot-edge-cloud-scheduling III-A 2: a hard real-time module's missed deadline "can
@@ -63,12 +84,14 @@ from statistics import NormalDist
 import numpy as np
 from numpy.typing import NDArray
 
+from fogfleet.api.v1alpha1.observed import DriftSettings
 from fogfleet.api.v1alpha1.softwaremodule import RealtimeClass, Taxonomy, must_run_on_board
 
 from .problem import Problem
 from .rows import Learnt, ProfileRow
 
 __all__ = [
+    "MIN_CYCLES",
     "SOFT_BUDGET",
     "Z95",
     "MissBudget",
@@ -81,10 +104,12 @@ __all__ = [
     "drift_due",
     "drifting",
     "miss_budget",
+    "miss_share_bound",
     "timings",
 ]
 
 Z95 = 1.645  # the normal distribution's 95th percentile, in standard deviations
+MIN_CYCLES = int(DriftSettings.model_fields["min_cycles"].default)  # spec.drift.minCycles
 
 
 @dataclass(frozen=True)
@@ -124,7 +149,7 @@ class MissBudget:
     realtime: str  # its class, as people say it: "hard real-time", "soft real-time", ...
 
     def describe(self) -> str:
-        """"0.05 points (hard real-time)"."""
+        """ "0.05 points (hard real-time)"."""
         return f"{self.allowance * 100:.3g} points ({self.realtime})"
 
 
@@ -204,16 +229,46 @@ def timings(problem: Problem, placement: NDArray[np.integer], module: str) -> di
     }
 
 
+def miss_share_bound(missed: float, cycles: float, z: float = Z95) -> float:
+    """The lower end of the one-sided confidence bound (``z`` std, 95 % by default) of the
+    share of missed cycles, ``missed`` of ``cycles``: the Wilson score bound of a binomial
+    share (each cycle misses or not; III-D's miss probability is that share's model). A few
+    misses in a few hundred cycles bound the share far below their ratio; a well-measured
+    share keeps its ratio."""
+    if cycles <= 0:
+        return 0.0
+    p, zz = min(max(missed / cycles, 0.0), 1.0), z * z
+    centre = p + zz / (2 * cycles)
+    half = z * math.sqrt(p * (1 - p) / cycles + zz / (4 * cycles * cycles))
+    return max(0.0, (centre - half) / (1 + zz / cycles))
+
+
 def correction(
     observations: Iterable[Observation],
     declared: Mapping[str, Sequence[ProfileRow]],
     prior: float,
     timing: Mapping[str, Timing] | None = None,
+    min_cycles: float = MIN_CYCLES,
 ) -> dict[str, tuple[Learnt, float]]:
     """Hardware type -> (correction, measured cycles) for the observations of one module (see
     the module docstring); types without a declared row or a measured cycle have none. The
-    noise needs the module's ``timing`` on the type (none: no noise learnt there)."""
+    noise needs the module's ``timing`` on the type (none: no noise learnt there) and
+    ``min_cycles`` cycles there (fewer: none learnt; see "Evidence" in the module docstring)."""
     seen = list(observations)
+    factors = _factors(seen, declared, prior)
+    noise = _noise(seen, declared, timing or {}, factors)
+    out = {}
+    for hw, (factor, n) in sorted(factors.items()):
+        m, var = noise.get(hw, (0.0, 0.0))
+        sigma = math.sqrt(var / (prior + m)) if m >= max(min_cycles, 1.0) else 0.0
+        out[hw] = (Learnt(factor, sigma), n)
+    return out
+
+
+def _factors(
+    seen: Sequence[Observation], declared: Mapping[str, Sequence[ProfileRow]], prior: float
+) -> dict[str, tuple[float, float]]:
+    """Hardware type -> (factor, measured count): the blend of the module docstring."""
     sums: dict[str, tuple[float, float]] = {}
     for obs in seen:
         row = declared_row(declared.get(obs.hardware_type, ()), obs.cpu)
@@ -221,23 +276,29 @@ def correction(
             continue
         n, weighted = sums.get(obs.hardware_type, (0.0, 0.0))
         sums[obs.hardware_type] = (n + obs.count, weighted + obs.count * obs.mean / row.mean)
-    factors = {hw: (prior + weighted) / (prior + n) for hw, (n, weighted) in sums.items()}
-    noise: dict[str, tuple[float, float]] = {}  # hw -> (cycles, sum of cycles x sigma^2)
+    return {hw: ((prior + w) / (prior + n), n) for hw, (n, w) in sums.items()}
+
+
+def _noise(
+    seen: Sequence[Observation],
+    declared: Mapping[str, Sequence[ProfileRow]],
+    timing: Mapping[str, Timing],
+    factors: Mapping[str, tuple[float, float]],
+) -> dict[str, tuple[float, float]]:
+    """Hardware type -> (cycles, sum of cycles x sigma^2), each row's sigma fitted to the
+    lower end of its miss share's confidence bound (``miss_share_bound``)."""
+    noise: dict[str, tuple[float, float]] = {}
     for obs in seen:
-        hw, t = obs.hardware_type, (timing or {}).get(obs.hardware_type)
+        hw, t = obs.hardware_type, timing.get(obs.hardware_type)
         row = declared_row(declared.get(hw, ()), obs.cpu)
         if t is None or row is None or hw not in factors or obs.cycles < 1:
             continue
-        sigma = cycle_noise(obs.missed / obs.cycles, t, Learnt(factors[hw]).row(row))
+        share = miss_share_bound(obs.missed, obs.cycles)
+        sigma = cycle_noise(share, t, Learnt(factors[hw][0]).row(row))
         if sigma is not None:
             n, weighted = noise.get(hw, (0.0, 0.0))
             noise[hw] = (n + obs.cycles, weighted + obs.cycles * sigma * sigma)
-    out = {}
-    for hw, (n, _) in sorted(sums.items()):
-        m, var = noise.get(hw, (0.0, 0.0))
-        sigma = math.sqrt(var / (prior + m)) if m > 0 else 0.0
-        out[hw] = (Learnt(factors[hw], sigma), n)
-    return out
+    return noise
 
 
 def drifting(predicted: float, measured: float | None, budget: MissBudget) -> bool:

@@ -8,7 +8,8 @@ deploys:
 2. the plan must place every placeable instance and hold (F1-F3 constraints; paper IV-A),
    else ``Infeasible`` explains it by node and resource;
 3. the migration-margin rule keeps running modules where they are unless the new plan is
-   better by the margin (``stickiness.keep_running``);
+   better by the margin, and by twice it to return one to the node it was last moved off
+   (``stickiness.keep_running``; ``Decision.left`` remembers those nodes);
 4. the objectives reported are those of the placement deployed, not of the solver's proposal.
 
 The controller keeps the returned ``Decision`` by fingerprint and recomputes nothing.
@@ -91,6 +92,10 @@ class Decision:
     why_full: str = ""  # why a fleet planned before was planned in full ("" for a first plan)
     seconds: float = 0.0  # wall time of the planning
     cpu_seconds: float = 0.0  # this thread's CPU time of it (beside the wall: what it waited)
+    left: dict[str, str] = field(default_factory=dict)
+    """Instance label -> the node the migration-margin rule last moved it off (hysteresis:
+    a return there needs twice the margin). Kept with the decision, in memory: after a restart
+    the first re-plan has none."""
 
 
 def with_defaults(given: SchedulerSettings, defaults: Mapping[str, int]) -> SchedulerSettings:
@@ -137,7 +142,8 @@ def decide(
     if unplaced or not feasible(problem, placement, with_limits):
         message = infeasible_message(problem, placement, schedule.reasons)
         raise Infeasible(f"RobotFleet/{fleet}", "spec", message)
-    stick = stickiness.keep_running(problem, placement, settings, with_limits)
+    left = _left_nodes(problem, last)
+    stick = stickiness.keep_running(problem, placement, settings, with_limits, left)
     chosen = stick.placement
     plan_id = hashlib.sha256(f"{fp}:{chosen.tobytes().hex()}".encode()).hexdigest()[:12]
     reason = schedule.choice_reason
@@ -167,7 +173,28 @@ def decide(
         why_full,
         seconds,
         cpu,
+        _remember(problem, last, stick),
     )
+
+
+def _left_nodes(problem: Problem, last: Decision | None) -> NDArray[np.int64]:
+    """(I,) the node index each instance was last moved off (``Decision.left``), -1: none."""
+    index = {n.name: j for j, n in enumerate(problem.nodes)}
+    before = last.left if last is not None else {}
+    names = (before.get(problem.label(i), "") for i in range(problem.n_instances))
+    return np.array([index.get(name, -1) for name in names], dtype=np.int64)
+
+
+def _remember(
+    problem: Problem, last: Decision | None, stick: stickiness.Stickiness
+) -> dict[str, str]:
+    """``Decision.left`` after this decision: the last one's, and the nodes the instances it
+    moved ran on."""
+    labels = {problem.label(i) for i in range(problem.n_instances)}
+    left = {k: v for k, v in (last.left if last is not None else {}).items() if k in labels}
+    for i in stick.migrations:
+        left[problem.label(i)] = problem.nodes[int(problem.current[i])].name
+    return left
 
 
 def _incremental(

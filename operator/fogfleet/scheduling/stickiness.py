@@ -7,6 +7,14 @@ running instance stays where it is unless the new plan is better by
 ``migrationMarginPercent`` on the fleet's first objective (by default the predicted miss
 rate): secondary objectives such as on-board use or balance never justify disturbing a running
 module.
+
+**Hysteresis** (issue 49). A plan that returns a running instance to the node it was last
+moved off must be better by twice the margin (and twice ``ABS_TOLERANCE``): the return pays
+for the move that took it away and for its own. Under one model no two placements can each
+beat the other by the margin, but the model changes between re-plans: a module moved off a
+node for the cycle noise learnt there starts measuring its new node afresh, while the old
+node keeps what was learnt. A return then needs a gain the noise of one estimate does not
+give; what the noise may fit is held back where it is learnt (``domain.observed``).
 """
 
 from __future__ import annotations
@@ -43,6 +51,8 @@ log = logging.getLogger(__name__)
 I64 = NDArray[np.int64]
 # Below this absolute difference two objective values count as equal (miss rates near zero).
 ABS_TOLERANCE = 1e-3
+# How many times the margin a plan must beat to return an instance to the node it left.
+HYSTERESIS = 2.0
 
 
 def fingerprint(problem: Problem, settings: SchedulerSettings) -> str:
@@ -140,16 +150,20 @@ def release_robots(problem: Problem, robots: Collection[int]) -> Problem:
 
 
 def _better(
-    new: Mapping[str, float], old: Mapping[str, float], names: Sequence[str], margin: float
+    new: Mapping[str, float],
+    old: Mapping[str, float],
+    names: Sequence[str],
+    margin: float,
+    scale: float = 1.0,
 ) -> tuple[bool, str]:
     """Lexicographic comparison with a relative margin: the first objective that differs by more
-    than ``margin`` (and ABS_TOLERANCE) decides."""
+    than ``margin`` (and ABS_TOLERANCE), both times ``scale``, decides."""
     for name in names:
         a, b = new.get(name), old.get(name)
         if a is None or b is None or not (np.isfinite(a) and np.isfinite(b)):
             continue
         diff = b - a
-        if abs(diff) <= max(ABS_TOLERANCE, margin * abs(b)):
+        if abs(diff) <= scale * max(ABS_TOLERANCE, margin * abs(b)):
             continue
         return diff > 0, f"{name} {b:.4g} -> {a:.4g}"
     return False, "no objective improves by more than the margin"
@@ -254,13 +268,27 @@ def _revert(problem: Problem, new: I64, cur: I64, usable: NDArray[np.bool_]) -> 
     return x
 
 
+def _returning(moved: Sequence[int], new: I64, left: I64 | None) -> bool:
+    """Whether ``new`` returns one of the ``moved`` instances to the node it last left."""
+    if left is None or not moved:
+        return False
+    idx = np.asarray(moved, dtype=np.int64)
+    return bool(((new[idx] == left[idx]) & (left[idx] >= 0)).any())
+
+
 def keep_running(
-    problem: Problem, new: I64, settings: SchedulerSettings, with_limits: bool = True
+    problem: Problem,
+    new: I64,
+    settings: SchedulerSettings,
+    with_limits: bool = True,
+    left: I64 | None = None,
 ) -> Stickiness:
     """Prefer the current placement of running instances over ``new`` unless ``new`` is
-    better by the migration margin. Instances without a usable current node are placed
-    around the running ones (``new``'s node when it has room). ``with_limits``: the plan's
-    allocation (False for plans made for the nominal one, such as onboard)."""
+    better by the migration margin (twice it when ``new`` returns an instance to the node it
+    was last moved off, ``left``: (I,), -1 for none; module docstring). Instances without a
+    usable current node are placed around the running ones (``new``'s node when it has room).
+    ``with_limits``: the plan's allocation (False for plans made for the nominal one, such as
+    onboard)."""
     new = np.asarray(new, dtype=np.int64)
     cur = problem.current
     rows = np.arange(problem.n_instances)
@@ -279,7 +307,11 @@ def keep_running(
     if (sticky >= 0).sum() == (new >= 0).sum() and feasible(problem, sticky, with_limits):
         a = objective_values(problem, new, with_limits, names)
         b = objective_values(problem, sticky, with_limits, names)
-        better, why = _better(a, b, names, settings.migration_margin_percent / 100.0)
+        back = _returning(moved, new, left)
+        margin = settings.migration_margin_percent / 100.0
+        better, why = _better(a, b, names, margin, HYSTERESIS if back else 1.0)
+        if back:
+            why = f"{why}, returning to a node it left (twice the margin)"
         if not better:
             note = f"; {len(kept)} had to move to make room" if kept else ""
             return Stickiness(sticky, kept, True, f"kept running modules in place ({why}){note}")

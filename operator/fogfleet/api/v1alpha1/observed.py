@@ -40,6 +40,10 @@ class DriftSettings(FogModel):
     prior_cycles: Annotated[int, Field(ge=0, le=1000000)] = 100
     """Weight of the declared profile in the blend, as a number of measured cycles: the
     correction is (prior x 1 + n x measured/declared) / (prior + n)."""
+    min_cycles: Annotated[int, Field(ge=0, le=100000000)] = 1000
+    """Cycles measured on a hardware type before the cycle noise learnt there counts (fewer:
+    the prior, no noise). A noise is fitted to a tail, and a few misses in a few hundred cycles
+    move modules on luck; the factor is not held back by it."""
 
 
 class ObservedRow(FogModel):
