@@ -98,3 +98,52 @@ def test_an_exponent_number_field_is_accepted(tmp_path: Path) -> None:
             (tmp_path / f.name).write_text(f.read_text())
     catalog = load_paths([tmp_path])
     assert any(m.spec.cycle_time_millis == 100 for m in catalog.modules.values())
+
+
+@pytest.mark.parametrize("codec", ["utf-16-le", "utf-16-be"])
+def test_utf16_with_a_byte_order_mark_is_read_as_kubectl_reads_it(
+    tmp_path: Path, codec: str
+) -> None:
+    # kubectl: unicode.BOMOverride(unicode.UTF8.NewDecoder()) on every file it reads
+    path = tmp_path / "utf16.yaml"
+    path.write_bytes(("\ufeffkind: ComputeNode\nmetadata: {name: géant}\n").encode(codec))
+    assert read_documents(path) == [{"kind": "ComputeNode", "metadata": {"name": "géant"}}]
+
+
+def test_broken_utf16_names_the_file_the_encoding_and_the_line(tmp_path: Path) -> None:
+    path = tmp_path / "utf16.yaml"
+    path.write_bytes("\ufeffa: 1\nb: 2\n".encode("utf-16-le") + b"\x00\xdc")  # a lone surrogate
+    with pytest.raises(InvalidSpec) as info:
+        read_documents(path)
+    assert info.value.obj == str(path)
+    assert "not UTF-16 LE" in info.value.message and "line 3" in info.value.message
+    assert "UTF-8 only" not in info.value.message  # kubectl reads UTF-16 with a BOM too
+
+
+def test_json_indented_with_tabs_is_read(tmp_path: Path) -> None:
+    path = tmp_path / "node.json"
+    path.write_text('{\n\t"kind": "ComputeNode",\n\t"spec": {"cpu": 1e3, "path": "a\\/b"}\n}\n')
+    want = {"kind": "ComputeNode", "spec": {"cpu": 1000.0, "path": "a/b"}}
+    assert read_documents(path) == [want]
+
+
+def test_a_json_stream_of_objects_is_every_object(tmp_path: Path) -> None:
+    path = tmp_path / "two.json"
+    path.write_text('{"a": 1}\n{"b": 2}')
+    assert read_documents(path) == [{"a": 1}, {"b": 2}]
+
+
+@pytest.mark.parametrize(
+    ("text", "why"),
+    [
+        ('{"a": 1,\n "a": 2}', "duplicate key 'a'"),
+        ('{"a": NaN}', "NaN is not a JSON number"),
+        ('{"a": 1,\n "b": }', "not valid JSON"),
+    ],
+)
+def test_bad_json_is_refused_naming_the_file(tmp_path: Path, text: str, why: str) -> None:
+    path = tmp_path / "bad.json"
+    path.write_text(text)
+    with pytest.raises(InvalidSpec) as info:
+        read_documents(path)
+    assert info.value.obj == str(path) and why in info.value.message
