@@ -1,4 +1,5 @@
-"""Read CR YAML (files or folders) into typed objects, with errors that name object and field."""
+"""Read CR YAML and JSON (files or folders) into typed objects, with errors that name object and
+field, and remember the objects of other API groups, to name them when a fleet misses one."""
 
 from __future__ import annotations
 
@@ -16,13 +17,47 @@ from .v1alpha1.computenode import ComputeNode
 from .v1alpha1.robotfleet import RobotFleet
 from .v1alpha1.softwaremodule import SoftwareModule
 
-__all__ = ["Catalog", "describe_validation_error", "load_paths", "parse_object"]
+__all__ = [
+    "GROUP",
+    "Catalog",
+    "Skipped",
+    "describe_validation_errors",
+    "load_paths",
+    "parse_object",
+]
+
+GROUP = "fogfleet.io"
+API_VERSION = f"{GROUP}/v1alpha1"
+# what kubectl reads from a folder (cli-runtime's FileExtensions)
+EXTENSIONS = (".json", ".yaml", ".yml")
 
 KINDS: dict[str, type[ComputeNode] | type[SoftwareModule] | type[RobotFleet]] = {
     "ComputeNode": ComputeNode,
     "SoftwareModule": SoftwareModule,
     "RobotFleet": RobotFleet,
 }
+
+
+@dataclass(frozen=True)
+class Skipped:
+    """An object read but not fogfleet's: its API group is not fogfleet.io (a Namespace, or a
+    ComputeNode whose apiVersion is misspelt), so nothing checks or plans it."""
+
+    kind: str
+    name: str
+    api_version: str
+    source: str
+
+    def __str__(self) -> str:
+        return f"{self.kind}/{self.name}"
+
+    @property
+    def why(self) -> str:
+        """Why it was skipped: its apiVersion, and whether the kind would have been ours."""
+        version = f"apiVersion {self.api_version}" if self.api_version else "no apiVersion"
+        if self.kind in KINDS:
+            return f"{version}, which is not {GROUP}'s group"
+        return f"kind {self.kind or '(none)'} and {version}, not a {GROUP} object"
 
 
 @dataclass
@@ -32,7 +67,8 @@ class Catalog:
     nodes: dict[str, ComputeNode] = field(default_factory=dict)
     modules: dict[tuple[str, str], SoftwareModule] = field(default_factory=dict)
     fleets: list[RobotFleet] = field(default_factory=list)
-    ignored: list[str] = field(default_factory=list)
+    ignored: list[Skipped] = field(default_factory=list)
+    """Objects of other API groups, skipped."""
     sources: dict[tuple[str, str, str], str] = field(default_factory=dict)
     """(kind, namespace, name) -> where it was read (a file), to name both places of a
     duplicate."""
@@ -58,6 +94,17 @@ class Catalog:
     def module(self, namespace: str, name: str) -> SoftwareModule | None:
         return self.modules.get((namespace, name))
 
+    def missing(self, what: str, name: str) -> str:
+        """Why a reference to ``name`` (shown as ``what``, e.g. ``ComputeNode 'edge-1'``) finds
+        nothing: it does not exist, and which skipped object of that name may have been
+        meant (its group misspelt, say)."""
+        hints = [
+            f"{s.source or 'a file'} defines {s.name} with {s.why}"
+            for s in sorted(self.ignored, key=lambda s: s.kind not in KINDS)
+            if s.name == name
+        ]
+        return "; ".join([f"{what} does not exist", *hints])
+
 
 def _loc(loc: Iterable[int | str]) -> str:
     out = ""
@@ -73,9 +120,7 @@ def _loc(loc: Iterable[int | str]) -> str:
     return out
 
 
-def describe_validation_error(exc: ValidationError) -> tuple[str, str]:
-    """The first error's dotted field path and a readable reason."""
-    err = exc.errors(include_url=False)[0]
+def _describe(err: Mapping[str, Any]) -> tuple[str, str]:
     path = _loc(err["loc"])
     msg = str(err["msg"])
     if msg.startswith("Value error, "):
@@ -91,25 +136,61 @@ def describe_validation_error(exc: ValidationError) -> tuple[str, str]:
     return path, msg
 
 
-def parse_object(doc: Mapping[str, Any]) -> ComputeNode | SoftwareModule | RobotFleet:
-    """Validate one CR dict; raise InvalidSpec naming Kind/name and the field."""
+def describe_validation_errors(exc: ValidationError) -> list[tuple[str, str]]:
+    """Every error's dotted field path and a readable reason, one per field (a value that fits
+    no branch of a union is one error, not one per branch)."""
+    out: dict[str, str] = {}
+    for err in exc.errors(include_url=False):
+        path, msg = _describe(err)
+        out.setdefault(path, msg)
+    return list(out.items())
+
+
+Model = type[ComputeNode] | type[SoftwareModule] | type[RobotFleet]
+
+
+def _model_of(doc: Mapping[str, Any]) -> tuple[Model, str]:
+    """The model of a CR dict and its ``Kind/name``; InvalidSpec for a kind or apiVersion that
+    is not fogfleet's."""
     kind = str(doc.get("kind", ""))
     meta = doc.get("metadata") or {}
     name = meta.get("name", "?") if isinstance(meta, Mapping) else "?"
     model = KINDS.get(kind)
     if model is None:
         raise InvalidSpec(f"{kind or '<no kind>'}/{name}", "kind", f"unknown kind {kind!r}")
-    if doc.get("apiVersion") != "fogfleet.io/v1alpha1":
+    if doc.get("apiVersion") != API_VERSION:
         raise InvalidSpec(
             f"{kind}/{name}",
             "apiVersion",
-            f"must be fogfleet.io/v1alpha1, not {doc.get('apiVersion')!r}",
+            f"must be {API_VERSION}, not {doc.get('apiVersion')!r}",
         )
+    return model, f"{kind}/{name}"
+
+
+def parse_object(doc: Mapping[str, Any]) -> ComputeNode | SoftwareModule | RobotFleet:
+    """Validate one CR dict; raise InvalidSpec naming Kind/name and the (first bad) field."""
+    model, obj = _model_of(doc)
     try:
         return model.model_validate(dict(doc))
     except ValidationError as exc:
-        path, msg = describe_validation_error(exc)
-        raise InvalidSpec(f"{kind}/{name}", path, msg) from exc
+        path, msg = describe_validation_errors(exc)[0]
+        raise InvalidSpec(obj, path, msg) from exc
+
+
+def _parse_in(
+    doc: Mapping[str, Any], where: str
+) -> ComputeNode | SoftwareModule | RobotFleet | list[InvalidSpec]:
+    """``parse_object``, or every error of the object (each bad field), naming the file too."""
+    try:
+        model, obj = _model_of(doc)
+        return model.model_validate(dict(doc))
+    except InvalidSpec as exc:
+        return [type(exc)(exc.obj, exc.field, f"{exc.message} (in {where})")]
+    except ValidationError as exc:
+        return [
+            InvalidSpec(obj, path, f"{msg} (in {where})")
+            for path, msg in describe_validation_errors(exc)
+        ]
 
 
 def _files(paths: Iterable[str | Path]) -> list[Path]:
@@ -117,7 +198,7 @@ def _files(paths: Iterable[str | Path]) -> list[Path]:
     for raw in paths:
         p = Path(raw)
         if p.is_dir():
-            found = (q for q in p.rglob("*") if q.suffix in (".yaml", ".yml") and q.is_file())
+            found = (q for q in p.rglob("*") if q.suffix in EXTENSIONS and q.is_file())
             out.extend(sorted(found))
         elif p.exists():
             out.append(p)
@@ -148,23 +229,22 @@ def _objects(doc: Any, where: str) -> Iterator[tuple[str, Mapping[str, Any]]]:
     yield where, doc
 
 
-def _parse_in(obj: Mapping[str, Any], where: str) -> ComputeNode | SoftwareModule | RobotFleet:
-    try:
-        return parse_object(obj)
-    except InvalidSpec as exc:  # the same error, naming the file too
-        raise type(exc)(exc.obj, exc.field, f"{exc.message} (in {where})") from exc
-
-
-def _name_of(doc: Mapping[str, Any]) -> str:
+def _skipped(doc: Mapping[str, Any], where: str) -> Skipped:
     meta = doc.get("metadata")
-    return f"{doc.get('kind')}/{meta.get('name') if isinstance(meta, Mapping) else None}"
+    name = meta.get("name") if isinstance(meta, Mapping) else None
+    return Skipped(
+        str(doc.get("kind") or ""), str(name or "?"), str(doc.get("apiVersion") or ""), where
+    )
 
 
 def load_paths(paths: Iterable[str | Path], errors: list[InvalidSpec] | None = None) -> Catalog:
-    """Read every fogfleet object from YAML files or folders; other kinds are ignored.
+    """Read every fogfleet object from YAML or JSON files or folders (a folder's ``.yaml``,
+    ``.yml`` and ``.json`` files, as ``kubectl apply -f``); objects of other API groups are
+    skipped, and kept in ``Catalog.ignored``.
 
     Without ``errors`` the first bad input raises :class:`InvalidSpec`; with it, every bad file
-    or object is appended there and the rest is still read (``fogfleet validate``)."""
+    or field of an object is appended there and the rest is still read (``fogfleet
+    validate``)."""
     catalog = Catalog()
 
     def refuse(exc: InvalidSpec) -> None:
@@ -186,10 +266,15 @@ def load_paths(paths: Iterable[str | Path], errors: list[InvalidSpec] | None = N
         for doc in docs:
             try:
                 for where, obj in _objects(doc, str(path)):
-                    if str(obj.get("apiVersion", "")).split("/")[0] != "fogfleet.io":
-                        catalog.ignored.append(_name_of(obj))
+                    if str(obj.get("apiVersion", "")).split("/")[0] != GROUP:
+                        catalog.ignored.append(_skipped(obj, where))
                         continue
-                    catalog.add(_parse_in(obj, where), where)
+                    parsed = _parse_in(obj, where)
+                    if isinstance(parsed, list):
+                        for bad in parsed:
+                            refuse(bad)
+                        continue
+                    catalog.add(parsed, where)
             except InvalidSpec as exc:
                 refuse(exc)
     return catalog

@@ -88,7 +88,7 @@ def _bench_page(args: argparse.Namespace) -> int:
     from fogfleet.bench.scheduling import format_table
 
     if not args.records:
-        raise SystemExit("fogfleet bench page: --records names no record file")
+        raise InvalidSpec("fogfleet bench page", "--records", "names no record file")
     records = [read_record(Path(p)) for p in args.records.split(",")]
     tables: dict[str, Callable[[Any], str]] = {
         "scheduling": suite.format_scheduling,
@@ -132,12 +132,25 @@ def _settings_epilog() -> str:
     return "\n".join(lines)
 
 
+def _positive(kind: Callable[[str], float]) -> Callable[[str], float]:
+    """An argparse type: a number above zero (argparse then exits 2 naming the option)."""
+
+    def parse(text: str) -> float:
+        value = kind(text)  # a ValueError: argparse says "invalid float value: 'x'"
+        if not value > 0:  # also refuses nan
+            raise argparse.ArgumentTypeError(f"must be greater than zero, not {text}")
+        return value
+
+    parse.__name__ = kind.__name__
+    return parse
+
+
 def _parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="fogfleet", description=__doc__.split("\n\n")[0])
     sub = p.add_subparsers(dest="command", required=True)
 
     def fleet_args(sp: argparse.ArgumentParser, scheduler_choices: Sequence[str]) -> None:
-        sp.add_argument("paths", nargs="+", help="CR YAML files or folders")
+        sp.add_argument("paths", nargs="+", help="CR YAML or JSON files or folders")
         sp.add_argument("--fleet", help="only this RobotFleet (by name)")
         sp.add_argument(
             "--scheduler", choices=scheduler_choices, help="override spec.scheduler.algorithm"
@@ -146,7 +159,9 @@ def _parser() -> argparse.ArgumentParser:
         sp.add_argument("--population", type=int, help="override spec.scheduler.population")
         sp.add_argument("--generations", type=int, help="override spec.scheduler.generations")
         sp.add_argument(
-            "--time-budget", type=float, help="seconds; override spec.scheduler.timeBudgetMillis"
+            "--time-budget",
+            type=_positive(float),
+            help="seconds; override spec.scheduler.timeBudgetMillis",
         )
 
     sp = sub.add_parser("plan", help="print the placement table and objectives")
@@ -157,7 +172,9 @@ def _parser() -> argparse.ArgumentParser:
 
     sp = sub.add_parser("simulate", help="simulate plans and print missed-cycle rates")
     fleet_args(sp, (*SCHEDULERS, "all"))
-    sp.add_argument("--duration", type=float, default=120.0, help="simulated seconds (default 120)")
+    sp.add_argument(
+        "--duration", type=_positive(float), default=120.0, help="simulated seconds (default 120)"
+    )
     sp.add_argument(
         "--all-active",
         action="store_true",
@@ -176,7 +193,7 @@ def _parser() -> argparse.ArgumentParser:
     )
     sp.add_argument(
         "--window",
-        type=int,
+        type=_positive(int),
         default=600,
         help="seconds of measurements with --from-prometheus (default 600)",
     )
@@ -187,7 +204,9 @@ def _parser() -> argparse.ArgumentParser:
     fleet_args(sp, SCHEDULERS)
     sp.add_argument("--module", required=True, help="the SoftwareModule to explain")
     sp.add_argument("--robot", help="only this robot's instance")
-    sp.add_argument("--limit", type=int, default=50, help="instances explained at most (50)")
+    sp.add_argument(
+        "--limit", type=_positive(int), default=50, help="instances explained at most (50)"
+    )
     sp.add_argument("-o", "--output", choices=("table", "json", "yaml"), default="table")
     sp.set_defaults(func=cmd_explain)
 
@@ -203,7 +222,7 @@ def _parser() -> argparse.ArgumentParser:
     sp = sub.add_parser(
         "validate", help="check CR YAML as `plan` does, plan nothing; exit 0 (OK) or 2 (errors)"
     )
-    sp.add_argument("paths", nargs="+", help="CR YAML files or folders")
+    sp.add_argument("paths", nargs="+", help="CR YAML or JSON files or folders")
     sp.set_defaults(func=cmd_validate)
 
     sp = sub.add_parser("crds", help="write (or check) the CRD YAML generated from the models")

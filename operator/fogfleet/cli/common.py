@@ -52,11 +52,28 @@ def settings_of(
     if seed is not None:
         update["seed"] = seed
     for attr in ("population", "generations"):
-        if getattr(args, attr, None):
+        if getattr(args, attr, None) is not None:  # 0 too: the spec's bounds refuse it
             update[attr] = getattr(args, attr)
-    if getattr(args, "time_budget", None):
+    if getattr(args, "time_budget", None) is not None:
         update["time_budget_millis"] = int(args.time_budget * 1000)
-    return s.model_copy(update=update) if update else s
+    if not update:
+        return s
+    from pydantic import ValidationError
+
+    from fogfleet.api.loader import describe_validation_errors
+
+    try:  # model_copy does not validate: the spec's bounds hold for the options too
+        fields = type(s).model_fields
+        aliased = {fields[k].alias or k: v for k, v in update.items()}
+        return type(s).model_validate({**s.model_dump(by_alias=True), **aliased})
+    except ValidationError as exc:
+        path, msg = describe_validation_errors(exc)[0]
+        flag = {"timeBudgetMillis": "time-budget", "algorithm": "scheduler"}.get(path, path)
+        raise InvalidSpec(
+            f"RobotFleet/{fleet.metadata.name}",
+            f"spec.scheduler.{path}",
+            f"{msg} (given by --{flag})",
+        ) from exc
 
 
 def progress_bar(enabled: bool) -> tuple[Callable[[int, int], None] | None, Callable[[], None]]:

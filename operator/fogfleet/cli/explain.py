@@ -8,6 +8,7 @@ import sys
 from typing import Any
 
 from fogfleet.domain.build import build_problem, refusals
+from fogfleet.errors import InvalidSpec
 from fogfleet.plugin.commands import why_doc
 from fogfleet.plugin.output import render, why_table
 from fogfleet.scheduling.why import explain_module
@@ -22,7 +23,9 @@ def cmd_explain(args: argparse.Namespace) -> int:
     fleets = fleets_of(catalog, args.fleet)
     if len(fleets) > 1:
         names = ", ".join(f.metadata.name for f in fleets)
-        raise SystemExit(f"fogfleet explain: the files hold fleets {names}: pass --fleet")
+        raise InvalidSpec(
+            ", ".join(args.paths), "--fleet", f"the files hold fleets {names}: pass one"
+        )
     fleet = fleets[0]
     settings = settings_of(fleet, args.scheduler, args.seed, args)
     problem, schedule = plan_fleet(fleet, catalog, settings, sys.stderr.isatty())
@@ -42,8 +45,9 @@ def cmd_explain(args: argparse.Namespace) -> int:
             refused=refused,
             limit=args.limit,
         )
-    except KeyError as exc:
-        raise SystemExit(f"fogfleet explain: {exc.args[0]}") from None
+    except KeyError as exc:  # no such module (of that robot) in the fleet: bad input, exit 2
+        flag = "--robot" if args.robot else "--module"
+        raise InvalidSpec(f"RobotFleet/{fleet.metadata.name}", flag, str(exc.args[0])) from exc
     doc = why_doc(why)
     print(render(doc, args.output, why_table(doc) if args.output == "table" else ""))
     return 0

@@ -102,7 +102,12 @@ def cmd_plan(args: argparse.Namespace) -> int:
         if args.plot:
             from fogfleet.plot import plot_plan
 
-            plot_plan(problem, schedule, Path(args.plot))
+            try:
+                plot_plan(problem, schedule, Path(args.plot))
+            except OSError as exc:  # a folder that does not exist, say: bad input, exit 2
+                raise InvalidSpec(
+                    args.plot, "--plot", f"cannot be written: {exc.strerror}"
+                ) from exc
         if not args.json:
             _print_plan(doc)
     if args.json:

@@ -28,7 +28,6 @@ from fogfleet.api.v1alpha1.computenode import ComputeNode
 from fogfleet.api.v1alpha1.profiling import ProfilingRun, ProfilingStatus
 from fogfleet.api.v1alpha1.robotfleet import RobotFleet
 from fogfleet.api.v1alpha1.softwaremodule import SoftwareModule
-from fogfleet.domain.build import resolve_nodes
 from fogfleet.domain.profiling import (
     Measurement,
     edge_cases,
@@ -38,6 +37,7 @@ from fogfleet.domain.profiling import (
     needed_profiles,
     profiling_status,
 )
+from fogfleet.domain.references import resolve_nodes
 from fogfleet.errors import FogfleetError
 from fogfleet.render.profiling import profiling_selector, render_profiling_job
 

@@ -18,7 +18,7 @@ from fogfleet.api.v1alpha1.common import Tier
 from fogfleet.api.v1alpha1.computenode import ComputeNode
 from fogfleet.api.v1alpha1.robotfleet import RobotFleet
 from fogfleet.api.v1alpha1.softwaremodule import Scope, SoftwareModule
-from fogfleet.errors import DanglingReference, InvalidSpec
+from fogfleet.errors import InvalidSpec
 
 from .fallback import standbys
 from .network import Link, uplink
@@ -33,56 +33,13 @@ from .problem import (
     Problem,
     freeze,
 )
+from .references import named_module, resolve_nodes
 from .rows import Learnt, ProfileRow
 from .taxonomy import module_priority
 
-__all__ = ["build_problem", "refusals", "resolve_nodes"]
+__all__ = ["build_problem", "refusals"]
 
 F64 = NDArray[np.float64]
-
-
-def resolve_nodes(
-    fleet: RobotFleet, catalog: Catalog
-) -> tuple[list[ComputeNode], list[ComputeNode]]:
-    """The fleet's robots and its other nodes (named, then selected), or why not."""
-    obj = f"RobotFleet/{fleet.metadata.name}"
-    robots: list[ComputeNode] = []
-    for k, name in enumerate(fleet.spec.robots):
-        node = catalog.nodes.get(name)
-        if node is None:
-            raise DanglingReference(
-                obj, f"spec.robots[{k}]", f"ComputeNode {name!r} does not exist"
-            )
-        if node.spec.tier is not Tier.ROBOT:
-            raise InvalidSpec(
-                obj,
-                f"spec.robots[{k}]",
-                f"ComputeNode {name!r} is tier {node.spec.tier.value}, not robot",
-            )
-        robots.append(node)
-    if fleet.spec.robot_selector is not None:
-        for node in sorted(catalog.nodes.values(), key=lambda n: n.metadata.name):
-            selected = fleet.spec.robot_selector.matches(node.metadata.labels)
-            if node.spec.tier is Tier.ROBOT and selected and node not in robots:
-                robots.append(node)
-    if not robots:
-        raise InvalidSpec(obj, "spec.robotSelector", "selects no robot ComputeNode")
-    others: list[ComputeNode] = []
-    for k, name in enumerate(fleet.spec.nodes):
-        node = catalog.nodes.get(name)
-        if node is None:
-            raise DanglingReference(obj, f"spec.nodes[{k}]", f"ComputeNode {name!r} does not exist")
-        if node.spec.tier is Tier.ROBOT:
-            raise InvalidSpec(
-                obj, f"spec.nodes[{k}]", f"ComputeNode {name!r} is a robot; list it under robots"
-            )
-        others.append(node)
-    if fleet.spec.node_selector is not None:
-        for node in sorted(catalog.nodes.values(), key=lambda n: n.metadata.name):
-            selected = fleet.spec.node_selector.matches(node.metadata.labels)
-            if node.spec.tier is not Tier.ROBOT and selected and node not in others:
-                others.append(node)
-    return robots, others
 
 
 def _capacity(node: ComputeNode) -> tuple[float, float, float]:
@@ -315,13 +272,9 @@ def _resolve_modules(
     modules: list[_Resolved] = []
     wants = _Wants({}, {})
     for k, ref in enumerate(fleet.spec.modules):
-        mod = catalog.module(namespace, ref.name)
-        if mod is None:
-            raise DanglingReference(
-                obj,
-                f"spec.modules[{k}].name",
-                f"SoftwareModule {namespace}/{ref.name} does not exist",
-            )
+        mod = named_module(fleet, catalog, namespace, k, ref)
+        if isinstance(mod, InvalidSpec):
+            raise mod
         ov = ref.overrides
         cycle = mod.spec.cycle_seconds if ov.cycle_seconds is None else ov.cycle_seconds
         if cycle <= 0:

@@ -105,7 +105,7 @@ def test_fractional_millis_rates_and_weights_need_no_quotes() -> None:
 
 def test_other_kinds_are_ignored_not_rejected() -> None:
     catalog = load_paths([WAREHOUSE / "00-namespace.yaml"])
-    assert catalog.ignored == ["Namespace/warehouse"]
+    assert [str(s) for s in catalog.ignored] == ["Namespace/warehouse"]
 
 
 # --- errors name the object, the field and the reason ---------------------------------------
