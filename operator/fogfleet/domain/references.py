@@ -5,7 +5,7 @@ reference of every fleet."""
 from __future__ import annotations
 
 from fogfleet.api.loader import Catalog
-from fogfleet.api.v1alpha1.common import Tier
+from fogfleet.api.v1alpha1.common import LabelSelector, Tier
 from fogfleet.api.v1alpha1.computenode import ComputeNode
 from fogfleet.api.v1alpha1.robotfleet import ModuleRef, RobotFleet
 from fogfleet.api.v1alpha1.softwaremodule import SoftwareModule
@@ -67,29 +67,37 @@ def resolve_nodes(
     fleet: RobotFleet, catalog: Catalog
 ) -> tuple[list[ComputeNode], list[ComputeNode]]:
     """The fleet's robots and its other nodes (named, then selected), or why not."""
-    robots: list[ComputeNode] = []
-    for k in range(len(fleet.spec.robots)):
-        robots.append(_raise_or(_named_node(fleet, catalog, "robots", k)))
-    if fleet.spec.robot_selector is not None:
-        for node in sorted(catalog.nodes.values(), key=lambda n: n.metadata.name):
-            selected = fleet.spec.robot_selector.matches(node.metadata.labels)
-            if node.spec.tier is Tier.ROBOT and selected and node not in robots:
-                robots.append(node)
+    robots = [
+        _raise_or(_named_node(fleet, catalog, "robots", k)) for k in range(len(fleet.spec.robots))
+    ]
+    robots += _selected(catalog, fleet.spec.robot_selector, robots, robot=True)
     if not robots:
         raise InvalidSpec(
             f"RobotFleet/{fleet.metadata.name}",
             "spec.robotSelector",
             "selects no robot ComputeNode",
         )
-    others: list[ComputeNode] = []
-    for k in range(len(fleet.spec.nodes)):
-        others.append(_raise_or(_named_node(fleet, catalog, "nodes", k)))
-    if fleet.spec.node_selector is not None:
-        for node in sorted(catalog.nodes.values(), key=lambda n: n.metadata.name):
-            selected = fleet.spec.node_selector.matches(node.metadata.labels)
-            if node.spec.tier is not Tier.ROBOT and selected and node not in others:
-                others.append(node)
+    others = [
+        _raise_or(_named_node(fleet, catalog, "nodes", k)) for k in range(len(fleet.spec.nodes))
+    ]
+    others += _selected(catalog, fleet.spec.node_selector, others, robot=False)
     return robots, others
+
+
+def _selected(
+    catalog: Catalog, selector: LabelSelector | None, named: list[ComputeNode], *, robot: bool
+) -> list[ComputeNode]:
+    """The nodes of the tier (robots, or every other tier) that ``selector`` selects, by name,
+    less those already ``named``."""
+    if selector is None:
+        return []
+    return [
+        node
+        for node in sorted(catalog.nodes.values(), key=lambda n: n.metadata.name)
+        if (node.spec.tier is Tier.ROBOT) is robot
+        and selector.matches(node.metadata.labels)
+        and node not in named
+    ]
 
 
 def _raise_or(got: ComputeNode | InvalidSpec) -> ComputeNode:
