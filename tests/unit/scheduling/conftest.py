@@ -1,15 +1,32 @@
-"""Tiny hand-built Problems for the scheduling tests."""
+"""Tiny hand-built Problems for the scheduling tests, and a planner that proposes a given
+placement."""
 
 from __future__ import annotations
 
+import dataclasses
 from functools import lru_cache
 
 import numpy as np
 import pytest
 
 from fogfleet.api.v1alpha1.common import Tier
+from fogfleet.api.v1alpha1.robotfleet import SchedulerSettings
 from fogfleet.bench.scheduling import warehouse_problem
 from fogfleet.domain.problem import Allocation, Instance, NodeInfo, Problem
+from fogfleet.scheduling.decision import CorePlanner
+from fogfleet.scheduling.schedule import Schedule
+
+
+class Fixed(CorePlanner):
+    """A planner that proposes ``placement`` (the solver's figures for it; the decision's
+    rules, such as the migration margin, judge it)."""
+
+    def __init__(self, placement: list[int]) -> None:
+        self.placement = placement
+
+    def plan(self, problem: Problem, settings: SchedulerSettings) -> Schedule:
+        real = CorePlanner().plan(problem, settings)
+        return dataclasses.replace(real, placement=np.array(self.placement, dtype=np.int64))
 
 
 def make_problem(

@@ -3,8 +3,6 @@ the new plan is better by the migration margin."""
 
 from __future__ import annotations
 
-import dataclasses
-
 import numpy as np
 import pytest
 
@@ -12,20 +10,10 @@ from fogfleet.api.v1alpha1.robotfleet import SchedulerSettings
 from fogfleet.domain.problem import Problem
 from fogfleet.errors import Infeasible
 from fogfleet.scheduling.decision import CorePlanner, Decision, decide, fingerprint, with_defaults
-from fogfleet.scheduling.schedule import Schedule
+
+from .conftest import Fixed
 
 SETTINGS = SchedulerSettings(population=16, generations=10, seed=1)
-
-
-class Fixed(CorePlanner):
-    """A planner that proposes ``placement`` (the solver's figures for it)."""
-
-    def __init__(self, placement: list[int]) -> None:
-        self.placement = placement
-
-    def plan(self, problem: Problem, settings: SchedulerSettings) -> Schedule:
-        real = CorePlanner().plan(problem, settings)
-        return dataclasses.replace(real, placement=np.array(self.placement, dtype=np.int64))
 
 
 def _decide(problem: Problem, planner: CorePlanner, before: list[int]) -> Decision:

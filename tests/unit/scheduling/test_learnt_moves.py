@@ -18,27 +18,15 @@ from fogfleet.api.v1alpha1.robotfleet import SchedulerSettings
 from fogfleet.domain.observed import Observation, Timing, correction
 from fogfleet.domain.problem import Problem
 from fogfleet.domain.rows import Learnt, ProfileRow
-from fogfleet.scheduling.decision import CorePlanner, Decision, decide, fingerprint
-from fogfleet.scheduling.schedule import Schedule
+from fogfleet.scheduling.decision import Decision, decide, fingerprint
 
-from .conftest import make_problem
+from .conftest import Fixed, make_problem
 
 SETTINGS = SchedulerSettings(population=8, generations=4, seed=1, incremental=False)
 CYCLE = 0.100
 BIG = ProfileRow(0.5, 0.060, 0.004)  # the edge it runs on: 60 ms of work, 40 ms of slack
 SMALL = ProfileRow(0.3, 0.070, 0.004)  # the small edge: slower, never measured
 PRIOR = 100
-
-
-class Propose(CorePlanner):
-    """The solver proposes ``placement`` (the migration-margin rule judges it)."""
-
-    def __init__(self, placement: list[int]) -> None:
-        self.placement = placement
-
-    def plan(self, problem: Problem, settings: SchedulerSettings) -> Schedule:
-        real = CorePlanner().plan(problem, settings)
-        return dataclasses.replace(real, placement=np.array(self.placement, dtype=np.int64))
 
 
 def fleet(big: ProfileRow, small: ProfileRow, on: int) -> Problem:
@@ -68,7 +56,7 @@ def learnt(n: float, missed: float, mean: float = BIG.mean) -> Learnt:
 def replan(problem: Problem, to: int, last: Decision | None = None) -> Decision:
     fp = fingerprint(problem, SETTINGS)
     before = problem.current.copy()
-    return decide(Propose([to]), problem, SETTINGS, fleet="f", fp=fp, before=before, last=last)
+    return decide(Fixed([to]), problem, SETTINGS, fleet="f", fp=fp, before=before, last=last)
 
 
 def test_noise_learnt_from_a_few_hundred_warm_up_cycles_moves_nothing() -> None:
