@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import os
 from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 import pytest
@@ -55,22 +56,27 @@ def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
             item.add_marker(pytest.mark.integration)
 
 
-@pytest.hookimpl(wrapper=True)
-def pytest_runtest_setup(item: pytest.Item) -> Iterator[None]:
+@contextmanager
+def _charged_to(item: pytest.Item) -> Iterator[None]:
+    """Add the CPU the block costs to ``item``'s account."""
     start = cpu_seconds()
     try:
-        return (yield)
+        yield
     finally:
-        item.stash[_SPENT] = cpu_seconds() - start
+        item.stash[_SPENT] = item.stash.get(_SPENT, 0.0) + cpu_seconds() - start
+
+
+@pytest.hookimpl(wrapper=True)
+def pytest_runtest_setup(item: pytest.Item) -> Iterator[None]:
+    item.stash[_SPENT] = 0.0
+    with _charged_to(item):
+        return (yield)
 
 
 @pytest.hookimpl(wrapper=True)
 def pytest_runtest_call(item: pytest.Item) -> Iterator[None]:
-    start = cpu_seconds()
-    try:
+    with _charged_to(item):
         return (yield)
-    finally:
-        item.stash[_SPENT] = item.stash.get(_SPENT, 0.0) + cpu_seconds() - start
 
 
 @pytest.hookimpl(wrapper=True)
