@@ -21,6 +21,7 @@ from fogfleet.adapters.prometheus import PrometheusClient
 from fogfleet.adapters.watched import WatchedKube
 from fogfleet.controllers.deps import Deps
 from fogfleet.controllers.links import LinkDeps
+from fogfleet.controllers.monitoring import MonitoredPrometheus, Monitoring
 from fogfleet.controllers.observed import ObservedDeps
 from fogfleet.controllers.runtime import Runtime
 from fogfleet.controllers.scaling import ScalingDeps
@@ -51,6 +52,7 @@ def build_runtime(settings: Settings, *, serve_metrics: bool = True) -> Runtime:
         scheduler_defaults=settings.scheduler_defaults(),
         api_concurrency=settings.api_concurrency,
         watches=watched,
+        monitoring=Monitoring(settings.prometheus_url),
     )
     return Runtime(deps, workers=settings.workers, debounce=settings.debounce_seconds)
 
@@ -164,7 +166,10 @@ def _run_kopf(
         asyncio.set_event_loop(asyncio.new_event_loop())
     memo = kopf.Memo(runtime=runtime, settings=settings)
     if settings.prometheus_url:
-        prometheus = PrometheusClient(settings.prometheus_url)
+        # every query tells the fleets' Monitored condition whether Prometheus answers
+        prometheus = MonitoredPrometheus(
+            PrometheusClient(settings.prometheus_url), runtime.deps.monitoring
+        )
         memo.scaling = ScalingDeps(
             runtime.deps.kube, prometheus, period_seconds=settings.scaling_interval_seconds
         )
@@ -176,8 +181,8 @@ def _run_kopf(
         memo.observed = ObservedDeps(prometheus, period_seconds=settings.observe_interval_seconds)
     else:
         log.info(
-            "Scaling, link monitoring and drift detection are off: FOGFLEET_PROMETHEUS_URL is "
-            "not set"
+            "Scaling, link monitoring, learnt profiles and drift detection are off: "
+            "FOGFLEET_PROMETHEUS_URL is not set (every fleet's Monitored condition says so)"
         )
     kopf.run(
         registry=registry,

@@ -14,6 +14,7 @@ from fogfleet.adapters.ports import KubePort, MetricsPort, NullMetrics, Watches
 from fogfleet.adapters.prometheus import PrometheusPort
 from fogfleet.scheduling.decision import CorePlanner, Planner
 
+from .monitoring import Monitoring
 from .state import FleetStore
 
 __all__ = ["Deps", "ScalingDeps", "ScalingKube"]
@@ -38,6 +39,8 @@ class Deps:
     full_reconcile_seconds: float = 60.0
     # one fleet plans at a time, into what the others claimed (controllers/tenancy.py)
     planning: threading.Lock = field(default_factory=threading.Lock)
+    # the operator's Prometheus as every fleet's Monitored condition tells it (none by default)
+    monitoring: Monitoring = field(default_factory=Monitoring)
 
 
 class ScalingKube(Protocol):

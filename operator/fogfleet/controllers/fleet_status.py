@@ -114,9 +114,11 @@ def fleet_status(
     links: LinkReport | None = None,
     drift: DriftReport | None = None,
     shared: list[Obj] | None = None,
+    monitored: Obj | None = None,
 ) -> RobotFleetStatus:
     """The status of a fleet whose instances stand where ``placement`` (placement_entries)
-    says; the per-instance list only up to PLACEMENT_LIST_LIMIT entries."""
+    says; the per-instance list only up to PLACEMENT_LIST_LIMIT entries. ``monitored``: the
+    operator's Monitored condition (``monitoring.Monitoring``)."""
     problem, plan = rendered.problem, rendered.plan
     tiers = Counter(str(entry["tier"]) for entry in placement)
     conds = [
@@ -126,6 +128,8 @@ def fleet_status(
     ]
     if drift is not None and drift.condition is not None:
         conds.append(condition("Drift", *drift.condition, generation))
+    if monitored is not None:
+        conds.append(monitored)
     parts: Obj = {
         "observed_generation": generation,
         "conditions": merge_conditions(old.get("conditions") or [], conds),

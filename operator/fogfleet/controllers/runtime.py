@@ -72,6 +72,7 @@ class Runtime:
         self.scaled: dict[tuple[str, str], Obj] = {}
         self._loops: list[asyncio.Task[None]] = []
         self._usage_due = asyncio.Event()
+        self._monitoring_seen = deps.monitoring.transitions
 
     # ------------------------------------------------------------------ periodic work
     # Our own loops instead of kopf timers: a kopf timer puts a finalizer on every object it
@@ -152,6 +153,7 @@ class Runtime:
                     await self.call(reconcile_scaling, dict(body), scaling, time.time())
                 except FogfleetError as exc:  # said in the module's conditions; retried next time
                     log.warning("Scaling SoftwareModule %s/%s failed: %s", *key, exc)
+            self._monitoring_moved()
 
     async def _links(self, links: LinkDeps) -> None:
         """Measure the links every period; reconcile the fleets whose links changed."""
@@ -170,9 +172,27 @@ class Runtime:
                 changed = await self.call(fn, self.deps, port, time.time())
             except FogfleetError as exc:  # a bad query or answer: said in the log, retried
                 log.warning("Measuring %s failed: %s", what, exc)
+                self._monitoring_moved()
                 continue
             for key in sorted(changed):
                 self.queue.schedule_debounced(key)
+            if changed:  # the modules' measured miss rates (status.measuredMissRate)
+                self.usage_changed()
+            self._monitoring_moved()
+
+    def _monitoring_moved(self) -> None:
+        """Prometheus stopped or started answering: every fleet's Monitored condition says so
+        at its next refresh, which this schedules."""
+        seen = self.deps.monitoring.transitions
+        if seen == self._monitoring_seen:
+            return
+        self._monitoring_seen = seen
+        log.info(
+            "Prometheus %s: re-checking every fleet's Monitored condition",
+            "answers again" if self.deps.monitoring.reachable else "does not answer",
+        )
+        for key in sorted(self.store.fleets()):
+            self.queue.schedule_debounced(key)
 
     async def call(self, fn: Callable[..., T], *args: Any) -> T:
         loop = asyncio.get_running_loop()

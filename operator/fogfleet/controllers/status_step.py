@@ -59,6 +59,7 @@ def refresh(
             links,
             drift,
             state.shared if not rendered.baseline else None,
+            deps.monitoring.condition(obj.generation),
         )
     )
     ready = not roll.waiting and not roll.moving and not rendered.stranded
@@ -95,7 +96,8 @@ def hold(
     event: tuple[str, str, str] | None = None,
 ) -> bool:
     """Write the held fleet's conditions (nothing that runs is touched); ``event`` goes with a
-    change. Returns whether the status changed."""
+    change; the Monitored condition goes with every hold. Returns whether the status changed."""
+    conditions = [*conditions, deps.monitoring.condition(obj.generation)]
     status = held_status(obj.generation, obj.old_status, conditions, keep)
     return _write(deps, obj, status, [event] if event else []) is not None
 

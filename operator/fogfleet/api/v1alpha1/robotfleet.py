@@ -394,10 +394,15 @@ class RobotFleetStatus(FogModel):
     observed_generation: int | None = None
     """The metadata.generation this status describes."""
     conditions: list[Condition] = Field(default_factory=list)
-    """Ready (every instance runs where planned), Scheduled (planned or bound) and Degraded
+    """Ready (every instance runs where planned), Scheduled (planned or bound), Degraded
     (instances moving or stranded on an unavailable node, a robot's link lost or measured
-    worse than declared, a standby computing on board) and Drift (modules missing more
-    cycles than the plan predicted)."""
+    worse than declared, a standby computing on board), Drift (modules missing more cycles
+    than the plan predicted; for a module that cannot leave its robot, how much CPU the
+    robot is short for it) and Monitored (whether the operator's Prometheus feeds SLO
+    scaling, link health, learnt profiles and drift detection: True with reason Prometheus;
+    False with NoPrometheus when the operator has none, all four are then off and
+    measured/measuredMiss stay empty, set scaling.prometheusUrl in the Helm chart or
+    FOGFLEET_PROMETHEUS_URL; False with PrometheusUnreachable while its queries fail)."""
     scheduler: str | None = None
     """The algorithm that made the plan."""
     placement: list[PlacementEntry] = Field(default_factory=list)
