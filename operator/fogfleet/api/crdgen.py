@@ -168,6 +168,7 @@ KINDS: tuple[KindInfo, ...] = (
             {"name": "CycleMillis", "type": "number", "jsonPath": ".spec.cycleTimeMillis"},
             {"name": "Instances", "type": "integer", "jsonPath": ".status.instances"},
             {"name": "Split", "type": "string", "jsonPath": ".status.split"},
+            {"name": "Measured", "type": "string", "jsonPath": ".status.measuredMiss"},
             {"name": "Scope", "type": "string", "jsonPath": ".spec.scope", "priority": 1},
             {
                 "name": "Profiling",
@@ -209,6 +210,7 @@ KINDS: tuple[KindInfo, ...] = (
             {"name": "Placed", "type": "integer", "jsonPath": ".status.modulesPlaced"},
             {"name": "Split", "type": "string", "jsonPath": ".status.split"},
             {"name": "Miss", "type": "string", "jsonPath": ".status.predictedMiss"},
+            {"name": "Measured", "type": "string", "jsonPath": ".status.measuredMiss"},
             {
                 "name": "Degraded",
                 "type": "string",

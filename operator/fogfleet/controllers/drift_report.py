@@ -11,7 +11,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from fogfleet.api.timestamps import timestamp
-from fogfleet.domain.miss_rates import format_miss_rate
+from fogfleet.domain.miss_rates import format_miss_rate, pooled_miss_rate
 from fogfleet.domain.observed import ModuleDrift
 
 from .state import DriftWatch
@@ -31,6 +31,8 @@ Obj = dict[str, Any]
 class DriftReport:
     entries: list[Obj]  # status.measured
     condition: tuple[bool | None, str, str] | None  # Drift: status, reason, message
+    # status.measuredMissRate: the measured modules' missed over their cycles (None: none)
+    measured_miss_rate: float | None = None
 
 
 def drift_report(watch: DriftWatch | None, states: Mapping[str, ModuleDrift] | None) -> DriftReport:
@@ -51,6 +53,7 @@ def drift_report(watch: DriftWatch | None, states: Mapping[str, ModuleDrift] | N
         if d.since is not None:
             entry["driftingSince"] = timestamp(d.since)
         entries.append(entry)
+    pooled = pooled_miss_rate((d.measured, d.cycles) for d in states.values())
     drifting = [(m, d) for m, d in sorted(states.items()) if d.since is not None]
     if drifting:
         text = "; ".join(
@@ -59,10 +62,10 @@ def drift_report(watch: DriftWatch | None, states: Mapping[str, ModuleDrift] | N
             f"{d.budget.describe()} it affords"
             for m, d in drifting
         )
-        return DriftReport(entries, (True, "MissesAbovePlan", text))
+        return DriftReport(entries, (True, "MissesAbovePlan", text), pooled)
     if not any(d.measured is not None for d in states.values()):
         return DriftReport(entries, (None, "NotMeasured", "No measured cycles since the plan yet"))
-    return DriftReport(entries, (False, "AsPredicted", AS_PREDICTED))
+    return DriftReport(entries, (False, "AsPredicted", AS_PREDICTED), pooled)
 
 
 def drift_events(old: list[Obj], new: list[Obj]) -> list[tuple[str, str, str]]:

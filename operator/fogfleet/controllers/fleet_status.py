@@ -31,6 +31,7 @@ from .status import (
     condition,
     finite,
     merge_conditions,
+    miss_fields,
     split_text,
     wire,
     wire_keys,
@@ -152,6 +153,7 @@ def fleet_status(
         parts["measured"] = drift.entries
     elif old.get("measured"):
         parts["measured"] = []
+    parts.update(_measured_miss(drift.measured_miss_rate if drift is not None else None))
     if shared:
         parts["shared_nodes"] = shared
     elif old.get("sharedNodes"):
@@ -258,11 +260,15 @@ def _plan_figures(rendered: Rendered, placement: list[Obj]) -> Obj:
 
 def _miss(rate: float | None) -> Obj:
     """The plan's predicted miss rate, as a fraction and as people read it (MISS column)."""
-    value = finite(rate)  # rounded to 1e-6: the text says "<0.0001%" where it reads 0
-    return {
-        "predicted_miss_rate": value,
-        "predicted_miss": None if value is None or rate is None else format_miss_rate(rate),
-    }
+    value, text = miss_fields(rate)
+    return {"predicted_miss_rate": value, "predicted_miss": text}
+
+
+def _measured_miss(rate: float | None) -> Obj:
+    """The fleet's measured miss rate beside the predicted one (MEASURED column); absent,
+    never 0, while nothing was measured."""
+    value, text = miss_fields(rate)
+    return {"measured_miss_rate": value, "measured_miss": text}
 
 
 def held_status(generation: int | None, old: Obj, conditions: list[Obj], keep: str = "") -> Obj:

@@ -16,6 +16,7 @@ from fogfleet.api.labels import LABEL_INSTANCE
 from fogfleet.api.timestamps import timestamp
 from fogfleet.api.v1alpha1.base import status_part
 from fogfleet.api.v1alpha1.softwaremodule import ScalingStatus
+from fogfleet.domain.miss_rates import format_miss_rate
 from fogfleet.render.deployments import hash_annotation
 
 __all__ = [
@@ -24,6 +25,7 @@ __all__ = [
     "condition",
     "finite",
     "merge_conditions",
+    "miss_fields",
     "now",
     "pod_ready",
     "rollout",
@@ -201,3 +203,13 @@ def finite(x: float | None) -> float | None:
     if x is None or not math.isfinite(x):
         return None
     return round(float(x), 6)
+
+
+def miss_fields(rate: float | None) -> tuple[float | None, str | None]:
+    """A miss rate as a status shows it (``...MissRate`` and ``...Miss``, predicted or
+    measured): the fraction rounded to 1e-6 and the text people read (``format_miss_rate``;
+    it says "<0.0001%" where the fraction reads 0); both None for no rate."""
+    value = finite(rate)
+    if value is None or rate is None:
+        return None, None
+    return value, format_miss_rate(rate)

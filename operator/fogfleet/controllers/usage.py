@@ -8,7 +8,11 @@ there and counts from its first reconcile, seconds after the operator starts). S
 state of its own and any replica of the operator can rebuild it. One pass
 (``reconcile_usage``) lists the fleets, modules, ComputeNodes and Nodes
 and patches only the statuses that changed; each patch carries every field this pass owns
-(no ``None``), so a merge patch never leaves a stale value behind. A fleet being deleted
+(``None`` for a measured miss rate no longer measured, which the merge patch removes), so a
+merge patch never leaves a stale value behind. A module's measured miss rate
+(``status.measuredMissRate``, the MEASURED column) pools its fleets' measures, each weighed by
+its cycles: the drift pass's (``FleetState.drift``, fresher; the runtime runs a pass when they
+change) or, for a fleet it has not measured, the fleet's ``status.measured``. A fleet being deleted
 (``deletionTimestamp`` set, its Deployments going) counts no more, and a deleted one is not
 listed: the first pass after a fleet's deletion drops it from every node and module it used
 (the runtime runs one when the fleet's DELETED event arrives). The autoscaler owns
@@ -29,12 +33,20 @@ from pydantic import ValidationError
 from fogfleet.api.v1alpha1.base import format_cores, parse_cpu
 from fogfleet.api.v1alpha1.computenode import ComputeNodeStatus
 from fogfleet.api.v1alpha1.softwaremodule import SoftwareModuleStatus, Taxonomy
+from fogfleet.domain.miss_rates import pooled_miss_rate
 from fogfleet.domain.taxonomy import classify
 from fogfleet.domain.tenancy import Held
 
 from .deps import Deps
 from .inputs import node_health
-from .status import condition, merge_conditions, split_text, wire, without_transition_times
+from .status import (
+    condition,
+    merge_conditions,
+    miss_fields,
+    split_text,
+    wire,
+    without_transition_times,
+)
 from .tenancy import pod_requests
 
 __all__ = [
@@ -52,11 +64,13 @@ Obj = dict[str, Any]
 
 @dataclass
 class Usage:
-    """Who places instances of one object, and where."""
+    """Who places instances of one object, and where; for a module, its measured miss rate
+    in each fleet that measured it, with the cycles behind it."""
 
     fleets: set[str] = field(default_factory=set)
     tiers: Counter[str] = field(default_factory=Counter)
     cpu: float = 0.0
+    measured: list[tuple[float | None, float]] = field(default_factory=list)
 
     @property
     def instances(self) -> int:
@@ -64,6 +78,8 @@ class Usage:
 
 
 Placements = Mapping[tuple[str, str], list[Obj]]
+# (namespace, fleet) -> module -> its measured miss rate there (None: not measured) and cycles
+Measures = Mapping[tuple[str, str], Mapping[str, tuple[float | None, float]]]
 
 
 def _placements(
@@ -89,16 +105,43 @@ def _cores(value: Any) -> float:
 
 
 def usage_by_module(
-    fleets: Iterable[Mapping[str, Any]], known: Placements | None = None
+    fleets: Iterable[Mapping[str, Any]],
+    known: Placements | None = None,
+    measured: Measures | None = None,
 ) -> dict[tuple[str, str], Usage]:
-    """(namespace, module) -> the fleets (by name, same namespace) placing it, per tier."""
+    """(namespace, module) -> the fleets (by name, same namespace) placing it, per tier, and
+    what each measured of it: the drift pass's measures (``measured``), else the fleet's
+    ``status.measured``."""
+    listed = list(fleets)
     out: dict[tuple[str, str], Usage] = {}
-    for ns, fleet, entry in _placements(fleets, known or {}):
+    for ns, fleet, entry in _placements(listed, known or {}):
         use = out.setdefault((ns, str(entry.get("module", ""))), Usage())
         use.fleets.add(fleet)
         use.tiers[str(entry.get("tier", ""))] += 1
         use.cpu += _cores(entry.get("cpu"))
+    for ns, module, rate, cycles in _measures(listed, measured or {}):
+        placed = out.get((ns, module))
+        if placed is not None:  # a module its fleets no longer place shows no rate
+            placed.measured.append((rate, cycles))
     return out
+
+
+def _measures(
+    fleets: Iterable[Mapping[str, Any]], known: Measures
+) -> Iterable[tuple[str, str, float | None, float]]:
+    for fleet in fleets:
+        meta = fleet.get("metadata") or {}
+        if meta.get("deletionTimestamp"):
+            continue
+        key = (meta.get("namespace") or "default", meta.get("name", ""))
+        if key in known:
+            for module, (rate, cycles) in known[key].items():
+                yield key[0], module, rate, cycles
+            continue
+        for entry in (fleet.get("status") or {}).get("measured") or []:
+            rate, cycles = entry.get("measuredMissRate"), entry.get("cycles")
+            if isinstance(rate, int | float) and isinstance(cycles, int | float):
+                yield key[0], str(entry.get("module", "")), float(rate), float(cycles)
 
 
 def usage_by_node(
@@ -124,12 +167,15 @@ def _offloadable(module: Mapping[str, Any]) -> str | None:
 def module_status(module: Mapping[str, Any], usage: Usage | None) -> Obj:
     """The part of a SoftwareModule's status this pass owns."""
     use = usage or Usage()
+    rate, shown = miss_fields(pooled_miss_rate(use.measured))
     status = SoftwareModuleStatus(
         observed_generation=(module.get("metadata") or {}).get("generation"),
         offloadable=_offloadable(module),
         fleets=sorted(use.fleets),
         instances=use.instances,
         split=split_text(use.tiers),
+        measured_miss_rate=rate,
+        measured_miss=shown,
     )
     return wire(status)
 
@@ -201,8 +247,14 @@ def reconcile_usage(deps: Deps) -> int:
     fleets = kube.list_fleets(None)
     patched = 0
     # a snapshot: fleet reconciles replace entries meanwhile
-    known = {s.key: s.placement for s in deps.store.states() if s.placement is not None}
-    by_module = usage_by_module(fleets, known)
+    states = deps.store.states()
+    known = {s.key: s.placement for s in states if s.placement is not None}
+    measured = {
+        s.key: {m: (d.measured, d.cycles) for m, d in s.drift.modules.items()}
+        for s in states
+        if s.drift.modules is not None
+    }
+    by_module = usage_by_module(fleets, known, measured)
     for module in kube.list_modules(None):
         meta = module.get("metadata") or {}
         ns, name = meta.get("namespace") or "default", meta.get("name", "")

@@ -4,7 +4,8 @@ A miss rate is the fraction of a module's cycles that end after its deadline
 (multi-robot-edge-cloud-scheduling III-D, F4). The models and the status keep the fraction
 (0-1) for machines; everything a person reads (``kubectl get robotfleets``'s MISS column, the
 CLI's tables, conditions and Events) shows it through :func:`format_miss_rate`, so a rate
-reads the same everywhere.
+reads the same everywhere. A measured rate of several modules or fleets is their cycles'
+(:func:`pooled_miss_rate`), shown beside the prediction (the MEASURED column).
 
 The **worst module** of a plan (:func:`worst_module`) is, in this order:
 
@@ -25,7 +26,7 @@ from __future__ import annotations
 import math
 from collections.abc import Iterable, Mapping
 
-__all__ = ["format_miss_rate", "worst_module"]
+__all__ = ["format_miss_rate", "pooled_miss_rate", "worst_module"]
 
 SMALLEST_SHOWN_PERCENT = 0.0001
 """Rates below this many percent show as ``<0.0001%`` (a prediction of 1e-24 is not news)."""
@@ -45,6 +46,21 @@ def format_miss_rate(rate: float | None) -> str:
     if percent < 1.0:
         return f"{percent:.2g}%"
     return f"{percent:.1f}%"
+
+
+def pooled_miss_rate(measures: Iterable[tuple[float | None, float]]) -> float | None:
+    """The miss rate of several measured miss rates taken together, each weighed by its
+    cycles: their missed cycles over their cycles (a fleet's modules, a module's fleets).
+    ``measures``: (rate, cycles) pairs; a pair without a rate or without cycles was not
+    measured and counts for nothing. None when nothing was measured, never 0: a rate of 0
+    says that cycles ran and none was missed."""
+    missed = cycles = 0.0
+    for rate, n in measures:
+        if rate is None or not math.isfinite(rate) or not n > 0:
+            continue
+        missed += rate * n
+        cycles += n
+    return missed / cycles if cycles > 0 else None
 
 
 def worst_module(

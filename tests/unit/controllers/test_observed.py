@@ -273,3 +273,19 @@ def test_nothing_is_learnt_when_the_drifting_module_cannot_be_corrected(kube, de
     observe(deps, od, 170.0)
     for name in (MODULE, "nav-controller"):
         assert "profileCorrection" not in kube.modules[("warehouse", name)].get("status", {})
+
+
+def test_the_fleet_shows_its_measured_miss_rate_beside_the_predicted_one(kube, deps, prom) -> None:
+    run(kube, deps)
+    od = ObservedDeps(prom)
+    observe(deps, od, 0.0)
+    run(kube, deps)
+    assert "measuredMissRate" not in status(kube) and "measuredMiss" not in status(kube)
+    prom.cycles = {"nav-controller": 3000.0, MODULE: 1000.0}
+    prom.missed = {"nav-controller": 240.0, MODULE: 0.0}
+    observe(deps, od, 100.0)
+    run(kube, deps)
+    shown = status(kube)
+    assert shown["measuredMissRate"] == pytest.approx(240 / 4000)  # cycle-weighted
+    assert shown["measuredMiss"] == "6.0%"
+    assert shown["predictedMiss"] != shown["measuredMiss"]

@@ -5,10 +5,13 @@ from __future__ import annotations
 import copy
 from collections import Counter
 
+import pytest
+
 from fogfleet.api.v1alpha1.computenode import ComputeNodeStatus
 from fogfleet.api.v1alpha1.softwaremodule import SoftwareModuleStatus
 from fogfleet.controllers.robotfleet import reconcile
 from fogfleet.controllers.usage import reconcile_usage
+from fogfleet.domain.observed import ModuleDrift
 
 KEY = ("warehouse", "warehouse")
 
@@ -134,3 +137,31 @@ def test_two_fleets_sharing_a_module_are_both_listed(kube, deps):
     assert status["fleets"] == ["night-shift", "warehouse"]
     one = sum(e["module"] == name for e in twin["status"]["placement"])
     assert status["instances"] == 2 * one
+
+
+def test_a_module_shows_its_measured_miss_rate_pooled_over_its_fleets(kube, deps):
+    placement = planned(kube, deps)
+    name = next(e["module"] for e in placement if e["robot"])
+    twin = copy.deepcopy(kube.fleets[KEY])
+    twin["metadata"]["name"] = "night-shift"
+    twin["status"]["measured"] = [
+        {"module": name, "predictedMissRate": 0.0, "measuredMissRate": 0.1, "cycles": 100.0}
+    ]
+    kube.fleets[("warehouse", "night-shift")] = twin
+    reconcile_usage(deps)
+    assert kube.modules[("warehouse", name)]["status"]["measuredMissRate"] == 0.1
+    # the drift pass's measures of the other fleet, fresher than its status
+    deps.store.state(KEY).drift.modules = {name: ModuleDrift(0.0, 0.01, 300.0, None)}
+    reconcile_usage(deps)
+    status = kube.modules[("warehouse", name)]["status"]
+    assert status["measuredMissRate"] == pytest.approx((10 + 3) / 400)
+    assert status["measuredMiss"] == "3.2%"
+    unmeasured = next(s for (_, n), m in kube.modules.items() if n != name for s in [m["status"]])
+    assert "measuredMissRate" not in unmeasured and "measuredMiss" not in unmeasured
+    patches = len(kube.module_patches)
+    reconcile_usage(deps)
+    assert len(kube.module_patches) == patches, "an unchanged rate is not written again"
+    deps.store.state(KEY).drift.modules = {}
+    twin["status"]["measured"] = []
+    reconcile_usage(deps)
+    assert "measuredMissRate" not in kube.modules[("warehouse", name)]["status"]

@@ -6,7 +6,7 @@ import math
 
 import pytest
 
-from fogfleet.domain.miss_rates import format_miss_rate, worst_module
+from fogfleet.domain.miss_rates import format_miss_rate, pooled_miss_rate, worst_module
 
 
 @pytest.mark.parametrize(
@@ -53,3 +53,15 @@ def test_tied_rates_go_to_the_highest_prediction_then_the_name() -> None:
 def test_a_module_that_ran_no_cycle_is_not_the_worst() -> None:
     assert worst_module({"a": math.nan, "b": 0.0, "c": None}, {"a": 0.5}) == "b"
     assert worst_module({}) is None
+
+
+def test_pooled_rates_weigh_each_by_its_cycles() -> None:
+    # 23 of 284 and 5 of 302 missed: 28 of 586, not the mean of 8.1 % and 1.7 %
+    pooled = pooled_miss_rate([(23 / 284, 284.0), (5 / 302, 302.0)])
+    assert pooled == pytest.approx(28 / 586)
+
+
+def test_nothing_measured_pools_to_none_never_zero() -> None:
+    assert pooled_miss_rate([]) is None
+    assert pooled_miss_rate([(None, 0.0), (0.5, 0.0), (math.nan, 100.0)]) is None
+    assert pooled_miss_rate([(0.0, 300.0), (None, 0.0)]) == 0.0  # measured, none missed

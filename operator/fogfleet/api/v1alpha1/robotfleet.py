@@ -372,6 +372,14 @@ class ModuleMissStatus(FogModel):
     """Cycles measured in the window."""
     drifting_since: str | None = None
     """Since when it misses more than predicted by more than driftMargin (RFC 3339)."""
+    cpu_needed: str | None = None
+    """For a drifting module that cannot leave its robot (hard real-time, safety-critical or
+    pinned by its requirements): the CPU its measured execution time needs to finish within
+    its cycle on the robot that is shortest of it (95th-percentile execution time x the CPU
+    limit it ran with / its cycle time)."""
+    cpu_short: str | None = None
+    """How much CPU that robot lacks for it: cpuNeeded less the most the robot can give it
+    (its request and the robot's unreserved CPU). Unset when the robot has enough."""
 
 
 class SharedNodeStatus(FogModel):
@@ -419,6 +427,15 @@ class RobotFleetStatus(FogModel):
     predicted_miss: str | None = None
     """predictedMissRate as people read it, a percentage ("0.007%"; kubectl's MISS column),
     in the format of the CLI and the Events."""
+    measured_miss_rate: float | None = None
+    """Measured fraction of missed cycles of the fleet's modules (0-1): their missed cycles
+    over their cycles in status.measured (each module weighed by its cycles), over
+    spec.drift.windowSeconds since the last plan. Unset until cycles are measured (never 0 for
+    "not measured"): measuring needs the operator's Prometheus (the Monitored condition)."""
+    measured_miss: str | None = None
+    """measuredMissRate as people read it, in predictedMiss's format (kubectl's MEASURED
+    column, beside MISS): where it is far above MISS, the prediction is wrong (see the Drift
+    condition)."""
     modules_placed: int | None = None
     """Instances placed."""
     modules_total: int | None = None

@@ -369,6 +369,13 @@ class SoftwareModuleStatus(FogModel):
     """Instances placed by all those plans."""
     split: str | None = None
     """Instances on robots/edge/cloud, as "3/2/0" (like the RobotFleet's split)."""
+    measured_miss_rate: float | None = None
+    """Measured fraction of this module's missed cycles (0-1) over the fleets that place it
+    (their status.measured, each weighed by its cycles). Unset until cycles are measured
+    (never 0 for "not measured"): measuring needs the operator's Prometheus."""
+    measured_miss: str | None = None
+    """measuredMissRate as people read it, in the RobotFleet predictedMiss's format (kubectl's
+    MEASURED column)."""
     observed: list[ObservedRow] = Field(default_factory=list)
     """Execution times measured where the module runs, per hardware type and CPU limit."""
     profile_correction: list[ProfileCorrection] = Field(default_factory=list)
