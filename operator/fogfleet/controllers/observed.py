@@ -45,12 +45,14 @@ from fogfleet.domain.observed import (
     miss_budget,
     timings,
 )
+from fogfleet.domain.onboard import OnboardNeed, onboard_needs
 from fogfleet.domain.pairs import profile_rows
 from fogfleet.domain.problem import Problem
 from fogfleet.domain.rows import Learnt
 from fogfleet.errors import DependencyUnavailable, FogfleetError
 from fogfleet.scheduling.decision import Decision
 from fogfleet.scheduling.objectives import module_miss_rates
+from fogfleet.scheduling.stickiness import loads
 
 from .deps import Deps
 from .state import DriftWatch, FleetKey, FleetState
@@ -282,7 +284,37 @@ def _fleet_round(
     if due and _adopt(deps, key, watch, due, after, observations, now):
         state.drift.epoch = (plan_id, epoch[1], now)
     state.drift.modules = after
-    return _summary(before) != _summary(after)
+    onboard_before, state.drift.onboard = state.drift.onboard, _onboard(watch, after, observations)
+    return _summary(before) != _summary(after) or _shortfalls(onboard_before) != _shortfalls(
+        state.drift.onboard
+    )
+
+
+def _onboard(
+    watch: DriftWatch,
+    states: Mapping[str, ModuleDrift],
+    observations: Mapping[str, list[Observation]],
+) -> dict[str, tuple[OnboardNeed, ...]]:
+    """What each drifting module that cannot leave its robot needs there (domain.onboard):
+    the re-plan cannot move it, so the fleet says whether its robots can give it that."""
+    drifting = sorted(m for m, d in states.items() if d.since is not None)
+    if not drifting or watch.placement is None:
+        return {}
+    used, _ = loads(watch.problem, watch.placement)  # the one per-node load model
+    unreserved = watch.problem.capacity[:, 0] - used[:, 0]
+    out = {}
+    for module in drifting:
+        needs = onboard_needs(
+            watch.problem, watch.placement, module, observations.get(module, []), unreserved
+        )
+        if needs:
+            out[module] = tuple(needs)
+    return out
+
+
+def _shortfalls(onboard: Mapping[str, tuple[OnboardNeed, ...]]) -> dict[str, int]:
+    """What of the on-board needs the fleet's status shows: the worst need, in millicores."""
+    return {m: round(needs[0].needed * 1000) for m, needs in onboard.items()}
 
 
 def _summary(states: Mapping[str, ModuleDrift]) -> dict[str, tuple[Any, ...]]:

@@ -36,6 +36,7 @@ from fogfleet.api.v1alpha1.observed import DriftSettings
 from fogfleet.domain.linkhealth import RobotLink
 from fogfleet.domain.network import Link
 from fogfleet.domain.observed import MissBudget, ModuleDrift
+from fogfleet.domain.onboard import OnboardNeed
 from fogfleet.domain.problem import Problem
 from fogfleet.scheduling.decision import Decision
 
@@ -141,6 +142,9 @@ class FleetDrift:
     modules: dict[str, ModuleDrift] | None = None  # None: not measured yet
     # (plan id, when its measures began, the last re-plan for drift)
     epoch: tuple[str, float, float | None] | None = None
+    # drifting module that cannot leave its robot -> per robot, what it needs there, the
+    # robot shortest of CPU first (domain.onboard)
+    onboard: dict[str, tuple[OnboardNeed, ...]] = field(default_factory=dict)
 
 
 @dataclass

@@ -47,7 +47,7 @@ def refresh(
     if state.placement != placement:  # the usage pass reads it (usage.py)
         state.placement = placement  # replaced only when it changed
     links = link_report(state.links.watch, state.links.robots, state.links.standbys_active)
-    drift = drift_report(state.drift.watch, state.drift.modules)
+    drift = drift_report(state.drift.watch, state.drift.modules, state.drift.onboard)
     status = running_wire(
         fleet_status(
             inputs.fleet,
@@ -65,7 +65,7 @@ def refresh(
     ready = not roll.waiting and not roll.moving and not rendered.stranded
     events = [
         *link_events(obj.old_status.get("links") or [], links.entries),
-        *drift_events(obj.old_status.get("measured") or [], drift.entries),
+        *drift_events(obj.old_status.get("measured") or [], drift.entries, drift.notes),
     ]
     written = _write(deps, obj, status, events)
     if written is not None and ready != _is_ready(obj.old_status):

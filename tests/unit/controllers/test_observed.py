@@ -289,3 +289,60 @@ def test_the_fleet_shows_its_measured_miss_rate_beside_the_predicted_one(kube, d
     assert shown["measuredMissRate"] == pytest.approx(240 / 4000)  # cycle-weighted
     assert shown["measuredMiss"] == "6.0%"
     assert shown["predictedMiss"] != shown["measuredMiss"]
+
+
+def test_a_drifting_module_that_cannot_leave_its_robot_says_how_short_the_robot_is(
+    kube, deps, prom
+) -> None:
+    """Issue 44: nav-controller (hard real-time, safety-critical) drifts, and no re-plan can
+    move it off its robot: the Drift condition, status.measured and an Event say how much CPU
+    its measured execution time needs and how much the robot lacks."""
+    from fogfleet.api.v1alpha1.base import format_cores, format_millicores, parse_cpu
+
+    run(kube, deps)
+    node, request = where(kube, module="nav-controller")
+    hw = kube.compute_nodes[node]["spec"]["hardwareType"]
+    limit = 2 * parse_cpu(request)  # spec.scheduler.cpuLimitPercent 200
+    od = ObservedDeps(prom)
+    observe(deps, od, 0.0)
+    cycle = 0.033
+    # 10 cycles on average, 12 at the 95th percentile (FakePrometheus: p95 = 1.2 x mean)
+    prom.exec[("nav-controller", hw, format_millicores(limit))] = (3000.0, 10 * cycle)
+    prom.cycles = {"nav-controller": 3000.0}
+    prom.missed = {"nav-controller": 2900.0}
+    observe(deps, od, 100.0)
+    run(kube, deps)
+    drift = cond(kube, "Drift")
+    assert "nav-controller cannot leave its robot (hard real-time)" in drift["message"]
+    assert "lacks" in drift["message"] and "robots are short" in drift["message"]
+    entry = {e["module"]: e for e in status(kube)["measured"]}["nav-controller"]
+    assert entry["cpuNeeded"] == format_cores(12 * limit)
+    short = parse_cpu(entry["cpuShort"])
+    assert 0 < short < 12 * limit
+    assert f"lacks {entry['cpuShort']} CPU for it" in drift["message"]
+    (event,) = [e for e in kube.events if e[1] == "RobotShortOfCpu"]
+    assert event[0] == "Warning" and f"needs {entry['cpuNeeded']} CPU" in event[2]
+    run(kube, deps)  # nothing new: no second Event
+    assert len([e for e in kube.events if e[1] == "RobotShortOfCpu"]) == 1
+
+
+def test_a_pinned_module_whose_robot_has_room_is_not_called_short(kube, deps, prom) -> None:
+    from fogfleet.api.v1alpha1.base import format_millicores, parse_cpu
+
+    run(kube, deps)
+    node, request = where(kube, module="nav-controller")
+    hw = kube.compute_nodes[node]["spec"]["hardwareType"]
+    limit = 2 * parse_cpu(request)
+    od = ObservedDeps(prom)
+    observe(deps, od, 0.0)
+    prom.exec[("nav-controller", hw, format_millicores(limit))] = (3000.0, 0.010)
+    prom.cycles = {"nav-controller": 3000.0}
+    prom.missed = {"nav-controller": 150.0}  # 5 %: drift for a hard real-time module
+    observe(deps, od, 100.0)
+    run(kube, deps)
+    drift = cond(kube, "Drift")
+    assert "nav-controller cannot leave its robot (hard real-time)" in drift["message"]
+    assert "its misses come from more than its work's CPU" in drift["message"]
+    entry = {e["module"]: e for e in status(kube)["measured"]}["nav-controller"]
+    assert "cpuNeeded" in entry and "cpuShort" not in entry
+    assert not [e for e in kube.events if e[1] == "RobotShortOfCpu"]

@@ -378,8 +378,8 @@ class ModuleMissStatus(FogModel):
     its cycle on the robot that is shortest of it (95th-percentile execution time x the CPU
     limit it ran with / its cycle time)."""
     cpu_short: str | None = None
-    """How much CPU that robot lacks for it: cpuNeeded less the most the robot can give it
-    (its request and the robot's unreserved CPU). Unset when the robot has enough."""
+    """How much CPU that robot lacks for it: cpuNeeded less the most the robot can guarantee
+    it (its request and the robot's unreserved CPU). Unset when the robot has enough."""
 
 
 class SharedNodeStatus(FogModel):
