@@ -103,6 +103,14 @@ class WorkloadMetrics:
             list(ids),
             registry=self.registry,
         ).labels(**ids)
+        # when it took over (Unix time, its own clock): the operator sees a cut-off robot's
+        # takeover only once the link is back, and reports when it happened from this
+        self.last_takeover = Gauge(
+            "fogfleet_fallback_last_takeover_timestamp_seconds",
+            "Last takeover: when this standby took over (Unix time)",
+            list(ids),
+            registry=self.registry,
+        ).labels(**ids)
         self._held_back = Counter(
             "fogfleet_fallback_held_back",
             "Answers not published because the input was answered already",

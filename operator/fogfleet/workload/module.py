@@ -150,6 +150,7 @@ class _Module:
             metrics.fallback_active.set(1.0 if active else 0.0)
             if takeover.takeovers > self.counted:
                 metrics.takeovers.inc(takeover.takeovers - self.counted)
+                metrics.last_takeover.set(time.time())
                 self.counted = takeover.takeovers
                 last = takeover.last_remote
                 self.silent_since = takeover.started if last is None else last
