@@ -142,7 +142,7 @@ def fleet_status(
         "split": split_text(tiers),
     }
     if plan is not None and problem.fallback_rows.size and not rendered.baseline:
-        parts["fallbacks"] = _fallbacks(problem, plan.placement)
+        parts["fallbacks"] = _fallbacks(problem, plan.placement, links)
     elif old.get("fallbacks"):
         parts["fallbacks"] = []  # a merge patch would otherwise keep the stale list
     if links is not None and links.entries:
@@ -212,17 +212,22 @@ def _degraded(
     return condition("Degraded", False, "AsPlanned", message, generation)
 
 
-def _fallbacks(problem: Problem, placement: np.ndarray) -> list[Obj]:
-    return [
-        {
+def _fallbacks(problem: Problem, placement: np.ndarray, links: LinkReport | None) -> list[Obj]:
+    """Per robot, what a lost link costs it and (links monitored) what its standbys did."""
+    out: list[Obj] = []
+    for cut in disconnected(problem, placement):
+        entry: Obj = {
             "robot": cut.robot,
             "reservedCpu": format_cpu(cut.reserved_cpu),
             "standbys": list(cut.standbys),
             "stopped": list(cut.stopped),
             "predictedMissRate": finite(cut.miss_rate),
         }
-        for cut in disconnected(problem, placement)
-    ]
+        took = links.takeovers_of(cut.robot, list(cut.standbys)) if links is not None else None
+        if took is not None:
+            entry["takeovers"] = took
+        out.append(entry)
+    return out
 
 
 def _plan_figures(rendered: Rendered, placement: list[Obj]) -> Obj:

@@ -3,10 +3,13 @@
 Every ``period_seconds`` the operator asks Prometheus, for the robot nodes of every fleet it
 rendered, what share of the scrapes of the robot's pods was answered over the fleet's window
 and how fast the fastest answer came (``domain.linkhealth`` judges that against the robot's
-ComputeNode), and which on-board standbys compute their module now
-(``fogfleet_fallback_active``). A fleet whose planned links, link states or active standbys
-changed is reconciled: the planner then uses the measured link of a degraded robot, and the
-status says what each robot's link is (``status.links``, the ``Degraded`` condition, Events).
+ComputeNode), which on-board standbys compute their module now
+(``fogfleet_fallback_active``), and what the standbys' own counters say of their takeovers
+(``domain.takeovers``: how many, the last one's gap and time). A fleet whose planned links,
+link states, active standbys or takeovers changed is reconciled: the planner then uses the
+measured link of a degraded robot, and the status says what each robot's link is
+(``status.links``, the ``Degraded`` condition, Events) and what its standbys did
+(``status.fallbacks[].takeovers``, a ``StandbyTookOver`` Event per takeover).
 
 Prometheus must label each pod target with its Kubernetes Node (``node``, as kubernetes_sd's
 usual relabelling of ``__meta_kubernetes_pod_node_name`` does; FOGFLEET_LINK_NODE_LABEL).
@@ -22,7 +25,7 @@ from typing import Any
 
 from fogfleet.adapters.ports import SeriesPort
 from fogfleet.api.loader import Catalog
-from fogfleet.api.timestamps import timestamp
+from fogfleet.api.timestamps import parse_timestamp, timestamp
 from fogfleet.api.v1alpha1.common import Tier
 from fogfleet.api.v1alpha1.linkhealth import LinkState
 from fogfleet.api.v1alpha1.robotfleet import RobotFleet
@@ -35,6 +38,12 @@ from fogfleet.domain.linkhealth import (
 )
 from fogfleet.domain.network import uplink
 from fogfleet.domain.problem import Problem
+from fogfleet.domain.takeovers import (
+    StandbySeries,
+    Takeovers,
+    advance_takeovers,
+    takeover_message,
+)
 from fogfleet.errors import DependencyUnavailable
 
 from .deps import Deps
@@ -47,6 +56,8 @@ __all__ = [
     "link_report",
     "link_watch",
     "measure_links",
+    "takeover_events",
+    "takeovers_from_status",
 ]
 
 log = logging.getLogger(__name__)
@@ -58,6 +69,11 @@ ROUND_TRIP = (
     'min by ({label}) (min_over_time(scrape_duration_seconds{{{label}=~"{nodes}"}}[{window}s]))'
 )
 ACTIVE = 'max by (robot, module) (fogfleet_fallback_active{{namespace="{namespace}"}})'
+# the standbys' own takeover counters, per pod, in one query per namespace
+TAKEOVERS = (
+    '{{__name__=~"fogfleet_fallback_(takeovers_total|takeovers_created|takeover_gap_seconds'
+    '|last_takeover_timestamp_seconds)",namespace="{namespace}"}}'
+)
 
 
 @dataclass
@@ -93,6 +109,7 @@ def measure_links(deps: Deps, links: LinkDeps, now: float) -> set[FleetKey]:
     try:
         by_window = _samples(links, watches)
         active = _active(links, {key[0] for key in fleets})
+        standby_series = _standby_series(links, {key[0] for key in fleets})
     except DependencyUnavailable as exc:
         log.warning("Measuring the robots' links failed (last states stand): %s", exc)
         return set()
@@ -124,6 +141,19 @@ def measure_links(deps: Deps, links: LinkDeps, now: float) -> set[FleetKey]:
         if _summary(before) != _summary(after) or state.links.standbys_active != standbys:
             changed.add(key)
         state.links.standbys_active = standbys
+        mine = [
+            s
+            for s in standby_series.get(key[0], [])
+            if s.robot in robots and s.module in watch.modules
+        ]
+        records = state.links.takeovers or {}
+        state.links.marks, took = advance_takeovers(state.links.marks, records, mine, now)
+        if took != records:
+            changed.add(key)
+            for (robot, module), t in sorted(took.items()):
+                if records.get((robot, module)) != t:
+                    log.info("RobotFleet %s/%s: standby of %s on %s: %s", *key, module, robot, t)
+        state.links.takeovers = took
     return changed
 
 
@@ -172,17 +202,87 @@ def _active(links: LinkDeps, namespaces: set[str]) -> set[tuple[str, str, str]]:
     return out
 
 
+def _standby_series(links: LinkDeps, namespaces: set[str]) -> dict[str, list[StandbySeries]]:
+    """Per namespace, each standby pod's takeover counters (one series per pod)."""
+    out: dict[str, list[StandbySeries]] = {}
+    for ns in sorted(namespaces):
+        promql = TAKEOVERS.format(namespace=ns.replace("\\", "\\\\").replace('"', '\\"'))
+        by_pod: dict[tuple[str, ...], dict[str, float]] = {}
+        for labels, value in links.prometheus.query_series(promql, obj="links", field=FIELD):
+            if "robot" not in labels or "module" not in labels:
+                continue
+            pod = labels.get("pod") or labels.get("instance", "")
+            key = (labels["robot"], labels["module"], pod, labels.get("job", ""))
+            by_pod.setdefault(key, {})[labels.get("__name__", "")] = value
+        series = out.setdefault(ns, [])
+        for (robot, module, pod, _), values in sorted(by_pod.items()):
+            count = values.get("fogfleet_fallback_takeovers_total")
+            if count is None:
+                continue
+            series.append(
+                StandbySeries(
+                    robot,
+                    module,
+                    (robot, module, pod),
+                    count,
+                    values.get("fogfleet_fallback_takeovers_created"),
+                    values.get("fogfleet_fallback_takeover_gap_seconds"),
+                    values.get("fogfleet_fallback_last_takeover_timestamp_seconds"),
+                )
+            )
+    return out
+
+
+def takeovers_from_status(status: Mapping[str, Any]) -> dict[tuple[str, str], Takeovers]:
+    """What a fleet's status says its standbys did (read back after a restart or failover)."""
+    out: dict[tuple[str, str], Takeovers] = {}
+    for entry in status.get("fallbacks") or []:
+        for t in entry.get("takeovers") or []:
+            if t.get("count"):
+                gap = t.get("lastGapSeconds")
+                out[(str(entry.get("robot")), str(t.get("module")))] = Takeovers(
+                    int(t["count"]),
+                    None if gap is None else float(gap),
+                    parse_timestamp(t.get("lastTakeoverTime")),
+                )
+    return out
+
+
 # ---------------------------------------------------------------------------- the fleet's status
 @dataclass(frozen=True)
 class LinkReport:
     entries: list[Obj]  # status.links
     degraded: tuple[str, str] | None  # the Degraded condition's reason and message, if any
+    # what the standbys did (None: not watched, the fleet's links are not monitored)
+    takeovers: Mapping[tuple[str, str], Takeovers] | None = None
+    active: frozenset[tuple[str, str]] = frozenset()  # (robot, module) computing on board
+
+    def takeovers_of(self, robot: str, standbys: list[str]) -> list[Obj] | None:
+        """``status.fallbacks[].takeovers`` of ``robot``: its standbys and any other module
+        whose standby took over (None: not watched)."""
+        if self.takeovers is None:
+            return None
+        modules = set(standbys) | {m for r, m in self.takeovers if r == robot}
+        out: list[Obj] = []
+        for module in sorted(modules):
+            t = self.takeovers.get((robot, module))
+            gap = t.last_gap if t is not None else None
+            entry: Obj = {
+                "module": module,
+                "count": t.count if t is not None else 0,
+                "lastGapSeconds": None if gap is None else round(gap, 3),
+                "lastTakeoverTime": timestamp(t.last_time) if t and t.last_time else None,
+                "active": (robot, module) in self.active,
+            }
+            out.append({k: v for k, v in entry.items() if v is not None})
+        return out
 
 
 def link_report(
     watch: LinkWatch | None,
     links: Mapping[str, RobotLink] | None,
     standbys: frozenset[tuple[str, str]] | None,
+    takeovers: Mapping[tuple[str, str], Takeovers] | None = None,
 ) -> LinkReport:
     """``status.links`` and what the links make of the Degraded condition."""
     if links is None or watch is None or watch.settings is None or not watch.settings.monitor:
@@ -209,7 +309,9 @@ def link_report(
             "message": rl.message,
         }
         entries.append({k: v for k, v in entry.items() if v is not None})
-    return LinkReport(entries, _degraded(links, active))
+    return LinkReport(
+        entries, _degraded(links, active), dict(takeovers or {}), frozenset(standbys or ())
+    )
 
 
 def _degraded(
@@ -269,4 +371,28 @@ def link_events(old: list[Obj], new: list[Obj]) -> list[tuple[str, str, str]]:
                     "its outputs (the remote instance went silent)",
                 )
             )
+    return out
+
+
+def takeover_events(old: list[Obj], new: list[Obj]) -> list[tuple[str, str, str]]:
+    """A StandbyTookOver Event per standby whose takeovers rose since the last status
+    (``status.fallbacks``). A robot whose takeovers were not listed before (its standbys not
+    watched yet, or the robot not offloaded) starts from its new count: its earlier takeovers
+    were reported when they came."""
+    before = {
+        str(f.get("robot")): {str(t.get("module")): int(t.get("count") or 0) for t in ts}
+        for f in old or []
+        if (ts := f.get("takeovers")) is not None
+    }
+    out: list[tuple[str, str, str]] = []
+    for f in new:
+        robot = str(f.get("robot"))
+        if robot not in before:
+            continue
+        for t in f.get("takeovers") or []:
+            n = int(t.get("count") or 0) - before[robot].get(str(t["module"]), 0)
+            if n > 0:
+                gap = t.get("lastGapSeconds")
+                message = takeover_message(robot, str(t["module"]), n, gap)
+                out.append(("Normal", "StandbyTookOver", message))
     return out

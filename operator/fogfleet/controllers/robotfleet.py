@@ -33,7 +33,7 @@ from .fleet_plan import Planned, plan_step
 from .fleet_render import render_step
 from .fleet_status import plan_events
 from .inputs import current_placement
-from .links import link_watch
+from .links import link_watch, takeovers_from_status
 from .node_events import hosted_modules, node_events
 from .observe import (
     FleetInputs,
@@ -180,6 +180,8 @@ def _remember(
         measured=inputs.measured,
     )
     state.rendered = rendered
+    if state.links.takeovers is None:  # after a restart: what the status said they did
+        state.links.takeovers = takeovers_from_status(inputs.obj.old_status)
     state.links.watch = link_watch(inputs.fleet, planned.problem, parsed.catalog)
     state.drift.watch = drift_watch(inputs.fleet, planned.problem, parsed.catalog, planned.decision)
     return rendered

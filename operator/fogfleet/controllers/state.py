@@ -38,6 +38,7 @@ from fogfleet.domain.network import Link
 from fogfleet.domain.observed import MissBudget, ModuleDrift
 from fogfleet.domain.onboard import OnboardNeed
 from fogfleet.domain.problem import Problem
+from fogfleet.domain.takeovers import Mark, SeriesKey, Takeovers
 from fogfleet.scheduling.decision import Decision
 
 from .stamp import DeploymentStamps
@@ -107,11 +108,18 @@ class LinkWatch:
 
 @dataclass
 class FleetLinks:
-    """The robots' links as measured (controllers/links.py writes it; cache: re-measured)."""
+    """The robots' links as measured, and what their standbys did (controllers/links.py writes
+    it; cache, re-measured, but for ``takeovers``)."""
 
     watch: LinkWatch | None = None
     robots: dict[str, RobotLink] = field(default_factory=dict)
     standbys_active: frozenset[tuple[str, str]] = frozenset()
+    # (robot, module) -> what its standby did (domain.takeovers). Memory that must survive a
+    # failover: it lives in status.fallbacks[].takeovers and is read back from there on the
+    # first full pass (None until then)
+    takeovers: dict[tuple[str, str], Takeovers] | None = None
+    # the standbys' counters as last read (cache: None until the first reading, a baseline)
+    marks: dict[SeriesKey, Mark] | None = None
 
 
 @dataclass(frozen=True)

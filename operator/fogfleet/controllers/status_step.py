@@ -20,7 +20,7 @@ from fogfleet.render.deployments import label_value
 from .deps import Deps
 from .drift_report import drift_events, drift_report
 from .fleet_status import fleet_status, held_status, placement_entries, running_wire
-from .links import link_events, link_report
+from .links import link_events, link_report, takeover_events
 from .observe import FleetInputs, FleetObject
 from .outcome import Outcome
 from .state import FleetState, Rendered
@@ -46,7 +46,9 @@ def refresh(
     )
     if state.placement != placement:  # the usage pass reads it (usage.py)
         state.placement = placement  # replaced only when it changed
-    links = link_report(state.links.watch, state.links.robots, state.links.standbys_active)
+    links = link_report(
+        state.links.watch, state.links.robots, state.links.standbys_active, state.links.takeovers
+    )
     drift = drift_report(state.drift.watch, state.drift.modules, state.drift.onboard)
     status = running_wire(
         fleet_status(
@@ -66,6 +68,7 @@ def refresh(
     events = [
         *link_events(obj.old_status.get("links") or [], links.entries),
         *drift_events(obj.old_status.get("measured") or [], drift.entries, drift.notes),
+        *takeover_events(obj.old_status.get("fallbacks") or [], status.get("fallbacks") or []),
     ]
     written = _write(deps, obj, status, events)
     if written is not None and ready != _is_ready(obj.old_status):

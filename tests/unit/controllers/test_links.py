@@ -8,7 +8,8 @@ from typing import Any
 import pytest
 
 import fogfleet.controllers.fleet_plan as fleet_plan
-from fogfleet.controllers.links import LinkDeps, link_events, measure_links
+from fogfleet.api.timestamps import timestamp
+from fogfleet.controllers.links import LinkDeps, link_events, measure_links, takeover_events
 from fogfleet.controllers.robotfleet import reconcile
 from fogfleet.errors import DependencyUnavailable
 
@@ -23,6 +24,7 @@ class FakePrometheus:
         self.answered = {r: 1.0 for r in ROBOTS}
         self.round_trip = {r: 0.010 for r in ROBOTS}  # 5 ms one way
         self.active: list[tuple[str, str]] = []
+        self.standby: list[tuple[dict[str, str], float]] = []  # the takeover counters' series
         self.queries: list[str] = []
         self.down = False
 
@@ -36,6 +38,8 @@ class FakePrometheus:
             return [({"node": n}, v) for n, v in self.answered.items()]
         if promql.startswith("min by (node)"):
             return [({"node": n}, v) for n, v in self.round_trip.items()]
+        if promql.startswith("{__name__"):
+            return list(self.standby)
         return [({"robot": r, "module": m}, 1.0) for r, m in self.active]
 
 
@@ -87,12 +91,16 @@ def onboard(kube: Any, robot: str) -> set[str]:
 def test_one_query_per_measure_asks_for_every_robot_node(kube, deps, prom) -> None:
     run(kube, deps)
     assert measure(deps, prom, 0) == {KEY}  # first measures: news for the status
-    answered, fastest, active = prom.queries
+    answered, fastest, active, takeovers = prom.queries
     for robot in ROBOTS:
         assert robot in answered and robot in fastest
     assert "up{node=~" in answered and "[30s]" in answered
     assert "scrape_duration_seconds" in fastest
     assert active == 'max by (robot, module) (fogfleet_fallback_active{namespace="warehouse"})'
+    assert takeovers == (
+        '{__name__=~"fogfleet_fallback_(takeovers_total|takeovers_created|takeover_gap_seconds'
+        '|last_takeover_timestamp_seconds)",namespace="warehouse"}'
+    )
     assert measure(deps, prom, 10) == set()  # nothing changed: nothing to reconcile
 
 
@@ -243,3 +251,110 @@ def test_dots_in_node_names_are_escaped_for_the_regex_and_for_promql(kube, deps,
     state.links.watch = dataclasses.replace(state.links.watch, robots=robots)
     measure(deps, prom, 0)
     assert 'up{node=~"robot-1\\\\.site\\\\.example"}' in prom.queries[0]
+
+
+HPE = "human-pose-estimation"
+
+
+def with_standbys(kube: Any, deps: Any) -> str:
+    """The warehouse with human-pose-estimation offloaded behind an on-board standby; the
+    first robot it is offloaded from."""
+    hpe = kube.modules[("warehouse", HPE)]["spec"]
+    hpe["fallback"], hpe["preferredTiers"] = {"mode": "onboard", "cpu": 1}, ["edge"]
+    kube.fleets[KEY]["spec"].setdefault("scheduler", {})["migrationMarginPercent"] = 100
+    run(kube, deps)
+    kube.run_pods()
+    run(kube, deps)
+    return next(f["robot"] for f in status(kube)["fallbacks"] if HPE in f["standbys"])
+
+
+def counters(robot: str, count: float, created: float = 1e9, **kw: float) -> list[Any]:
+    """What Prometheus holds of one standby pod's takeover counters."""
+    labels = {"namespace": "warehouse", "pod": f"{robot}-hpe-standby", "job": "kubernetes-pods"}
+    labels |= {"robot": robot, "module": HPE, "tier": "robot", "node": robot}
+    values = {
+        "fogfleet_fallback_takeovers_total": count,
+        "fogfleet_fallback_takeovers_created": created,
+        "fogfleet_fallback_takeover_gap_seconds": kw.get("gap", 0.0),
+    }
+    if "at" in kw:
+        values["fogfleet_fallback_last_takeover_timestamp_seconds"] = kw["at"]
+    return [({**labels, "__name__": name}, v) for name, v in values.items()]
+
+
+def takeovers(kube: Any, robot: str) -> dict[str, dict[str, Any]]:
+    entry = next(f for f in status(kube)["fallbacks"] if f["robot"] == robot)
+    return {t["module"]: t for t in entry["takeovers"]}
+
+
+def took_over(kube: Any) -> list[str]:
+    return [e[2] for e in kube.events if e[1] == "StandbyTookOver"]
+
+
+def test_a_standbys_takeover_is_in_the_status_and_one_event(kube, deps, prom) -> None:
+    robot = with_standbys(kube, deps)
+    prom.standby = counters(robot, 0)
+    measure(deps, prom, 0)  # the first reading: a baseline
+    run(kube, deps)
+    assert takeovers(kube, robot)[HPE] == {"module": HPE, "count": 0, "active": False}
+    assert took_over(kube) == []
+
+    at = 1_790_000_000.0
+    prom.standby = counters(robot, 1, gap=0.41, at=at)  # seen once the link is back
+    assert measure(deps, prom, 10) == {KEY}
+    run(kube, deps)
+    assert takeovers(kube, robot)[HPE] == {
+        "module": HPE,
+        "count": 1,
+        "lastGapSeconds": 0.41,
+        "lastTakeoverTime": timestamp(at),
+        "active": False,
+    }
+    assert took_over(kube) == [
+        f"the standby of {HPE} on {robot} took over 0.41 s after the remote's last output"
+    ]
+    patches = len(kube.status_patches)
+    assert measure(deps, prom, 20) == set()
+    run(kube, deps)
+    assert len(kube.status_patches) == patches, "nothing new: nothing written"
+    assert len(took_over(kube)) == 1
+
+    # its container restarted (the counter starts again at 0) and took over once since
+    prom.standby = counters(robot, 1, created=2e9, gap=0.3, at=at + 600)
+    assert measure(deps, prom, 30) == {KEY}
+    run(kube, deps)
+    assert takeovers(kube, robot)[HPE]["count"] == 2
+    assert len(took_over(kube)) == 2 and "0.30 s" in took_over(kube)[-1]
+
+    # a new operator (a restart, a failover) reads the count back and reports nothing again
+    deps.store.forget(KEY)
+    run(kube, deps)
+    measure(deps, prom, 40)
+    run(kube, deps)
+    assert takeovers(kube, robot)[HPE]["count"] == 2 and len(took_over(kube)) == 2
+
+
+def test_an_active_standby_is_marked_active(kube, deps, prom) -> None:
+    robot = with_standbys(kube, deps)
+    prom.standby = counters(robot, 0)
+    measure(deps, prom, 0)
+    prom.active = [(robot, HPE)]
+    assert measure(deps, prom, 10) == {KEY}
+    run(kube, deps)
+    assert takeovers(kube, robot)[HPE]["active"] is True
+
+
+def test_takeover_events_only_for_robots_listed_before() -> None:
+    old = [{"robot": "r1", "takeovers": [{"module": "m", "count": 1}]}, {"robot": "r2"}]
+    new = [
+        {"robot": "r1", "takeovers": [{"module": "m", "count": 3, "lastGapSeconds": 0.5}]},
+        {"robot": "r2", "takeovers": [{"module": "m", "count": 4}]},
+    ]
+    assert takeover_events(old, new) == [
+        (
+            "Normal",
+            "StandbyTookOver",
+            "the standby of m on r1 took over 2 times, the last 0.50 s after the remote's "
+            "last output",
+        )
+    ]

@@ -340,6 +340,28 @@ class ObjectiveValue(FogModel):
     """Its value (lower is better)."""
 
 
+class StandbyTakeoverStatus(FogModel):
+    """What one module's on-board standby did: its takeovers from the silent remote instance,
+    read from the standby's own metrics (fogfleet_fallback_takeovers_total,
+    fogfleet_fallback_takeover_gap_seconds, fogfleet_fallback_last_takeover_timestamp_seconds,
+    fogfleet_fallback_active) through the operator's Prometheus, every link measurement."""
+
+    module: str
+    """The SoftwareModule."""
+    count: int = 0
+    """Takeovers the operator has seen since the fleet's links are monitored (a restarted
+    standby's counter is counted on from where it was). A standby on a cut-off robot is not
+    scraped: its takeover is counted when the link is back."""
+    last_gap_seconds: float | None = None
+    """The last takeover's gap: seconds from the remote's last output to the standby's first
+    own output (what the robot's topic went without)."""
+    last_takeover_time: str | None = None
+    """When the last takeover happened (RFC 3339), by the standby's clock; from a workload that
+    does not export it, when the operator first saw it (after a cut: when the link returned)."""
+    active: bool = False
+    """Whether the standby computes the module's outputs on board now."""
+
+
 class RobotFallbackStatus(FogModel):
     """What losing its link costs one robot under the deployed plan (fleets with fallbacks)."""
 
@@ -353,6 +375,10 @@ class RobotFallbackStatus(FogModel):
     """Offloaded modules without a fallback: they stop while the link is down."""
     predicted_miss_rate: float
     """Predicted fraction of the robot's cycles missed while its link is down (0-1)."""
+    takeovers: list[StandbyTakeoverStatus] | None = None
+    """Per module with a standby on the robot (and any other whose standby took over): what
+    the standby did. Unset while the fleet's links are not monitored (spec.linkHealth, the
+    operator's Prometheus: the Monitored condition)."""
 
 
 class ModuleMissStatus(FogModel):
