@@ -7,11 +7,13 @@ Every figure comes from the planner's code: ``scheduling.why`` for the reasons,
 
 from __future__ import annotations
 
+import time
 from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
 
+from fogfleet.api.timestamps import parse_timestamp
 from fogfleet.domain.problem import Problem
 from fogfleet.scheduling.decision import CorePlanner, decide, fingerprint, with_defaults
 from fogfleet.scheduling.objectives import REGISTRY, module_miss_rates, objective_values
@@ -76,11 +78,15 @@ def why_doc(w: ModuleWhy) -> Doc:
     }
 
 
-def top_doc(live: Live) -> Doc:
+def top_doc(live: Live, now: float | None = None) -> Doc:
     """Per fleet and per module: measured vs predicted miss rate, CPU requested by the plan
-    and the CPU use it expects (measured CPU use is not in any status), the tier split and
-    the fallbacks active (standbys computing on board while a robot's link is lost)."""
+    and the CPU use it expects (measured CPU use is not in any status), the tier split, the
+    fallbacks active (standbys computing on board while a robot's link is lost) and what the
+    standbys did (``status.fallbacks[].takeovers``: the last takeover's gap, robot and age at
+    ``now``, default the clock's)."""
     p, x, status = live.problem, live.placement, live.status
+    now = time.time() if now is None else now
+    took = _takeovers(status)
     alloc = p.allocation(live.with_limits)
     placed = x >= 0
     rows = np.flatnonzero(placed)
@@ -110,18 +116,60 @@ def top_doc(live: Live) -> Doc:
                 "cpuExpected": round(float(expected[idx].sum()), 3),
                 "moduleSplit": mstatus.get("split"),
                 "fallbacksActive": sorted(r for r, mods in active.items() if name in mods),
+                "takeovers": took.get(name, []),
+                "lastTakeover": _last_takeover(took.get(name, []), now),
             }
         )
     rates = [float(m["measuredMissRate"]) for m in modules if m["measuredMissRate"] is not None]
+    measured = status.get("measuredMissRate")
     return {
         "fleet": f"{p.namespace}/{p.fleet}",
         "predictedMissRate": status.get("predictedMissRate"),
-        "measuredMissRate": sum(rates) / len(rates) if rates else None,
+        # the operator's cycle-weighted rate; without it (an older operator) the modules' mean
+        "measuredMissRate": measured
+        if measured is not None
+        else (sum(rates) / len(rates) if rates else None),
+        "takeovers": sum(t["count"] for ts in took.values() for t in ts) if took else None,
         "split": status.get("split") or _split(p, x),
         "cpuRequested": round(float(request.sum()), 3),
         "cpuExpected": round(float(expected.sum()), 3),
         "fallbacksActive": {r: sorted(m) for r, m in sorted(active.items())},
         "modules": modules,
+    }
+
+
+def _takeovers(status: Mapping[str, Any]) -> dict[str, list[Doc]]:
+    """Module -> per robot, what its standby did (``status.fallbacks[].takeovers``)."""
+    out: dict[str, list[Doc]] = {}
+    for f in status.get("fallbacks") or []:
+        for t in f.get("takeovers") or []:
+            out.setdefault(str(t["module"]), []).append(
+                {
+                    "robot": str(f.get("robot")),
+                    "count": int(t.get("count") or 0),
+                    "lastGapSeconds": t.get("lastGapSeconds"),
+                    "lastTakeoverTime": t.get("lastTakeoverTime"),
+                    "active": bool(t.get("active")),
+                }
+            )
+    return out
+
+
+def _last_takeover(takeovers: list[Doc], now: float) -> Doc | None:
+    """The module's newest takeover on any robot, with its age in seconds (None: none)."""
+    seen = [
+        (at, t)
+        for t in takeovers
+        if t["count"] and (at := parse_timestamp(t["lastTakeoverTime"])) is not None
+    ]
+    if not seen:
+        return None
+    at, t = max(seen, key=lambda pair: pair[0])
+    return {
+        "robot": t["robot"],
+        "gapSeconds": t["lastGapSeconds"],
+        "time": t["lastTakeoverTime"],
+        "agoSeconds": max(0, round(now - at)),
     }
 
 

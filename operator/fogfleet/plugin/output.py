@@ -10,6 +10,7 @@ from typing import Any
 import yaml
 
 from fogfleet.domain.miss_rates import format_miss_rate
+from fogfleet.domain.takeovers import format_gap
 
 __all__ = ["FORMATS", "diff_table", "render", "top_table", "why_table"]
 
@@ -82,6 +83,7 @@ def top_table(doc: Doc) -> str:
                 "CPU-EXPECTED",
                 "SPLIT",
                 "FALLBACKS-ACTIVE",
+                "TAKEOVERS",
             ],
             [
                 doc["fleet"],
@@ -91,6 +93,7 @@ def top_table(doc: Doc) -> str:
                 f"{doc['cpuExpected']:g}",
                 doc["split"],
                 ",".join(f"{r}:{'+'.join(m)}" for r, m in doc["fallbacksActive"].items()) or "-",
+                "-" if doc.get("takeovers") is None else doc["takeovers"],
             ],
         ]
     )
@@ -104,6 +107,7 @@ def top_table(doc: Doc) -> str:
             "CPU-REQUESTED",
             "CPU-EXPECTED",
             "FALLBACKS-ACTIVE",
+            "LAST-TAKEOVER",
         ]
     ]
     for m in doc["modules"]:
@@ -117,9 +121,27 @@ def top_table(doc: Doc) -> str:
                 f"{m['cpuRequested']:g}",
                 f"{m['cpuExpected']:g}",
                 ",".join(m["fallbacksActive"]) or "-",
+                _takeover(m.get("lastTakeover")),
             ]
         )
     return "\n".join([*head, "", *_columns(rows)])
+
+
+def _takeover(last: Doc | None) -> str:
+    """A module's last takeover: its gap, how long ago and where (``0.41 s, 2m ago
+    (robot-2)``); ``-``: none seen."""
+    if not last:
+        return "-"
+    gap = "gap ?" if last.get("gapSeconds") is None else format_gap(float(last["gapSeconds"]))
+    return f"{gap}, {_ago(int(last['agoSeconds']))} ago ({last['robot']})"
+
+
+def _ago(seconds: int) -> str:
+    """An age as kubectl prints one: 45s, 2m, 3h, 2d."""
+    for unit, size, limit in (("s", 1, 120), ("m", 60, 7200), ("h", 3600, 172800)):
+        if seconds < limit:
+            return f"{seconds // size}{unit}"
+    return f"{seconds // 86400}d"
 
 
 def diff_table(doc: Doc) -> str:

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import copy
 import json
+import time
 from collections.abc import Mapping
 from functools import cache
 from pathlib import Path
@@ -14,6 +15,7 @@ import pytest
 import yaml
 
 from fogfleet.api.loader import load_paths
+from fogfleet.api.timestamps import timestamp
 from fogfleet.api.v1alpha1.robotfleet import SchedulerSettings
 from fogfleet.domain.build import build_problem
 from fogfleet.plugin.cli import main
@@ -50,6 +52,31 @@ def _objects() -> tuple[Obj, list[Obj], list[Obj]]:
             for inst, j in zip(problem.instances, x, strict=True)
         ],
         "links": [{"robot": "robot-2", "standbysActive": ["nav-motion-planning"]}],
+        "measuredMissRate": 0.0123,
+        "fallbacks": [
+            {
+                "robot": "robot-2",
+                "reservedCpu": "500m",
+                "standbys": ["nav-motion-planning"],
+                "predictedMissRate": 0.0,
+                "takeovers": [
+                    {
+                        "module": "nav-motion-planning",
+                        "count": 2,
+                        "lastGapSeconds": 0.41,
+                        "lastTakeoverTime": timestamp(time.time() - 150),
+                        "active": True,
+                    }
+                ],
+            },
+            {
+                "robot": "robot-3",
+                "reservedCpu": "500m",
+                "standbys": ["nav-motion-planning"],
+                "predictedMissRate": 0.0,
+                "takeovers": [{"module": "nav-motion-planning", "count": 0, "active": False}],
+            },
+        ],
     }
     modules = copy.deepcopy(modules)
     for m in modules:
@@ -135,6 +162,40 @@ def test_top_shows_measured_and_predicted_and_active_fallbacks(
     assert nav["fallbacksActive"] == ["robot-2"]
     code, table, _ = _run(["top", "warehouse"], capsys)
     assert "MEASURED-MISS" in table and "3.0%" in table  # format_miss_rate: one decimal from 1 %
+
+
+def test_top_shows_the_fleets_measured_rate_and_the_standbys_last_takeover(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    code, out, _ = _run(["top", "warehouse", "-o", "json"], capsys)
+    assert code == 0
+    doc = json.loads(out)
+    assert doc["measuredMissRate"] == 0.0123, "the operator's status.measuredMissRate"
+    assert doc["takeovers"] == 2
+    nav = next(m for m in doc["modules"] if m["module"] == "nav-motion-planning")
+    assert [t["robot"] for t in nav["takeovers"]] == ["robot-2", "robot-3"]
+    last = nav["lastTakeover"]
+    assert last["robot"] == "robot-2" and last["gapSeconds"] == 0.41
+    assert 149 <= last["agoSeconds"] <= 160
+    seg = next(m for m in doc["modules"] if m["module"] == "scene-segmentation")
+    assert seg["takeovers"] == [] and seg["lastTakeover"] is None
+    code, out, _ = _run(["top", "warehouse", "-o", "yaml"], capsys)
+    same = yaml.safe_load(out)
+    assert same.keys() == doc.keys() and same["takeovers"] == 2
+    assert (
+        next(m for m in same["modules"] if m["module"] == "nav-motion-planning")[
+            "lastTakeover"
+        ].keys()
+        == last.keys()
+    )
+    code, table, _ = _run(["top", "warehouse"], capsys)
+    lines = table.splitlines()
+    assert "TAKEOVERS" in lines[0] and lines[1].split()[-1] == "2"
+    assert "1.2%" in lines[1]  # MEASURED-MISS: the fleet's own rate
+    nav_line = next(line for line in lines if line.startswith("nav-motion-planning"))
+    assert nav_line.endswith("0.41 s, 2m ago (robot-2)")
+    seg_line = next(line for line in lines if line.startswith("scene-segmentation"))
+    assert seg_line.endswith("-")
 
 
 def test_unknown_fleet_and_module_exit_2(capsys: pytest.CaptureFixture[str]) -> None:
