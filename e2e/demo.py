@@ -1,11 +1,22 @@
-"""`make demo`, the cluster part: the warehouse fleet on the local bed, left running.
+"""`make demo`, the cluster part: two fleets on the local bed, left running.
 
 Starts the bed if needed (building its tools the first time), installs fogfleet the way the
-README's "Install into a cluster" says (the Helm chart; the operator runs in-cluster, on a
-real node of the bed), applies ``manifests/examples/warehouse/`` as a user would, waits until
-the fleet is Ready (every pod Running on its planned node, bound by the real kube-scheduler)
-and prints ``kubectl get robotfleets``, the placement and the commands to go on with. Nothing
-is deleted: the bed, the operator and the fleet keep running until ``make cluster-down``.
+README's "Install into a cluster" says (the Helm chart, the operator in-cluster on a real node
+of the bed, reading the bed's Prometheus at its cluster address as it would read a user's),
+and applies two examples as a user would:
+
+* ``manifests/examples/warehouse-lite/``, the main fleet: two robots and an edge node that are
+  the bed's real nodes, real containers exchanging real ROS 2 messages, and an on-board
+  fallback for the module it offloads;
+* ``manifests/examples/warehouse/``, the paper's warehouse on kwok's nodes beside it, to show
+  the scale (its pods are bound and Running; no container runs).
+
+It waits until both are Ready (every pod Running on its planned node, bound by the real
+kube-scheduler), then until the operator's status of the real fleet holds a measured miss rate
+for every module (read through the RobotFleet's status, as `kubectl get robotfleets` shows it,
+not from Prometheus directly), prints measured against predicted, and the commands to go on
+with. Nothing is deleted: the bed, the operator and the fleets keep running until
+``make cluster-down``.
 
     python e2e/demo.py            # the demo
     python e2e/demo.py remove     # uninstall the demo's release and its example namespaces
@@ -17,6 +28,7 @@ import subprocess
 import sys
 import time
 from collections import Counter
+from dataclasses import dataclass
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -29,11 +41,26 @@ from e2e.bed.operator_fixtures import conditions  # noqa: E402
 from fogfleet.controllers.ros import is_ros_object  # noqa: E402
 
 RELEASE, SYSTEM = "fogfleet", "fogfleet-system"
-EXAMPLE = "manifests/examples/warehouse/"
-NAMESPACE = "warehouse"  # the example's own 00-namespace.yaml
 DEMO_NAMESPACES = ("warehouse", "warehouse-lite", "single-robot", "shared-detector", "pod-template")
-TIMEOUT_SECONDS = 300
+READY_TIMEOUT_SECONDS = 300
+MEASURED_TIMEOUT_SECONDS = 180  # issue 44: measured rates within 3 minutes of Ready
 PROGRESS_SECONDS = 10
+
+
+@dataclass(frozen=True)
+class Example:
+    """One example folder the demo applies: its fleet (named like its namespace)."""
+
+    name: str
+    real: bool  # on the bed's real nodes (else kwok's)
+
+    @property
+    def folder(self) -> str:
+        return f"manifests/examples/{self.name}/"
+
+
+REAL = Example("warehouse-lite", real=True)  # the main fleet: real containers
+SCALE = Example("warehouse", real=False)  # the paper's warehouse on kwok, beside it
 
 
 def say(msg: str) -> None:
@@ -46,91 +73,150 @@ def helm(*args: str) -> None:
     subprocess.run(cmd, check=True, cwd=ROOT)
 
 
-def install(kube: Kube) -> None:
-    """The README's Helm install (upgrade --install, so a second demo finds it in place)."""
-    say(f"helm install {RELEASE} charts/fogfleet -n {SYSTEM} --create-namespace  (the README's)")
+def install(kube: Kube, cluster: Cluster) -> None:
+    """The README's Helm install with the cluster's Prometheus (upgrade --install, so a second
+    demo finds it in place)."""
+    url = cluster.in_cluster_prometheus_url
+    say(f"helm install {RELEASE} charts/fogfleet -n {SYSTEM} --create-namespace "
+        f"--set scaling.prometheusUrl={url}  (the README's)")  # fmt: skip
     t0 = time.monotonic()
     helm("upgrade", "--install", "--take-ownership", RELEASE, "charts/fogfleet", "-n", SYSTEM,
-         "--create-namespace",
+         "--create-namespace", "--set", f"scaling.prometheusUrl={url}",
          "--wait", "--timeout", "300s")  # fmt: skip
     pods = kube.kubectl_json(
         "get", "pods", "-n", SYSTEM, "-l", "app.kubernetes.io/component=operator"
     )["items"]
     where = sorted({p["spec"].get("nodeName", "?") for p in pods})
-    say(f"operator: {len(pods)} replicas Running on {', '.join(where)} "
-        f"({time.monotonic() - t0:.0f} s)")  # fmt: skip
+    say(f"operator: {len(pods)} replicas Running on {', '.join(where)}, reading Prometheus at "
+        f"{url} ({time.monotonic() - t0:.0f} s)")  # fmt: skip
 
 
-def wait_ready(kube: Kube) -> tuple[dict, float]:
-    started = time.monotonic()
-    say(f"kubectl apply -f {EXAMPLE}")
-    kube.kubectl("apply", "-f", str(ROOT / EXAMPLE))
-    fleet: dict = {}
+def wait_ready(kube: Kube, examples: tuple[Example, ...]) -> dict[str, tuple[dict, float]]:
+    """Apply each example, then wait until every fleet is Ready; each fleet and its time to
+    Ready after its `kubectl apply`."""
+    applied = {}
+    for ex in examples:
+        say(f"kubectl apply -f {ex.folder}")
+        kube.kubectl("apply", "-f", str(ROOT / ex.folder))
+        applied[ex.name] = time.monotonic()
+    started = min(applied.values())
+    done: dict[str, tuple[dict, float]] = {}
     report = started + PROGRESS_SECONDS
-    while time.monotonic() - started < TIMEOUT_SECONDS:
-        fleet = kube.kubectl_json("get", "robotfleet", "warehouse", "-n", NAMESPACE)
-        ready = conditions(fleet).get("Ready", {})
-        if ready.get("status") == "True":
-            return fleet, time.monotonic() - started
+    fleet: dict = {}
+    while time.monotonic() - started < READY_TIMEOUT_SECONDS:
+        for ex in examples:
+            if ex.name in done:
+                continue
+            fleet = kube.kubectl_json("get", "robotfleet", ex.name, "-n", ex.name)
+            if conditions(fleet).get("Ready", {}).get("status") == "True":
+                done[ex.name] = fleet, time.monotonic() - applied[ex.name]
+        if len(done) == len(examples):
+            return done
         if time.monotonic() > report:
-            say(f"... waiting for the fleet: Ready={ready.get('status', '-')} "
-                f"{ready.get('reason', '')} {time.monotonic() - started:.0f} s")  # fmt: skip
+            waiting = [ex.name for ex in examples if ex.name not in done]
+            say(f"... waiting for {', '.join(waiting)} to be Ready "
+                f"{time.monotonic() - started:.0f} s")  # fmt: skip
             report += PROGRESS_SECONDS
         time.sleep(1)
     raise SystemExit(
-        f"The fleet did not become Ready in {TIMEOUT_SECONDS} s: {conditions(fleet)}\n"
+        f"The fleets did not become Ready in {READY_TIMEOUT_SECONDS} s: {conditions(fleet)}\n"
         f"Operator logs: kubectl logs -n {SYSTEM} -l app.kubernetes.io/component=operator"
     )
 
 
-def show(kube: Kube, fleet: dict, elapsed: float) -> None:
-    print(kube.kubectl("get", "robotfleets", "-n", NAMESPACE).stdout)
+def wait_measured(kube: Kube, ex: Example) -> dict:
+    """The fleet once its status measures every module (status.measured, from the operator's
+    Prometheus), or as it is after MEASURED_TIMEOUT_SECONDS."""
+    started = report = time.monotonic()
+    fleet: dict = {}
+    while time.monotonic() - started < MEASURED_TIMEOUT_SECONDS:
+        fleet = kube.kubectl_json("get", "robotfleet", ex.name, "-n", ex.name)
+        status = fleet.get("status") or {}
+        measured = status.get("measured") or []
+        modules = {row["module"] for row in status.get("placement") or []}
+        done = {m["module"] for m in measured if m.get("measuredMissRate") is not None}
+        if modules and done >= modules:
+            say(f"{ex.name}: every module measured {time.monotonic() - started:.0f} s after Ready")
+            return fleet
+        if time.monotonic() > report:
+            say(f"... waiting for the operator to measure {ex.name}'s modules "
+                f"({len(done)} of {len(modules)}) {time.monotonic() - started:.0f} s")  # fmt: skip
+            report += PROGRESS_SECONDS * 2
+        time.sleep(2)
+    say(f"not every module of {ex.name} was measured within {MEASURED_TIMEOUT_SECONDS} s; "
+        "see the Monitored condition: kubectl describe robotfleet")  # fmt: skip
+    return fleet
+
+
+def percent(rate: float | None) -> str:
+    return "-" if rate is None else f"{100 * rate:.3g}%"
+
+
+def show_real(kube: Kube, ex: Example, fleet: dict, elapsed: float) -> None:
+    print(kube.kubectl("get", "robotfleets", "-n", ex.name).stdout)
     status = fleet["status"]
-    pods = kube.kubectl_json("get", "pods", "-n", NAMESPACE)["items"]
-    running_on = [p["spec"].get("nodeName") for p in pods if p["status"].get("phase") == "Running"]
-    bound = Counter(running_on)
-    print(f"{'ROBOT':9} {'MODULE':24} {'NODE':9} {'TIER':6} CPU")
+    pods = kube.kubectl_json("get", "pods", "-n", ex.name)["items"]
+    running_on = Counter(
+        p["spec"].get("nodeName") for p in pods if p["status"].get("phase") == "Running"
+    )
+    print(f"{'ROBOT':12} {'MODULE':24} {'NODE':12} {'TIER':6} CPU")
     for row in status["placement"]:
-        print(f"{row['robot']:9} {row['module']:24} {row['node']:9} {row['tier']:6} {row['cpu']}")
+        print(f"{row['robot']:12} {row['module']:24} {row['node']:12} {row['tier']:6} {row['cpu']}")
     print()
     servers = [p for p in pods if is_ros_object(p)]
     print(
         f"{len(pods) - len(servers)} module pods and {len(servers)} ROS discovery servers "
-        f"Running on {len(bound)} nodes, bound by kube-scheduler, "
+        f"Running on the real nodes {', '.join(sorted(n for n in running_on if n))}, "
         f"{elapsed:.1f} s after kubectl apply (planning {status.get('planningMillis')} ms)"
     )
     print(f"Choice: {status.get('choiceReason')}")
+    drift = conditions(fleet).get("Drift", {})
+    print("\nMissed cycles, measured by the operator (status.measured) against the plan:")
+    print(f"{'MODULE':24} {'PREDICTED':>10} {'MEASURED':>10} {'CYCLES':>8}  DRIFTING SINCE")
+    for m in status.get("measured") or []:
+        print(f"{m['module']:24} {percent(m.get('predictedMissRate')):>10} "
+              f"{percent(m.get('measuredMissRate')):>10} {m.get('cycles', 0):>8.0f}  "
+              f"{m.get('driftingSince') or '-'}")  # fmt: skip
+    if drift:
+        print(f"Drift={drift.get('status')} {drift.get('reason', '')}: {drift.get('message', '')}")
+
+
+def show_scale(kube: Kube, ex: Example, fleet: dict, elapsed: float) -> None:
+    status = fleet["status"]
+    print(kube.kubectl("get", "robotfleets", "-n", ex.name).stdout)
+    print(f"{ex.name} (kwok's nodes, no container inside): {status.get('modulesPlaced')} instances "
+          f"split robot/edge/cloud {status.get('split')}, Ready {elapsed:.1f} s after kubectl "
+          f"apply (planning {status.get('planningMillis')} ms)")  # fmt: skip
 
 
 def next_steps(cluster: Cluster) -> str:
-    """What to type next, in the user's own shell."""
+    """What to type next, in the user's own shell: every command returns within seconds."""
     harness = "python3 e2e/bed/harness.py"
     robot = next((n for n in cluster.real_nodes if "robot" in n), "bed-robot-1")
+    ns = REAL.name
+    degraded = '\'{.status.conditions[?(@.type=="Degraded")].message}{"\\n"}\''
     return f"""
-The bed, the operator (in-cluster, Helm release {RELEASE} in {SYSTEM}) and the fleet keep
+The bed, the operator (in-cluster, Helm release {RELEASE} in {SYSTEM}) and the fleets keep
 running. In your own shell:
 
   export KUBECONFIG={cluster.kubeconfig}
-  export PATH={cluster.bin_dir}:$PATH             # the bed's kubectl and helm
-  kubectl get robotfleets -A                      # without the exports: make kubectl ARGS="..."
-  kubectl get robotfleets -n {NAMESPACE} -w            # watch the fleet
-  kubectl describe robotfleet warehouse -n {NAMESPACE}  # conditions, choiceReason, Events
+  export PATH={cluster.bin_dir}:{ROOT / ".venv" / "bin"}:$PATH
+  kubectl get robotfleets -A                      # MISS is predicted, MEASURED from the pods
+  kubectl get softwaremodules -n {ns}   # each module's measured miss rate
+  kubectl fogfleet top {ns} -n {ns}    # measured vs predicted, CPU and split per module
+  kubectl describe robotfleet {ns} -n {ns}  # conditions (Drift, Monitored), Events
   kubectl get computenodes                        # what each node holds
-(The warehouse's nodes are kwok's: its pods are bound and Running, but no container runs.)
+(kubectl fogfleet is the plugin from .venv/bin; without the exports: make kubectl ARGS="...")
 
-Run a fleet on the bed's real nodes (real containers, real ROS 2 traffic) and cut a robot's link:
-  kubectl apply -f manifests/examples/warehouse-lite/
-  kubectl get robotfleets -n warehouse-lite -w
-  kubectl logs -n warehouse-lite -l app.kubernetes.io/managed-by=fogfleet --prefix --tail=1 \\
-      --max-log-requests=20                       # each module logs a line every 10 s
-  {harness} link {robot} --loss 100%     # cut the robot off the edge
-  kubectl logs -n warehouse-lite -l fogfleet.io/robot={robot} --prefix --tail=1  # messages stop
+Cut {robot}'s link: the edge's human-pose-estimation goes silent for it and its standby on the
+robot takes over (human-pose-lite, on board):
+  {harness} link {robot} --loss 100%
+  kubectl get robotfleet {ns} -n {ns} -o jsonpath={degraded}  # in ~15 s: link lost
   {harness} link {robot} --reset
-(With a fallback in the fleet's spec, the robot's standbys take over: docs/ros2.md.)
+  kubectl fogfleet top {ns} -n {ns}    # in ~15 s, TAKEOVER: how fast the standby took over
+(Events say it too: kubectl get events -n {ns} --field-selector involvedObject.kind=RobotFleet)
 
 Every example applies on its own: kubectl apply -f manifests/examples/<name>/
-(shared-detector plans onto the warehouse's robots robot-1..5: it is Infeasible, and says why,
-until you free them: kubectl delete namespace warehouse)
 Stop everything: make cluster-down (it says what, if anything, it could not remove)
 """
 
@@ -164,9 +250,10 @@ def main(argv: list[str]) -> int:
     t0 = time.monotonic()
     cluster = ensure_up()
     kube = _kube(cluster)
-    install(kube)
-    fleet, elapsed = wait_ready(kube)
-    show(kube, fleet, elapsed)
+    install(kube, cluster)
+    ready = wait_ready(kube, (REAL, SCALE))
+    show_scale(kube, SCALE, *ready[SCALE.name])
+    show_real(kube, REAL, wait_measured(kube, REAL), ready[REAL.name][1])
     print(next_steps(cluster))
     say(f"done in {time.monotonic() - t0:.0f} s")
     return 0
