@@ -213,8 +213,8 @@ robot takes over (human-pose-lite, on board):
   {harness} link {robot} --loss 100%
   kubectl get robotfleet {ns} -n {ns} -o jsonpath={degraded}  # in ~15 s: link lost
   {harness} link {robot} --reset
-  kubectl fogfleet top {ns} -n {ns}    # in ~15 s, TAKEOVER: how fast the standby took over
-(Events say it too: kubectl get events -n {ns} --field-selector involvedObject.kind=RobotFleet)
+  kubectl fogfleet top {ns} -n {ns}    # in ~15 s, LAST-TAKEOVER: how fast the standby took over
+  kubectl get events -n {ns} --field-selector reason=StandbyTookOver   # the same, as Events
 
 Every example applies on its own: kubectl apply -f manifests/examples/<name>/
 Stop everything: make cluster-down (it says what, if anything, it could not remove)
