@@ -7,7 +7,7 @@ from __future__ import annotations
 import json
 import secrets
 import time
-from collections.abc import Iterator
+from collections.abc import Iterator, Mapping
 from contextlib import contextmanager
 from datetime import datetime
 from typing import Any
@@ -82,9 +82,12 @@ def running_pod_names(kube: Kube) -> set[str]:
 
 
 @contextmanager
-def installed(kube: Kube, prefix: str = "e2e-incluster") -> Iterator[str]:
-    """The chart installed (release ``fogfleet`` in fogfleet-system) watching a fresh
-    namespace, which it yields; uninstalled and the namespace deleted afterwards."""
+def installed(
+    kube: Kube, prefix: str = "e2e-incluster", values: Mapping[str, str] | None = None
+) -> Iterator[str]:
+    """The chart installed (release ``fogfleet`` in fogfleet-system, with ``values`` given as
+    ``--set``) watching a fresh namespace, which it yields; uninstalled and the namespace
+    deleted afterwards."""
     install_crds(kube)
     # an interrupted earlier run may have left the plain-manifest install (not Helm's) behind
     for what in (
@@ -109,6 +112,7 @@ def installed(kube: Kube, prefix: str = "e2e-incluster") -> Iterator[str]:
         # the bed's CRDs come from crds/ (install_crds above, as every e2e test has them);
         # test_helm_crd_upgrade.py tests the chart's own CRD templates
         "--set", "crds.install=false",
+        *[arg for key, value in (values or {}).items() for arg in ("--set", f"{key}={value}")],
         "--wait", "--timeout", "240s",
     )  # fmt: skip
     try:
