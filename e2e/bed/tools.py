@@ -1,9 +1,11 @@
 """Build (or reuse from the cache) every pinned tool of the local cluster.
 
 Each tool is built from published Go modules (k8s.io/kubernetes through a wrapper module whose
-``replace`` lines are generated from k8s's own go.mod, kwok, etcd, helm) or unpacked from
-Debian's ``prometheus`` package, into ``TOOLS_DIR/<tool>-<version>/`` and reused after a
-``--version`` check. ``GOTOOLCHAIN=local`` always: a too-old Go fails at once.
+``replace`` lines are generated from k8s's own go.mod, kwok, etcd, helm, kube-router, Prometheus
+with only its kubernetes_sd, CoreDNS through a wrapper main package with only the plugins the
+bed uses) into ``TOOLS_DIR/<tool>-<version>/`` and reused after a ``--version`` check. Only the
+real nodes' runtime comes from Debian packages. ``GOTOOLCHAIN=local`` always: a too-old Go fails
+at once.
 """
 
 from __future__ import annotations
@@ -21,17 +23,18 @@ from pathlib import Path
 from e2e.bed.base import (
     BIN_DIR,
     TOOLS_DIR,
-    VERSIONS_FILE,
     HarnessError,
     load_versions,
     log,
     run,
 )
 
-TOOLS = ("k8s", "etcd", "kwok", "helm", "prometheus", "node-runtime", "kube-router")
+TOOLS = ("k8s", "etcd", "kwok", "helm", "prometheus", "coredns", "node-runtime", "kube-router")
 # Debian packages a real node runs on (the kubelet and kube-proxy come from the k8s build).
 # ipset: kube-router's NetworkPolicy firewall keeps each policy's peers in ip sets.
 NODE_PACKAGES = ("containerd", "runc", "containernetworking-plugins", "iptables", "ipset")
+# Of Prometheus's service discoveries only kubernetes_sd (plugins/plugin_*.go honour the tags).
+PROMETHEUS_TAGS = "remove_all_sd,enable_kubernetes_sd"
 K8S_COMMANDS = (
     "kube-apiserver",
     "kube-controller-manager",
@@ -132,7 +135,7 @@ class Tool:
 
 def tool_specs(v: Mapping[str, str]) -> dict[str, Tool]:
     kv, ev, kw, hv = v["K8S_VERSION"], v["ETCD_VERSION"], v["KWOK_VERSION"], v["HELM_VERSION"]
-    pv = v["PROMETHEUS_DEB_VERSION"]
+    pv, cv = v["PROMETHEUS_VERSION"], v["COREDNS_VERSION"]
     k8s_root = TOOLS_DIR / f"k8s-{kv}"
     k8s = Tool("k8s", k8s_root, {c: k8s_root / "bin" / c for c in K8S_COMMANDS})
     for c in K8S_COMMANDS:
@@ -150,16 +153,17 @@ def tool_specs(v: Mapping[str, str]) -> dict[str, Tool]:
     helm_root = TOOLS_DIR / f"helm-{hv}-k8s1.{minor}"
     helm = Tool("helm", helm_root, {"helm": helm_root / "bin" / "helm"})
     helm.checks.append((helm.binaries["helm"], ["version", "--short"], f"v{hv}"))
-    prom_root = TOOLS_DIR / f"prometheus-{pv.replace('+', '_').replace(':', '_')}"
-    prom = Tool(
-        "prometheus",
-        prom_root,
-        {
-            "prometheus": prom_root / "pkg" / "usr" / "bin" / "prometheus",
-            "promtool": prom_root / "pkg" / "usr" / "bin" / "promtool",
-        },
-    )
-    prom.checks.append((prom.binaries["prometheus"], ["--version"], f"version {pv.split('+')[0]}"))
+    prom_root = TOOLS_DIR / f"prometheus-{pv}"
+    prom_commands = ("prometheus", "promtool")
+    prom = Tool("prometheus", prom_root, {c: prom_root / "bin" / c for c in prom_commands})
+    for c in prom_commands:
+        # the tags line proves the build: a Prometheus with every SD compiled in is not ours
+        prom.checks.append((prom.binaries[c], ["--version"], f"{c}, version {pv} "))
+        prom.checks.append((prom.binaries[c], ["--version"], PROMETHEUS_TAGS))
+    coredns_root = TOOLS_DIR / f"coredns-{cv}"
+    coredns = Tool("coredns", coredns_root, {"coredns": coredns_root / "bin" / "coredns"})
+    coredns.checks.append((coredns.binaries["coredns"], ["-version"], f"CoreDNS-{cv}"))
+    coredns.checks.append((coredns.binaries["coredns"], ["-plugins"], "\nkubernetes\n"))
     runtime = Tool("node-runtime", TOOLS_DIR / "node-runtime", {})
     runtime.checks += [
         (Path("/usr/bin/containerd"), ["--version"], "containerd"),
@@ -179,6 +183,7 @@ def tool_specs(v: Mapping[str, str]) -> dict[str, Tool]:
         "kwok": kwok,
         "helm": helm,
         "prometheus": prom,
+        "coredns": coredns,
         "node-runtime": runtime,
         "kube-router": kube_router,
     }
@@ -304,48 +309,88 @@ def _build_helm(tool: Tool, v: Mapping[str, str], go: GoToolchain, blog: Path) -
     )
 
 
-def _build_prometheus(tool: Tool, v: Mapping[str, str], go: GoToolchain | None, blog: Path) -> None:
-    pv = v["PROMETHEUS_DEB_VERSION"]
-    for cmd in ("apt-get", "dpkg"):
-        if shutil.which(cmd) is None:
-            raise HarnessError(
-                f"{cmd} not found: Prometheus comes from Debian's `prometheus` package "
-                f"({pv}); run on Debian/Ubuntu or put a prometheus binary at "
-                f"{tool.binaries['prometheus']}."
-            )
-    dl = tool.root / "download"
-    shutil.rmtree(dl, ignore_errors=True)
-    dl.mkdir(parents=True)
-    spec = f"prometheus={pv}"
-    try:
-        run(["apt-get", "download", spec], cwd=dl, log_file=blog)
-    except HarnessError:
-        if os.geteuid() != 0:
-            raise HarnessError(
-                f"`apt-get download {spec}` failed; run `sudo apt-get update` and retry."
-            ) from None
-        log("prometheus: apt-get download failed; running apt-get update and retrying")
-        run(
-            ["apt-get", "update"],
-            log_file=blog,
-            timeout=600,
-            hint="hint: is the Debian mirror reachable?",
-        )
-        run(
-            ["apt-get", "download", spec],
-            cwd=dl,
-            log_file=blog,
-            hint=(
-                f"hint: Debian no longer carries {pv}? Update PROMETHEUS_DEB_VERSION in "
-                f"{VERSIONS_FILE} to `apt-cache policy prometheus`'s candidate."
-            ),
-        )
-    debs = sorted(dl.glob("prometheus_*.deb"))
-    if not debs:
-        raise HarnessError(f"apt-get download {spec} produced no .deb in {dl}")
-    shutil.rmtree(tool.root / "pkg", ignore_errors=True)
-    run(["dpkg", "-x", debs[0], tool.root / "pkg"], log_file=blog)
-    shutil.rmtree(dl, ignore_errors=True)
+def prometheus_module_version(version: str) -> str:
+    """Prometheus 3.16.0 is the Go module version v0.316.0 (v0.<MAJOR><MINOR>.<PATCH>)."""
+    major, minor, patch = (int(x) for x in version.split("."))
+    return f"v0.{major}{minor:02d}.{patch}"
+
+
+def _build_prometheus(tool: Tool, v: Mapping[str, str], go: GoToolchain, blog: Path) -> None:
+    """``go install`` of cmd/prometheus and cmd/promtool at the pinned module version (its go.mod
+    has no ``replace`` lines), with only kubernetes_sd of the service discoveries (the
+    ``plugins/plugin_*.go`` files honour the tags). The web UI's assets are not in the module
+    (they come from an npm build): the API, which is all the bed and the operator use, works."""
+    pv = v["PROMETHEUS_VERSION"]
+    module = "github.com/prometheus/prometheus"
+    ldflags = ["-s", "-w"]
+    for key, value in (("Version", pv), ("Revision", prometheus_module_version(pv)),
+                       ("Branch", "go-module-build")):  # fmt: skip
+        ldflags.append(f"-X github.com/prometheus/common/version.{key}={value}")
+    (tool.root / "bin").mkdir(parents=True, exist_ok=True)
+    go(
+        "install",
+        "-v",
+        "-trimpath",
+        "-tags",
+        PROMETHEUS_TAGS,
+        "-ldflags",
+        " ".join(ldflags),
+        *[f"{module}/cmd/{c}@{prometheus_module_version(pv)}" for c in ("prometheus", "promtool")],
+        log_file=blog,
+        extra_env={"GOBIN": str(tool.root / "bin")},
+    )
+
+
+# The bed's CoreDNS: upstream's main package (coredns.go) blank-imports every plugin through
+# core/plugin; this one imports only these and sets the directive list to them, in upstream's
+# order (core/dnsserver/zdirectives.go). No forward: a name outside cluster.local is REFUSED.
+COREDNS_PLUGINS = ("bind", "ready", "health", "errors", "log", "cache", "kubernetes")
+_COREDNS_MAIN = """// The fogfleet bed's CoreDNS: only the plugins it uses (e2e/bed/tools.py).
+package main
+
+import (
+	"github.com/coredns/coredns/core/dnsserver"
+	"github.com/coredns/coredns/coremain"
+{imports}
+)
+
+func init() {{
+	dnsserver.Directives = []string{{{directives}}}
+}}
+
+func main() {{ coremain.Run() }}
+"""
+
+
+def coredns_main() -> str:
+    imports = "\n".join(f'\t_ "github.com/coredns/coredns/plugin/{p}"' for p in COREDNS_PLUGINS)
+    return _COREDNS_MAIN.format(
+        imports=imports, directives=", ".join(f'"{p}"' for p in COREDNS_PLUGINS)
+    )
+
+
+def _build_coredns(tool: Tool, v: Mapping[str, str], go: GoToolchain, blog: Path) -> None:
+    """A wrapper module whose main package is ``coredns_main()`` (CoreDNS's documented way to
+    build with a chosen plugin set, without editing plugin.cfg in a checkout)."""
+    src = tool.root / "src"
+    src.mkdir(parents=True, exist_ok=True)
+    if not (src / "go.mod").exists():
+        go("mod", "init", "e2e.local/corednsbin", cwd=src, log_file=blog)
+    go("mod", "edit", f"-go={v['GO_MIN_VERSION']}", cwd=src, log_file=blog)
+    (src / "main.go").write_text(coredns_main())
+    module = f"github.com/coredns/coredns@v{v['COREDNS_VERSION']}"
+    info = json.loads(go("mod", "download", "-json", module, cwd=src))
+    if info.get("Error"):
+        raise HarnessError(f"go mod download {module}: {info['Error']}")
+    # CoreDNS's own go.sum vouches for its dependencies, so the checksum database is asked
+    # about CoreDNS alone (checksums stay verified; nothing turns verification off).
+    upstream = (Path(info["Dir"]) / "go.sum").read_text().splitlines()
+    ours = (src / "go.sum").read_text().splitlines() if (src / "go.sum").exists() else []
+    (src / "go.sum").write_text("".join(f"{line}\n" for line in dict.fromkeys(ours + upstream)))
+    go("get", module, cwd=src, log_file=blog)
+    go("mod", "tidy", cwd=src, log_file=blog)
+    go("build", "-v", "-trimpath", "-ldflags", "-s -w", "-o", str(tool.binaries["coredns"]), ".",
+       cwd=src, log_file=blog)  # fmt: skip
 
 
 def _build_kube_router(tool: Tool, v: Mapping[str, str], go: GoToolchain, blog: Path) -> None:
@@ -418,6 +463,7 @@ BUILDERS: dict[str, Callable[..., None]] = {
     "kwok": _build_kwok,
     "helm": _build_helm,
     "prometheus": _build_prometheus,
+    "coredns": _build_coredns,
     "kube-router": _build_kube_router,
 }
 
@@ -442,7 +488,7 @@ def ensure_built(only: Sequence[str] = TOOLS, *, force: bool = False, quiet: boo
         if not force and tool.ok():
             timings.append((name, time.monotonic() - t0, "cached"))
         else:
-            if go is None and name not in ("prometheus", "node-runtime"):
+            if go is None and name != "node-runtime":
                 go = GoToolchain.find(v)
             tool.root.mkdir(parents=True, exist_ok=True)
             blog = tool.root / "build.log"
