@@ -11,14 +11,19 @@ import shutil
 import socket
 import sys
 import time
+from collections.abc import Mapping
+from functools import partial
 from pathlib import Path
 
-from e2e.bed import bednet, cgroups, heartbeats, realnodes
+from e2e.bed import bednet, cgroups, clusterservices, heartbeats, realnodes
 from e2e.bed.base import (
+    BIN_DIR,
     HERE,
     HOST,
     STATE_DIR,
     VERSIONS_FILE,
+    HarnessError,
+    http_get,
     load_versions,
     locked,
     log,
@@ -34,11 +39,13 @@ from e2e.bed.controlplane import (
     _write_state,
 )
 from e2e.bed.fakenodes import NODES_FILE, _apply_nodes
-from e2e.bed.processes import _alive, _start, _stop
+from e2e.bed.processes import _alive, _start, _stop, log_tail
 from e2e.bed.tools import ensure_built
 
 GATEWAY = "bed-gateway"
-POD_DISCOVERY = "pod-discovery"
+COREDNS = clusterservices.COREDNS
+# Processes of beds started by older versions of the harness, stopped by `down` all the same.
+RETIRED = ("pod-discovery",)
 
 
 def _bed_images() -> list[Path]:
@@ -70,38 +77,53 @@ def _kubernetes_endpoints(cluster: Cluster) -> None:
 
 
 def _start_real_nodes(cluster: Cluster, real: list[realnodes.RealNode]) -> None:
+    """The bridge, the gateway (the apiserver and Prometheus at the bridge address), cluster
+    DNS, the Services pods reach them by, then the nodes."""
     t0 = time.monotonic()
     images = _bed_images()
     bednet.ensure_bridge()
-    port = cluster.ports["kube-apiserver"]
+    relayed = [cluster.ports["kube-apiserver"], cluster.ports["prometheus"]]
     _start(
         GATEWAY,
-        [sys.executable, str(HERE / "gateway.py"), f"{bednet.BRIDGE_IP}:{port}={HOST}:{port}"],
-    )
-    wait_for(
-        "the bed gateway",
-        lambda: socket.create_connection((bednet.BRIDGE_IP, port), timeout=1).close() is None,
-        20,
-    )
+        [sys.executable, str(HERE / "gateway.py"),
+         *(f"{bednet.BRIDGE_IP}:{p}={HOST}:{p}" for p in relayed)],
+    )  # fmt: skip
+    for port in relayed:
+        wait_for(
+            f"the bed gateway on {bednet.BRIDGE_IP}:{port}",
+            partial(_answers, bednet.BRIDGE_IP, port),
+            20,
+        )
     _kubernetes_endpoints(cluster)
     cluster.kubectl(
         "apply", "-f", "-",
         input=json.dumps({"apiVersion": "v1", "kind": "List", "items": realnodes.KUBE_ROUTER_RBAC}),
     )  # fmt: skip
-    _start(
-        POD_DISCOVERY,
-        [
-            sys.executable,
-            str(HERE / "poddiscovery.py"),
-            str(STATE_DIR),
-            cluster.api_server,
-            str(cluster.prometheus_targets_dir / "kubernetes-pods.json"),
-            *(node.name for node in real),
-        ],
-    )
-    realnodes.start(real, f"https://{bednet.BRIDGE_IP}:{port}", images)
+    cluster.kubectl(
+        "apply", "-f", "-",
+        input=clusterservices.dump(clusterservices.service_objects(cluster.ports["prometheus"])),
+    )  # fmt: skip
+    _start(COREDNS, clusterservices.coredns_argv(BIN_DIR, cluster.ports, cluster.api_server))
+    wait_for("CoreDNS ready (its Services, EndpointSlices and Namespaces synced)",
+             partial(coredns_ready, cluster.ports), 60)  # fmt: skip
+    realnodes.start(real, f"https://{bednet.BRIDGE_IP}:{cluster.ports['kube-apiserver']}", images)
     IMPORTED.write_text(json.dumps(sorted(a.name for a in images)) + "\n")
     log(f"real nodes started in {time.monotonic() - t0:.1f}s")
+
+
+def _answers(host: str, port: int) -> bool:
+    socket.create_connection((host, port), timeout=1).close()
+    return True
+
+
+def coredns_ready(ports: Mapping[str, int]) -> bool:
+    """CoreDNS's ready plugin answers 200 once the kubernetes plugin has synced."""
+    if _alive(COREDNS) is None:
+        raise HarnessError(f"CoreDNS exited; log tail:\n{log_tail(COREDNS)}")
+    try:
+        return http_get(f"http://{HOST}:{ports['coredns-ready']}/ready").strip() == "OK"
+    except OSError:
+        return False
 
 
 IMPORTED = STATE_DIR / "imported-images.json"
@@ -126,8 +148,8 @@ def _stop_everything() -> None:
     names = state.get("real_nodes", [])
     nodes = [realnodes.RealNode(n, i + 1, {}, 0, 0) for i, n in enumerate(names)]
     realnodes.stop(nodes)
-    _stop(POD_DISCOVERY)
-    _stop(GATEWAY)
+    for name in (COREDNS, GATEWAY, *RETIRED):
+        _stop(name)
     _stop_all()
 
 
@@ -165,8 +187,9 @@ def ensure_up(*, nodes: bool = True, profile: str = realnodes.DEFAULT_PROFILE) -
         STATE_DIR.mkdir(parents=True)
         ports = _choose_ports()
         _write_state(ports, "starting", [n.name for n in real], profile)
-        _write_configs(ports)
+        _write_configs(ports, [n.name for n in real])
         argv = _argv(ports)
+        cluster = Cluster.from_state({"ports": ports})
         try:
             for group in (
                 ("etcd",),
@@ -175,11 +198,13 @@ def ensure_up(*, nodes: bool = True, profile: str = realnodes.DEFAULT_PROFILE) -
                 ("kwok",),
                 ("prometheus",),
             ):
+                if group == ("prometheus",):  # it reads pods as itself from its first second
+                    cluster.kubectl("apply", "-f", "-",
+                                    input=clusterservices.dump(clusterservices.RBAC))  # fmt: skip
                 for name in group:
                     _start(name, *argv[name])
                 for name in group:
                     _wait_healthy(name, ports)
-            cluster = Cluster.from_state({"ports": ports})
             wait_for(
                 "the default ServiceAccount",
                 lambda: cluster.kubectl("get", "sa", "default", check=False).returncode == 0,
@@ -287,7 +312,14 @@ def status() -> int:
     print(f"kubeconfig:      {cluster.kubeconfig}")
     print(f"api server:      {cluster.api_server}")
     print(f"prometheus:      {cluster.prometheus_url}")
-    print(f"scrape targets:  {cluster.prometheus_targets_dir}/*.json")
+    if cluster.real_nodes:
+        ok = _alive(COREDNS) is not None and coredns_ready(cluster.ports)
+        all_ok &= ok
+        print(f"  in cluster:    {cluster.in_cluster_prometheus_url} (monitoring/prometheus)")
+        print(f"cluster dns:     {cluster.dns_service_ip} (Service kube-system/kube-dns, "
+              f"CoreDNS on {bednet.BRIDGE_IP}:53: {'ok' if ok else 'DOWN'})")  # fmt: skip
+    print(f"scrape targets:  pods through kubernetes_sd; tests' loopback targets in "
+          f"{cluster.prometheus_targets_dir}/*.json")  # fmt: skip
     print(f"logs:            {cluster.logs_dir}/<component>.log")
     if all_ok:
         nodes = cluster.kubectl("get", "nodes", "--no-headers", check=False).stdout

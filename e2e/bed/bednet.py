@@ -27,6 +27,7 @@ BRIDGE_PREFIX = 24
 BED_RANGE = "198.18.0.0/15"
 SERVICE_CIDR = "198.19.0.0/16"
 KUBERNETES_SERVICE_IP = "198.19.0.1"
+DNS_SERVICE_IP = "198.19.0.10"  # kube-system/kube-dns: CoreDNS (clusterservices.py)
 NETNS_PREFIX = "ffn-"
 VETH_PREFIX = "ffv"
 MULTICAST = "224.0.0.0/4"

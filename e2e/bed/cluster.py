@@ -24,6 +24,8 @@ from e2e.bed.base import (
     http_get,
     insecure_tls,
 )
+from e2e.bed.bednet import DNS_SERVICE_IP
+from e2e.bed.clusterservices import COREDNS, IN_CLUSTER_PROMETHEUS_URL
 from e2e.bed.processes import _alive, log_tail
 
 COMPONENTS = (
@@ -43,6 +45,9 @@ PREFERRED_PORTS = {
     "kube-scheduler": 26259,
     "kwok": 26250,
     "prometheus": 29090,
+    # CoreDNS's health and ready plugins (its DNS port is 53 on the bridge address)
+    "coredns-health": 28080,
+    "coredns-ready": 28181,
 }
 # controller marks a node whose Lease is older than the grace period Ready=Unknown and taints it.
 NODE_LEASE_SECONDS = 10
@@ -131,6 +136,18 @@ class Cluster:
             prometheus_targets_dir=PROMETHEUS_TARGETS_DIR,
             ports=ports,
         )
+
+    @property
+    def in_cluster_prometheus_url(self) -> str:
+        """Where pods reach the bed's Prometheus (Service monitoring/prometheus, by name through
+        cluster DNS), as they reach a user's; empty on a bed without real nodes."""
+        return IN_CLUSTER_PROMETHEUS_URL if self.real_nodes else ""
+
+    @property
+    def dns_service_ip(self) -> str:
+        """The cluster DNS Service's address (kube-system/kube-dns: CoreDNS), which the real
+        nodes' kubelets give their pods; empty on a bed without real nodes."""
+        return DNS_SERVICE_IP if self.real_nodes else ""
 
     @property
     def logs_dir(self) -> Path:
@@ -275,7 +292,7 @@ def running() -> Cluster | None:
         return None
     cluster = Cluster.from_state(state)
     real = [f"node-{n}" for n in state.get("real_nodes", [])]
-    gateway = ["bed-gateway", "pod-discovery"] if real else []
+    gateway = ["bed-gateway", COREDNS] if real else []
     if not all(_alive(c) for c in (*COMPONENTS, *real, *gateway)):
         return None
     if all(ok for ok, _ in cluster.health().values()):

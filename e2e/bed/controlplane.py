@@ -1,6 +1,10 @@
 """The control plane: etcd, kube-apiserver, kube-controller-manager, kube-scheduler, kwok and
 Prometheus as local processes on 127.0.0.1 (CLUSTER.md "Option B": flags, ports, PKI and the
 Prometheus config are ours, so nothing listens beyond the bed and nothing downloads binaries).
+
+Prometheus finds the real nodes' pods itself, through the API (kubernetes_sd:
+clusterservices.kubernetes_pods_job); the harness writes target files only for the loopback
+targets tests add (Cluster.add_prometheus_target).
 """
 
 from __future__ import annotations
@@ -8,7 +12,7 @@ from __future__ import annotations
 import json
 import os
 import time
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from functools import partial
 from typing import Any
@@ -27,7 +31,7 @@ from e2e.bed.base import (
     run,
     wait_for,
 )
-from e2e.bed.bednet import SERVICE_CIDR
+from e2e.bed.bednet import DNS_SERVICE_IP, SERVICE_CIDR
 from e2e.bed.cluster import (
     COMPONENTS,
     CONTROLLER_API_BURST,
@@ -41,11 +45,16 @@ from e2e.bed.cluster import (
     PROMETHEUS_SCRAPE_INTERVAL,
     _health,
 )
+from e2e.bed.clusterservices import IN_CLUSTER_PROMETHEUS_URL, kubernetes_pods_job
 from e2e.bed.pki import _make_pki, _write_kubeconfig
 from e2e.bed.processes import _alive, _proc_starttime, _start, _stop, log_tail
 
+# Prometheus 3 refuses a scrape whose Content-Type it does not know unless told what to
+# assume; the bed's small exporters (tests, twins) may answer with none.
+FALLBACK_SCRAPE_PROTOCOL = "PrometheusText0.0.4"
 
-def _prometheus_config(ports: Mapping[str, int]) -> dict[str, Any]:
+
+def _prometheus_config(ports: Mapping[str, int], real_nodes: Sequence[str] = ()) -> dict[str, Any]:
     pki = STATE_DIR / "pki"
     client_tls = {"cert_file": str(pki / "admin.crt"), "key_file": str(pki / "admin.key")}
 
@@ -61,46 +70,55 @@ def _prometheus_config(ports: Mapping[str, int]) -> dict[str, Any]:
             cfg["tls_config"] = dict(tls)
         return cfg
 
+    pods = (
+        [kubernetes_pods_job(f"https://{HOST}:{ports['kube-apiserver']}", real_nodes, pki)]
+        if real_nodes
+        else []  # no real node, no pod worth scraping (kwok's pods have no process)
+    )  # fmt: skip
+    jobs: list[dict[str, Any]] = [
+        static("prometheus", ports["prometheus"]),
+        static("etcd", ports["etcd"]),
+        static(
+            "kube-apiserver",
+            ports["kube-apiserver"],
+            "https",
+            {**client_tls, "ca_file": str(pki / "ca.crt")},
+        ),
+        static(
+            "kube-controller-manager",
+            ports["kube-controller-manager"],
+            "https",
+            {**client_tls, "insecure_skip_verify": True},
+        ),
+        static(
+            "kube-scheduler",
+            ports["kube-scheduler"],
+            "https",
+            {**client_tls, "insecure_skip_verify": True},
+        ),
+        static("kwok", ports["kwok"], "https", {"insecure_skip_verify": True}),
+        {
+            # Tests (and the metrics twin) add 127.0.0.1 targets by writing a JSON file
+            # here: Cluster.add_prometheus_target(). Each file sets its own `job` label.
+            "job_name": "file-sd",
+            "file_sd_configs": [
+                {
+                    "files": [str(PROMETHEUS_TARGETS_DIR / "*.json")],
+                    "refresh_interval": PROMETHEUS_SCRAPE_INTERVAL,
+                }
+            ],
+        },
+        *pods,
+    ]
+    for job in jobs:
+        job["fallback_scrape_protocol"] = FALLBACK_SCRAPE_PROTOCOL
     return {
         "global": {
             "scrape_interval": PROMETHEUS_SCRAPE_INTERVAL,
             "scrape_timeout": PROMETHEUS_SCRAPE_INTERVAL,
             "evaluation_interval": PROMETHEUS_SCRAPE_INTERVAL,
         },
-        "scrape_configs": [
-            static("prometheus", ports["prometheus"]),
-            static("etcd", ports["etcd"]),
-            static(
-                "kube-apiserver",
-                ports["kube-apiserver"],
-                "https",
-                {**client_tls, "ca_file": str(pki / "ca.crt")},
-            ),
-            static(
-                "kube-controller-manager",
-                ports["kube-controller-manager"],
-                "https",
-                {**client_tls, "insecure_skip_verify": True},
-            ),
-            static(
-                "kube-scheduler",
-                ports["kube-scheduler"],
-                "https",
-                {**client_tls, "insecure_skip_verify": True},
-            ),
-            static("kwok", ports["kwok"], "https", {"insecure_skip_verify": True}),
-            {
-                # Tests (and the metrics twin) add 127.0.0.1 targets by writing a JSON file
-                # here: Cluster.add_prometheus_target(). Each file sets its own `job` label.
-                "job_name": "file-sd",
-                "file_sd_configs": [
-                    {
-                        "files": [str(PROMETHEUS_TARGETS_DIR / "*.json")],
-                        "refresh_interval": PROMETHEUS_SCRAPE_INTERVAL,
-                    }
-                ],
-            },
-        ],
+        "scrape_configs": jobs,
     }
 
 
@@ -259,7 +277,7 @@ def _choose_ports() -> dict[str, int]:
     return ports
 
 
-def _write_configs(ports: Mapping[str, int]) -> None:
+def _write_configs(ports: Mapping[str, int], real_nodes: Sequence[str] = ()) -> None:
     for d in ("logs", "pids", "certs", "kwok", "prometheus-data"):
         (STATE_DIR / d).mkdir(parents=True, exist_ok=True)
     PROMETHEUS_TARGETS_DIR.mkdir(parents=True, exist_ok=True)
@@ -285,7 +303,9 @@ def _write_configs(ports: Mapping[str, int]) -> None:
     # Only Stage documents: a KwokConfiguration document here would replace kwok's defaults
     # (v0.8.0 then fails with "node leases parallelism must be greater than 0"); flags suffice.
     (STATE_DIR / "kwok.yaml").write_text(stages)
-    (STATE_DIR / "prometheus.yml").write_text(json.dumps(_prometheus_config(ports), indent=1))
+    (STATE_DIR / "prometheus.yml").write_text(
+        json.dumps(_prometheus_config(ports, real_nodes), indent=1)
+    )
     run([BIN_DIR / "promtool", "check", "config", STATE_DIR / "prometheus.yml"])
 
 
@@ -305,6 +325,9 @@ def _write_state(
         "kubeconfig": str(KUBECONFIG),
         "prometheus_url": f"http://{HOST}:{ports['prometheus']}",
         "prometheus_targets_dir": str(PROMETHEUS_TARGETS_DIR),
+        # what pods use (clusterservices.py); only real nodes run pods that could
+        "in_cluster_prometheus_url": IN_CLUSTER_PROMETHEUS_URL if real_nodes else "",
+        "cluster_dns": DNS_SERVICE_IP if real_nodes else "",
         "updated": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
     }
     tmp = STATE_DIR / ".state.json.tmp"

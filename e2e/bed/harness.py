@@ -9,10 +9,12 @@
 Why it looks like this (see e2e/README.md and /work/shared/design/CLUSTER.md):
 
 * Every binary is built from published Go modules (k8s.io/kubernetes through a wrapper module
-  whose ``replace`` lines are generated from k8s's own go.mod, kwok, etcd, helm) or unpacked from
-  Debian's ``prometheus`` package. Versions live in ``versions.env`` next to this file; builds
-  are cached under ``${XDG_CACHE_HOME:-~/.cache}/fogfleet/tools/<tool>-<version>/`` and reused
-  after a ``--version`` check. ``GOTOOLCHAIN=local`` always: a too-old Go fails at once.
+  whose ``replace`` lines are generated from k8s's own go.mod, kwok, etcd, helm, kube-router,
+  Prometheus with only kubernetes_sd, CoreDNS with only the bed's plugins); only the real
+  nodes' runtime (containerd, runc, CNI plugins) comes from Debian packages. Versions live in
+  ``versions.env`` next to this file; builds are cached under
+  ``${XDG_CACHE_HOME:-~/.cache}/fogfleet/tools/<tool>-<version>/`` and reused after a
+  ``--version`` check. ``GOTOOLCHAIN=local`` always: a too-old Go fails at once.
 * The processes are started by this module directly (CLUSTER.md "Option B"), not by kwokctl:
   flags, ports, PKI and the Prometheus config are all ours, so nothing listens beyond
   127.0.0.1 and nothing tries to download release binaries.
@@ -185,6 +187,9 @@ def main(argv: list[str] | None = None) -> int:
         print(f"kubeconfig: {cluster.kubeconfig}")
         print(f"api server: {cluster.api_server}")
         print(f"prometheus: {cluster.prometheus_url}")
+        if cluster.real_nodes:
+            print(f"prometheus in cluster: {cluster.in_cluster_prometheus_url}")
+            print(f"cluster dns: {cluster.dns_service_ip}")
         print(f"export KUBECONFIG={cluster.kubeconfig}")
         return 0
     if ns.cmd == "down":

@@ -1,4 +1,5 @@
-"""The bed's PKI: one CA; the admin, apiserver-serving and per-node kubelet certificates."""
+"""The bed's PKI: one CA; the admin, apiserver-serving and per-node kubelet certificates, and
+client certificates of their own for kube-proxy, kube-router, Prometheus and CoreDNS."""
 
 from __future__ import annotations
 
@@ -66,6 +67,9 @@ def _make_pki() -> None:
     issue_cert("admin", "/O=system:masters/CN=fogfleet-e2e-admin", sans)
     issue_cert("kube-proxy", "/CN=system:kube-proxy", [], usage="clientAuth")
     issue_cert("kube-router", "/CN=system:kube-router", [], usage="clientAuth")
+    # Prometheus (kubernetes_sd) and CoreDNS read the API as themselves (clusterservices.RBAC)
+    issue_cert("prometheus", "/CN=system:prometheus", [], usage="clientAuth")
+    issue_cert("coredns", "/CN=system:coredns", [], usage="clientAuth")
     _openssl("genrsa", "-out", "sa.key", "2048")
     for key in pki.glob("*.key"):
         key.chmod(0o600)

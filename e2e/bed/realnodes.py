@@ -39,6 +39,7 @@ from typing import Any
 from e2e.bed import bednet, cgroups
 from e2e.bed.base import BIN_DIR, HERE, NODES_FILE, STATE_DIR, HarnessError, log, run, wait_for
 from e2e.bed.bednet import NodeAddresses
+from e2e.bed.clusterservices import CLUSTER_DOMAIN
 from e2e.bed.links import LinkSpec, apply_link, stop_link
 from e2e.bed.pki import issue_cert, kubeconfig
 from e2e.bed.processes import _alive, _start, _stop, log_tail
@@ -312,6 +313,9 @@ def _kubelet_config(node: RealNode, pki: Path) -> dict[str, Any]:
         "cgroupRoot": cgroups.node_path(node.name, "pods"),
         "enforceNodeAllocatable": [],
         "failSwapOn": False,
+        # cluster DNS (clusterservices.py); the host's resolv.conf stays out of every pod
+        "clusterDNS": [bednet.DNS_SERVICE_IP],
+        "clusterDomain": CLUSTER_DOMAIN,
         "resolvConf": "",
         "containerRuntimeEndpoint": f"unix://{node.socket}",
         "imageServiceEndpoint": f"unix://{node.socket}",

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import contextlib
 import json
+import re
 from pathlib import Path
 
 import pytest
@@ -172,23 +173,75 @@ def test_scale_heartbeats_reach_kwok_and_the_controller_manager_only(
     assert heartbeats.current() == heartbeats.SCALE
 
 
-def test_pod_discovery_lists_the_real_nodes_pods_from_the_watch_cache() -> None:
-    """One list per real node, served by the API server's cache (not a read of every pod
-    from etcd every two seconds); every Running pod only when no node is named."""
-    from urllib.parse import parse_qs, urlsplit
+def test_prometheus_finds_the_real_nodes_pods_through_the_api_as_itself() -> None:
+    """kubernetes_sd, one pod list per real node (the watch cache's node index), the bed's pod
+    IPs only (kwok's fake pods are never scraped), with Prometheus's own certificate; and the
+    labels the operator's queries use."""
+    from e2e.bed import clusterservices
+    from e2e.bed.cluster import PREFERRED_PORTS
+    from e2e.bed.controlplane import FALLBACK_SCRAPE_PROTOCOL, _prometheus_config
 
-    from e2e.bed.poddiscovery import list_urls
-
-    urls = list_urls("https://127.0.0.1:6443", ["bed-robot-1", "bed-edge-1"])
-    queries = [parse_qs(urlsplit(u).query) for u in urls]
-    assert [q["fieldSelector"] for q in queries] == [
-        ["spec.nodeName=bed-robot-1,status.phase=Running"],
-        ["spec.nodeName=bed-edge-1,status.phase=Running"],
+    config = _prometheus_config(PREFERRED_PORTS, ["bed-robot-1", "bed-edge-1"])
+    jobs = {j["job_name"]: j for j in config["scrape_configs"]}
+    pods = jobs["kubernetes-pods"]
+    sds = pods["kubernetes_sd_configs"]
+    assert [sd["selectors"] for sd in sds] == [
+        [{"role": "pod", "field": "spec.nodeName=bed-robot-1"}],
+        [{"role": "pod", "field": "spec.nodeName=bed-edge-1"}],
     ]
-    assert all(q["resourceVersion"] == ["0"] for q in queries)
-    assert all(urlsplit(u).path == "/api/v1/pods" for u in urls)
-    (everything,) = list_urls("https://127.0.0.1:6443", [])
-    assert parse_qs(urlsplit(everything).query)["fieldSelector"] == ["status.phase=Running"]
+    assert all(sd["role"] == "pod" and sd["api_server"] == "https://127.0.0.1:26443" for sd in sds)
+    assert all(sd["tls_config"]["cert_file"].endswith("/prometheus.crt") for sd in sds)
+    keeps = {r["source_labels"][0]: r["regex"] for r in pods["relabel_configs"]
+             if r.get("action") == "keep"}  # fmt: skip
+    assert keeps["__meta_kubernetes_pod_annotation_prometheus_io_scrape"] == "true"
+    ip = re.compile(keeps["__meta_kubernetes_pod_ip"])
+    assert ip.fullmatch("198.18.17.4") and ip.fullmatch("198.19.0.7")
+    assert not ip.fullmatch("10.0.0.7") and not ip.fullmatch("198.180.0.1")
+    targets = {r.get("target_label") for r in pods["relabel_configs"]}
+    assert {"namespace", "pod", "node", "__address__", "__metrics_path__"} <= targets
+    assert all(j["fallback_scrape_protocol"] == FALLBACK_SCRAPE_PROTOCOL for j in jobs.values())
+    # without real nodes nothing lists pods (8000 kwok pods would be listed for nothing)
+    assert "kubernetes-pods" not in {
+        j["job_name"] for j in _prometheus_config(PREFERRED_PORTS)["scrape_configs"]
+    }
+    # Prometheus may read pods and nothing else; CoreDNS only what names are made of
+    roles = {o["metadata"]["name"]: o for o in clusterservices.RBAC if o["kind"] == "ClusterRole"}
+    assert roles["fogfleet-bed:prometheus"]["rules"] == [
+        {"apiGroups": [""], "resources": ["pods"], "verbs": ["get", "list", "watch"]}
+    ]
+    verbs = {v for r in roles["fogfleet-bed:coredns"]["rules"] for v in r["verbs"]}
+    assert verbs == {"list", "watch"}
+
+
+def test_cluster_dns_serves_cluster_local_on_the_bridge_only(tmp_path: Path) -> None:
+    """CoreDNS binds the bridge address (never 0.0.0.0), has no forward plugin and serves one
+    zone; kubelets point pods at its Service without the host's resolv.conf."""
+    from e2e.bed import bednet, clusterservices, realnodes, tools
+    from e2e.bed.cluster import PREFERRED_PORTS
+
+    text = clusterservices.corefile(PREFERRED_PORTS, tmp_path / "kc")
+    assert text.startswith("cluster.local:53 {") and text.count("{") == 2
+    assert f"bind {bednet.BRIDGE_IP}\n" in text and "forward" not in text
+    assert "forward" not in tools.COREDNS_PLUGINS and "kubernetes" in tools.COREDNS_PLUGINS
+    main = tools.coredns_main()
+    assert '"github.com/coredns/coredns/core/plugin"' not in main  # not every plugin
+    assert all(f'plugin/{p}"' in main for p in tools.COREDNS_PLUGINS)
+    services = {o["metadata"]["name"]: o for o in clusterservices.service_objects(29090)}
+    assert services["kube-dns"]["spec"]["clusterIP"] == bednet.DNS_SERVICE_IP == "198.19.0.10"
+    endpoints = services["prometheus-bed"]
+    assert endpoints["endpoints"][0]["addresses"] == [bednet.BRIDGE_IP]
+    assert endpoints["ports"][0]["port"] == 29090
+    node = realnodes.RealNode("n", 1, {}, 400, 2**30)
+    kubelet = realnodes._kubelet_config(node, tmp_path)
+    assert kubelet["clusterDNS"] == [bednet.DNS_SERVICE_IP] and kubelet["resolvConf"] == ""
+    assert kubelet["clusterDomain"] == "cluster.local"
+
+
+def test_prometheus_module_version_follows_the_release() -> None:
+    from e2e.bed.tools import prometheus_module_version
+
+    assert prometheus_module_version("3.16.0") == "v0.316.0"
+    assert prometheus_module_version("3.5.1") == "v0.305.1"
 
 
 def test_a_long_command_logs_progress_and_writes_its_log_as_it_goes(
