@@ -52,13 +52,13 @@ crds-check: venv ## Fail when crds/ or the chart's generated files drift from th
 docs-check: venv ## Fail when README.md or docs/ name a missing file, anchor, make target or CLI flag
 	$(BIN)/pytest tests/docs -q
 
-cluster-tools: venv ## Build (or reuse from ~/.cache/fogfleet) etcd, kube-*, kwok, helm, kube-router and Prometheus
+cluster-tools: venv ## Build (or reuse from ~/.cache/fogfleet) etcd, kube-*, kwok, helm, kube-router, Prometheus and CoreDNS
 	$(BIN)/python e2e/bed/harness.py build
 
 images: venv ## Build (or reuse from ~/.cache/fogfleet/images) the operator, workload, pause and busybox images without Docker
 	$(BIN)/python e2e/bed/images.py build
 
-cluster-up: venv ## Start the local bed (control plane, Prometheus, kwok and real nodes) on 127.0.0.1; PROFILE=paper for the paper's real nodes
+cluster-up: venv ## Start the local bed (control plane, Prometheus, cluster DNS, kwok and real nodes) on 127.0.0.1 and the bed bridge; PROFILE=paper for the paper's real nodes
 	$(BIN)/python e2e/bed/harness.py up --profile $(or $(PROFILE),default)
 
 cluster-down: venv ## Stop the local control plane and remove its state
