@@ -104,8 +104,11 @@ def _start_real_nodes(cluster: Cluster, real: list[realnodes.RealNode]) -> None:
         input=clusterservices.dump(clusterservices.service_objects(cluster.ports["prometheus"])),
     )  # fmt: skip
     _start(COREDNS, clusterservices.coredns_argv(BIN_DIR, cluster.ports, cluster.api_server))
-    wait_for("CoreDNS ready (its Services, EndpointSlices and Namespaces synced)",
-             partial(coredns_ready, cluster.ports), 60)  # fmt: skip
+    try:
+        wait_for("CoreDNS ready (its Services, EndpointSlices and Namespaces synced)",
+                 partial(coredns_ready, cluster.ports), 60)  # fmt: skip
+    except HarnessError as exc:
+        raise HarnessError(f"{exc}; CoreDNS's log tail:\n{log_tail(COREDNS)}") from exc
     realnodes.start(real, f"https://{bednet.BRIDGE_IP}:{cluster.ports['kube-apiserver']}", images)
     IMPORTED.write_text(json.dumps(sorted(a.name for a in images)) + "\n")
     log(f"real nodes started in {time.monotonic() - t0:.1f}s")
@@ -117,9 +120,9 @@ def _answers(host: str, port: int) -> bool:
 
 
 def coredns_ready(ports: Mapping[str, int]) -> bool:
-    """CoreDNS's ready plugin answers 200 once the kubernetes plugin has synced."""
+    """CoreDNS runs, and its ready plugin answers 200 (once the kubernetes plugin synced)."""
     if _alive(COREDNS) is None:
-        raise HarnessError(f"CoreDNS exited; log tail:\n{log_tail(COREDNS)}")
+        return False
     try:
         return http_get(f"http://{HOST}:{ports['coredns-ready']}/ready").strip() == "OK"
     except OSError:
@@ -313,7 +316,7 @@ def status() -> int:
     print(f"api server:      {cluster.api_server}")
     print(f"prometheus:      {cluster.prometheus_url}")
     if cluster.real_nodes:
-        ok = _alive(COREDNS) is not None and coredns_ready(cluster.ports)
+        ok = coredns_ready(cluster.ports)
         all_ok &= ok
         print(f"  in cluster:    {cluster.in_cluster_prometheus_url} (monitoring/prometheus)")
         print(f"cluster dns:     {cluster.dns_service_ip} (Service kube-system/kube-dns, "
