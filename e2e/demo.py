@@ -91,11 +91,24 @@ def install(kube: Kube, cluster: Cluster) -> None:
         f"{url} ({time.monotonic() - t0:.0f} s)")  # fmt: skip
 
 
+def wait_gone_if_terminating(kube: Kube, namespace: str) -> None:
+    """A namespace an earlier `demo.py remove` is still deleting refuses new objects: wait
+    until it is gone (the example's own manifest creates it again)."""
+    got = kube.kubectl("get", "namespace", namespace, "-o", "jsonpath={.status.phase}", check=False)
+    if got.stdout.strip() != "Terminating":
+        return
+    say(f"namespace {namespace} is still being deleted (an earlier demo's); waiting for it")
+    limit = READY_TIMEOUT_SECONDS
+    kube.kubectl("wait", "--for=delete", f"namespace/{namespace}", f"--timeout={limit}s",
+                 check=False, timeout=limit + 20)  # fmt: skip
+
+
 def wait_ready(kube: Kube, examples: tuple[Example, ...]) -> dict[str, tuple[dict, float]]:
     """Apply each example, then wait until every fleet is Ready; each fleet and its time to
     Ready after its `kubectl apply`."""
     applied = {}
     for ex in examples:
+        wait_gone_if_terminating(kube, ex.name)
         say(f"kubectl apply -f {ex.folder}")
         kube.kubectl("apply", "-f", str(ROOT / ex.folder))
         applied[ex.name] = time.monotonic()
