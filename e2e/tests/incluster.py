@@ -83,11 +83,14 @@ def running_pod_names(kube: Kube) -> set[str]:
 
 @contextmanager
 def installed(
-    kube: Kube, prefix: str = "e2e-incluster", values: Mapping[str, str] | None = None
+    kube: Kube,
+    prefix: str = "e2e-incluster",
+    values: Mapping[str, str] | None = None,
+    namespace: str | None = None,
 ) -> Iterator[str]:
     """The chart installed (release ``fogfleet`` in fogfleet-system, with ``values`` given as
-    ``--set``) watching a fresh namespace, which it yields; uninstalled and the namespace
-    deleted afterwards."""
+    ``--set``) watching ``namespace`` (the caller's, left in place) or a fresh namespace, which
+    it yields; uninstalled and the fresh namespace deleted afterwards."""
     install_crds(kube)
     # an interrupted earlier run may have left the plain-manifest install (not Helm's) behind
     for what in (
@@ -101,8 +104,9 @@ def installed(
     # and an interrupted run of a suite may have left its release
     if RELEASE in helm("list", "-n", SYSTEM, "-q").split():
         helm("uninstall", RELEASE, "-n", SYSTEM, "--wait")
-    ns = f"{prefix}-{secrets.token_hex(3)}"
-    kube.apply({"apiVersion": "v1", "kind": "Namespace", "metadata": {"name": ns}})
+    ns = namespace or f"{prefix}-{secrets.token_hex(3)}"
+    if namespace is None:
+        kube.apply({"apiVersion": "v1", "kind": "Namespace", "metadata": {"name": ns}})
     helm(
         "install", RELEASE, str(CHART), "-n", SYSTEM, "--create-namespace",
         "--set", f"watchNamespaces={{{ns}}}",
@@ -120,4 +124,6 @@ def installed(
     finally:
         if RELEASE in helm("list", "-n", SYSTEM, "-q").split():
             helm("uninstall", RELEASE, "-n", SYSTEM, "--wait")
-        kube.kubectl("delete", "namespace", ns, "--wait=false", "--ignore-not-found", check=False)
+        if namespace is None:
+            kube.kubectl("delete", "namespace", ns, "--wait=false", "--ignore-not-found",
+                         check=False)  # fmt: skip

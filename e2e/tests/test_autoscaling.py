@@ -15,7 +15,8 @@ import itertools
 import json
 import time
 import urllib.request
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -27,11 +28,13 @@ from e2e.bed.harness import Cluster
 from e2e.bed.kube import Kube
 from e2e.bed.operator_fixtures import (
     EXAMPLES,
+    OPERATOR_LABELS,
     Operator,
     bound_node,
     free_port,
     of_kind,
 )
+from e2e.tests.incluster import SYSTEM, installed
 from fogfleet.adapters.kube import KubeClient, load_config
 from fogfleet.adapters.prometheus import PrometheusClient
 from fogfleet.controllers.scaling import ScalingDeps, reconcile_scaling
@@ -434,25 +437,78 @@ def look(kube: Kube, namespace: str, t0: float) -> Seen:
     return Seen(time.monotonic() - t0, pools, deps, pods)
 
 
-@pytest.mark.timeout(300)
+@contextmanager
+def scaling_operator(
+    where: str, kube: Kube, cluster: Cluster, namespace: str, log: Path
+) -> Iterator[Callable[[int], str]]:
+    """The operator watching ``namespace`` with its Prometheus, deciding every PERIOD: a process
+    on the host reading Prometheus at 127.0.0.1, or installed in-cluster by its chart (issue
+    44) reading it at its cluster address, as users run it; yields its log's last lines."""
+    if where == "process":
+        op = Operator(
+            kube.kubeconfig,
+            [namespace],
+            log,
+            env={
+                "FOGFLEET_PROMETHEUS_URL": cluster.prometheus_url,
+                "FOGFLEET_SCALING_INTERVAL_SECONDS": str(int(PERIOD)),
+            },
+        )
+        op.start().wait_live()
+        try:
+            yield op.logs
+        finally:
+            # while the operator runs: it removes its finalizers
+            delete_fleet_objects(kube, namespace)
+            op.stop()
+        return
+    values = {
+        "scaling.prometheusUrl": cluster.in_cluster_prometheus_url,
+        "scaling.intervalSeconds": str(int(PERIOD)),
+    }
+    with installed(kube, values=values, namespace=namespace):
+
+        def logs(lines: int) -> str:
+            return kube.kubectl("logs", "-n", SYSTEM, "-l", OPERATOR_LABELS, f"--tail={lines}",
+                                "--prefix", check=False).stdout  # fmt: skip
+
+        try:
+            yield logs
+        finally:
+            delete_fleet_objects(kube, namespace)
+
+
+def delete_fleet_objects(kube: Kube, namespace: str) -> None:
+    for kind in ("robotfleets", "softwaremodules"):
+        kube.kubectl("delete", kind, "--all", "-n", namespace, "--wait=true",
+                     "--timeout=60s", check=False, timeout=90)  # fmt: skip
+
+
+@pytest.mark.timeout(420)
+@pytest.mark.parametrize(
+    "where",
+    [
+        "process",
+        pytest.param("incluster", marks=[pytest.mark.inclusterloop, pytest.mark.incluster]),
+    ],
+)
 def test_operator_scales_a_shared_service_and_places_new_replicas_on_the_edge_first(
-    kube: Kube, cluster: Cluster, crds: None, rig: Rig, tmp_path: Path, diagnostics: list[Any]
+    where: str,
+    kube: Kube,
+    cluster: Cluster,
+    crds: None,
+    rig: Rig,
+    tmp_path: Path,
+    diagnostics: list[Any],
 ) -> None:
     namespace = rig.namespace
     nodes, modules, fleet_body = _loop_docs(namespace)
     kube.apply(nodes + modules)
     kube.apply(fleet_body)
-    op = Operator(
-        kube.kubeconfig,
-        [namespace],
-        tmp_path / "operator.log",
-        env={
-            "FOGFLEET_PROMETHEUS_URL": cluster.prometheus_url,
-            "FOGFLEET_SCALING_INTERVAL_SECONDS": str(int(PERIOD)),
-        },
-    )
+    operator = scaling_operator(where, kube, cluster, namespace, tmp_path / "operator.log")
     seen: list[Seen] = []
-    diagnostics.append(lambda: ("operator log", op.logs(200)))
+    logs: list[Callable[[int], str]] = []
+    diagnostics.append(lambda: ("operator log", logs[0](200) if logs else ""))
     diagnostics.append(
         lambda: ("what the test saw", "\n".join(
             f"{s.t:5.1f}s pools={s.pools} deployments={s.deployments} pods={s.pods}"
@@ -487,8 +543,8 @@ def test_operator_scales_a_shared_service_and_places_new_replicas_on_the_edge_fi
 
         return check
 
-    op.start().wait_live()
-    try:
+    with operator as operator_logs:
+        logs.append(operator_logs)
         # before any metrics: the starting pools, edge 1 (spec.replicas) + cloud 1 (minReplicas)
         start = until("the starting replicas to run", settled(1, 1), timeout=START_TIMEOUT)
         start_twin(rig, tmp_path, rate=0.5)
@@ -508,13 +564,6 @@ def test_operator_scales_a_shared_service_and_places_new_replicas_on_the_edge_fi
         rig.set_load(12.0)
         surge = until("replicas in the cloud", settled(EDGE_MAX, CLOUD_MAX), timeout=PODS_TIMEOUT)
         up = rig.events("ScaledUp")
-    finally:
-        # while the operator runs: it removes its finalizers (kopf puts one on every module
-        # with a scaling timer, so the namespace would never go away without it)
-        for kind in ("robotfleets", "softwaremodules"):
-            kube.kubectl("delete", kind, "--all", "-n", namespace, "--wait=true",
-                         "--timeout=60s", check=False, timeout=90)  # fmt: skip
-        op.stop()
     print(
         f"edge first: {start.pools} at {start.t:.0f}s -> {edge_full.pools} at "
         f"{edge_full.t:.0f}s -> {surge.pools} at {surge.t:.0f}s; "
