@@ -318,9 +318,11 @@ def _shortfalls(onboard: Mapping[str, tuple[OnboardNeed, ...]]) -> dict[str, int
 
 
 def _summary(states: Mapping[str, ModuleDrift]) -> dict[str, tuple[Any, ...]]:
-    """What of the states the fleet's status shows (its rates to the point)."""
+    """What of the states the fleet's status shows: whether each drifts and its rate to the
+    two significant figures of MEASURED ("1.6%", "0.11%"). Coarser (whole points) left a rate
+    that fell from 1.6 % to 0.11 % shown as 1.6 % for as long as it stayed there."""
     return {
-        m: (d.since is not None, None if d.measured is None else round(d.measured, 2))
+        m: (d.since is not None, None if d.measured is None else float(f"{d.measured:.2g}"))
         for m, d in states.items()
     }
 

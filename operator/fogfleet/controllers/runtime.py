@@ -174,6 +174,9 @@ class Runtime:
                 log.warning("Measuring %s failed: %s", what, exc)
                 self._monitoring_moved()
                 continue
+            except Exception:  # a bug: said with its traceback; the loop must not end with it
+                log.exception("Measuring %s failed (a bug: please report it)", what)
+                continue
             for key in sorted(changed):
                 self.queue.schedule_debounced(key)
             if changed:  # the modules' measured miss rates (status.measuredMissRate)

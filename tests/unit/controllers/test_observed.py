@@ -346,3 +346,25 @@ def test_a_pinned_module_whose_robot_has_room_is_not_called_short(kube, deps, pr
     entry = {e["module"]: e for e in status(kube)["measured"]}["nav-controller"]
     assert "cpuNeeded" in entry and "cpuShort" not in entry
     assert not [e for e in kube.events if e[1] == "RobotShortOfCpu"]
+
+
+def test_the_shown_measured_rate_follows_a_drifting_module_within_a_percentage_point(
+    kube, deps, prom
+) -> None:
+    """Issue 44: a drifting controller whose misses fall from 1.4 % to 0.61 % is shown at
+    0.61 %: a change is what the status shows (two significant figures), not a whole
+    percentage point (both rounded to 1 % before)."""
+    run(kube, deps)
+    od = ObservedDeps(prom)
+    observe(deps, od, 0.0)
+    prom.cycles = {"nav-controller": 3600.0}
+    prom.missed = {"nav-controller": 50.0}  # 1.4 %: drifting (hard real-time)
+    assert observe(deps, od, 100.0) == {KEY}
+    run(kube, deps)
+    prom.missed = {"nav-controller": 22.0}  # 0.61 %: still drifting, by less
+    assert observe(deps, od, 130.0) == {KEY}
+    run(kube, deps)
+    (row,) = [e for e in status(kube)["measured"] if e["module"] == "nav-controller"]
+    assert row["measuredMissRate"] == pytest.approx(22 / 3600, rel=1e-3)
+    prom.missed = {"nav-controller": 22.1}  # the same figure as shown (0.61 %): no rewrite
+    assert observe(deps, od, 160.0) == set()
