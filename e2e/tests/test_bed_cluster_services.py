@@ -76,6 +76,18 @@ def _phase(kube: Kube, namespace: str, name: str) -> str:
     return str(pod["status"].get("phase", ""))
 
 
+def _run_to_end(kube: Kube, namespace: str, pod: dict[str, Any], timeout: float) -> str:
+    """Apply a pod that runs to its end; its phase (Succeeded or Failed) once it ended."""
+    name = pod["metadata"]["name"]
+    kube.apply(pod, namespace)
+    kube.wait_for(
+        f"the {name} pod to finish",
+        lambda: _phase(kube, namespace, name) in ("Succeeded", "Failed"),
+        timeout,
+    )
+    return _phase(kube, namespace, name)
+
+
 def _active_targets(cluster: Cluster) -> list[dict[str, Any]]:
     from e2e.bed.base import http_get
 
@@ -159,14 +171,11 @@ def test_a_pod_on_a_real_node_reaches_prometheus_by_its_service_name(
     URL the Cluster object gives."""
     assert cluster.in_cluster_prometheus_url == "http://prometheus.monitoring.svc:9090"
     script = CLIENT.replace("PROMETHEUS_URL", cluster.in_cluster_prometheus_url)
-    kube.apply(_pod("client", real_node, PYTHON, ["python3", "-c", script]), namespace)
-    kube.wait_for(
-        "the client pod to finish",
-        lambda: _phase(kube, namespace, "client") in ("Succeeded", "Failed"),
-        120,
+    phase = _run_to_end(
+        kube, namespace, _pod("client", real_node, PYTHON, ["python3", "-c", script]), 120
     )
     logs = kube.kubectl("logs", "client", "-n", namespace).stdout
-    assert _phase(kube, namespace, "client") == "Succeeded", logs
+    assert phase == "Succeeded", logs
     out = json.loads(logs.strip().splitlines()[-1])
     service_ip = kube.kubectl_json("get", "service", "prometheus", "-n", "monitoring")["spec"][
         "clusterIP"
@@ -194,12 +203,7 @@ def test_names_outside_cluster_local_are_refused_not_forwarded(
         "busybox nslookup prometheus.monitoring.svc.cluster.local; echo rc=$?; "
         "busybox nslookup debian.org.; echo rc=$?"
     )
-    kube.apply(_pod("lookup", real_node, BUSYBOX, ["sh", "-c", script]), namespace)
-    kube.wait_for(
-        "the lookup pod to finish",
-        lambda: _phase(kube, namespace, "lookup") in ("Succeeded", "Failed"),
-        90,
-    )
+    _run_to_end(kube, namespace, _pod("lookup", real_node, BUSYBOX, ["sh", "-c", script]), 90)
     logs = kube.kubectl("logs", "lookup", "-n", namespace).stdout
     first, second = logs.split("rc=", 1)[0], logs.split("rc=", 1)[1]
     assert "Address" in first and "rc=0" in logs, logs
@@ -211,10 +215,8 @@ def test_no_pod_of_the_bed_gets_a_missing_cluster_dns_event(
 ) -> None:
     """Every kubelet has a cluster DNS: not a pod of the bed, in any namespace, has the
     MissingClusterDNS Warning (kwok's pods never had one: kwok sends no such events)."""
-    kube.apply(_pod("idle", real_node, BUSYBOX, ["busybox", "sleep", "5"]), namespace)
-    kube.wait_for(
-        "the idle pod to finish", lambda: _phase(kube, namespace, "idle") == "Succeeded", 90
-    )
+    idle = _pod("idle", real_node, BUSYBOX, ["busybox", "sleep", "5"])
+    assert _run_to_end(kube, namespace, idle, 90) == "Succeeded"
     events = kube.kubectl_json(
         "get", "events", "-A", "--field-selector", "reason=MissingClusterDNS"
     )
