@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+import time
 from collections.abc import Callable, Sequence
 
 from fogfleet.errors import FogfleetError, InvalidSpec
@@ -91,7 +92,13 @@ def _connect(kubeconfig: str | None, context: str | None) -> tuple[Source, str]:
     return connect(kubeconfig, context)
 
 
-def main(argv: Sequence[str] | None = None, connect: Connect = _connect) -> int:
+def main(
+    argv: Sequence[str] | None = None,
+    connect: Connect = _connect,
+    clock: Callable[[], float] = time.time,
+) -> int:
+    """``kubectl fogfleet``; ``connect`` reaches the cluster, ``clock`` says when "now" is (the
+    age of a standby's last takeover in ``top``)."""
     p = parser()
     args = p.parse_args(argv)
     what_if = _what_if(args, p) if args.command == "plan" else None
@@ -103,7 +110,7 @@ def main(argv: Sequence[str] | None = None, connect: Connect = _connect) -> int:
             doc = why_doc(why_of(live, args.module, args.robot, args.limit))
             text = render(doc, args.output, why_table(doc) if args.output == "table" else "")
         elif args.command == "top":
-            doc = top_doc(live)
+            doc = top_doc(live, clock())
             text = render(doc, args.output, top_table(doc) if args.output == "table" else "")
         else:
             changed = read_fleet(source, ns, args.fleet, what_if) if what_if else live

@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import copy
 import json
-import time
 from collections.abc import Mapping
 from functools import cache
 from pathlib import Path
@@ -23,6 +22,7 @@ from fogfleet.scheduling.heuristics import greedy_schedule
 
 WAREHOUSE = Path(__file__).resolve().parents[3] / "manifests" / "examples" / "warehouse"
 Obj = dict[str, Any]
+TAKEOVER_AT = 1_795_000_000.0  # a standby's last takeover in the fixture; `top` runs 150 s later
 
 
 @cache
@@ -64,7 +64,7 @@ def _objects() -> tuple[Obj, list[Obj], list[Obj]]:
                         "module": "nav-motion-planning",
                         "count": 2,
                         "lastGapSeconds": 0.41,
-                        "lastTakeoverTime": timestamp(time.time() - 150),
+                        "lastTakeoverTime": timestamp(TAKEOVER_AT),
                         "active": True,
                     }
                 ],
@@ -116,7 +116,11 @@ class FakeCluster:
 
 
 def _run(argv: list[str], capsys: pytest.CaptureFixture[str]) -> tuple[int, str, str]:
-    code = main(argv, connect=lambda kubeconfig, context: (FakeCluster(), "warehouse"))
+    code = main(
+        argv,
+        connect=lambda kubeconfig, context: (FakeCluster(), "warehouse"),
+        clock=lambda: TAKEOVER_AT + 150,
+    )
     out = capsys.readouterr()
     return code, out.out, out.err
 
@@ -176,7 +180,7 @@ def test_top_shows_the_fleets_measured_rate_and_the_standbys_last_takeover(
     assert [t["robot"] for t in nav["takeovers"]] == ["robot-2", "robot-3"]
     last = nav["lastTakeover"]
     assert last["robot"] == "robot-2" and last["gapSeconds"] == 0.41
-    assert 149 <= last["agoSeconds"] <= 160
+    assert last["agoSeconds"] == 150
     seg = next(m for m in doc["modules"] if m["module"] == "scene-segmentation")
     assert seg["takeovers"] == [] and seg["lastTakeover"] is None
     code, out, _ = _run(["top", "warehouse", "-o", "yaml"], capsys)
