@@ -290,23 +290,37 @@ def _build_kwok(tool: Tool, v: Mapping[str, str], go: GoToolchain, blog: Path) -
     tool.extra["stages"].write_text("\n---\n".join(docs) + "\n")
 
 
+def _go_install(
+    go: GoToolchain,
+    tool: Tool,
+    blog: Path,
+    ldflags: Sequence[str],
+    packages: Sequence[str],
+    tags: str = "",
+) -> None:
+    """``go install`` of ``packages`` (``path@version``) into the tool's bin directory, each
+    package named in the log as it compiles."""
+    (tool.root / "bin").mkdir(parents=True, exist_ok=True)
+    go(
+        "install",
+        "-v",
+        "-trimpath",
+        *(["-tags", tags] if tags else []),
+        "-ldflags",
+        " ".join(ldflags),
+        *packages,
+        log_file=blog,
+        extra_env={"GOBIN": str(tool.root / "bin")},
+    )
+
+
 def _build_helm(tool: Tool, v: Mapping[str, str], go: GoToolchain, blog: Path) -> None:
     hv, kv = v["HELM_VERSION"], v["K8S_VERSION"]
     major, minor = kv.split(".")[:2]
     ldflags = ["-s", "-w", f"-X helm.sh/helm/v3/internal/version.version=v{hv}"]
     for pkg in ("helm.sh/helm/v3/pkg/chartutil", "helm.sh/helm/v3/pkg/lint/rules"):
         ldflags += [f"-X {pkg}.k8sVersionMajor={major}", f"-X {pkg}.k8sVersionMinor={minor}"]
-    (tool.root / "bin").mkdir(parents=True, exist_ok=True)
-    go(
-        "install",
-        "-v",
-        "-trimpath",
-        "-ldflags",
-        " ".join(ldflags),
-        f"helm.sh/helm/v3/cmd/helm@v{hv}",
-        log_file=blog,
-        extra_env={"GOBIN": str(tool.root / "bin")},
-    )
+    _go_install(go, tool, blog, ldflags, [f"helm.sh/helm/v3/cmd/helm@v{hv}"])
 
 
 def prometheus_module_version(version: str) -> str:
@@ -326,19 +340,10 @@ def _build_prometheus(tool: Tool, v: Mapping[str, str], go: GoToolchain, blog: P
     for key, value in (("Version", pv), ("Revision", prometheus_module_version(pv)),
                        ("Branch", "go-module-build")):  # fmt: skip
         ldflags.append(f"-X github.com/prometheus/common/version.{key}={value}")
-    (tool.root / "bin").mkdir(parents=True, exist_ok=True)
-    go(
-        "install",
-        "-v",
-        "-trimpath",
-        "-tags",
-        PROMETHEUS_TAGS,
-        "-ldflags",
-        " ".join(ldflags),
-        *[f"{module}/cmd/{c}@{prometheus_module_version(pv)}" for c in ("prometheus", "promtool")],
-        log_file=blog,
-        extra_env={"GOBIN": str(tool.root / "bin")},
-    )
+    packages = [
+        f"{module}/cmd/{c}@{prometheus_module_version(pv)}" for c in ("prometheus", "promtool")
+    ]
+    _go_install(go, tool, blog, ldflags, packages, tags=PROMETHEUS_TAGS)
 
 
 # The bed's CoreDNS: upstream's main package (coredns.go) blank-imports every plugin through
@@ -397,17 +402,8 @@ def _build_kube_router(tool: Tool, v: Mapping[str, str], go: GoToolchain, blog: 
     """kube-router, run by the real nodes only as a NetworkPolicy firewall (realnodes.py)."""
     krv = v["KUBE_ROUTER_VERSION"]
     module = "github.com/cloudnativelabs/kube-router/v2"
-    (tool.root / "bin").mkdir(parents=True, exist_ok=True)
-    go(
-        "install",
-        "-v",
-        "-trimpath",
-        "-ldflags",
-        f"-s -w -X {module}/pkg/version.Version=v{krv}",
-        f"{module}/cmd/kube-router@v{krv}",
-        log_file=blog,
-        extra_env={"GOBIN": str(tool.root / "bin")},
-    )
+    ldflags = ["-s", "-w", f"-X {module}/pkg/version.Version=v{krv}"]
+    _go_install(go, tool, blog, ldflags, [f"{module}/cmd/kube-router@v{krv}"])
 
 
 def install_debian_packages(packages: Sequence[str], blog: Path | None = None) -> None:
