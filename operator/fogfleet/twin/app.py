@@ -25,7 +25,7 @@ import signal
 import threading
 import time
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from pathlib import Path
 from typing import Any, Protocol
@@ -43,6 +43,7 @@ from .exporter import TwinMetrics
 from .model import ServiceSim
 from .pods import count_replicas
 from .scenario import Scenario, Service, load_scenario
+from .tally import Tally
 
 __all__ = ["Twin", "TwinKube", "run_twin"]
 
@@ -64,6 +65,7 @@ class TwinKube(Protocol):
 class _Svc:
     sim: ServiceSim
     pools: tuple[Pool, ...]
+    tally: Tally = field(default_factory=Tally)
 
 
 def _loopback(host: str) -> str:
@@ -138,6 +140,12 @@ class Twin:
             raise ValueError("requestsPerSecond >= 0 and 0 <= privateShare <= 1")
         with self._lock:
             self._overrides[(namespace, module)] = (rate, private_share)
+
+    def tally(self, namespace: str, module: str) -> Tally:
+        """What the service's requests met so far (all zero before the twin simulates it)."""
+        with self._lock:
+            state = self._services.get((namespace, module))
+            return state.tally if state is not None else Tally()
 
     def clear_load(self) -> None:
         with self._lock:
@@ -235,6 +243,7 @@ class Twin:
                 private, normal = self.rates(svc, now)
                 records = state.sim.advance(now - self._origin, private, normal)
                 self.metrics.record(svc.namespace, svc.module, records)
+                state.tally = state.tally.add(records)
                 for pool in state.pools:
                     ready, starting = state.sim.replicas(pool.name)
                     self.metrics.pool(svc.namespace, svc.module, pool.name, ready, starting,

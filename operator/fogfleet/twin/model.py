@@ -34,6 +34,12 @@ class Served:
     tier: str
     private: bool
     response_seconds: float
+    target_seconds: float = math.inf  # the request's own response-time target
+
+    @property
+    def late(self) -> bool:
+        """Answered after its own target: an SLO violation (tinyKube IV-D)."""
+        return self.response_seconds > self.target_seconds
 
 
 @dataclass(frozen=True)
@@ -67,7 +73,7 @@ class ServiceSim:
         self.rng = np.random.default_rng(seed)
         self.now = 0.0
         self._next_arrival: float | None = None
-        self._arrivals: dict[int, tuple[float, bool]] = {}
+        self._arrivals: dict[int, tuple[float, bool, float]] = {}  # arrival, private, target
         self._seq = 0
         lo = min(p.target_seconds for p in pools)
         hi = max(p.target_seconds for p in pools)
@@ -113,8 +119,9 @@ class ServiceSim:
 
     def _depart(self, pool: _PoolState, out: list[Served | Rejected]) -> None:
         end, req = heapq.heappop(pool.busy)
-        arrived, private = self._arrivals.pop(req)
-        out.append(Served(pool.cfg.name, private, end - arrived + pool.cfg.network_delay_seconds))
+        arrived, private, target = self._arrivals.pop(req)
+        response = end - arrived + pool.cfg.network_delay_seconds
+        out.append(Served(pool.cfg.name, private, response, target))
         self._start_waiting(pool, end)
 
     def _arrive(self, t: float, private: bool, out: list[Served | Rejected]) -> None:
@@ -129,7 +136,7 @@ class ServiceSim:
             return
         pool = self.pools[chosen]
         self._seq += 1
-        self._arrivals[self._seq] = (t, private)
+        self._arrivals[self._seq] = (t, private, target)
         pool.queue.append(self._seq)
         self._start_waiting(pool, t)
 
