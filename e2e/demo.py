@@ -9,7 +9,11 @@ and applies two examples as a user would:
   the bed's real nodes, real containers exchanging real ROS 2 messages, and an on-board
   fallback for the module it offloads;
 * ``manifests/examples/warehouse/``, the paper's warehouse on kwok's nodes beside it, to show
-  the scale (its pods are bound and Running; no container runs).
+  the scale (its pods are bound and Running; no container runs);
+* ``manifests/examples/shared-detector/``, a shared detector scaled from its SLO metrics, on
+  the same kwok nodes: a printed step starts the metrics twin, which plays requests on its
+  replicas, and the operator scales it from the bed's Prometheus (``kubectl get
+  softwaremodules`` shows REPLICAS grow).
 
 It waits until both are Ready (every pod Running on its planned node, bound by the real
 kube-scheduler), then until the operator's status of the real fleet holds a measured miss rate
@@ -49,10 +53,15 @@ PROGRESS_SECONDS = 10
 
 @dataclass(frozen=True)
 class Example:
-    """One example folder the demo applies: its fleet (named like its namespace)."""
+    """One example folder the demo applies: its namespace (named like the folder) and fleet."""
 
     name: str
     real: bool  # on the bed's real nodes (else kwok's)
+    fleet_name: str = ""  # the RobotFleet's name when it is not the namespace's
+
+    @property
+    def fleet(self) -> str:
+        return self.fleet_name or self.name
 
     @property
     def folder(self) -> str:
@@ -61,6 +70,9 @@ class Example:
 
 REAL = Example("warehouse-lite", real=True)  # the main fleet: real containers
 SCALE = Example("warehouse", real=False)  # the paper's warehouse on kwok, beside it
+# a shared detector scaled from its SLO, under the load of the twin a printed step starts
+SHARED = Example("shared-detector", real=False, fleet_name="detector-fleet")
+TWIN_PORT = 9123  # `fogfleet twin`'s default; the bed's Prometheus scrapes it there
 
 
 def say(msg: str) -> None:
@@ -120,7 +132,7 @@ def wait_ready(kube: Kube, examples: tuple[Example, ...]) -> dict[str, tuple[dic
         for ex in examples:
             if ex.name in done:
                 continue
-            fleet = kube.kubectl_json("get", "robotfleet", ex.name, "-n", ex.name)
+            fleet = kube.kubectl_json("get", "robotfleet", ex.fleet, "-n", ex.name)
             if conditions(fleet).get("Ready", {}).get("status") == "True":
                 done[ex.name] = fleet, time.monotonic() - applied[ex.name]
         if len(done) == len(examples):
@@ -202,12 +214,20 @@ def show_scale(kube: Kube, ex: Example, fleet: dict, elapsed: float) -> None:
           f"apply (planning {status.get('planningMillis')} ms)")  # fmt: skip
 
 
+def show_shared(kube: Kube, ex: Example, fleet: dict, elapsed: float) -> None:
+    print(kube.kubectl("get", "softwaremodules", "-n", ex.name).stdout)
+    print(f"{ex.name} (kwok's nodes): Ready {elapsed:.1f} s after kubectl apply; its detector "
+          "scales from Prometheus once the twin below plays requests on it")  # fmt: skip
+
+
 def next_steps(cluster: Cluster) -> str:
     """What to type next, in the user's own shell: every command returns within seconds."""
     harness = "python3 e2e/bed/harness.py"
     robot = next((n for n in cluster.real_nodes if "robot" in n), "bed-robot-1")
     ns = REAL.name
     degraded = '\'{.status.conditions[?(@.type=="Degraded")].message}{"\\n"}\''
+    twin = ("fogfleet twin --scenario docs/examples/twin-scenario.yaml "
+            ">/tmp/fogfleet-twin.log 2>&1 & echo $! >/tmp/fogfleet-twin.pid")  # fmt: skip
     return f"""
 The bed, the operator (in-cluster, Helm release {RELEASE} in {SYSTEM}) and the fleets keep
 running. In your own shell:
@@ -229,6 +249,12 @@ robot takes over (human-pose-lite, on board):
   kubectl fogfleet top {ns} -n {ns}    # in ~15 s, LAST-TAKEOVER: how fast the standby took over
   kubectl get events -n {ns} --field-selector reason=StandbyTookOver   # the same, as Events
 
+Load the shared detector: the metrics twin plays tinyKube's requests on its replicas (a surge
+to 90 requests/s after a minute) and the operator scales it from Prometheus:
+  {twin}
+  kubectl get softwaremodules -n {SHARED.name}   # REPLICAS grows within a minute
+  kill $(cat /tmp/fogfleet-twin.pid)    # stop the load (the detector scales down in ~5 min)
+
 Every example applies on its own: kubectl apply -f manifests/examples/<name>/
 Stop everything: make cluster-down (it says what, if anything, it could not remove)
 """
@@ -249,6 +275,7 @@ def remove() -> int:
         helm("uninstall", RELEASE, "-n", SYSTEM, "--wait")
     for ns in DEMO_NAMESPACES:
         kube.kubectl("delete", "namespace", ns, "--ignore-not-found", "--wait=false", check=False)
+    cluster.remove_prometheus_target("twin")
     return 0
 
 
@@ -264,8 +291,11 @@ def main(argv: list[str]) -> int:
     cluster = ensure_up()
     kube = _kube(cluster)
     install(kube, cluster)
-    ready = wait_ready(kube, (REAL, SCALE))
+    # the twin the printed step starts serves on 127.0.0.1, where the bed's Prometheus looks
+    cluster.add_prometheus_target("twin", f"127.0.0.1:{TWIN_PORT}")
+    ready = wait_ready(kube, (REAL, SCALE, SHARED))
     show_scale(kube, SCALE, *ready[SCALE.name])
+    show_shared(kube, SHARED, *ready[SHARED.name])
     show_real(kube, REAL, wait_measured(kube, REAL), ready[REAL.name][1])
     print(next_steps(cluster))
     say(f"done in {time.monotonic() - t0:.0f} s")

@@ -4,7 +4,8 @@
    warehouse Ready with the operator installed in-cluster by Helm on a real node, reading the
    bed's Prometheus at its cluster address, and every module of the real fleet measured through
    its status; then every command it prints runs literally in a plain shell after the printed
-   exports, each within 10 s: the link cut shows the robot's standby taking over within 1 s.
+   exports, each within 10 s: the link cut shows the robot's standby taking over within 1 s,
+   and the twin's load makes the operator scale the shared detector (its REPLICAS grow).
 2. "Install into a cluster" with plain manifests: the README's own `kubectl apply` line puts the
    operator on a real node that is not a robot (never on a kwok node: they are tainted for
    planned pods only), and the fleet of an example applied next gets Ready from it.
@@ -132,13 +133,20 @@ def test_the_demo_runs_a_measured_real_fleet_in_cluster_and_every_printed_step_w
         exports = [s for s in steps if s.startswith("export ")]
         assert {e.split("=", 1)[0] for e in exports} == {"export KUBECONFIG", "export PATH"}
         env = plain_env()
-        timings, prev = {}, ""
+        before = decided_replicas(kube)
+        timings, prev, scaled = {}, "", 0
         for command in [s for s in steps if not s.startswith("export ")]:
             script = "\n".join([*exports, command])
             if command.startswith("kubectl get robotfleet ") and "Degraded" in command:
                 # the link was cut by the step before: the fleet says so within a minute
                 out = until(script, env, lambda o: f"link lost to {robot}" in o, 60)
                 assert f"link lost to {robot}" in out, out
+            elif command.startswith("kubectl get softwaremodules -n shared-detector"):
+                # the step before started the twin's load: the operator scales the detector
+                # from Prometheus, and REPLICAS shows it
+                out = until(script, env, lambda o: detector_replicas(o) > before, 120)
+                assert detector_replicas(out) > before, (before, out)
+                scaled = detector_replicas(out)
             elif command.startswith("kubectl fogfleet top") and "--reset" in prev:
                 # after the link is back: the standby's takeover, within 1 s of the silence
                 out = until(
@@ -154,16 +162,45 @@ def test_the_demo_runs_a_measured_real_fleet_in_cluster_and_every_printed_step_w
                 assert "MEASURED" in out.splitlines()[0], out
             prev = command
         print({c[:60]: f"{t:.1f} s" for c, t in timings.items()})
+        print(f"the shared detector scaled from {before} to {scaled} replicas under the load")
+        assert scaled > before
         assert "make cluster-down" in demo.stdout
     finally:
+        stop_printed_twin()
         cluster.reset_link(robot)
         subprocess.run(
             [sys.executable, str(ROOT / "e2e" / "demo.py"), "remove"],
             cwd=ROOT, timeout=300, check=False,
         )  # fmt: skip
-        for ns in ("warehouse", REAL_FLEET):
+        for ns in ("warehouse", REAL_FLEET, "shared-detector"):
             kube.kubectl("wait", "--for=delete", f"namespace/{ns}", "--timeout=240s",
                          check=False, timeout=260)  # fmt: skip
+
+
+def decided_replicas(kube: Kube) -> int:
+    """The shared detector's decided replicas (0 before its first decision)."""
+    module = kube.kubectl_json("get", "softwaremodule", "object-detector", "-n", "shared-detector")
+    return int(((module.get("status") or {}).get("scaling") or {}).get("desiredReplicas") or 0)
+
+
+def detector_replicas(table: str) -> int:
+    """The REPLICAS column of the object-detector row of `kubectl get softwaremodules`."""
+    lines = table.splitlines()
+    column = lines[0].split().index("REPLICAS")
+    row = next(ln.split() for ln in lines[1:] if ln.startswith("object-detector "))
+    return int(row[column]) if row[column].isdigit() else 0
+
+
+def stop_printed_twin() -> None:
+    """Stop the twin the printed step started, by the pid it wrote (if it still runs)."""
+    pid_file = Path("/tmp/fogfleet-twin.pid")
+    if not pid_file.exists():
+        return
+    pid = int(pid_file.read_text().split()[0])
+    cmdline = Path(f"/proc/{pid}/cmdline")
+    if cmdline.exists() and b"twin" in cmdline.read_bytes():
+        os.kill(pid, 15)
+    pid_file.unlink()
 
 
 def takeover_s(top_output: str) -> float | None:

@@ -169,6 +169,8 @@ KINDS: tuple[KindInfo, ...] = (
             {"name": "Instances", "type": "integer", "jsonPath": ".status.instances"},
             {"name": "Split", "type": "string", "jsonPath": ".status.split"},
             {"name": "Measured", "type": "string", "jsonPath": ".status.measuredMiss"},
+            # a scaled shared module's decision, all pools together (empty when not scaled)
+            {"name": "Replicas", "type": "integer", "jsonPath": ".status.scaling.desiredReplicas"},
             {"name": "Scope", "type": "string", "jsonPath": ".spec.scope", "priority": 1},
             {
                 "name": "Profiling",
