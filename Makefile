@@ -58,6 +58,9 @@ cluster-tools: venv ## Build (or reuse from ~/.cache/fogfleet) etcd, kube-*, kwo
 images: venv ## Build (or reuse from ~/.cache/fogfleet/images) the operator, workload, pause and busybox images without Docker
 	$(BIN)/python e2e/bed/images.py build
 
+bed-builds: venv ## cluster-tools and images side by side (the Go compiles use the CPU, the images mostly the network and disk)
+	$(MAKE) --no-print-directory -j2 --output-sync=line cluster-tools images
+
 cluster-up: venv ## Start the local bed (control plane, Prometheus, cluster DNS, kwok and real nodes) on 127.0.0.1 and the bed bridge; PROFILE=paper for the paper's real nodes
 	$(BIN)/python e2e/bed/harness.py up --profile $(or $(PROFILE),default)
 
@@ -142,7 +145,7 @@ bench-real: venv cluster-tools images ## The paper's real experiment on the pape
 bench-real-report: venv ## Tables, docs/benchmarks/real-nodes.md and its plot from bench-real.json
 	$(BIN)/python -m e2e.bench.real.report --json bench-real.json --docs docs/benchmarks/real-nodes.md --plot docs/benchmarks/real-nodes-perception.svg
 
-demo: venv cluster-tools images ## Plan + simulate the warehouse fleet, then leave it running on the local bed with the operator installed in-cluster by Helm; prints what to type next
+demo: venv bed-builds ## Plan + simulate the warehouse fleet, then leave it running on the local bed with the operator installed in-cluster by Helm; prints what to type next
 	$(BIN)/fogfleet plan manifests/examples/warehouse
 	$(BIN)/fogfleet simulate manifests/examples/warehouse --scheduler all --all-active
 	$(BIN)/python e2e/demo.py
@@ -158,4 +161,4 @@ clean: ## Remove the virtualenv and caches in the repo
 	rm -rf $(VENV) .pytest_cache .mypy_cache .ruff_cache
 
 
-.PHONY: test-faults dashboard-check kubectl help venv lint unit integration docs-check test checkov images crds crds-check demo-offline bench-replan bench-cluster bench-scale bench-real bench-real-report cluster-tools cluster-up cluster-down cluster-status e2e e2e-kind e2e-k3d chart-lint bench demo clean
+.PHONY: bed-builds test-faults dashboard-check kubectl help venv lint unit integration docs-check test checkov images crds crds-check demo-offline bench-replan bench-cluster bench-scale bench-real bench-real-report cluster-tools cluster-up cluster-down cluster-status e2e e2e-kind e2e-k3d chart-lint bench demo clean

@@ -147,10 +147,11 @@ def _pump(proc: subprocess.Popen[str], lines: list[str], sink: TextIO | None) ->
 
 
 @contextlib.contextmanager
-def locked() -> Iterator[None]:
-    """Serialise build/up/down across processes (two pytest sessions, make in another shell)."""
-    CACHE_ROOT.mkdir(parents=True, exist_ok=True)
-    with LOCK_FILE.open("a") as fh:
+def locked(lock_file: Path = LOCK_FILE) -> Iterator[None]:
+    """Serialise build/up/down across processes (two pytest sessions, make in another shell);
+    another ``lock_file`` serialises something else (the builds' apt-get)."""
+    lock_file.parent.mkdir(parents=True, exist_ok=True)
+    with lock_file.open("a") as fh:
         fcntl.flock(fh, fcntl.LOCK_EX)
         try:
             yield

@@ -22,9 +22,11 @@ from pathlib import Path
 
 from e2e.bed.base import (
     BIN_DIR,
+    CACHE_ROOT,
     TOOLS_DIR,
     HarnessError,
     load_versions,
+    locked,
     log,
     run,
 )
@@ -406,12 +408,23 @@ def _build_kube_router(tool: Tool, v: Mapping[str, str], go: GoToolchain, blog: 
     _go_install(go, tool, blog, ldflags, [f"{module}/cmd/kube-router@v{krv}"])
 
 
+APT_LOCK_WAIT_SECONDS = 600  # another apt-get (a user's) holding dpkg's lock
+APT_LOCK_FILE = CACHE_ROOT / "apt.lock"
+
+
 def install_debian_packages(packages: Sequence[str], blog: Path | None = None) -> None:
     """apt-get install what is missing, as root, without starting any service.
 
     Debian's containerd would otherwise start a daemon on /run/containerd; a policy-rc.d that
-    answers 101 keeps every package's service down (the bed starts its own, per node).
+    answers 101 keeps every package's service down (the bed starts its own, per node). The
+    tools and the images build side by side (``make demo``): one install at a time, so that
+    one build's policy-rc.d is never removed under the other's apt-get.
     """
+    with locked(APT_LOCK_FILE):
+        _install_missing(packages, blog)
+
+
+def _install_missing(packages: Sequence[str], blog: Path | None) -> None:
     missing = [
         p
         for p in packages
@@ -433,15 +446,15 @@ def install_debian_packages(packages: Sequence[str], blog: Path | None = None) -
         policy.write_text("#!/bin/sh\n# fogfleet bed: packages never start services\nexit 101\n")
         policy.chmod(0o755)
     env = dict(os.environ, DEBIAN_FRONTEND="noninteractive")
+    apt = ["apt-get", "-o", f"DPkg::Lock::Timeout={APT_LOCK_WAIT_SECONDS}"]
+    install = [*apt, "install", "-y", "--no-install-recommends", *missing]
     try:
         try:
-            run(["apt-get", "install", "-y", "--no-install-recommends", *missing], env=env,
-                log_file=blog, timeout=900)  # fmt: skip
+            run(install, env=env, log_file=blog, timeout=900)
         except HarnessError:
             log("apt-get install failed; running apt-get update and retrying")
-            run(["apt-get", "update"], env=env, log_file=blog, timeout=600)
-            run(["apt-get", "install", "-y", "--no-install-recommends", *missing], env=env,
-                log_file=blog, timeout=900)  # fmt: skip
+            run([*apt, "update"], env=env, log_file=blog, timeout=600)
+            run(install, env=env, log_file=blog, timeout=900)
     finally:
         if not had_policy:
             policy.unlink(missing_ok=True)
