@@ -3,7 +3,7 @@ field, and remember the objects of other API groups, to name them when a fleet m
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Iterator, Mapping
+from collections.abc import Callable, Iterable, Iterator, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -193,7 +193,10 @@ def _parse_in(
         ]
 
 
-def _files(paths: Iterable[str | Path]) -> list[Path]:
+def _files(paths: Iterable[str | Path], refuse: Callable[[InvalidSpec], None]) -> list[Path]:
+    """The files to read: each path named (whatever its extension, as kubectl) and the
+    ``.json``, ``.yaml`` and ``.yml`` files of each folder named and of its subfolders (as
+    ``kubectl apply -R -f``), each once; ``refuse`` each path that does not exist."""
     out: list[Path] = []
     for raw in paths:
         p = Path(raw)
@@ -203,30 +206,75 @@ def _files(paths: Iterable[str | Path]) -> list[Path]:
         elif p.exists():
             out.append(p)
         else:
-            raise InvalidSpec(str(p), "", "no such file or directory")
+            refuse(InvalidSpec(str(p), "", "no such file or directory"))
     unique: dict[Path, Path] = {}  # a file named and inside a named folder is read once
     for q in out:
         unique.setdefault(q.resolve(), q)
     return list(unique.values())
 
 
-def _objects(doc: Any, where: str) -> Iterator[tuple[str, Mapping[str, Any]]]:
-    """The objects of one YAML document with where each sits: itself, or the ``items`` of a
-    ``kind: List`` or ``<Kind>List`` (what ``kubectl get -o yaml`` writes), as kubectl reads
-    them."""
+def _what(value: Any) -> str:
+    """What a document that is not an object is, in words."""
+    if isinstance(value, list):
+        return "a list"
+    if isinstance(value, str):
+        return "a string"
+    if isinstance(value, bool):
+        return "a boolean"
+    if isinstance(value, int | float):
+        return "a number"
+    return f"a {type(value).__name__}"
+
+
+def _objects(doc: Any, where: str, at: str) -> Iterator[Mapping[str, Any] | InvalidSpec]:
+    """The objects of one document of the file ``where`` (``at``: which document), each, or
+    why it is not one, in order, as kubectl reads them (cli-runtime's ``StreamVisitor``): an
+    empty document is nothing; an object is itself, or the ``items`` of a ``kind: List`` or
+    ``<Kind>List`` (what ``kubectl get -o yaml`` writes); any other document (a list, a
+    string, a number) is refused, as kubectl's decoder refuses it. A bad item does not hide
+    the items after it."""
+    if doc is None:
+        return  # an empty document (``---`` alone, or ``null``): kubectl skips it too
     if not isinstance(doc, Mapping):
-        return  # an empty document (or a scalar): nothing to apply
+        yield InvalidSpec(where, at, f"is {_what(doc)}, not an object; kubectl refuses it too")
+        return
     kind = doc.get("kind")
     items = doc.get("items")
     if isinstance(kind, str) and kind.endswith("List") and "items" in doc:
         if not isinstance(items, list):
-            raise InvalidSpec(f"{kind} in {where}", "items", "must be a list of objects")
+            yield InvalidSpec(f"{kind} in {where}", "items", "must be a list of objects")
+            return
         for k, item in enumerate(items):
-            if not isinstance(item, Mapping):
-                raise InvalidSpec(f"{kind} in {where}", f"items[{k}]", "must be an object")
-            yield from _objects(item, where)
+            if isinstance(item, Mapping):
+                yield from _objects(item, where, at)
+            else:
+                yield InvalidSpec(f"{kind} in {where}", f"items[{k}]", "must be an object")
         return
-    yield where, doc
+    yield doc
+
+
+def _untyped(obj: Mapping[str, Any], where: str, at: str) -> InvalidSpec | None:
+    """Why ``obj`` (document ``at`` of the file ``where``) is no object to apply, if it lacks
+    a kind or an apiVersion. kubectl refuses such an object (apimachinery's decoder: "Object
+    'Kind' is missing"; no API serves an empty apiVersion), so it is an error here too, not an
+    object of another group to skip."""
+    for key in ("kind", "apiVersion"):
+        if not obj.get(key):
+            skipped = _skipped(obj, where)
+            if skipped.kind and skipped.name != "?":
+                return InvalidSpec(
+                    str(skipped),
+                    key,
+                    f"missing (in {where}); kubectl refuses an object without one (fogfleet's "
+                    f"objects are apiVersion {API_VERSION})",
+                )
+            return InvalidSpec(
+                where,
+                f"{at}: {key}",
+                "missing: not a Kubernetes object, kubectl refuses it too (keep other files, "
+                "such as a saved plan, out of the folders you pass)",
+            )
+    return None
 
 
 def _skipped(doc: Mapping[str, Any], where: str) -> Skipped:
@@ -237,10 +285,34 @@ def _skipped(doc: Mapping[str, Any], where: str) -> Skipped:
     )
 
 
+def _read_object(
+    catalog: Catalog,
+    obj: Mapping[str, Any],
+    where: str,
+    at: str,
+    refuse: Callable[[InvalidSpec], None],
+) -> None:
+    """Add ``obj`` (document ``at`` of the file ``where``) to ``catalog``: skipped if of
+    another group, else parsed; ``refuse`` each error found."""
+    untyped = _untyped(obj, where, at)
+    if untyped is not None:
+        refuse(untyped)
+    elif str(obj["apiVersion"]).split("/")[0] != GROUP:
+        catalog.ignored.append(_skipped(obj, where))
+    elif isinstance(parsed := _parse_in(obj, where), list):
+        for bad in parsed:
+            refuse(bad)
+    else:
+        try:
+            catalog.add(parsed, where)
+        except InvalidSpec as exc:  # defined twice
+            refuse(exc)
+
+
 def load_paths(paths: Iterable[str | Path], errors: list[InvalidSpec] | None = None) -> Catalog:
     """Read every fogfleet object from YAML or JSON files or folders (a folder's ``.yaml``,
-    ``.yml`` and ``.json`` files, as ``kubectl apply -f``); objects of other API groups are
-    skipped, and kept in ``Catalog.ignored``.
+    ``.yml`` and ``.json`` files, as ``kubectl apply -R -f``); objects of other API groups
+    are skipped, and kept in ``Catalog.ignored``.
 
     Without ``errors`` the first bad input raises :class:`InvalidSpec`; with it, every bad file
     or field of an object is appended there and the rest is still read (``fogfleet
@@ -252,29 +324,17 @@ def load_paths(paths: Iterable[str | Path], errors: list[InvalidSpec] | None = N
             raise exc
         errors.append(exc)
 
-    try:
-        files = _files(paths)
-    except InvalidSpec as exc:
-        refuse(exc)
-        return catalog
-    for path in files:
+    for path in _files(paths, refuse):
         try:
             docs = read_documents(path)
         except InvalidSpec as exc:
             refuse(exc)
             continue
-        for doc in docs:
-            try:
-                for where, obj in _objects(doc, str(path)):
-                    if str(obj.get("apiVersion", "")).split("/")[0] != GROUP:
-                        catalog.ignored.append(_skipped(obj, where))
-                        continue
-                    parsed = _parse_in(obj, where)
-                    if isinstance(parsed, list):
-                        for bad in parsed:
-                            refuse(bad)
-                        continue
-                    catalog.add(parsed, where)
-            except InvalidSpec as exc:
-                refuse(exc)
+        for k, doc in enumerate(docs):
+            at = f"document {k + 1}"
+            for obj in _objects(doc, str(path), at):
+                if isinstance(obj, InvalidSpec):
+                    refuse(obj)
+                else:
+                    _read_object(catalog, obj, str(path), at, refuse)
     return catalog

@@ -1,6 +1,7 @@
 """``fogfleet validate``: every check ``fogfleet plan`` makes on its input (YAML and JSON, the
 models, the catalog, each fleet's references and rules), without planning; all errors at once:
-every bad field of every object, every bad reference of every fleet."""
+every bad field of every object, every bad reference of every fleet. Input with no fogfleet
+object is an error, not "OK: 0 ..." (a wrong folder, or files kubectl would not read either)."""
 
 from __future__ import annotations
 
@@ -29,6 +30,15 @@ def cmd_validate(args: argparse.Namespace) -> int:
             build_problem(fleet, catalog)
         except InvalidSpec as exc:
             errors.append(exc)
+    if not (catalog.nodes or catalog.modules or catalog.fleets or errors):
+        other = f" ({len(catalog.ignored)} other object(s) skipped)" if catalog.ignored else ""
+        errors.append(  # kubectl apply too refuses a folder with nothing to apply
+            InvalidSpec(
+                ", ".join(args.paths),
+                "",
+                f"no ComputeNode, SoftwareModule or RobotFleet found{other}",
+            )
+        )
     for skipped in catalog.ignored:  # read, not checked: a misspelt group lands here
         print(f"skipped: {skipped} in {skipped.source}: {skipped.why}", file=sys.stderr)
     for error in errors:

@@ -267,7 +267,8 @@ def test_simulate_says_infeasible_and_names_the_worst_module(
 def test_a_short_site_plans_degraded_with_a_warning_and_exit_0(
     capsys: pytest.CaptureFixture[str], tmp_path: Path
 ) -> None:
-    site = _short_site(tmp_path, allow_degraded=True)
+    (tmp_path / "site").mkdir()
+    site = _short_site(tmp_path / "site", allow_degraded=True)
     code, out, err = run(capsys, "plan", str(site), "--json", "--generations", "5")
     doc = json.loads(out)
     assert code == 0 and doc["feasible"] is True and doc["degraded"] is True
@@ -279,7 +280,7 @@ def test_a_short_site_plans_degraded_with_a_warning_and_exit_0(
     assert all(r["module"] != "nav-controller" for r in below), "hard real-time keeps its CPU"
     assert "predicted miss" in doc["degradedReason"]
     # the saved degraded plan simulates with the CPU it was given, as nsga2 does
-    saved = tmp_path / "plan.json"
+    saved = tmp_path / "plan.json"  # beside the site's folder: a plan is not a CR
     saved.write_text(out)
     args = ("simulate", str(site), "--duration", "10", "--generations", "5", "--json")
     code, out, _ = run(capsys, *args, "--placement", str(saved))

@@ -57,6 +57,29 @@ def test_a_bad_json_file_in_a_folder_is_an_error_naming_it(
     assert code == 2 and "extra.json" in err and "not valid JSON" in err
 
 
+@pytest.mark.parametrize("content", [{}, {"00-namespace.yaml": "apiVersion: v1\nkind: Namespace"}])
+def test_validate_of_input_without_fogfleet_objects_exits_2(
+    tmp_path: Path, content: dict[str, str], capsys: pytest.CaptureFixture[str]
+) -> None:
+    for name, text in content.items():
+        (tmp_path / name).write_text(text)
+    code, out, err = _run(capsys, "validate", str(tmp_path))
+    assert code == 2 and out == ""
+    assert "no ComputeNode, SoftwareModule or RobotFleet found" in err
+
+
+def test_validate_names_every_missing_path_and_reads_the_others(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    bad = tmp_path / "broken.yaml"
+    bad.write_text("- not an object\n")
+    code, _, err = _run(capsys, "validate", "no-such-1", str(LITE), "no-such-2", str(bad))
+    assert code == 2
+    assert "error: no-such-1: no such file" in err and "error: no-such-2: no such file" in err
+    assert f"error: {bad}: document 1: is a list, not an object" in err
+    assert "3 error(s)" in err
+
+
 # 3. an object of a misspelt group is named where a fleet misses it ---------------------------
 
 
