@@ -41,7 +41,8 @@ KINDS: dict[str, type[ComputeNode] | type[SoftwareModule] | type[RobotFleet]] = 
 @dataclass(frozen=True)
 class Skipped:
     """An object read but not fogfleet's: its API group is not fogfleet.io (a Namespace, or a
-    ComputeNode whose apiVersion is misspelt), so nothing checks or plans it."""
+    ComputeNode whose apiVersion is misspelt), so nothing checks or plans it. Kept to be named
+    where a fleet misses an object of its name (``Catalog.missing``)."""
 
     kind: str
     name: str
@@ -53,11 +54,16 @@ class Skipped:
 
     @property
     def why(self) -> str:
-        """Why it was skipped: its apiVersion, and whether the kind would have been ours."""
-        version = f"apiVersion {self.api_version}" if self.api_version else "no apiVersion"
+        """Why it was skipped, and what fogfleet reads instead: a misspelt apiVersion of one
+        of fogfleet's kinds, or a kind that is not fogfleet's."""
+        version = self.api_version or "none"
         if self.kind in KINDS:
-            return f"{version}, which is not {GROUP}'s group"
-        return f"kind {self.kind or '(none)'} and {version}, not a {GROUP} object"
+            return f"apiVersion {version} is not fogfleet's (it reads {API_VERSION})"
+        kinds = ", ".join(list(KINDS)[:-1]) + f" and {list(KINDS)[-1]}"
+        return (
+            f"kind {self.kind or '(none)'} (apiVersion {version}) is not fogfleet's "
+            f"(it reads {kinds} of {API_VERSION})"
+        )
 
 
 @dataclass
@@ -96,10 +102,11 @@ class Catalog:
 
     def missing(self, what: str, name: str) -> str:
         """Why a reference to ``name`` (shown as ``what``, e.g. ``ComputeNode 'edge-1'``) finds
-        nothing: it does not exist, and which skipped object of that name may have been
-        meant (its group misspelt, say)."""
+        nothing: it does not exist, and each skipped object of that name that may have been
+        meant (its group misspelt, or a kind not fogfleet's), with its file and why it was
+        skipped; those of fogfleet's kinds first."""
         hints = [
-            f"{s.source or 'a file'} defines {s.name} with {s.why}"
+            f"{s.source or 'a file'} defines {s}, skipped: {s.why}"
             for s in sorted(self.ignored, key=lambda s: s.kind not in KINDS)
             if s.name == name
         ]

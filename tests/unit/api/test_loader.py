@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from fogfleet.api.loader import API_VERSION, Catalog, load_paths
+from fogfleet.api.loader import API_VERSION, Catalog, Skipped, load_paths
 from fogfleet.errors import InvalidSpec
 
 NODE = {
@@ -63,6 +63,35 @@ def test_an_object_without_kind_or_apiversion_is_refused_not_skipped(
     [error] = errors
     assert error.field.endswith(missing) and str(tmp_path / "node.yaml") in str(error)
     assert "missing" in error.message and "kubectl refuses" in error.message
+
+
+def test_a_skipped_object_says_what_fogfleet_reads() -> None:
+    misspelt = Skipped("ComputeNode", "edge-1", "fogfleet.i0/v1alpha1", "nodes.yaml")
+    assert misspelt.why == (
+        f"apiVersion fogfleet.i0/v1alpha1 is not fogfleet's (it reads {API_VERSION})"
+    )
+    other = Skipped("Node", "edge-1", "v1", "nodes.yaml")
+    assert other.why == (
+        "kind Node (apiVersion v1) is not fogfleet's (it reads ComputeNode, SoftwareModule "
+        f"and RobotFleet of {API_VERSION})"
+    )
+
+
+def test_a_missing_reference_names_the_skipped_object_its_file_and_why(tmp_path: Path) -> None:
+    catalog = Catalog(
+        ignored=[
+            Skipped("Namespace", "edge-1", "v1", "ns.yaml"),
+            Skipped("ComputeNode", "edge-1", "fogfleet.i0/v1alpha1", "nodes.yaml"),
+            Skipped("ComputeNode", "edge-2", "fogfleet.i0/v1alpha1", "nodes.yaml"),
+        ]
+    )
+    message = catalog.missing("ComputeNode 'edge-1'", "edge-1")
+    assert message == (
+        "ComputeNode 'edge-1' does not exist; nodes.yaml defines ComputeNode/edge-1, skipped: "
+        f"apiVersion fogfleet.i0/v1alpha1 is not fogfleet's (it reads {API_VERSION}); "
+        "ns.yaml defines Namespace/edge-1, skipped: kind Namespace (apiVersion v1) is not "
+        f"fogfleet's (it reads ComputeNode, SoftwareModule and RobotFleet of {API_VERSION})"
+    )
 
 
 def test_a_bad_list_item_or_a_duplicate_does_not_hide_the_items_after_it(

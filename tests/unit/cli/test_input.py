@@ -100,8 +100,8 @@ def test_a_reference_to_an_object_of_a_misspelt_group_names_it(
         assert code == 2
         assert f"ComputeNode {name!r} does not exist" in err
         assert (
-            f"nodes.yaml defines {name} with apiVersion fogflet.io/v1alpha1, which is not "
-            "fogfleet.io's group"
+            f"nodes.yaml defines ComputeNode/{name}, skipped: apiVersion fogflet.io/v1alpha1 is "
+            "not fogfleet's (it reads fogfleet.io/v1alpha1)"
         ) in err
 
 
