@@ -1,7 +1,8 @@
 """``fogfleet validate``: every check ``fogfleet plan`` makes on its input (YAML and JSON, the
 models, the catalog, each fleet's references and rules), without planning; all errors at once:
-every bad field of every object, every bad reference of every fleet. Input with no fogfleet
-object is an error, not "OK: 0 ..." (a wrong folder, or files kubectl would not read either)."""
+every bad field of every object, every bad reference and broken rule of every fleet
+(``domain.checks``). Input with no fogfleet object is an error, not "OK: 0 ..." (a wrong
+folder, or files kubectl would not read either)."""
 
 from __future__ import annotations
 
@@ -17,19 +18,19 @@ __all__ = ["cmd_validate"]
 def cmd_validate(args: argparse.Namespace) -> int:
     from fogfleet.api.loader import load_paths
     from fogfleet.domain.build import build_problem
-    from fogfleet.domain.references import reference_errors
+    from fogfleet.domain.checks import fleet_errors
 
     errors: list[InvalidSpec] = []
     catalog = load_paths(args.paths, errors)
     for fleet in catalog.fleets:
-        bad_refs = reference_errors(fleet, catalog)
-        errors += bad_refs
-        if bad_refs:
-            continue  # the build would stop at the first of them
-        try:  # the fleet against the catalog, as `plan` does it before the planner runs
-            build_problem(fleet, catalog)
-        except InvalidSpec as exc:
-            errors.append(exc)
+        found = fleet_errors(fleet, catalog)
+        if not found:
+            try:  # the fleet against the catalog, as `plan` does it before the planner runs
+                build_problem(fleet, catalog)
+            except InvalidSpec as exc:
+                found = [exc]
+        shown = {str(e) for e in errors}  # a node two fleets use is wrong once
+        errors += [e for e in found if str(e) not in shown]
     if not (catalog.nodes or catalog.modules or catalog.fleets or errors):
         other = f" ({len(catalog.ignored)} other object(s) skipped)" if catalog.ignored else ""
         errors.append(  # kubectl apply too refuses a folder with nothing to apply

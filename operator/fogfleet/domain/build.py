@@ -20,6 +20,7 @@ from fogfleet.api.v1alpha1.robotfleet import RobotFleet
 from fogfleet.api.v1alpha1.softwaremodule import Scope, SoftwareModule
 from fogfleet.errors import InvalidSpec
 
+from .checks import module_cycle, node_capacity
 from .fallback import standbys
 from .network import Link, uplink
 from .pairs import Block, Pair, PairTable, Refusal, pad_rungs
@@ -43,22 +44,10 @@ F64 = NDArray[np.float64]
 
 
 def _capacity(node: ComputeNode) -> tuple[float, float, float]:
-    cap = node.spec.capacity
-    if cap is None:
-        raise InvalidSpec(
-            f"ComputeNode/{node.metadata.name}",
-            "spec.capacity",
-            "required when planning offline (the operator reads it from the Node)",
-        )
-    cpu = parse_cpu(cap.cpu) - parse_cpu(node.spec.reserved.cpu)
-    mem = parse_memory(cap.memory) - parse_memory(node.spec.reserved.memory)
-    if cpu <= 0:
-        raise InvalidSpec(
-            f"ComputeNode/{node.metadata.name}",
-            "spec.reserved.cpu",
-            "reserves all of the node's CPU",
-        )
-    return cpu, max(mem, 0.0), float(cap.gpu)
+    got = node_capacity(node)
+    if isinstance(got, InvalidSpec):
+        raise got
+    return got
 
 
 def _pool_tiers(
@@ -268,7 +257,6 @@ def _resolve_modules(
     fleet: RobotFleet, catalog: Catalog, namespace: str
 ) -> tuple[list[_Resolved], _Wants]:
     """The fleet's modules with their overrides applied, and what each asks for."""
-    obj = f"RobotFleet/{fleet.metadata.name}"
     modules: list[_Resolved] = []
     wants = _Wants({}, {})
     for k, ref in enumerate(fleet.spec.modules):
@@ -276,11 +264,9 @@ def _resolve_modules(
         if isinstance(mod, InvalidSpec):
             raise mod
         ov = ref.overrides
-        cycle = mod.spec.cycle_seconds if ov.cycle_seconds is None else ov.cycle_seconds
-        if cycle <= 0:
-            raise InvalidSpec(
-                obj, f"spec.modules[{k}].overrides.cycleTimeMillis", "must be greater than zero"
-            )
+        cycle = module_cycle(fleet, k, ref, mod)
+        if isinstance(cycle, InvalidSpec):
+            raise cycle
         act = (ov.activation_percent or mod.spec.activation_percent) / 100.0
         modules.append(_Resolved(mod, cycle, act, ov.replicas or mod.spec.replicas))
         name = mod.metadata.name

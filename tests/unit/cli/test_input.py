@@ -155,6 +155,31 @@ def test_validate_lists_every_bad_reference_of_every_fleet(
     assert "7 error(s)" in err
 
 
+def test_validate_lists_every_node_without_room_and_every_bad_cycle_of_a_fleet(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    folder = _copy(tmp_path, "nodes.yaml", "fleet.yaml")
+    nodes = _docs("nodes.yaml")
+    for node in nodes[:2]:
+        node["spec"]["reserved"] = {"cpu": node["spec"]["capacity"]["cpu"]}
+    del nodes[2]["spec"]["capacity"]
+    (folder / "nodes.yaml").write_text(yaml.safe_dump_all(nodes))
+    fleet = _docs("fleet.yaml")[0]
+    for ref in fleet["spec"]["modules"][:2]:
+        ref["overrides"] = {"cycleTimeMillis": 0}
+    other = {**fleet, "metadata": {**fleet["metadata"], "name": "second"}}
+    (folder / "fleet.yaml").write_text(yaml.safe_dump_all([fleet, other]))
+    code, _, err = _run(capsys, "validate", str(folder))
+    assert code == 2
+    for node in nodes[:2]:  # once, though both fleets use them
+        assert err.count(f"ComputeNode/{node['metadata']['name']}: spec.reserved.cpu: ") == 1
+    assert f"ComputeNode/{nodes[2]['metadata']['name']}: spec.capacity: required" in err
+    for name in (fleet["metadata"]["name"], "second"):
+        for k in (0, 1):
+            assert f"RobotFleet/{name}: spec.modules[{k}].overrides.cycleTimeMillis: " in err
+    assert "7 error(s)" in err
+
+
 # 5. bad input exits 2 from every command -----------------------------------------------------
 
 
