@@ -7,7 +7,8 @@
     │   └── Infeasible         valid objects, but no placement can satisfy them
     └── DependencyUnavailable  a cluster or Prometheus call failed; retry (kopf TemporaryError)
 
-Adapters translate library exceptions into this tree with ``raise ... from exc``.
+Adapters translate library exceptions into this tree with ``raise ... from exc``; the two
+commands turn it into exit codes in one place, ``fogfleet.commandline``.
 """
 
 from __future__ import annotations

@@ -1,8 +1,9 @@
 """The ``fogfleet`` command: validate, plan, explain, simulate and render fleets from CR YAML;
 generate CRDs; run the operator; run the benchmarks.
 
-Exit codes: 0 ok, 1 unexpected failure, 2 bad input (the message names object, field, reason)
-or an infeasible fleet.
+Exit codes (``fogfleet.commandline``, the same for ``kubectl fogfleet``): 0 ok, 1 fogfleet could
+not do it (a cluster or Prometheus did not answer), 2 bad input (the message names object,
+field, reason) or an infeasible fleet.
 """
 
 from __future__ import annotations
@@ -10,12 +11,12 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
-from fogfleet.errors import FogfleetError, InvalidSpec
+from fogfleet.commandline import positive, run_command
+from fogfleet.errors import InvalidSpec
 
 from .common import AUTOSCALING_FIRST_SEED, SCHEDULERS
 from .explain import cmd_explain
@@ -132,19 +133,6 @@ def _settings_epilog() -> str:
     return "\n".join(lines)
 
 
-def _positive(kind: Callable[[str], float]) -> Callable[[str], float]:
-    """An argparse type: a number above zero (argparse then exits 2 naming the option)."""
-
-    def parse(text: str) -> float:
-        value = kind(text)  # a ValueError: argparse says "invalid float value: 'x'"
-        if not value > 0:  # also refuses nan
-            raise argparse.ArgumentTypeError(f"must be greater than zero, not {text}")
-        return value
-
-    parse.__name__ = kind.__name__
-    return parse
-
-
 def _parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="fogfleet", description=__doc__.split("\n\n")[0])
     sub = p.add_subparsers(dest="command", required=True)
@@ -160,7 +148,7 @@ def _parser() -> argparse.ArgumentParser:
         sp.add_argument("--generations", type=int, help="override spec.scheduler.generations")
         sp.add_argument(
             "--time-budget",
-            type=_positive(float),
+            type=positive(float),
             help="seconds; override spec.scheduler.timeBudgetMillis",
         )
 
@@ -173,7 +161,7 @@ def _parser() -> argparse.ArgumentParser:
     sp = sub.add_parser("simulate", help="simulate plans and print missed-cycle rates")
     fleet_args(sp, (*SCHEDULERS, "all"))
     sp.add_argument(
-        "--duration", type=_positive(float), default=120.0, help="simulated seconds (default 120)"
+        "--duration", type=positive(float), default=120.0, help="simulated seconds (default 120)"
     )
     sp.add_argument(
         "--all-active",
@@ -193,7 +181,7 @@ def _parser() -> argparse.ArgumentParser:
     )
     sp.add_argument(
         "--window",
-        type=_positive(int),
+        type=positive(int),
         default=600,
         help="seconds of measurements with --from-prometheus (default 600)",
     )
@@ -205,7 +193,7 @@ def _parser() -> argparse.ArgumentParser:
     sp.add_argument("--module", required=True, help="the SoftwareModule to explain")
     sp.add_argument("--robot", help="only this robot's instance")
     sp.add_argument(
-        "--limit", type=_positive(int), default=50, help="instances explained at most (50)"
+        "--limit", type=positive(int), default=50, help="instances explained at most (50)"
     )
     sp.add_argument("-o", "--output", choices=("table", "json", "yaml"), default="table")
     sp.set_defaults(func=cmd_explain)
@@ -271,20 +259,10 @@ def _parser() -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    """``fogfleet``: the exit code of the subcommand, or of the error it ended with (one rule
+    for both commands, ``fogfleet.commandline``)."""
     args = _parser().parse_args(argv)
-    started = time.perf_counter()
-    try:
-        code = int(args.func(args))
-    except InvalidSpec as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
-    except FogfleetError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 1
-    except BrokenPipeError:  # pragma: no cover - `fogfleet render | head`
-        return 0
-    del started
-    return code
+    return run_command(lambda: int(args.func(args)))
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -34,20 +34,16 @@ def cmd_explain(args: argparse.Namespace) -> int:
     def refused(i: int) -> dict[int, Any]:
         return dict(refusals(fleet, catalog, plain.instances[i]))
 
-    try:
-        why = explain_module(
-            problem,
-            schedule.placement,
-            schedule.with_limits,
-            args.module,
-            robot=args.robot,
-            objectives=[o.value for o in settings.objectives],
-            refused=refused,
-            limit=args.limit,
-        )
-    except KeyError as exc:  # no such module (of that robot) in the fleet: bad input, exit 2
-        flag = "--robot" if args.robot else "--module"
-        raise InvalidSpec(f"RobotFleet/{fleet.metadata.name}", flag, str(exc.args[0])) from exc
+    why = explain_module(  # a module (of a robot) the fleet does not run: InvalidSpec, exit 2
+        problem,
+        schedule.placement,
+        schedule.with_limits,
+        args.module,
+        robot=args.robot,
+        objectives=[o.value for o in settings.objectives],
+        refused=refused,
+        limit=args.limit,
+    )
     doc = why_doc(why)
     print(render(doc, args.output, why_table(doc) if args.output == "table" else ""))
     return 0

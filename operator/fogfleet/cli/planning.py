@@ -15,6 +15,7 @@ import numpy as np
 from fogfleet.api.loader import Catalog
 from fogfleet.api.v1alpha1.objectives import ObjectiveName
 from fogfleet.api.v1alpha1.robotfleet import PLACEMENT_LIST_LIMIT
+from fogfleet.commandline import BAD_INPUT, OK
 from fogfleet.domain.miss_rates import format_miss_rate, worst_module
 from fogfleet.domain.rows import Learnt
 from fogfleet.domain.tenancy import Held, claims_of, with_held
@@ -112,7 +113,7 @@ def cmd_plan(args: argparse.Namespace) -> int:
             _print_plan(doc)
     if args.json:
         print(json.dumps(out[0] if len(out) == 1 else out, indent=2))
-    return 2 if infeasible else 0
+    return BAD_INPUT if infeasible else OK
 
 
 def site_catalog(catalog: Catalog, held: dict[str, Held]) -> Catalog:
@@ -246,7 +247,7 @@ def cmd_simulate(args: argparse.Namespace) -> int:
         print(f"INFEASIBLE {line}", file=sys.stderr)
     if args.json:
         print(json.dumps(result, indent=2))
-        return 2 if infeasible else 0
+        return BAD_INPUT if infeasible else OK
     modules = sorted({m for r in result.values() for m in [*r["modules"], *r["unplaced"]]})
 
     def cell(s: str, m: str) -> str:
@@ -278,7 +279,7 @@ def cmd_simulate(args: argparse.Namespace) -> int:
         + ("all modules active" if args.all_active else "activation rates of the modules")
     )
     print(table(rows, ["MODULE", *result.keys()]))
-    return 2 if infeasible else 0
+    return BAD_INPUT if infeasible else OK
 
 
 def _unplaced_modules(problem: Any, placement: Any) -> list[str]:

@@ -8,6 +8,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from fogfleet.commandline import BAD_INPUT, FAILED, OK
 from fogfleet.scheduling.explain import degraded_message, infeasible_message
 
 from .common import catalog_of, fleets_of, plan_fleet, settings_of
@@ -45,7 +46,7 @@ def cmd_render(args: argparse.Namespace) -> int:
                 f"planned ({why}); nothing rendered. --allow-unplaced renders what fits.",
                 file=sys.stderr,
             )
-            return 2
+            return BAD_INPUT
         if schedule.degraded:  # rendered all the same: say so where a pipe does not hide it
             print(
                 f"DEGRADED {problem.namespace}/{problem.fleet}: "
@@ -134,9 +135,9 @@ def cmd_crds(args: argparse.Namespace) -> int:
                 "CRDs drifted from the models: run `make crds` and commit the result.",
                 file=sys.stderr,
             )
-            return 1
+            return FAILED
         print(f"{args.check}: CRDs match the models")
-        return 0
+        return OK
     for path in crdgen.write_crds(Path(args.out)):
         print(path)
     return 0

@@ -10,6 +10,7 @@ import argparse
 import sys
 from collections import Counter
 
+from fogfleet.commandline import BAD_INPUT, OK
 from fogfleet.errors import InvalidSpec
 
 __all__ = ["cmd_validate"]
@@ -46,7 +47,7 @@ def cmd_validate(args: argparse.Namespace) -> int:
         print(f"error: {error}", file=sys.stderr)
     if errors:
         print(f"{len(errors)} error(s) in {', '.join(args.paths)}", file=sys.stderr)
-        return 2
+        return BAD_INPUT
     counts = Counter(
         {
             "ComputeNode": len(catalog.nodes),
@@ -57,4 +58,4 @@ def cmd_validate(args: argparse.Namespace) -> int:
     summary = ", ".join(f"{n} {kind}" for kind, n in counts.items())
     other = f"; {len(catalog.ignored)} other object(s) skipped" if catalog.ignored else ""
     print(f"OK: {summary}{other}")
-    return 0
+    return OK

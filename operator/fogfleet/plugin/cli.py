@@ -1,17 +1,16 @@
 """``kubectl fogfleet``: argument parsing and the commands, kubectl's way (``--kubeconfig``,
 ``--context``, ``-n/--namespace`` defaulting to the context's, ``-o table|json|yaml``).
 
-Exit codes: 0 ok, 1 the cluster could not be read, 2 bad arguments or input (argparse's own
-code for bad arguments)."""
+Exit codes (``fogfleet.commandline``, the same as ``fogfleet``'s): 0 ok, 1 the cluster could
+not be read, 2 bad arguments or input (argparse's own code for bad arguments)."""
 
 from __future__ import annotations
 
 import argparse
-import sys
 import time
 from collections.abc import Callable, Sequence
 
-from fogfleet.errors import FogfleetError, InvalidSpec
+from fogfleet.commandline import OK, positive, run_command
 
 from .commands import diff_doc, plan_doc, top_doc, why_doc, why_of
 from .live import Source, WhatIf, read_fleet
@@ -38,7 +37,9 @@ def parser() -> argparse.ArgumentParser:
     sp.add_argument("fleet", help="the RobotFleet")
     sp.add_argument("module", help="the SoftwareModule")
     sp.add_argument("--robot", help="only this robot's instance")
-    sp.add_argument("--limit", type=int, default=50, help="instances explained at most (50)")
+    sp.add_argument(
+        "--limit", type=positive(int), default=50, help="instances explained at most (50)"
+    )
     sp = sub.add_parser(
         "top", parents=[common], help="measured vs predicted misses, CPU and split per module"
     )
@@ -102,28 +103,28 @@ def main(
     p = parser()
     args = p.parse_args(argv)
     what_if = _what_if(args, p) if args.command == "plan" else None
-    try:
-        source, namespace = connect(args.kubeconfig, args.context)
-        ns = args.namespace or namespace
-        live = read_fleet(source, ns, args.fleet)
-        if args.command == "why":
-            doc = why_doc(why_of(live, args.module, args.robot, args.limit))
-            text = render(doc, args.output, why_table(doc) if args.output == "table" else "")
-        elif args.command == "top":
-            doc = top_doc(live, clock())
-            text = render(doc, args.output, top_table(doc) if args.output == "table" else "")
-        else:
-            changed = read_fleet(source, ns, args.fleet, what_if) if what_if else live
-            doc = plan_doc(changed, live) if what_if else diff_doc(live)
-            text = render(doc, args.output, diff_table(doc) if args.output == "table" else "")
-    except KeyError as exc:
-        print(f"error: {exc.args[0]}", file=sys.stderr)
-        return 2
-    except InvalidSpec as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
-    except FogfleetError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 1
+    return run_command(lambda: _run(args, what_if, connect, clock))
+
+
+def _run(
+    args: argparse.Namespace,
+    what_if: WhatIf | None,
+    connect: Connect,
+    clock: Callable[[], float],
+) -> int:
+    """Read the fleet, compute the command's document and print it."""
+    source, namespace = connect(args.kubeconfig, args.context)
+    ns = args.namespace or namespace
+    live = read_fleet(source, ns, args.fleet)
+    if args.command == "why":
+        doc = why_doc(why_of(live, args.module, args.robot, args.limit))
+        text = render(doc, args.output, why_table(doc) if args.output == "table" else "")
+    elif args.command == "top":
+        doc = top_doc(live, clock())
+        text = render(doc, args.output, top_table(doc) if args.output == "table" else "")
+    else:
+        changed = read_fleet(source, ns, args.fleet, what_if) if what_if else live
+        doc = plan_doc(changed, live) if what_if else diff_doc(live)
+        text = render(doc, args.output, diff_table(doc) if args.output == "table" else "")
     print(text)
-    return 0
+    return OK

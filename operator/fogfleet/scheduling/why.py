@@ -26,6 +26,7 @@ from numpy.typing import NDArray
 
 from fogfleet.api.v1alpha1.base import format_cores
 from fogfleet.domain.problem import Problem
+from fogfleet.errors import InvalidSpec
 
 from .evaluation import UPLINK_SHARE
 from .local import MoveEvaluator
@@ -107,7 +108,9 @@ def explain_module(
     chosen = instances_of(problem, module, robot)
     if not chosen:
         who = f" of robot {robot}" if robot else ""
-        raise KeyError(f"fleet {problem.fleet} has no instance of module {module}{who}")
+        raise InvalidSpec(
+            f"RobotFleet/{problem.fleet}", "", f"has no instance of module {module}{who}"
+        )
     shown = chosen[:limit]
     x = np.asarray(placement, dtype=np.int64)
     # the search's view narrowed to the moves asked about: only the shown instances are genes

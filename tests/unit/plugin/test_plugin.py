@@ -224,3 +224,11 @@ def test_bad_arguments_exit_2(argv: list[str], capsys: pytest.CaptureFixture[str
     with pytest.raises(SystemExit) as exc:
         _run(argv, capsys)
     assert exc.value.code == 2
+
+
+@pytest.mark.parametrize("limit", ["0", "-1", "x"])
+def test_why_limit_below_one_exits_2(limit: str, capsys: pytest.CaptureFixture[str]) -> None:
+    with pytest.raises(SystemExit) as exc:  # argparse, naming the option (0 was a traceback)
+        _run(["why", "warehouse", "nav-controller", "--limit", limit], capsys)
+    assert exc.value.code == 2
+    assert "--limit" in capsys.readouterr().err

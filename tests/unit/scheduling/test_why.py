@@ -12,6 +12,7 @@ import pytest
 from fogfleet.api.loader import load_paths
 from fogfleet.api.v1alpha1.robotfleet import SchedulerSettings
 from fogfleet.domain.build import build_problem, refusals
+from fogfleet.errors import InvalidSpec
 from fogfleet.scheduling.heuristics import greedy_schedule
 from fogfleet.scheduling.objectives import objective_values
 from fogfleet.scheduling.why import explain_module
@@ -89,10 +90,10 @@ def test_worse_reason_is_the_moved_plans_evaluation_difference() -> None:
     assert a.deltas[worst] > 0
 
 
-def test_unknown_module_or_robot_is_a_key_error() -> None:
-    with pytest.raises(KeyError):
+def test_unknown_module_or_robot_is_bad_input() -> None:
+    with pytest.raises(InvalidSpec, match="has no instance of module"):
         _why("no-such-module")
-    with pytest.raises(KeyError):
+    with pytest.raises(InvalidSpec, match="has no instance of module"):
         _why("nav-controller", "robot-99")
 
 
