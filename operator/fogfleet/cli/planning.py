@@ -305,6 +305,13 @@ def recorded_placement(problem: Any, doc: Any, source: str) -> tuple[Any, Any]:
     if not isinstance(doc, dict):
         raise InvalidSpec(source, "", "not a saved plan or a RobotFleet with status")
     body = doc.get("status", doc) if "status" in doc else doc
+    if not isinstance(body, dict) or "placement" not in body:
+        raise InvalidSpec(
+            source,
+            "placement",
+            "missing: not a plan saved by `fogfleet plan --json`, nor a RobotFleet whose status "
+            "has a placement",
+        )
     entries = body.get("placement") or []
     if not entries and body.get("modulesPlaced"):
         raise InvalidSpec(

@@ -226,3 +226,17 @@ def test_an_option_out_of_range_exits_2(
         main(argv)
     assert info.value.code == 2
     assert "must be greater than zero" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(
+    "saved", [{"a": 1}, _docs("fleet.yaml")[0], {"status": {"observedGeneration": 1}}]
+)
+def test_simulate_of_a_placement_file_without_a_placement_exits_2(
+    saved: dict[str, Any], tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    path = tmp_path / "saved.json"
+    path.write_text(json.dumps(saved))
+    argv = ["simulate", str(LITE), "--scheduler", "onboard", "--duration", "1"]
+    code, _, err = _run(capsys, *argv, "--placement", str(path))
+    assert code == 2, "it simulated every module UNPLACED and exited 0"
+    assert f"error: {path}: placement: " in err
