@@ -29,6 +29,8 @@ __all__ = [
     "LABEL_ROBOT",
     "LABEL_TIER",
     "MANAGER",
+    "ROLE_REMOTE",
+    "ROLE_STANDBY",
 ]
 
 MANAGER = "fogfleet"
@@ -60,6 +62,9 @@ ANNOTATION_PLAN = "fogfleet.io/plan-id"
 ANNOTATION_ROLE = "fogfleet.io/role"
 """On a module's on-board standby (its fallback, issue 13): ``standby``. Its Deployment is not
 the instance's placement, so it has no identity (``render.deployments.identity_of``)."""
+ROLE_STANDBY, ROLE_REMOTE = "standby", "remote"
+"""Values of ``ANNOTATION_ROLE``: an offloaded instance with an on-board fallback (``remote``)
+and its standby on the robot (``standby``, which its Deployment's name also says)."""
 ANNOTATION_SPEC_HASH = "fogfleet.io/spec-hash"
 ANNOTATION_SCALER_STATE = "fogfleet.io/scaler-state"
 

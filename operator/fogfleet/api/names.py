@@ -1,14 +1,15 @@
-"""Names and label values fogfleet generates, bounded and collision-free (issue 35).
+"""Valid text for the names and label values fogfleet generates, bounded and collision-free
+(issue 35); ``render.names`` builds every object name from these pieces (issue 45).
 
-Object names (Deployments, Services, NetworkPolicies, Jobs, HPAs, containers) are DNS-1123
-labels of at most 63 characters; label values carry names the same way. A text that already is
-one stays exactly as it is. Any other text (too long, or changed by making it valid, such as a
+A DNS-1123 label and a label value are at most 63 characters. A text that already is one stays
+exactly as it is. Any other text (too long, or changed by making it valid, such as a
 robot ``node.1`` whose dot becomes ``-``) is cut and keeps a hash of the whole original text,
 as Kubernetes' own name generators do: two long names that differ only at their ends, or two
 that differ only in a character the cleaning maps away, never meet.
 
-``shorten`` is the one rule; ``dns_label`` and ``label_value`` only say which characters are
-valid. ``digest`` is the hash (also of a Deployment's full identity, ``render.deployments``).
+``shorten`` is the rule for one text; ``dns_label`` and ``label_value`` only say which
+characters are valid. ``digest`` is the hash (also of an object's exact identity,
+``render.names``).
 """
 
 from __future__ import annotations

@@ -84,7 +84,7 @@ def cmd_render(args: argparse.Namespace) -> int:
             wiring=wiring,
         )
         docs.extend(deployments)
-        docs.extend(_hpas(deployments, modules, ns))
+        docs.extend(_hpas(deployments, modules, ns, problem.fleet))
 
     class _NoAliases(yaml.SafeDumper):
         def ignore_aliases(self, data: Any) -> bool:
@@ -94,14 +94,16 @@ def cmd_render(args: argparse.Namespace) -> int:
     return 0
 
 
-def _hpas(deployments: list[dict[str, Any]], modules: Any, namespace: str) -> list[dict[str, Any]]:
+def _hpas(
+    deployments: list[dict[str, Any]], modules: Any, namespace: str, fleet: str
+) -> list[dict[str, Any]]:
     """The HPAs of the shared modules with ``backend: hpa``, said on stderr. The Deployment an
     HPA scales leaves ``spec.replicas`` to it (else every re-apply would reset its count)."""
     from fogfleet.render.scaling import module_hpas
 
     by_name = {d["metadata"]["name"]: d for d in deployments}
     out = []
-    for item in module_hpas(deployments, modules, namespace):
+    for item in module_hpas(deployments, modules, namespace, fleet):
         by_name[item.target]["spec"].pop("replicas", None)
         spec = item.hpa["spec"]
         metric = spec["metrics"][0]

@@ -8,9 +8,9 @@ affinity**, requesting the CPU the plan chose for that node's hardware type
 set as affinity and the module's nominal requests (no limits), so the real kube-scheduler
 makes the choice.
 
-Names are deterministic and collision-free: ``<fleet>-<robot>-<module>-<hash8>`` (the hash is of
-the exact identity), shortened to 63 characters; the full identity is in the annotations. Every
-other name and label value goes through ``api.names`` (issue 35).
+Names come from ``render.names`` (``<fleet>-<robot>-<module>-<hash8>``, the hash of the exact
+identity; unique across the fleets of a namespace, issue 45); the full identity is in the
+annotations, and label values go through ``api.names`` (issue 35).
 ``fogfleet.io/spec-hash`` lets the controller skip applying what is already there.
 """
 
@@ -40,12 +40,15 @@ from fogfleet.api.labels import (
     LABEL_ROBOT,
     LABEL_TIER,
     MANAGER,
+    ROLE_REMOTE,
+    ROLE_STANDBY,
 )
-from fogfleet.api.names import MAX_NAME, digest, dns_label, dns_text, label_value
+from fogfleet.api.names import digest, label_value
 from fogfleet.api.v1alpha1.fallback import Fallback
 from fogfleet.api.v1alpha1.robotfleet import DEFAULT_CPU_LIMIT_PERCENT
 from fogfleet.api.v1alpha1.softwaremodule import ProfileEntry, SoftwareModule
 from fogfleet.domain.problem import Instance, Problem
+from fogfleet.render.names import container_name, deployment_name
 from fogfleet.render.podtemplate import module_pod_spec, scrape_port
 from fogfleet.render.ros import RosWiring, module_env, stay_on_robot
 
@@ -67,8 +70,6 @@ __all__ = [
     "ROLE_REMOTE",
     "ROLE_STANDBY",
     "Owner",
-    "container_name",
-    "deployment_name",
     "format_cpu",
     "hash_annotation",
     "identity_of",
@@ -80,7 +81,6 @@ __all__ = [
     "spread_replicas",
 ]
 
-ROLE_STANDBY, ROLE_REMOTE = "standby", "remote"
 COMPONENT_STANDBY = "fallback-standby"
 
 
@@ -90,27 +90,6 @@ class Owner:
 
     name: str
     uid: str
-
-
-def deployment_name(fleet: str, inst: Instance, role: str = "") -> str:
-    """``<fleet>-<robot>-<module>-<hash8>`` (shared replicas: ``<fleet>-<module>-r<k>-<hash8>``;
-    an on-board standby: ``<fleet>-<robot>-<module>-standby-<hash8>``)."""
-    who = (
-        [fleet, inst.robot, inst.module] if inst.robot else [fleet, inst.module, f"r{inst.replica}"]
-    )
-    parts: tuple[object, ...] = (fleet, inst.robot, inst.module, inst.replica)
-    if role == ROLE_STANDBY:
-        who.append(ROLE_STANDBY)
-        parts += (ROLE_STANDBY,)
-    suffix = digest(*parts)  # of the exact identity: the name is unique however it is cut
-    base = dns_text("-".join(who))[: MAX_NAME - len(suffix) - 1].rstrip("-")
-    return f"{base}-{suffix}" if base else suffix
-
-
-def container_name(module: str) -> str:
-    """The module's container: its name in DNS-label characters (a dotted name as today, with
-    ``-``), hashed only when longer than 63; one container per pod, so it needs no more."""
-    return dns_label(dns_text(module)) or "module"
 
 
 def format_cpu(cores: float) -> str:

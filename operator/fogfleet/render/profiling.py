@@ -10,7 +10,6 @@ SoftwareModule, so deleting the module deletes its profiling.
 
 from __future__ import annotations
 
-import hashlib
 from collections.abc import Sequence
 from typing import Any
 
@@ -25,26 +24,18 @@ from fogfleet.api.labels import (
     LABEL_PROFILE_SPEC,
     MANAGER,
 )
-from fogfleet.api.names import dns_label, dns_text
+from fogfleet.api.names import label_value
 from fogfleet.api.v1alpha1.base import format_millicores
 from fogfleet.api.v1alpha1.softwaremodule import SoftwareModule
 from fogfleet.contract.env import ENV_PROFILE_CYCLES
-from fogfleet.render.deployments import container_name, label_value, node_affinity
+from fogfleet.render.deployments import node_affinity
+from fogfleet.render.names import container_name, profiling_job_name
 from fogfleet.render.podtemplate import module_pod_spec
 from fogfleet.render.ros import module_env, stay_on_robot
 
-__all__ = ["ENV_PROFILE_CYCLES", "profiling_job_name", "profiling_selector", "render_profiling_job"]
+__all__ = ["ENV_PROFILE_CYCLES", "profiling_selector", "render_profiling_job"]
 
 TTL_SECONDS = 3600  # the operator deletes a recorded run's Jobs; this cleans up the rest
-
-
-def profiling_job_name(module: str, hardware_type: str, cpu: float, spec_hash: str) -> str:
-    """``<module>-profile-<digest>``, at most 49 characters (a Job's pods append their own
-    suffix to it and must stay a valid label value); a module name over 32 characters is cut
-    with a hash of it (``api.names``), so two long modules never share a Job."""
-    digest = hashlib.sha256(f"{hardware_type}/{cpu:g}/{spec_hash}".encode()).hexdigest()[:8]
-    head = dns_label(dns_text(module), limit=32)
-    return f"{head}-profile-{digest}"
 
 
 def profiling_selector(module: str, hardware_type: str, spec_hash: str) -> dict[str, str]:

@@ -1,9 +1,9 @@
 """ROS 2 wiring of a fleet (pure): per-robot discovery servers and what every module is told.
 
 * One Fast DDS discovery server per robot: a Deployment pinned to the robot's own node and a
-  ClusterIP Service in front of it (``<fleet>-<robot>-dds``). Its address is the Service's
-  cluster IP once the operator has applied it (no cluster DNS needed), else its DNS name
-  (``fogfleet render`` offline).
+  ClusterIP Service in front of it (``<fleet>-<robot>-dds``, ``render.names``). Its address is
+  the Service's cluster IP once the operator has applied it (no cluster DNS needed), else its
+  DNS name (``fogfleet render`` offline).
 * Every module container gets the ROS environment (RMW, domain, discovery range, its robot's
   server; a shared module: every robot's) and the ``FOGFLEET_*`` variables the ROS 2 workload
   (``python -m fogfleet.workload``) plays its module from: who and where it is, the CPU it was
@@ -21,7 +21,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from fogfleet.api.labels import DEDICATED_TAINT_KEY, LABEL_COMPONENT, LABEL_ROBOT
-from fogfleet.api.names import dns_label, label_value
+from fogfleet.api.names import label_value
 from fogfleet.api.v1alpha1.fallback import Fallback
 from fogfleet.api.v1alpha1.robotfleet import RosSettings
 from fogfleet.api.v1alpha1.softwaremodule import ProfileEntry, SoftwareModule
@@ -39,6 +39,13 @@ from fogfleet.contract.env import (
     METRICS_PORT,
 )
 from fogfleet.domain.pairs import rows_for
+from fogfleet.render.names import (
+    discovery_service_name,
+    metrics_network_policy_name,
+    network_policy_name,
+    robot_network_policy_name,
+    shared_network_policy_name,
+)
 
 __all__ = [
     "COMPONENT_DISCOVERY",
@@ -47,16 +54,11 @@ __all__ = [
     "ROBOT_TOLERATIONS",
     "RosWiring",
     "discovery_servers",
-    "discovery_service_name",
     "fleet_network_policies",
-    "metrics_network_policy_name",
     "module_env",
-    "network_policy_name",
     "pod_security",
     "render_discovery",
-    "robot_network_policy_name",
     "service_address",
-    "shared_network_policy_name",
     "stay_on_robot",
 ]
 
@@ -104,17 +106,6 @@ class RosWiring:
         if robot:
             return self.servers.get(robot, "")
         return ";".join(self.servers[r] for r in sorted(self.servers))
-
-
-def discovery_service_name(fleet: str, robot: str) -> str:
-    """``<fleet>-<robot>-dds`` (its Service and Deployment); cut with a hash when it does not fit
-    (``api.names``): two robots never share a server."""
-    return dns_label(f"{fleet}-{robot}-dds")
-
-
-def network_policy_name(fleet: str) -> str:
-    """``<fleet>-pods``, the NetworkPolicy of every pod of the fleet."""
-    return dns_label(f"{fleet}-pods")
 
 
 def pod_security() -> tuple[dict[str, Any], dict[str, Any]]:
@@ -375,21 +366,6 @@ def service_address(service: Mapping[str, Any]) -> str:
     ip = spec.get("clusterIP")
     host = ip if ip and ip != "None" else f"{meta['name']}.{meta['namespace']}.svc"
     return f"{host}:{spec['ports'][0]['port']}"
-
-
-def robot_network_policy_name(fleet: str, robot: str) -> str:
-    """``<fleet>-<robot>-net``, the NetworkPolicy of one robot's pods."""
-    return dns_label(f"{fleet}-{robot}-net")
-
-
-def metrics_network_policy_name(fleet: str) -> str:
-    """``<fleet>-metrics``, the NetworkPolicy opening the metrics ports to Prometheus."""
-    return dns_label(f"{fleet}-metrics")
-
-
-def shared_network_policy_name(fleet: str) -> str:
-    """``<fleet>-shared``, the NetworkPolicy of the fleet's shared services."""
-    return dns_label(f"{fleet}-shared")
 
 
 def fleet_network_policies(

@@ -37,11 +37,12 @@ from fogfleet.api.labels import (
     LABEL_MODULE,
     MANAGER,
 )
-from fogfleet.api.names import dns_label, label_value
+from fogfleet.api.names import label_value
 from fogfleet.api.v1alpha1.scaling import Backend, ScalingSpec
 from fogfleet.api.v1alpha1.softwaremodule import SoftwareModule
 from fogfleet.autoscaling.behavior import Behavior, ScalingRules, resolve_behavior
 from fogfleet.contract import metrics as contract
+from fogfleet.render.names import hpa_name, scaled_object_name
 
 __all__ = [
     "SLO_METRIC",
@@ -88,10 +89,9 @@ def slo_promql(spec: ScalingSpec, module: str, namespace: str, window_seconds: i
     )
 
 
-def _meta(kind_suffix: str, module: str, namespace: str) -> Obj:
-    """``<module>-<suffix>``, bounded and unique (``api.names``)."""
+def _meta(name: str, module: str, namespace: str) -> Obj:
     return {
-        "name": dns_label(f"{module}-{kind_suffix}"),
+        "name": name,
         "namespace": namespace,
         "labels": {LABEL_MANAGED_BY: MANAGER, LABEL_MODULE: label_value(module)},
     }
@@ -100,13 +100,15 @@ def _meta(kind_suffix: str, module: str, namespace: str) -> Obj:
 def render_scaled_object(
     spec: ScalingSpec,
     *,
+    fleet: str,
     module: str,
     namespace: str,
     target: str,
     prometheus_url: str,
     polling_seconds: int = 15,
 ) -> Obj:
-    """A KEDA ``ScaledObject`` scaling Deployment ``target`` on the SLO (or CPU)."""
+    """A KEDA ``ScaledObject`` scaling Deployment ``target`` (the replica of ``module`` in
+    ``fleet``) on the SLO (or CPU)."""
     if spec.slo is not None:
         trigger: Obj = {
             "type": "prometheus",
@@ -126,7 +128,7 @@ def render_scaled_object(
     return {
         "apiVersion": "keda.sh/v1alpha1",
         "kind": "ScaledObject",
-        "metadata": _meta("scaler", module, namespace),
+        "metadata": _meta(scaled_object_name(fleet, module), module, namespace),
         "spec": {
             "scaleTargetRef": {"apiVersion": "apps/v1", "kind": "Deployment", "name": target},
             "minReplicaCount": spec.min_replicas,
@@ -142,8 +144,9 @@ def render_scaled_object(
     }
 
 
-def render_hpa(spec: ScalingSpec, *, module: str, namespace: str, target: str) -> Obj:
-    """An ``autoscaling/v2`` HorizontalPodAutoscaler for Deployment ``target``."""
+def render_hpa(spec: ScalingSpec, *, fleet: str, module: str, namespace: str, target: str) -> Obj:
+    """An ``autoscaling/v2`` HorizontalPodAutoscaler for Deployment ``target`` (the replica of
+    ``module`` in ``fleet``)."""
     if spec.slo is not None:
         metric: Obj = {
             "type": "External",
@@ -169,7 +172,7 @@ def render_hpa(spec: ScalingSpec, *, module: str, namespace: str, target: str) -
     return {
         "apiVersion": "autoscaling/v2",
         "kind": "HorizontalPodAutoscaler",
-        "metadata": _meta("hpa", module, namespace),
+        "metadata": _meta(hpa_name(fleet, module), module, namespace),
         "spec": {
             "scaleTargetRef": {"apiVersion": "apps/v1", "kind": "Deployment", "name": target},
             "minReplicas": max(spec.min_replicas, 1),  # the HPA's own floor
@@ -204,9 +207,10 @@ def module_hpas(
     deployments: Sequence[Mapping[str, Any]],
     modules: Mapping[str, SoftwareModule],
     namespace: str,
+    fleet: str,
 ) -> list[ModuleHpa]:
     """An HPA for every shared module of ``modules`` with ``scaling.backend: hpa`` that has a
-    placed replica among ``deployments`` (a fleet's rendered Deployments), in module order."""
+    placed replica among ``deployments`` (``fleet``'s rendered Deployments), in module order."""
     replicas: dict[str, list[tuple[int, str]]] = {}
     for dep in deployments:
         ident = _shared_replica(dep)
@@ -224,7 +228,11 @@ def module_hpas(
         bounds = {"min_replicas": low, "max_replicas": max(spec.max_replicas - fixed, low)}
         target = placed[0][1]
         hpa = render_hpa(
-            spec.model_copy(update=bounds), module=name, namespace=namespace, target=target
+            spec.model_copy(update=bounds),
+            fleet=fleet,
+            module=name,
+            namespace=namespace,
+            target=target,
         )
         out.append(ModuleHpa(name, hpa, target, fixed))
     return out

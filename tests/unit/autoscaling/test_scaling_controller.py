@@ -496,7 +496,12 @@ def test_keda_scaled_object_carries_the_slo_query_bounds_and_tinykube_behaviour(
          "slo": {"metric": "responseTime", "targetMillis": 350, "percentile": 99}},
     )  # fmt: skip
     obj = render_scaled_object(
-        spec, module="det", namespace="fleet", target="det", prometheus_url="http://prom:9090"
+        spec,
+        fleet="f",
+        module="det",
+        namespace="fleet",
+        target="det",
+        prometheus_url="http://prom:9090",
     )
     trigger = obj["spec"]["triggers"][0]
     assert trigger["type"] == "prometheus" and trigger["metricType"] == "Value"
@@ -520,12 +525,13 @@ def test_hpa_uses_cpu_or_an_external_slo_metric() -> None:
     cpu = load_scaling_spec(
         "m", {"maxReplicas": 5, "backend": "hpa", "targetCpuUtilizationPercent": 80}
     )
-    hpa = render_hpa(cpu, module="det", namespace="fleet", target="det")
+    hpa = render_hpa(cpu, fleet="f", module="det", namespace="fleet", target="det")
     assert hpa["spec"]["metrics"][0]["resource"]["target"]["averageUtilization"] == 80
     slo = load_scaling_spec(
         "m", {"maxReplicas": 5, "backend": "hpa", "slo": {"query": "x", "targetMillis": 350}}
     )
-    ext = render_hpa(slo, module="det", namespace="fleet", target="det")["spec"]["metrics"][0]
+    ext = render_hpa(slo, fleet="f", module="det", namespace="fleet", target="det")
+    ext = ext["spec"]["metrics"][0]
     assert ext["type"] == "External" and ext["external"]["target"] == {
         "type": "Value",
         "value": "350m",

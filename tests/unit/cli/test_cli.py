@@ -10,6 +10,7 @@ import yaml
 
 from fogfleet.api.v1alpha1.base import parse_cpu
 from fogfleet.cli import main
+from fogfleet.render.names import discovery_service_name
 
 ROOT = Path(__file__).resolve().parents[3]
 WAREHOUSE = ROOT / "manifests" / "examples" / "warehouse"
@@ -122,7 +123,8 @@ def test_render_binds_each_deployment_to_its_node(capsys: pytest.CaptureFixture[
         for e in modules[0]["spec"]["template"]["spec"]["containers"][0]["env"]
     }
     robot = modules[0]["metadata"]["labels"]["fogfleet.io/robot"]
-    assert env["ROS_DISCOVERY_SERVER"] == f"warehouse-{robot}-dds.warehouse.svc:11811"
+    server = discovery_service_name("warehouse", robot)
+    assert env["ROS_DISCOVERY_SERVER"] == f"{server}.warehouse.svc:11811"
 
 
 def _fleet(tmp_path: Path, spec: str) -> Path:

@@ -11,6 +11,7 @@ from fogfleet.controllers.robotfleet import reconcile
 from fogfleet.controllers.ros import is_ros_object
 from fogfleet.errors import DanglingReference, Infeasible
 from fogfleet.render.deployments import identity_of
+from fogfleet.render.names import discovery_service_name, robot_network_policy_name
 
 KEY = ("warehouse", "warehouse")
 
@@ -274,7 +275,8 @@ def test_every_robot_gets_a_discovery_server_on_its_own_node_and_its_modules_use
     servers = {k[1]: d for k, d in kube.deployments.items() if is_ros_object(d)}
     assert len(servers) == 5 and len(kube.services) == 5
     for dep in servers.values():
-        robot = dep["metadata"]["name"].removeprefix("warehouse-").removesuffix("-dds")
+        robot = dep["metadata"]["labels"]["fogfleet.io/robot"]
+        assert dep["metadata"]["name"] == discovery_service_name("warehouse", robot)
         assert dep["spec"]["template"]["spec"]["affinity"]["nodeAffinity"][
             "requiredDuringSchedulingIgnoredDuringExecution"
         ]["nodeSelectorTerms"][0]["matchExpressions"][0]["values"] == [robot]
@@ -285,8 +287,8 @@ def test_every_robot_gets_a_discovery_server_on_its_own_node_and_its_modules_use
     ips = {k[1]: s["spec"]["clusterIP"] for k, s in kube.services.items()}
     # each Service selects its own robot's server pod, never another robot's
     for (_, name), svc in kube.services.items():
-        robot = name.removeprefix("warehouse-").removesuffix("-dds")
-        assert svc["spec"]["selector"]["fogfleet.io/robot"] == robot
+        robot = svc["spec"]["selector"]["fogfleet.io/robot"]
+        assert name == discovery_service_name("warehouse", robot)
         (server,) = [d for d in servers.values() if d["metadata"]["name"] == name]
         labels = server["spec"]["template"]["metadata"]["labels"]
         assert svc["spec"]["selector"].items() <= labels.items()
@@ -300,7 +302,10 @@ def test_every_robot_gets_a_discovery_server_on_its_own_node_and_its_modules_use
         robot = dep["metadata"]["annotations"]["fogfleet.io/robot"]
         env = _env(dep)
         # wherever the module runs, it discovers through its own robot's server
-        assert env["ROS_DISCOVERY_SERVER"] == f"{ips[f'warehouse-{robot}-dds']}:11811"
+        assert (
+            env["ROS_DISCOVERY_SERVER"]
+            == f"{ips[discovery_service_name('warehouse', robot)]}:11811"
+        )
         assert env["FOGFLEET_ROBOT"] == robot and env["FASTDDS_BUILTIN_TRANSPORTS"] == "UDPv4"
         assert env["ROS_AUTOMATIC_DISCOVERY_RANGE"] == "SUBNET"
         offloaded += env["FOGFLEET_TIER"] != "robot"
@@ -340,15 +345,14 @@ def test_a_robot_leaving_the_fleet_takes_its_network_policy_along(kube, deps):
     run(kube, deps)
     robots = list(kube.fleets[KEY]["spec"]["robots"])
     names = {name for _, name in kube.network_policies}
-    assert names == {"warehouse-pods", "warehouse-shared", "warehouse-metrics"} | {
-        f"warehouse-{r}-net" for r in robots
-    }
+    fleet_wide = {"warehouse-pods", "warehouse-shared", "warehouse-metrics"}
+    assert names == fleet_wide | {robot_network_policy_name("warehouse", r) for r in robots}
     for policy in kube.network_policies.values():
         refs = policy["metadata"]["ownerReferences"]
         assert [r["kind"] for r in refs] == ["RobotFleet"]  # they go with the fleet
     gone = _drop_a_robot(kube)
     run(kube, deps)
-    assert ("warehouse", f"warehouse-{gone}-net") not in kube.network_policies
+    assert ("warehouse", robot_network_policy_name("warehouse", gone)) not in kube.network_policies
     assert len(kube.network_policies) == len(robots) + 2
 
 

@@ -15,6 +15,7 @@ from fogfleet.api.labels import ANNOTATION_MODULE, ANNOTATION_REPLICA, ANNOTATIO
 from fogfleet.api.loader import parse_object
 from fogfleet.api.v1alpha1.softwaremodule import SoftwareModule
 from fogfleet.cli import main
+from fogfleet.render.names import hpa_name
 from fogfleet.render.scaling import SLO_METRIC, module_hpas
 
 REPO = Path(__file__).resolve().parents[3]
@@ -50,7 +51,7 @@ def test_the_hpa_scales_the_first_replica_within_the_module_bounds() -> None:
         _dep("r1", "object-detector", 1),
         _dep("cam", "camera-driver", 0, robot="robot-1"),
     ]
-    (item,) = module_hpas(deps, {"object-detector": module}, "ns")
+    (item,) = module_hpas(deps, {"object-detector": module}, "ns", "fleet")
     assert (item.module, item.target, item.fixed) == ("object-detector", "r0", 2)
     hpa = item.hpa
     assert (hpa["apiVersion"], hpa["kind"]) == ("autoscaling/v2", "HorizontalPodAutoscaler")
@@ -66,9 +67,9 @@ def test_the_hpa_scales_the_first_replica_within_the_module_bounds() -> None:
 def test_other_backends_and_unplaced_modules_get_no_hpa() -> None:
     deps = [_dep("r0", "object-detector", 0)]
     own = _detector({"maxReplicas": 4})
-    assert module_hpas(deps, {"object-detector": own}, "ns") == []
+    assert module_hpas(deps, {"object-detector": own}, "ns", "fleet") == []
     hpa = _detector({"maxReplicas": 4, "backend": "hpa", "targetCpuUtilizationPercent": 50})
-    assert module_hpas([], {"object-detector": hpa}, "ns") == []
+    assert module_hpas([], {"object-detector": hpa}, "ns", "fleet") == []
 
 
 @pytest.fixture
@@ -108,5 +109,6 @@ def test_render_prints_the_slo_hpa_and_says_so(
     assert metric["external"]["metric"]["name"] == SLO_METRIC
     assert metric["external"]["metric"]["selector"]["matchLabels"]["module"] == "object-detector"
     assert metric["external"]["target"] == {"type": "Value", "value": "350m"}
-    assert "HorizontalPodAutoscaler object-detector-hpa" in err
+    assert hpa["metadata"]["name"] == hpa_name("detector-fleet", "object-detector")
+    assert f"HorizontalPodAutoscaler {hpa['metadata']['name']} scales" in err
     assert "does not apply it" in err

@@ -25,8 +25,8 @@ from fogfleet.api.v1alpha1.scaling import ScalingSpec
 from fogfleet.domain.build import build_problem
 from fogfleet.domain.problem import Problem
 from fogfleet.render.deployments import identity_of, render_fleet
-from fogfleet.render.profiling import profiling_job_name
-from fogfleet.render.ros import discovery_servers, network_policy_name
+from fogfleet.render.names import network_policy_name, profiling_job_name
+from fogfleet.render.ros import discovery_servers
 from fogfleet.render.scaling import render_hpa, render_scaled_object
 
 EXAMPLES = Path(__file__).resolve().parents[3] / "manifests" / "examples"
@@ -133,7 +133,7 @@ def test_long_and_near_equal_names_stay_bounded_valid_and_distinct(catalog, prob
     for render in (render_hpa, render_scaled_object):
         kw = {"prometheus_url": "http://p"} if render is render_scaled_object else {}
         names = {
-            render(spec, module=m, namespace="ns", target="t", **kw)["metadata"]["name"]
+            render(spec, fleet="f", module=m, namespace="ns", target="t", **kw)["metadata"]["name"]
             for m in modules
         }
         assert len(names) == len(modules)

@@ -14,7 +14,8 @@ from typing import Any
 import pytest
 
 from fogfleet.api.names import MAX_NAME
-from fogfleet.render.ros import fleet_network_policies, robot_network_policy_name
+from fogfleet.render.names import robot_network_policy_name
+from fogfleet.render.ros import fleet_network_policies
 
 FLEET = {"fogfleet.io/fleet": "warehouse"}
 ROBOTS = ["robot-1", "robot-2"]

@@ -13,7 +13,9 @@ import pytest
 import yaml
 from e2e.podsecurity.restricted import violations
 
+from fogfleet.api.labels import LABEL_COMPONENT
 from fogfleet.cli import main
+from fogfleet.render.ros import COMPONENT_DISCOVERY
 
 EXAMPLES = Path(__file__).resolve().parents[3] / "manifests" / "examples"
 RENDERED = ["single-robot", "warehouse-lite", "shared-detector"]
@@ -38,9 +40,11 @@ def _pods(docs: list[dict[str, Any]]) -> dict[str, dict[str, Any]]:
 
 @pytest.mark.parametrize("example", RENDERED)
 def test_rendered_pods_meet_restricted(example: str, capsys: pytest.CaptureFixture[str]) -> None:
-    pods = _pods(_render(EXAMPLES / example, capsys))
+    docs = _render(EXAMPLES / example, capsys)
+    pods = _pods(docs)
     assert pods
-    assert any(name.endswith("-dds") for name in pods), sorted(pods)  # discovery servers
+    components = {d["metadata"]["labels"].get(LABEL_COMPONENT) for d in docs}
+    assert COMPONENT_DISCOVERY in components, sorted(pods)  # discovery servers
     bad = {name: v for name, spec in pods.items() if (v := violations(spec))}
     assert not bad, bad
 
