@@ -8,8 +8,9 @@ Every ``period_seconds`` the operator reads, per namespace it planned fleets in:
   (``fogfleet_cycle_time_seconds_count``, ``fogfleet_missed_cycles_total``) into the
   SoftwareModule's ``status.observed``;
 - each fleet's measured miss rate per module (``fogfleet_missed_cycles_total`` over
-  ``fogfleet_cycle_time_seconds_count`` of the fleet's pods) since its last plan, at most the
-  window, against the plan's prediction (``domain.observed.drifting``).
+  ``fogfleet_cycle_time_seconds_count`` of the fleet's pods, known by their Deployments' names:
+  ``render.names.pod_deployment``) since its last plan, at most the window, against the plan's
+  prediction (``domain.observed.drifting``).
 
 A module that drifts for ``forSeconds`` (and ``minIntervalSeconds`` after the fleet's last
 re-plan for drift) gets its ``status.profileCorrection`` from its observations
@@ -23,12 +24,13 @@ module in an Event of its own.
 from __future__ import annotations
 
 import logging
-from collections.abc import Iterable, Mapping
+from collections.abc import Collection, Iterable, Mapping
 from dataclasses import dataclass
 from typing import Any
 
 from fogfleet import GROUP, VERSION
 from fogfleet.adapters.ports import SeriesPort
+from fogfleet.api.labels import ROLE_STANDBY
 from fogfleet.api.loader import Catalog, parse_object
 from fogfleet.api.timestamps import timestamp
 from fogfleet.api.v1alpha1.base import parse_cpu
@@ -50,6 +52,7 @@ from fogfleet.domain.pairs import profile_rows
 from fogfleet.domain.problem import Problem
 from fogfleet.domain.rows import Learnt
 from fogfleet.errors import DependencyUnavailable, FogfleetError
+from fogfleet.render.names import deployment_name, pod_deployment
 from fogfleet.scheduling.decision import Decision
 from fogfleet.scheduling.objectives import module_miss_rates
 from fogfleet.scheduling.stickiness import loads
@@ -84,9 +87,11 @@ CYCLE_COUNT = (
     'sum by ({by}) (increase(fogfleet_cycle_time_seconds_count{{namespace="{ns}"}}[{w}s]))'
 )
 CYCLE_MISSED = 'sum by ({by}) (increase(fogfleet_missed_cycles_total{{namespace="{ns}"}}[{w}s]))'
-_PODS = 'namespace="{ns}",pod=~"{fleet}-.*"'
-MISSED = "sum by (module) (increase(fogfleet_missed_cycles_total{{" + _PODS + "}}[{w}s]))"
-CYCLES = "sum by (module) (increase(fogfleet_cycle_time_seconds_count{{" + _PODS + "}}[{w}s]))"
+# per pod, of the pods whose names begin as the fleet's Deployments' do; _by_module keeps the
+# fleet's own (another fleet's names may begin alike: ``warehouse`` and ``warehouse-2``)
+_PODS = 'namespace="{ns}",pod=~"{prefix}.*"'
+MISSED = "sum by (module, pod) (increase(fogfleet_missed_cycles_total{{" + _PODS + "}}[{w}s]))"
+CYCLES = "sum by (module, pod) (increase(fogfleet_cycle_time_seconds_count{{" + _PODS + "}}[{w}s]))"
 
 
 @dataclass
@@ -262,9 +267,11 @@ def _fleet_round(
     window = int(min(settings.window_seconds, now - epoch[1]))
     measured: dict[str, tuple[float, float]] = {}
     if window >= MIN_WINDOW_S:
-        args = {"ns": key[0], "fleet": _escape(key[1]), "w": window}
-        missed = _by_module(od, MISSED.format(**args))
-        cycles = _by_module(od, CYCLES.format(**args))
+        mine = _deployments(watch.problem)
+        # Deployment names are DNS labels: no character a regex or a PromQL string reads
+        args = {"ns": key[0], "prefix": _common_start(mine), "w": window}
+        missed = _by_module(od, MISSED.format(**args), mine)
+        cycles = _by_module(od, CYCLES.format(**args), mine)
         measured = {m: (missed.get(m, 0.0) / n, n) for m, n in cycles.items() if n >= 1}
     after: dict[str, ModuleDrift] = {}
     for module, predicted in sorted(watch.predicted.items()):
@@ -397,18 +404,31 @@ def _adopt(
     return adopted
 
 
-def _by_module(od: ObservedDeps, promql: str) -> dict[str, float]:
-    return {
-        labels["module"]: v
-        for labels, v in od.prometheus.query_series(promql, obj="drift", field="spec.drift")
-        if "module" in labels
-    }
+def _deployments(problem: Problem) -> frozenset[str]:
+    """Every Deployment a module of the fleet may run in: its instances' and their standbys'."""
+    return frozenset(
+        deployment_name(problem.fleet, inst, role)
+        for inst in problem.instances
+        for role in ("", ROLE_STANDBY)
+    )
 
 
-def _escape(text: str) -> str:
-    """A Kubernetes name as a regex inside a PromQL string (names have no quotes or
-    backslashes; the dot is escaped for the regex and its backslash for the string)."""
-    return text.replace(".", "\\\\.")
+def _common_start(names: Collection[str]) -> str:
+    """What every one of ``names`` begins with."""
+    if not names:
+        return ""
+    first, last = min(names), max(names)
+    same = (i for i, (a, b) in enumerate(zip(first, last, strict=False)) if a != b)
+    return first[: next(same, min(len(first), len(last)))]
+
+
+def _by_module(od: ObservedDeps, promql: str, deployments: Collection[str]) -> dict[str, float]:
+    """Per module, the sum of the per-pod series of the pods of ``deployments``."""
+    out: dict[str, float] = {}
+    for labels, v in od.prometheus.query_series(promql, obj="drift", field="spec.drift"):
+        if "module" in labels and pod_deployment(labels.get("pod", ""), deployments):
+            out[labels["module"]] = out.get(labels["module"], 0.0) + v
+    return out
 
 
 def describe(hardware_type: str, learnt: Learnt, cycles: float) -> str:

@@ -2,10 +2,12 @@
 
 from __future__ import annotations
 
+import re
 from typing import Any
 
 import pytest
 
+from fogfleet.api.labels import ANNOTATION_MODULE, ANNOTATION_ROLE
 from fogfleet.controllers.observed import ObservedDeps, observe
 from fogfleet.controllers.robotfleet import reconcile
 from fogfleet.errors import DependencyUnavailable
@@ -15,12 +17,16 @@ MODULE = "nav-localization"
 
 
 class FakePrometheus:
-    """SeriesPort: execution times per (module, hw, cpu) and per-module cycles and misses."""
+    """SeriesPort: execution times per (module, hw, cpu), and cycles and misses per pod, of
+    ``pods`` and of a pod of the fleet's Deployment of each module of ``cycles``/``missed``;
+    a per-pod query keeps the pods its ``pod=~`` matches and sums by its ``by`` labels."""
 
-    def __init__(self) -> None:
+    def __init__(self, kube: Any) -> None:
+        self.kube = kube
         self.exec: dict[tuple[str, str, str], tuple[float, float]] = {}  # -> (count, mean s)
         self.cycles: dict[str, float] = {}
         self.missed: dict[str, float] = {}
+        self.pods: dict[tuple[str, str], tuple[float, float]] = {}  # (module, pod) -> both
         # cycles and misses by (module, hw, cpu): what the cycle's noise is fitted to
         self.cycles_by: dict[tuple[str, str, str], tuple[float, float]] = {}
         self.queries: list[str] = []
@@ -47,15 +53,43 @@ class FakePrometheus:
         if "hardware_type" in promql and "cycle_time_seconds_count" in promql:
             return [(labelled(k), n) for k, (n, _) in self.cycles_by.items()]
         if "missed_cycles_total" in promql:
-            return [({"module": m}, v) for m, v in self.missed.items()]
+            return self._by_pod(promql, self.missed, 1)
         if "cycle_time_seconds_count" in promql:
-            return [({"module": m}, v) for m, v in self.cycles.items()]
+            return self._by_pod(promql, self.cycles, 0)
         raise AssertionError(promql)
+
+    def _pod(self, module: str) -> str:
+        """The name Kubernetes gives a pod of the fleet's first Deployment of ``module``."""
+        name = next(
+            name
+            for (ns, name), d in sorted(self.kube.deployments.items())
+            if ns == KEY[0]
+            and d["metadata"]["annotations"].get(ANNOTATION_MODULE) == module
+            and not d["metadata"]["annotations"].get(ANNOTATION_ROLE)
+        )
+        return f"{name}-7d9f8c6b5-x2x4z"
+
+    def _by_pod(
+        self, promql: str, own: dict[str, float], which: int
+    ) -> list[tuple[dict[str, str], float]]:
+        series = {(m, self._pod(m)): v for m, v in own.items()}
+        series |= {key: both[which] for key, both in self.pods.items()}
+        wanted = re.search(r'pod=~"([^"]*)"', promql)
+        by = re.search(r"sum by \(([^)]*)\)", promql)
+        assert wanted is not None and by is not None, promql
+        keys = [k.strip() for k in by.group(1).split(",")]
+        out: dict[tuple[str, ...], float] = {}
+        for (module, pod), v in series.items():
+            if re.fullmatch(wanted.group(1).replace("\\\\", "\\"), pod):
+                labels = {"module": module, "pod": pod}
+                key = tuple(labels[k] for k in keys)
+                out[key] = out.get(key, 0.0) + v
+        return [(dict(zip(keys, key, strict=True)), v) for key, v in out.items()]
 
 
 @pytest.fixture
-def prom() -> FakePrometheus:
-    return FakePrometheus()
+def prom(kube: Any) -> FakePrometheus:
+    return FakePrometheus(kube)
 
 
 def run(kube: Any, deps: Any) -> None:
@@ -190,6 +224,25 @@ def test_a_hard_real_time_module_missing_a_few_percent_drifts(kube, deps, prom) 
     assert "driftingSince" not in measured[MODULE]
     (event,) = [e for e in kube.events if e[1] == "Drift"]
     assert "nav-controller misses 4.9%" in event[2] and "0.05 points above it" in event[2]
+
+
+def test_a_fleet_reads_the_misses_of_its_own_pods_only(kube, deps, prom) -> None:
+    """Issue 45: fleet warehouse-2's pods begin as fleet warehouse's do ("warehouse-"), and
+    run the same module; warehouse's miss rate is its own pods' (it was read by the name
+    prefix ``warehouse-.*``, so half of warehouse-2's misses were counted in)."""
+    run(kube, deps)
+    od = ObservedDeps(prom)
+    observe(deps, od, 0.0)
+    prom.cycles, prom.missed = {MODULE: 1000.0}, {MODULE: 0.0}
+    prom.pods[(MODULE, "warehouse-2-robot-1-nav-localization-0c1f2d3e-7d9f8c6b5-b2c4d")] = (
+        1000.0,
+        1000.0,
+    )
+    observe(deps, od, 100.0)
+    run(kube, deps)
+    measured = {e["module"]: e for e in status(kube)["measured"]}
+    assert measured[MODULE]["measuredMissRate"] == 0.0
+    assert measured[MODULE]["cycles"] == 1000.0
 
 
 def test_prometheus_down_changes_nothing(kube, deps, prom) -> None:
