@@ -1,6 +1,7 @@
 """What fogfleet writes or refuses, checked by the real API server with a server-side dry run
-(nothing is created): the HPA ``fogfleet render`` prints for ``scaling.backend: hpa``, and the
-CRD's rule on ``spec.ros.rmwImplementation``. Needs only the bed's API server (``dryrun``).
+(nothing is created): the HPA ``fogfleet render`` prints for ``scaling.backend: hpa``, the
+objects of a fleet whose name begins with a digit, and the CRD's rule on
+``spec.ros.rmwImplementation``. Needs only the bed's API server (``dryrun``).
 
     pytest e2e/tests/test_dry_run.py --with-e2e -m dryrun
 """
@@ -71,11 +72,34 @@ def test_the_rendered_hpa_is_valid_for_the_api_server(
     )  # fmt: skip
     code, out = _dry_run(kube, [target, hpa], namespace)
     assert code == 0, out
-    assert "horizontalpodautoscaler.autoscaling/object-detector-hpa serverside-applied" in out
+    name = hpa["metadata"]["name"]  # render.names.hpa_name
+    assert f"horizontalpodautoscaler.autoscaling/{name} serverside-applied" in out
     # the dry run validates: the same HPA with impossible bounds is refused
     hpa["spec"]["minReplicas"], hpa["spec"]["maxReplicas"] = 3, 2
     code, out = _dry_run(kube, [hpa], namespace)
     assert code != 0 and "maxReplicas" in out, out
+
+
+def test_a_fleet_whose_name_begins_with_a_digit_renders_objects_the_api_server_takes(
+    kube: Kube, namespace: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Issue 45: a Service name is a DNS-1035 label, so fleet ``7-robot``'s discovery Service
+    begins with a letter (``render.names``); its Deployments and NetworkPolicies pass too."""
+    for f in (EXAMPLES / "single-robot").glob("*.yaml"):  # the folder stands alone
+        shutil.copy(f, tmp_path / f.name)
+    fleet = tmp_path / "fleet.yaml"
+    text, n = re.subn(r"(?m)^  name: single-robot$", "  name: 7-robot", fleet.read_text())
+    assert n == 1
+    fleet.write_text(text)
+    code = main(["render", str(tmp_path), "--generations", "2", "--population", "6", "--seed", "1"])
+    out, err = capsys.readouterr()
+    assert code == 0, err
+    docs = [d for d in yaml.safe_load_all(out) if d]
+    assert of_kind(docs, "Service") and of_kind(docs, "NetworkPolicy"), sorted(
+        d["kind"] for d in docs
+    )
+    code, out = _dry_run(kube, docs, namespace)
+    assert code == 0, out
 
 
 def test_the_crd_refuses_an_rmw_the_discovery_servers_cannot_isolate(

@@ -50,6 +50,7 @@ from e2e.bed.operator_fixtures import conditions, fleet, pods_by_instance
 from e2e.faults.record import FaultResult, record
 from e2e.tests.faultbed import scraped, skew_messages
 from e2e.tests.rosbed import EDGE, ROBOTS, bed_objects, operated_fleet, ros_module
+from fogfleet.render.names import discovery_service_name
 
 pytestmark = [
     pytest.mark.e2e,
@@ -295,7 +296,7 @@ def _crash_loop(kube: Kube, ns: str, robot: str, seconds: float) -> int:
 
 
 def _service_ip(kube: Kube, ns: str, robot: str) -> str:
-    svc = kube.kubectl_json("get", "service", "-n", ns, f"{FLEET}-{robot}-dds")
+    svc = kube.kubectl_json("get", "service", "-n", ns, discovery_service_name(FLEET, robot))
     return str(svc["spec"]["clusterIP"])
 
 

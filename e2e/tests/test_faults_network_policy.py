@@ -47,6 +47,12 @@ from e2e.tests.rosbed import (
     scrape,
     scrape_series,
 )
+from fogfleet.render.names import (
+    metrics_network_policy_name,
+    network_policy_name,
+    robot_network_policy_name,
+    shared_network_policy_name,
+)
 
 pytestmark = [
     pytest.mark.e2e,
@@ -223,8 +229,9 @@ def test_a_robots_pods_reach_their_own_robot_and_the_shared_services_only(
     t0 = time.monotonic()
     policies = kube.kubectl_json("get", "networkpolicies", "-n", ns)["items"]
     names = sorted(p["metadata"]["name"] for p in policies)
-    assert names == sorted([f"{FLEET}-pods", f"{FLEET}-shared", f"{FLEET}-metrics",
-                            *(f"{FLEET}-{r}-net" for r in ROBOTS)]), names  # fmt: skip
+    fleet_wide = [network_policy_name(FLEET), shared_network_policy_name(FLEET),
+                  metrics_network_policy_name(FLEET)]  # fmt: skip
+    assert names == sorted(fleet_wide + [robot_network_policy_name(FLEET, r) for r in ROBOTS])
     status = fleet(kube, ns, FLEET)["status"]
     where = {(p.get("robot", ""), p["module"]): p["node"] for p in status["placement"]}
     for robot in ROBOTS:

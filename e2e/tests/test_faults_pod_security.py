@@ -14,6 +14,7 @@ import pytest
 
 from e2e.bed.kube import Kube
 from e2e.bed.operator_fixtures import Operator, example_docs, wait_ready
+from fogfleet.render.ros import COMPONENT_DISCOVERY
 
 pytestmark = [
     pytest.mark.e2e,
@@ -60,7 +61,7 @@ def test_every_rendered_pod_is_admitted(
     wait_ready(kube, namespace, fleet, timeout=300)
     deps = kube.kubectl_json("get", "deployments", "-n", namespace)["items"]
     components = {d["metadata"].get("labels", {}).get("app.kubernetes.io/component") for d in deps}
-    assert any(d["metadata"]["name"].endswith("-dds") for d in deps), "no discovery server"
+    assert COMPONENT_DISCOVERY in components, "no discovery server"
     if example == "single-robot":
         assert "fallback-standby" in components, components
 
