@@ -81,16 +81,25 @@ def running_pod_names(kube: Kube) -> set[str]:
     }
 
 
+def _set(key: str, value: str | float) -> tuple[str, str]:
+    """A value as helm takes it: ``--set`` reads 2.5 as a string, which the chart's schema
+    refuses for a number, so numbers go through ``--set-json``."""
+    if isinstance(value, str):
+        return "--set", f"{key}={value}"
+    return "--set-json", f"{key}={json.dumps(value)}"
+
+
 @contextmanager
 def installed(
     kube: Kube,
     prefix: str = "e2e-incluster",
-    values: Mapping[str, str] | None = None,
+    values: Mapping[str, str | float] | None = None,
     namespace: str | None = None,
 ) -> Iterator[str]:
     """The chart installed (release ``fogfleet`` in fogfleet-system, with ``values`` given as
-    ``--set``) watching ``namespace`` (the caller's, left in place) or a fresh namespace, which
-    it yields; uninstalled and the fresh namespace deleted afterwards."""
+    ``--set``, numbers as ``--set-json``) watching ``namespace`` (the caller's, left in place)
+    or a fresh namespace, which it yields; uninstalled and the fresh namespace deleted
+    afterwards."""
     install_crds(kube)
     # an interrupted earlier run may have left the plain-manifest install (not Helm's) behind
     for what in (
@@ -116,7 +125,7 @@ def installed(
         # the bed's CRDs come from crds/ (install_crds above, as every e2e test has them);
         # test_helm_crd_upgrade.py tests the chart's own CRD templates
         "--set", "crds.install=false",
-        *[arg for key, value in (values or {}).items() for arg in ("--set", f"{key}={value}")],
+        *[arg for key, value in (values or {}).items() for arg in _set(key, value)],
         "--wait", "--timeout", "240s",
     )  # fmt: skip
     try:

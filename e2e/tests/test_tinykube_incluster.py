@@ -117,9 +117,9 @@ def test_the_installed_operator_scales_tinykubes_scenario_within_twice_the_bench
     kube.apply(fleet)
     seen: list[str] = []
     diagnostics.append(lambda: ("pools over time", "\n".join(seen)))
-    values = {
+    values: dict[str, str | float] = {
         "scaling.prometheusUrl": cluster.in_cluster_prometheus_url,
-        "scaling.intervalSeconds": str(INTERVAL_SECONDS),
+        "scaling.intervalSeconds": INTERVAL_SECONDS,
     }
     t0 = time.monotonic()
 

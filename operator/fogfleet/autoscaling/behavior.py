@@ -43,6 +43,8 @@ from fogfleet.api.v1alpha1.scaling import (
 
 __all__ = [
     "DEFAULT_BEHAVIOR",
+    "FAST_BEHAVIOR",
+    "PRESETS",
     "TINYKUBE_BEHAVIOR",
     "Behavior",
     "BehaviorState",
@@ -106,6 +108,15 @@ TINYKUBE_BEHAVIOR = Behavior(
     scale_up=ScalingRules(60, (ScalingPolicy(PolicyType.PERCENT, 100, 30),)),
     scale_down=ScalingRules(300, (ScalingPolicy(PolicyType.PERCENT, 50, 60),)),
 )
+
+FAST_BEHAVIOR = Behavior(
+    # fogfleet's own setting (``preset: fast``), the one `make bench` measures its reactive-slo
+    # and predictive modes with: follow the recommendation up at once; down after 30 s, by half.
+    scale_up=ScalingRules(0, (ScalingPolicy(PolicyType.PODS, 100, 1),)),
+    scale_down=ScalingRules(30, (ScalingPolicy(PolicyType.PERCENT, 50, 30),)),
+)
+
+PRESETS = {"tinykube": TINYKUBE_BEHAVIOR, "fast": FAST_BEHAVIOR}
 
 
 @dataclass(frozen=True)
@@ -307,11 +318,11 @@ def resolve_rules(spec: ScalingRulesSpec | None, default: ScalingRules) -> Scali
 
 
 def resolve_behavior(spec: ScalingSpec | BehaviorSpec | None) -> Behavior:
-    """The engine's Behavior for a scaling spec: ``preset: tinykube`` fills the directions
-    left unset, otherwise the HPA's defaults do."""
+    """The engine's Behavior for a scaling spec: a preset (``tinykube``, ``fast``) fills the
+    directions left unset, otherwise the HPA's defaults do."""
     behavior = spec.behavior if isinstance(spec, ScalingSpec) else spec
     behavior = behavior or BehaviorSpec()
-    base = TINYKUBE_BEHAVIOR if behavior.preset == "tinykube" else DEFAULT_BEHAVIOR
+    base = PRESETS.get(behavior.preset or "", DEFAULT_BEHAVIOR)
     return Behavior(
         resolve_rules(behavior.scale_up, base.scale_up),
         resolve_rules(behavior.scale_down, base.scale_down),

@@ -52,11 +52,9 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from fogfleet.autoscaling.behavior import (
+    FAST_BEHAVIOR,
     TINYKUBE_BEHAVIOR,
     Behavior,
-    PolicyType,
-    ScalingPolicy,
-    ScalingRules,
 )
 from fogfleet.autoscaling.dispatch import Tier, estimate_response_seconds
 from fogfleet.autoscaling.policy import (
@@ -103,12 +101,6 @@ CLOUD = Pool(
     0.99,
     setup_seconds=4.7,
     network_delay_seconds=0.0155,
-)
-
-FAST_BEHAVIOR = Behavior(
-    # fogfleet's predictive setting: follow the model up at once; down after 30 s, by half.
-    scale_up=ScalingRules(0, (ScalingPolicy(PolicyType.PODS, 100, 1),)),
-    scale_down=ScalingRules(30, (ScalingPolicy(PolicyType.PERCENT, 50, 30),)),
 )
 
 

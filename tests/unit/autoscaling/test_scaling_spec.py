@@ -11,7 +11,13 @@ from fogfleet.api.v1alpha1.scaling import (
     load_scaling_spec,
     require_safe_minimum,
 )
-from fogfleet.autoscaling.behavior import DEFAULT_BEHAVIOR, TINYKUBE_BEHAVIOR, resolve_behavior
+from fogfleet.autoscaling.behavior import (
+    DEFAULT_BEHAVIOR,
+    FAST_BEHAVIOR,
+    TINYKUBE_BEHAVIOR,
+    resolve_behavior,
+)
+from fogfleet.bench.autoscaling import POLICIES
 from fogfleet.errors import InvalidSpec
 
 TINYKUBE = {
@@ -47,6 +53,15 @@ def test_tinykube_preset_is_section_iv_c() -> None:
     assert behavior.scale_up.policies[0].period_seconds == 30
     assert behavior.scale_down.stabilization_window_seconds == 300
     assert behavior.scale_down.policies[0].value == 50
+
+
+def test_fast_preset_is_what_make_bench_measures_fogfleets_modes_with() -> None:
+    spec = {"maxReplicas": 5, "behavior": {"preset": "fast"}}
+    behavior = resolve_behavior(load_scaling_spec("m", spec))
+    assert behavior == FAST_BEHAVIOR
+    assert behavior.scale_up.stabilization_window_seconds == 0
+    assert behavior.scale_down.stabilization_window_seconds == 30
+    assert POLICIES["predictive"].behavior == POLICIES["reactive-slo"].behavior == FAST_BEHAVIOR
 
 
 def test_explicit_direction_overrides_the_preset() -> None:
@@ -121,7 +136,7 @@ def test_policies_parse_hpa_names() -> None:
             "spec.scaling.slo.percentile",
         ),
         ({"maxReplicas": 5, "setupMillis": 1.8}, "spec.scaling.setupMillis"),
-        ({"maxReplicas": 5, "behavior": {"preset": "fast"}}, "spec.scaling.behavior.preset"),
+        ({"maxReplicas": 5, "behavior": {"preset": "slow"}}, "spec.scaling.behavior.preset"),
         ({"maxReplicas": 5, "extra": 1}, "spec.scaling.extra"),
         (
             {

@@ -121,10 +121,12 @@ class ScalingRulesSpec(FogModel):
 
 
 class BehaviorSpec(FogModel):
-    """HPA ``behavior`` semantics; ``preset: tinykube`` fills the directions left unset."""
+    """HPA ``behavior`` semantics; a preset fills the directions left unset."""
 
-    preset: Literal["tinykube"] | None = None
-    """tinykube: tinyKube's rules (IV-C) for the directions left unset."""
+    preset: Literal["tinykube", "fast"] | None = None
+    """tinykube: tinyKube's rules (IV-C; +100 %/30 s after a 60 s window, -50 %/60 s after 5
+    min). fast: the rules `make bench` measures fogfleet's reactive-slo and predictive modes
+    with (up at once, down by half after 30 s)."""
     scale_up: ScalingRulesSpec | None = None
     """Rules when adding replicas."""
     scale_down: ScalingRulesSpec | None = None
