@@ -158,34 +158,41 @@ def greedy(
     used = f.reserve.copy()
     up = np.zeros(n_n)
     x = np.full(problem.n_instances, -1, dtype=np.int64)
+    # each instance looks only at its allowed nodes (ascending, so ties go to the lowest
+    # node as an argmin over all nodes would): at 1000 robots ~400 of 1400 columns
+    rows, cols = np.nonzero(problem.allowed)
+    starts = np.searchsorted(rows, np.arange(problem.n_instances + 1))
     for i in f.order:
-        allowed = problem.allowed[i]
-        if not allowed.any():
+        c = cols[starts[i] : starts[i + 1]]
+        if not len(c):
             continue
-        d = f.demand[i]
-        after = used + d
-        room = np.all(after <= f.cap + 1e-9, axis=1) & allowed
+        d = f.demand[i, c]
+        after = used[c] + d
+        cap = f.cap[c]
+        room = np.all(after <= cap + 1e-9, axis=1)
         h = int(problem.home[i])
         if h >= 0 and problem.traffic[i] > 0:
             over = up[h] + problem.traffic[i] > f.uplink[h] + 1e-9
             if over:
-                room &= np.arange(n_n) == h
-        util = np.max(after / np.maximum(f.cap, 1e-9), axis=1)
-        if style == "onboard" and h >= 0 and room[h]:
-            j = h
+                room &= c == h
+        util = np.max(after / np.maximum(cap, 1e-9), axis=1)
+        at_home = np.flatnonzero(c == h) if h >= 0 else c[:0]
+        if style == "onboard" and len(at_home) and room[at_home[0]]:
+            k = int(at_home[0])
         elif style == "level" and room.any():
             # min-max: the emptiest node among those within 1e-3 of the lowest miss probability
-            qmin = float(np.min(np.where(room, f.q[i], np.inf)))
-            j = int(np.argmin(np.where(room & (f.q[i] <= qmin + 1e-3), util, np.inf)))
+            q = f.q[i, c]
+            qmin = float(np.min(np.where(room, q, np.inf)))
+            k = int(np.argmin(np.where(room & (q <= qmin + 1e-3), util, np.inf)))
         elif room.any():
             tie = -1e-3 * util if style in ("best-fit", "onboard") else 0.05 * util
-            score = np.where(room, f.pref[i] + tie, np.inf)
-            j = int(np.argmin(score))
+            score = np.where(room, f.pref[i, c] + tie, np.inf)
+            k = int(np.argmin(score))
         else:
-            overload = np.max(after / np.maximum(f.cap, 1e-9), axis=1)
-            j = int(np.argmin(np.where(allowed, overload, np.inf)))
+            k = int(np.argmin(util))  # the smallest overload
+        j = int(c[k])
         x[i] = j
-        used[j] += d[j]
+        used[j] += d[k]
         if h >= 0 and j != h:
             up[h] += problem.traffic[i]
     return x

@@ -138,9 +138,15 @@ def level(
     near = fit.q <= q_now[:, None] + tolerance
     remote_ok = p.allowed & ~robots[None, :] & near & placed[:, None]
     pool: list[int] = []
-    # 1. every instance on a robot that may run remotely leaves it, largest first
-    for h in np.flatnonzero(robots):
-        mine = np.flatnonzero((x == h) & remote_ok.any(axis=1))
+    # 1. every instance on a robot that may run remotely leaves it, largest first (grouped by
+    # robot once: a mask over the (I, N) table per robot was most of a 1000-robot plan)
+    movable = np.flatnonzero(remote_ok.any(axis=1) & placed)
+    movable = movable[robots[x[movable]]]
+    by_robot = movable[np.argsort(x[movable], kind="stable")]
+    cuts = np.searchsorted(x[by_robot], np.flatnonzero(robots))
+    ends = np.append(cuts[1:], len(by_robot))
+    for h, a, b in zip(np.flatnonzero(robots), cuts, ends, strict=True):
+        mine = by_robot[a:b]
         for i in mine[np.argsort(-fit.demand[mine, h, 0], kind="stable")]:
             if p.home[i] == h and up[h] + p.traffic[i] > fit.uplink[h] + FIT_TOLERANCE:
                 continue
