@@ -27,7 +27,7 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse as sp
 from numpy.typing import NDArray
-from scipy.optimize import Bounds, LinearConstraint, milp
+from scipy.optimize import Bounds, LinearConstraint, linprog, milp
 
 from fogfleet.api.v1alpha1.objectives import ObjectiveName
 from fogfleet.domain.problem import Problem
@@ -43,6 +43,7 @@ __all__ = [
     "ExactResult",
     "describe_weights",
     "fleet_weights",
+    "lp_bound",
     "scalarised",
     "solve_exact",
 ]
@@ -156,6 +157,36 @@ def solve_exact(
         placement[pi[chosen]] = pj[chosen]
     bound = float(getattr(res, "mip_dual_bound", res.fun) if not relax else res.fun)
     return ExactResult(placement, float(res.fun), bound, str(res.message), relax)
+
+
+def lp_bound(
+    problem: Problem, weights: Mapping[str, float] | None = None, *, time_limit: float = 3600.0
+) -> float:
+    """The LP relaxation's optimum of S (a lower bound on every plan's S) by HiGHS' interior
+    point method: at 1000 robots x 8 modules (2.4 M pairs) ``solve_exact(relax=True)``'s
+    simplex did not finish in 60 s, the interior point method took ~3 CPU minutes. Raises
+    Infeasible when it finds no optimum."""
+    w = dict(DEFAULT_WEIGHTS if weights is None else weights)
+    pi, pj = np.nonzero(problem.allowed)
+    lc = _constraints(problem, pi, pj)
+    A = sp.csr_matrix(lc.A)
+    lb, ub = np.asarray(lc.lb, dtype=np.float64), np.asarray(lc.ub, dtype=np.float64)
+    eq = lb == ub
+    res = linprog(
+        _costs(problem, w, pi, pj),
+        A_ub=A[~eq],
+        b_ub=ub[~eq],
+        A_eq=A[eq],
+        b_eq=ub[eq],
+        bounds=(0, None),  # the assignment rows keep every pair's share <= 1
+        method="highs-ipm",
+        options={"time_limit": time_limit, "disp": False},
+    )
+    if res.status != 0:
+        raise Infeasible(
+            f"RobotFleet/{problem.fleet}", "spec", f"no LP bound ({res.message})"
+        )
+    return float(res.fun)
 
 
 def _costs(problem: Problem, w: Mapping[str, float], pi: I64, pj: I64) -> F64:

@@ -162,13 +162,20 @@ def greedy(
     # node as an argmin over all nodes would): at 1000 robots ~400 of 1400 columns
     rows, cols = np.nonzero(problem.allowed)
     starts = np.searchsorted(rows, np.arange(problem.n_instances + 1))
+    # what the loop reads of each (instance, allowed node) pair, gathered once: slices of
+    # these are views, where indexing the (I, N) tables per instance copied
+    pair_demand = f.demand[rows, cols]
+    pair_cap = f.cap[cols]
+    pair_pref = f.pref[rows, cols] if style != "level" else pair_cap[:, 0]
+    pair_q = f.q[rows, cols] if style == "level" else pair_cap[:, 0]
     for i in f.order:
-        c = cols[starts[i] : starts[i + 1]]
-        if not len(c):
+        a, b = starts[i], starts[i + 1]
+        if a == b:
             continue
-        d = f.demand[i, c]
+        c = cols[a:b]
+        d = pair_demand[a:b]
         after = used[c] + d
-        cap = f.cap[c]
+        cap = pair_cap[a:b]
         room = np.all(after <= cap + 1e-9, axis=1)
         h = int(problem.home[i])
         if h >= 0 and problem.traffic[i] > 0:
@@ -181,12 +188,12 @@ def greedy(
             k = int(at_home[0])
         elif style == "level" and room.any():
             # min-max: the emptiest node among those within 1e-3 of the lowest miss probability
-            q = f.q[i, c]
+            q = pair_q[a:b]
             qmin = float(np.min(np.where(room, q, np.inf)))
             k = int(np.argmin(np.where(room & (q <= qmin + 1e-3), util, np.inf)))
         elif room.any():
             tie = -1e-3 * util if style in ("best-fit", "onboard") else 0.05 * util
-            score = np.where(room, f.pref[i, c] + tie, np.inf)
+            score = np.where(room, pair_pref[a:b] + tie, np.inf)
             k = int(np.argmin(score))
         else:
             k = int(np.argmin(util))  # the smallest overload

@@ -55,7 +55,8 @@ BISECTIONS = 7  # target levels tried per starting plan (the last step ~1/128 of
 BETWEEN = 3  # targets tried between the lowest one found and the starting plan's peak
 # instance x node cells the packings of one ``with_levelled`` call may look at: bounds its work
 # (not the clock, so a plan is reproducible); the 1000-gene stand-in uses ~11M (~2.5 s),
-# 1000 robots x 8 modules all of it (~10 s of a 41 s first plan)
+# 1000 robots x 8 modules all of it (two packings; a packing now looks at the ~400 allowed
+# remote nodes only, but counting those instead gained no lower S there and cost seconds)
 WORK_CELLS = 15_000_000
 LATENCY_TIE = 1e-3  # weight of ``Fit.pref`` (miss, then latency) among equally loaded nodes
 
@@ -127,6 +128,10 @@ def level(
     """A plan like ``x`` whose every node's peak utilisation is at most ``target``, or None
     when the five steps of the module docstring find none."""
     p = fit.problem
+    if work is not None and work.left == 0:
+        # spent: no packing can start (an empty pool, all pulled home, is the only packing
+        # that costs nothing; not worth setting up the (I, N) tables below for)
+        return None
     x = np.asarray(x, dtype=np.int64).copy()
     loads = _Loads(fit, x)
     u, up = loads.u, loads.up
@@ -220,16 +225,20 @@ def _pack(fit: Fit, loads: _Loads, pool: I64, allowed: NDArray[np.bool_], top: f
     share = np.where(allowed[pool], fit.demand[pool, :, 0] / np.maximum(fit.cap[:, 0], 1e-12), 0.0)
     out = np.empty(len(pool), dtype=np.int64)
     order = np.lexsort((-share.max(axis=1), allowed[pool].sum(axis=1)))
+    # each instance looks at its allowed nodes only (ascending: ties go to the lowest node)
+    rows, cols = np.nonzero(allowed[pool])
+    starts = np.searchsorted(rows, np.arange(len(pool) + 1))
     for k in order:
         i = pool[k]
-        after = _peak(u + fit.demand[i], fit.cap)
-        score = np.where(allowed[i], after, np.inf)
+        c = cols[starts[k] : starts[k + 1]]
+        if not len(c):
+            return None
+        score = _peak(u[c] + fit.demand[i, c], fit.cap[c])
         best = float(score.min())
         if best > top:
             return None
-        j = int(
-            np.argmin(np.where(score <= best + 1e-3, score + LATENCY_TIE * fit.pref[i], np.inf))
-        )
+        near = score <= best + 1e-3
+        j = int(c[np.argmin(np.where(near, score + LATENCY_TIE * fit.pref[i, c], np.inf))])
         out[k] = j
         u[j] += fit.demand[i, j]
     loads.u = u
@@ -246,9 +255,12 @@ def _offload(fit: Fit, loads: _Loads, x: I64, remote_ok: NDArray[np.bool_], top:
         h = int(x[i])
         if loads.up[h] + p.traffic[i] > fit.uplink[h] + FIT_TOLERANCE:
             continue
-        score = np.where(remote_ok[i], _peak(loads.u + fit.demand[i], fit.cap), np.inf)
-        j = int(np.argmin(score))
-        if score[j] > top:
+        c = np.flatnonzero(remote_ok[i])
+        if not len(c):
+            continue
+        score = _peak(loads.u[c] + fit.demand[i, c], fit.cap[c])
+        j = int(c[np.argmin(score)])
+        if score.min() > top:
             continue
         loads.u[h] -= fit.demand[i, h]
         loads.u[j] += fit.demand[i, j]

@@ -119,6 +119,7 @@ def nsga2(
     *,
     paper: bool = False,
     local_search: bool | None = None,
+    warm_start: bool | None = None,
     clock: Clock = time.perf_counter,
 ) -> Schedule:
     """NSGA-II over the gene spaces with the limits allocation.
@@ -134,7 +135,9 @@ def nsga2(
     Pareto local search after it is bounded by work, so the same seed and the same number of
     generations give the same plan whatever the clock did (rerun with ``generations`` set to
     the count a budget-cut run reached to reproduce it). ``clock`` is read for the budget and
-    the durations (``time.perf_counter`` unless a test steers it).
+    the durations (``time.perf_counter`` unless a test steers it). ``warm_start`` (default:
+    from ``operators.WARM_START_GENES`` genes on) starts the population around the seed plans
+    and stops after ``convergence.WARM_WINDOW`` generations without improvement.
     """
     t0 = clock()
     if local_search is None:
@@ -148,6 +151,7 @@ def nsga2(
     budget = parse_millis(settings.time_budget_millis)
     log_space = float(np.log(pp.counts.astype(np.float64)).sum())  # log: no overflow
     exhaustive = not paper and log_space <= np.log(ENUMERATE_LIMIT)
+    sampling = FleetSampling(heuristics=not paper, warm=warm_start)
     if exhaustive:
         # A search space this small is cheaper to enumerate than to evolve (pymoo's mating
         # loop would spin on duplicates), and the front is then exact.
@@ -156,7 +160,9 @@ def nsga2(
         generations, n_eval, stop = settings.generations, len(X), Stop.EXHAUSTIVE
         local_search = False
     else:
-        X, generations, n_eval, stop = _evolve(pp, settings, paper, progress, clock, t0 + budget)
+        X, generations, n_eval, stop = _evolve(
+            pp, settings, sampling, progress, clock, t0 + budget
+        )
     # objectives and constraints without any penalty, for an honest report
     clean = PlacementProblem(problem, names, with_limits=True)
     out: dict[str, NDArray[np.float64]] = {}
@@ -203,11 +209,13 @@ def nsga2(
         extra = dict(sched.reasons)
         extra[-1] = "no plan satisfies the capacity and uplink constraints"
         sched = replace(sched, reasons=extra)
+    warm = not paper and not exhaustive and sampling.warm_for(pp)
     why_stopped = {
         Stop.BUDGET: f" (time budget reached after {generations} generations; set generations: "
         f"{generations} to reproduce this plan)",
         Stop.STALLED: f" (converged after {generations} generations: the best plan had not "
-        f"improved in the last {stall_window(settings.stall_generations, pp.n_var)} generations)",
+        f"improved in the last {stall_window(settings.stall_generations, pp.n_var, warm)} "
+        "generations)",
     }.get(stop, "")
     return replace(
         sched,
@@ -248,7 +256,7 @@ def _spread_shared(
 def _evolve(
     pp: PlacementProblem,
     settings: SchedulerSettings,
-    paper: bool,
+    sampling: FleetSampling,
     progress: Progress | None,
     clock: Clock,
     budget_ends: float,
@@ -257,13 +265,15 @@ def _evolve(
     stopped. The budget is checked after each generation: once ``clock()`` passes
     ``budget_ends`` the evolution stops. fogfleet's configuration also stops early once
     converged (``convergence``); the paper's stand-in runs every generation."""
+    paper = not sampling.heuristics  # the paper's stand-in samples at random
+    warm = sampling.warm_for(pp)
     mut = settings.mutation_percent / 100.0
     crossover = GeneCrossover("single_point" if paper else "uniform")
     mutation = GeneMutation(prob=1.0, per_gene=mut) if paper else GeneMutation(prob=mut)
     repair = None if paper else CapacityRepair()
     algorithm = FleetNSGA2(
         pop_size=settings.population,
-        sampling=FleetSampling(heuristics=not paper),
+        sampling=sampling,
         crossover=crossover,
         mutation=mutation,
         repair=repair,
@@ -277,7 +287,7 @@ def _evolve(
     algorithm.setup(
         pp, termination=("n_gen", settings.generations), seed=settings.seed, verbose=False
     )
-    watch = StallWatch(0 if paper else stall_window(settings.stall_generations, pp.n_var))
+    watch = StallWatch(0 if paper else stall_window(settings.stall_generations, pp.n_var, warm))
     generations, stop = 0, Stop.GENERATIONS
     while algorithm.has_next():
         algorithm.next()

@@ -7,7 +7,7 @@ import pytest
 
 from fogfleet.domain.problem import Problem
 from fogfleet.errors import InvalidSpec
-from fogfleet.scheduling.exact import scalarised, solve_exact
+from fogfleet.scheduling.exact import lp_bound, scalarised, solve_exact
 from fogfleet.scheduling.objectives import constraints
 
 
@@ -26,6 +26,12 @@ def test_milp_equals_brute_force_on_tiny_fleet(tiny: Problem) -> None:
 
 def test_lp_relaxation_is_a_lower_bound(tiny: Problem) -> None:
     assert solve_exact(tiny, relax=True).value <= solve_exact(tiny).value + 1e-9
+
+
+def test_lp_bound_by_interior_point_is_the_relaxation_optimum(warehouse: Problem) -> None:
+    relaxed = solve_exact(warehouse, relax=True).value
+    assert lp_bound(warehouse) == pytest.approx(relaxed, rel=1e-6)
+    assert lp_bound(warehouse) <= solve_exact(warehouse).value + 1e-9
 
 
 def test_exact_refuses_large_fleets(tiny: Problem) -> None:

@@ -5,6 +5,7 @@ from __future__ import annotations
 from dataclasses import replace
 
 import numpy as np
+import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -16,6 +17,7 @@ from fogfleet.scheduling.operators import (
     GeneMutation,
     repair_plans,
     seed_plans,
+    warm_population,
 )
 from fogfleet.scheduling.problem import PlacementProblem
 
@@ -154,3 +156,30 @@ def test_sampling_starts_with_current_placement(warehouse: Problem) -> None:
     assert np.array_equal(X[0], current[pp.genes])
     assert _inside(pp, X)
     assert len(seed_plans(pp)) >= 3
+
+
+def test_warm_population_redraws_a_few_genes_of_the_seeds_inside_their_gene_spaces() -> None:
+    pp = _pp()
+    seeds = np.stack([p[pp.genes] for p in seed_plans(pp)])
+    rng = np.random.default_rng(3)
+    X = warm_population(pp, seeds, 40, rng, share=0.05)
+    assert X.shape == (40, pp.n_var)
+    assert _inside(pp, X)
+    base = seeds[np.arange(40) % len(seeds)]
+    changed = (X != base).sum(axis=1)
+    # at least one gene is re-drawn (it may land on the node it had), never most of them
+    assert changed.max() <= pp.n_var // 4
+    assert (changed > 0).mean() > 0.5
+
+
+def test_fleet_sampling_warm_starts_large_fleets_only(monkeypatch: pytest.MonkeyPatch) -> None:
+    pp = _pp()
+    seeds = np.stack([p[pp.genes] for p in seed_plans(pp)])
+    rng = np.random.default_rng(5)
+    cold = FleetSampling()._do(pp, 30, random_state=np.random.default_rng(5))
+    monkeypatch.setattr("fogfleet.scheduling.operators.WARM_START_GENES", pp.n_var)
+    warm = FleetSampling()._do(pp, 30, random_state=rng)
+    near = lambda X: (X[len(seeds):, None, :] != seeds[None]).sum(axis=2).min(axis=1)  # noqa: E731
+    assert np.array_equal(warm[: len(seeds)], seeds)
+    # the warm individuals stay near a seed; uniform random ones do not
+    assert near(warm).max() < near(cold).min()

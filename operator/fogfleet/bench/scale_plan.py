@@ -1,0 +1,94 @@
+"""First whole-fleet plan benchmark (``fogfleet bench scale-plan``, ``make bench-scale-plan``):
+the plan a new leader, a large spec change or ``kubectl fogfleet plan --what-if`` waits for.
+
+Per seed, the synthetic warehouse of ``robots`` robots x 8 modules on ceil(0.4 robots) edge
+nodes (``scheduling.synthetic_fleet``, the proportions ``make bench-scale`` uses; at 1000
+robots 8000 instances on 1400 nodes) is planned by NSGA-II with the operator's default
+settings two ways, in the same run:
+
+- *cold start*: the population as before issue 46 (the seed plans, then uniform random
+  plans) and the stall window of ``max(10, genes / 10)`` generations;
+- *warm start*: the seed plans with a few genes re-drawn (``operators.warm_population``) and
+  a stall window of 10 generations (``convergence.WARM_WINDOW``), what ``plan`` does from
+  ``operators.WARM_START_GENES`` genes on.
+
+Both end with the peak levelling and the Pareto local search. Columns: seconds (median of
+``runs`` on the first seed, one run on the others), generations, the best scalarised S on the
+front (``exact.scalarised``, multi-robot-edge-cloud-scheduling III-B's objectives weighted as
+the MILP weighs them) and the chosen plan's, the LP relaxation's bound (``exact.lp_bound``, a
+lower bound on any plan's S) and both gaps to it, and the process's peak resident memory after
+the row (the warm start runs first, so its figure is its own; the LP bound is solved after
+both plans).
+"""
+
+from __future__ import annotations
+
+import math
+import resource
+import statistics
+import time
+from collections.abc import Sequence
+from typing import Any
+
+from fogfleet.api.v1alpha1.robotfleet import SchedulerSettings
+from fogfleet.bench.scheduling import synthetic_fleet
+from fogfleet.domain.build import build_problem
+from fogfleet.domain.problem import Problem
+from fogfleet.scheduling.exact import lp_bound, scalarised
+from fogfleet.scheduling.schedule import Schedule
+from fogfleet.scheduling.solver import nsga2
+
+__all__ = ["EDGES_PER_ROBOT", "VARIANTS", "scale_plan_rows"]
+
+EDGES_PER_ROBOT = 0.4  # as e2e/bench/scale.py and bench.replan
+VARIANTS = (("warm start", True), ("cold start (before)", False))
+Row = dict[str, Any]
+
+
+def _peak_rss_mb() -> int:
+    """The process's peak resident memory so far (Linux reports kibibytes)."""
+    return int(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024)
+
+
+def _timed(problem: Problem, seed: int, warm: bool, runs: int) -> tuple[Schedule, list[float]]:
+    times, last = [], None
+    for _ in range(runs):
+        t0 = time.perf_counter()
+        last = nsga2(problem, SchedulerSettings(seed=seed), warm_start=warm)
+        times.append(time.perf_counter() - t0)
+    assert last is not None
+    return last, times
+
+
+def scale_plan_rows(robots: int = 1000, seeds: Sequence[int] = (1, 2, 3, 4, 5), runs: int = 3) -> list[Row]:
+    """One row per (seed, variant); see the module docstring."""
+    rows: list[Row] = []
+    for n, seed in enumerate(seeds):
+        cat, fleet = synthetic_fleet(robots, max(2, math.ceil(EDGES_PER_ROBOT * robots)), seed)
+        problem = build_problem(fleet, cat)
+        done: list[tuple[Row, Schedule]] = []
+        for name, warm in VARIANTS:
+            s, times = _timed(problem, seed, warm, runs if n == 0 else 1)
+            plans = s.pareto_placements if s.pareto_placements is not None else [s.placement]
+            row: Row = {
+                "robots": robots,
+                "instances": problem.n_instances,
+                "nodes": problem.n_nodes,
+                "seed": seed,
+                "variant": name,
+                "seconds": round(statistics.median(times), 2),
+                "runs": len(times),
+                "generations": s.generations,
+                "feasible": s.feasible,
+                "best_S": round(min(scalarised(problem, x) for x in plans), 5),
+                "chosen_S": round(scalarised(problem, s.placement), 5),
+                "peak_rss_MB": _peak_rss_mb(),
+            }
+            done.append((row, s))
+        bound = lp_bound(problem)
+        for row, _ in done:
+            row["lp_bound_S"] = round(bound, 5)
+            row["gap_pct"] = round(100 * (row["best_S"] - bound) / bound, 2)
+            row["chosen_gap_pct"] = round(100 * (row["chosen_S"] - bound) / bound, 2)
+            rows.append(row)
+    return rows
