@@ -130,6 +130,9 @@ bench: venv ## Benchmarks of the pure core: scheduling (misses, MILP gap, decisi
 bench-replan: venv ## A robot joining and an edge failing at 100, 300 and 1000 robots: whole-fleet vs incremental re-plan (seconds, moves, miss rate; ~10 min)
 	$(BIN)/fogfleet bench replan --robots $(or $(SIZES),100,300,1000) --runs 3
 
+bench-scale-plan: venv ## The first whole-fleet plan of 1000 robots (8000 instances, 1400 nodes), warm vs cold start, gap to the LP bound on seeds 1-5, peak memory; writes bench-scale-plan.json (~25 min)
+	$(BIN)/fogfleet bench scale-plan --robots $(or $(SIZES),1000) --runs 3 --record bench-scale-plan.json
+
 bench-why: venv ## How long `kubectl fogfleet why` computes at 1000 robots (build, refusals, explanation; median of 5)
 	$(BIN)/fogfleet bench why --robots $(or $(SIZES),1000) --runs 5
 
@@ -161,4 +164,4 @@ clean: ## Remove the virtualenv and caches in the repo
 	rm -rf $(VENV) .pytest_cache .mypy_cache .ruff_cache
 
 
-.PHONY: bed-builds test-faults dashboard-check kubectl help venv lint unit integration docs-check test checkov images crds crds-check demo-offline bench-replan bench-cluster bench-scale bench-real bench-real-report cluster-tools cluster-up cluster-down cluster-status e2e e2e-kind e2e-k3d chart-lint bench demo clean
+.PHONY: bed-builds test-faults dashboard-check kubectl help venv lint unit integration docs-check test checkov images crds crds-check demo-offline bench-replan bench-scale-plan bench-cluster bench-scale bench-real bench-real-report cluster-tools cluster-up cluster-down cluster-status e2e e2e-kind e2e-k3d chart-lint bench demo clean

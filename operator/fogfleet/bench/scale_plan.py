@@ -60,7 +60,9 @@ def _timed(problem: Problem, seed: int, warm: bool, runs: int) -> tuple[Schedule
     return last, times
 
 
-def scale_plan_rows(robots: int = 1000, seeds: Sequence[int] = (1, 2, 3, 4, 5), runs: int = 3) -> list[Row]:
+def scale_plan_rows(
+    robots: int = 1000, seeds: Sequence[int] = (1, 2, 3, 4, 5), runs: int = 3
+) -> list[Row]:
     """One row per (seed, variant); see the module docstring."""
     rows: list[Row] = []
     for n, seed in enumerate(seeds):

@@ -183,9 +183,7 @@ def lp_bound(
         options={"time_limit": time_limit, "disp": False},
     )
     if res.status != 0:
-        raise Infeasible(
-            f"RobotFleet/{problem.fleet}", "spec", f"no LP bound ({res.message})"
-        )
+        raise Infeasible(f"RobotFleet/{problem.fleet}", "spec", f"no LP bound ({res.message})")
     return float(res.fun)
 
 

@@ -115,11 +115,11 @@ class FleetSampling(Sampling):  # type: ignore[misc]
             # nodes (best-fit peaks at 1.33), and repairing 20 copies of each cost seconds
             full = np.stack(seed_plans(problem)[:n_samples])
             full = spread_plans(problem.fleet, repair_plans(problem, full), problem.fit)
-            seeds = full[:, problem.genes]
+            first = full[:, problem.genes]
             rest = warm_population(
-                problem, seeds, n_samples - len(seeds), random_state, WARM_START_SHARE
+                problem, first, n_samples - len(first), random_state, WARM_START_SHARE
             )
-            return np.concatenate([seeds, rest])
+            return np.concatenate([first, rest])
         X = problem.random_genes(n_samples, random_state)
         if self.heuristics:
             seeds = seed_plans(problem)[:n_samples]

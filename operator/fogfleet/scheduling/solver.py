@@ -160,11 +160,11 @@ def nsga2(
         generations, n_eval, stop = settings.generations, len(X), Stop.EXHAUSTIVE
         local_search = False
     else:
-        X, generations, n_eval, stop = _evolve(
-            pp, settings, sampling, progress, clock, t0 + budget
-        )
+        X, generations, n_eval, stop = _evolve(pp, settings, sampling, progress, clock, t0 + budget)
     # objectives and constraints without any penalty, for an honest report
-    clean = PlacementProblem(problem, names, with_limits=True)
+    # (the search's own problem when it has no penalty: one set of Fit tables, which take
+    # seconds to build at 1000 robots)
+    clean = pp if pp.penalty is None else PlacementProblem(problem, names, with_limits=True)
     out: dict[str, NDArray[np.float64]] = {}
     clean._evaluate(X, out)
     F, G = out["F"], out["G"]

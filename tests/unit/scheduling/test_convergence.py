@@ -9,6 +9,8 @@ from fogfleet.api.loader import load_paths
 from fogfleet.bench.scheduling import WAREHOUSE
 from fogfleet.domain.build import build_problem
 from fogfleet.scheduling.convergence import (
+    MIN_WINDOW,
+    WARM_WINDOW,
     StallWatch,
     improves,
     lexicographic_best,
@@ -95,3 +97,9 @@ def test_stall_generations_zero_runs_every_generation(warehouse) -> None:
     s = plan(problem, small)
     assert s.generations == 25
     assert "converged" not in s.choice_reason
+
+
+def test_a_warm_start_stops_after_a_short_window_unless_the_fleet_sets_one() -> None:
+    assert stall_window(None, 8000) == 800
+    assert stall_window(None, 8000, warm=True) == WARM_WINDOW < MIN_WINDOW
+    assert stall_window(25, 8000, warm=True) == 25

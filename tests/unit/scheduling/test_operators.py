@@ -166,7 +166,7 @@ def test_warm_population_redraws_a_few_genes_of_the_seeds_inside_their_gene_spac
     assert X.shape == (40, pp.n_var)
     assert _inside(pp, X)
     base = seeds[np.arange(40) % len(seeds)]
-    changed = (X != base).sum(axis=1)
+    changed = (base != X).sum(axis=1)
     # at least one gene is re-drawn (it may land on the node it had), never most of them
     assert changed.max() <= pp.n_var // 4
     assert (changed > 0).mean() > 0.5
@@ -174,12 +174,15 @@ def test_warm_population_redraws_a_few_genes_of_the_seeds_inside_their_gene_spac
 
 def test_fleet_sampling_warm_starts_large_fleets_only(monkeypatch: pytest.MonkeyPatch) -> None:
     pp = _pp()
-    seeds = np.stack([p[pp.genes] for p in seed_plans(pp)])
-    rng = np.random.default_rng(5)
+    k = len(seed_plans(pp))
     cold = FleetSampling()._do(pp, 30, random_state=np.random.default_rng(5))
     monkeypatch.setattr("fogfleet.scheduling.operators.WARM_START_GENES", pp.n_var)
-    warm = FleetSampling()._do(pp, 30, random_state=rng)
-    near = lambda X: (X[len(seeds):, None, :] != seeds[None]).sum(axis=2).min(axis=1)  # noqa: E731
-    assert np.array_equal(warm[: len(seeds)], seeds)
+    warm = FleetSampling()._do(pp, 30, random_state=np.random.default_rng(5))
+    # the seed plans come first, repaired: within capacity and uplinks
+    assert (constraints(pp.fleet, pp.full(warm[:k]), pp.alloc) <= 1e-9).all()
+
+    def near(X: np.ndarray) -> np.ndarray:
+        return (X[k:, None, :] != warm[None, :k]).sum(axis=2).min(axis=1)
+
     # the warm individuals stay near a seed; uniform random ones do not
     assert near(warm).max() < near(cold).min()
