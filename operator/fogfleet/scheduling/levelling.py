@@ -53,10 +53,12 @@ PULL_SHARE = 0.02
 REPACKS = 8
 BISECTIONS = 7  # target levels tried per starting plan (the last step ~1/128 of the range)
 BETWEEN = 3  # targets tried between the lowest one found and the starting plan's peak
-# instance x node cells the packings of one ``with_levelled`` call may look at: bounds its work
-# (not the clock, so a plan is reproducible); the 1000-gene stand-in uses ~11M (~2.5 s),
-# 1000 robots x 8 modules all of it (two packings; a packing now looks at the ~400 allowed
-# remote nodes only, but counting those instead gained no lower S there and cost seconds)
+# (instance, allowed remote node) cells the packings of one ``with_levelled`` call may look
+# at: bounds its work (not the clock, so a plan is reproducible). Counted as every node of the
+# fleet per pool instance before issue 46, the budget let 1000 robots x 8 modules pack twice
+# (7 M cells a packing, for ~400 allowed edges among 1400 nodes): on seeds 2 and 3 both
+# packings failed and no levelled plan was found (S 10-12 % above the LP bound instead of
+# 5-6 %); counting the cells a packing looks at lets it pack about seven times
 WORK_CELLS = 15_000_000
 LATENCY_TIE = 1e-3  # weight of ``Fit.pref`` (miss, then latency) among equally loaded nodes
 
@@ -206,7 +208,7 @@ def level(
             return None
     # 4. pack the pool largest first (LPT); pull more home and repack when one does not fit
     for _ in range(REPACKS):
-        if work is not None and not work.take(int(in_pool.sum()) * p.n_nodes):
+        if work is not None and not work.take(int(remote_ok[members[in_pool]].sum())):
             return None
         packed = _pack(fit, loads, members[in_pool], remote_ok, top)
         if packed is not None:
