@@ -8,9 +8,9 @@ settings two ways, in the same run:
 
 - *cold start*: the population as before issue 46 (the seed plans, then uniform random
   plans) and the stall window of ``max(10, genes / 10)`` generations;
-- *warm start*: the seed plans with a few genes re-drawn (``operators.warm_population``) and
-  a stall window of 10 generations (``convergence.WARM_WINDOW``), what ``plan`` does from
-  ``operators.WARM_START_GENES`` genes on.
+- *warm start*: the repaired seed plans with a few genes re-drawn
+  (``operators.warm_population``) and ``convergence.WARM_GENERATIONS`` generations, what
+  ``plan`` does from ``operators.WARM_START_GENES`` genes on.
 
 Both end with the peak levelling and the Pareto local search. Columns: seconds and CPU
 seconds (median of ``runs`` on the first seed, one run on the others), generations, the best

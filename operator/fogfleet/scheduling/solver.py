@@ -25,7 +25,7 @@ from .bookkeeping import (
     binary_tournament,
 )
 from .choice import choose, non_dominated
-from .convergence import StallWatch, stall_window
+from .convergence import WARM_GENERATIONS, StallWatch, stall_window
 from .degrade import degrade
 from .exact import describe_weights, fleet_weights, scalarised, solve_exact
 from .levelling import with_levelled
@@ -61,6 +61,7 @@ class Stop(enum.Enum):
     GENERATIONS = "generations"  # all of spec.scheduler.generations ran
     BUDGET = "budget"  # the time budget cut it
     STALLED = "stalled"  # converged: convergence.StallWatch
+    WARM = "warm"  # a warm start's generations ran: convergence.WARM_GENERATIONS
     EXHAUSTIVE = "exhaustive"  # a small search space was enumerated instead
 
 
@@ -137,7 +138,7 @@ def nsga2(
     the count a budget-cut run reached to reproduce it). ``clock`` is read for the budget and
     the durations (``time.perf_counter`` unless a test steers it). ``warm_start`` (default:
     from ``operators.WARM_START_GENES`` genes on) starts the population around the seed plans
-    and stops after ``convergence.WARM_WINDOW`` generations without improvement.
+    and runs ``convergence.WARM_GENERATIONS`` generations (unless ``stallGenerations`` is set).
     """
     t0 = clock()
     if local_search is None:
@@ -216,6 +217,7 @@ def nsga2(
         Stop.STALLED: f" (converged after {generations} generations: the best plan had not "
         f"improved in the last {stall_window(settings.stall_generations, pp.n_var, warm)} "
         "generations)",
+        Stop.WARM: f" (warm start: {generations} generations from the seed plans)",
     }.get(stop, "")
     return replace(
         sched,
@@ -300,6 +302,9 @@ def _evolve(
             if watch.update(F, np.array([ind.CV[0] for ind in pop], dtype=np.float64)):
                 stop = Stop.STALLED
                 break
+        if warm and generations >= WARM_GENERATIONS and settings.stall_generations is None:
+            stop = Stop.WARM
+            break
         if clock() > budget_ends and generations < settings.generations:
             stop = Stop.BUDGET
             break

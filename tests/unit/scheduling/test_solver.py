@@ -11,8 +11,9 @@ from fogfleet.bench.scheduling import WAREHOUSE
 from fogfleet.domain.build import build_problem
 from fogfleet.domain.problem import Problem
 from fogfleet.errors import Infeasible
+from fogfleet.scheduling.convergence import WARM_GENERATIONS
 from fogfleet.scheduling.exact import solve_exact
-from fogfleet.scheduling.solver import plan
+from fogfleet.scheduling.solver import nsga2, plan
 
 FAST = {"population": 20, "generations": 10}
 
@@ -128,3 +129,10 @@ def test_a_budget_cut_plan_is_reproduced_by_its_generation_count() -> None:
     assert second.generations == first.generations
     assert not second.time_budget_reached  # every generation ran
     assert np.array_equal(np.asarray(first.placement), np.asarray(second.placement))
+
+
+def test_a_warm_start_runs_its_generations_from_the_seed_plans(warehouse: Problem) -> None:
+    s = nsga2(warehouse, SchedulerSettings(seed=1, population=20), warm_start=True)
+    assert s.generations == WARM_GENERATIONS
+    assert "warm start" in s.choice_reason
+    assert s.feasible
