@@ -58,8 +58,8 @@ cluster-tools: venv ## Build (or reuse from ~/.cache/fogfleet) etcd, kube-*, kwo
 images: venv ## Build (or reuse from ~/.cache/fogfleet/images) the operator, workload, pause and busybox images without Docker
 	$(BIN)/python e2e/bed/images.py build
 
-bed-builds: venv ## cluster-tools and images side by side (the Go compiles use the CPU, the images mostly the network and disk)
-	$(MAKE) --no-print-directory -j2 --output-sync=line cluster-tools images
+bed-builds: venv ## cluster-tools and images side by side (the Go compiles use the CPU, the images mostly the network and disk); their progress lines interleave
+	$(MAKE) --no-print-directory -j2 cluster-tools images
 
 cluster-up: venv ## Start the local bed (control plane, Prometheus, cluster DNS, kwok and real nodes) on 127.0.0.1 and the bed bridge; PROFILE=paper for the paper's real nodes
 	$(BIN)/python e2e/bed/harness.py up --profile $(or $(PROFILE),default)
