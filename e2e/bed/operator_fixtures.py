@@ -155,6 +155,21 @@ def of_kind(docs: list[Obj], kind: str) -> list[Obj]:
     return [d for d in docs if d["kind"] == kind]
 
 
+def example_in(name: str, namespace: str) -> list[Obj]:
+    """The objects of ``manifests/examples/<name>/`` (its nodes, modules and fleet files) with
+    every namespaced one moved to ``namespace``."""
+    docs = [
+        d
+        for f in ("nodes.yaml", "modules.yaml", "fleet.yaml")
+        for d in yaml.safe_load_all((EXAMPLES / name / f).read_text())
+        if d
+    ]
+    for d in docs:
+        if d["kind"] != "ComputeNode":
+            d["metadata"]["namespace"] = namespace
+    return docs
+
+
 def fleet(kube: Kube, namespace: str, name: str = "warehouse") -> Obj:
     out: Obj = kube.kubectl_json("get", "robotfleet", name, "-n", namespace)
     return out

@@ -31,6 +31,7 @@ from e2e.bed.operator_fixtures import (
     OPERATOR_LABELS,
     Operator,
     bound_node,
+    example_in,
     free_port,
     of_kind,
 )
@@ -367,15 +368,7 @@ START_TIMEOUT = PODS_TIMEOUT = 60
 def _loop_docs(namespace: str) -> tuple[list[Obj], Obj, Obj]:
     """The shared-detector example in ``namespace`` with a small edge pool and short windows:
     (ComputeNodes, modules, fleet). The robot and edge ComputeNodes are the warehouse's."""
-    shared = [
-        d
-        for f in ("nodes.yaml", "modules.yaml", "fleet.yaml")
-        for d in yaml.safe_load_all((EXAMPLES / "shared-detector" / f).read_text())
-        if d
-    ]
-    for d in shared:
-        if d["kind"] != "ComputeNode":
-            d["metadata"]["namespace"] = namespace
+    shared = example_in("shared-detector", namespace)
     fleet_body = of_kind(shared, "RobotFleet")[0]
     names = set(fleet_body["spec"]["robots"]) | set(fleet_body["spec"]["nodes"])
     nodes = [d for d in of_kind(shared, "ComputeNode") if d["metadata"]["name"] in names]

@@ -39,7 +39,7 @@ import yaml
 
 from e2e.bed.harness import Cluster
 from e2e.bed.kube import Kube
-from e2e.bed.operator_fixtures import EXAMPLES, free_port, of_kind
+from e2e.bed.operator_fixtures import example_in, free_port, of_kind
 from e2e.tests.incluster import installed
 from e2e.tests.test_autoscaling import delete_fleet_objects, look
 from fogfleet.adapters.kube import KubeClient, load_config
@@ -68,15 +68,7 @@ Obj = dict[str, Any]
 
 def example_docs(namespace: str) -> tuple[list[Obj], list[Obj], Obj]:
     """The shared-detector example in ``namespace``: (ComputeNodes, modules, fleet)."""
-    docs = [
-        d
-        for f in ("nodes.yaml", "modules.yaml", "fleet.yaml")
-        for d in yaml.safe_load_all((EXAMPLES / "shared-detector" / f).read_text())
-        if d
-    ]
-    for d in docs:
-        if d["kind"] != "ComputeNode":
-            d["metadata"]["namespace"] = namespace
+    docs = example_in("shared-detector", namespace)
     return (
         of_kind(docs, "ComputeNode"),
         of_kind(docs, "SoftwareModule"),
