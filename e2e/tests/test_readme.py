@@ -184,11 +184,14 @@ def decided_replicas(kube: Kube) -> int:
 
 
 def detector_replicas(table: str) -> int:
-    """The REPLICAS column of the object-detector row of `kubectl get softwaremodules`."""
+    """The REPLICAS column of the object-detector row of `kubectl get softwaremodules`, read
+    at the header's offsets (an empty column before it, MEASURED, leaves no word)."""
     lines = table.splitlines()
-    column = lines[0].split().index("REPLICAS")
-    row = next(ln.split() for ln in lines[1:] if ln.startswith("object-detector "))
-    return int(row[column]) if row[column].isdigit() else 0
+    start = lines[0].index("REPLICAS")
+    end = lines[0].index("AGE", start)
+    row = next(ln for ln in lines[1:] if ln.startswith("object-detector "))
+    value = row[start:end].strip()
+    return int(value) if value.isdigit() else 0
 
 
 def stop_printed_twin() -> None:
