@@ -12,17 +12,21 @@ Protocol, fixed before the first result:
   phase's rate and privacy share (4 of its 12 phases: a scale factor of 1/3 of one seed,
   about 250 s), after 30 s at the first phase's rate that is not counted (the benchmark starts
   with 5 ready replicas per pool; here the operator sizes the pools for the first rate);
-* the operator decides every 2.5 s, the benchmark's period; the rest is the chart's default;
+* the operator decides every 2.5 s, the benchmark's period, and reads the offered rate over
+  5 s, the benchmark's window (``scaling.rateWindowSeconds``); the rest is the chart's default;
 * one run; issue 44's target is every figure within twice the benchmark's median for its
   ``predictive`` column in ``bench-autoscaling.json`` (the example's mode): the test prints
   both side by side.
 
-The first valid run (2026-11-28) met it for normal rejections (0.22 % against a 0.62 % bound)
-and SLO violations (9.0 % against 15.1 %) and missed it for private ones (0.645 % against
-0.603 %): the operator reads the offered rate over 10 s where the benchmark's policy reads 5 s,
-so it sees a surge about 5 s later (of some 6 000 private requests, 39 were rejected where
-the target allows 36). The test asserts three times the benchmark, a guard that the tinyKube
-preset's minute-long hold before any scale-up (27 % and 37 % rejected) fails by far.
+The first valid run (2026-11-28) left the rate window at the operator's fixed 10 s, which the
+benchmark never modelled; it met the target for normal rejections (0.22 % against a 0.62 %
+bound) and SLO violations (9.0 % against 15.1 %) and missed it for private ones (0.645 %
+against 0.603 %): with twice the window the operator sees a surge about 5 s later (of some
+6 000 private requests, 39 were rejected where the target allows 36). The window then became
+a chart setting, and this protocol (its second version) sets it to the benchmark's, as it
+already set the period; the issue's note gives both versions' results. The test asserts three
+times the benchmark, a guard that the tinyKube preset's minute-long hold before any scale-up
+(27 % and 37 % rejected) fails by far.
 """
 
 from __future__ import annotations
@@ -43,7 +47,7 @@ from e2e.bed.operator_fixtures import example_in, free_port, of_kind
 from e2e.tests.incluster import installed
 from e2e.tests.test_autoscaling import delete_fleet_objects, look
 from fogfleet.adapters.kube import KubeClient, load_config
-from fogfleet.bench.autoscaling import REQUESTS_PER_PHASE, make_workload
+from fogfleet.bench.autoscaling import RATE_WINDOW_SECONDS, REQUESTS_PER_PHASE, make_workload
 from fogfleet.twin.app import Twin
 
 pytestmark = [
@@ -121,6 +125,7 @@ def test_the_installed_operator_scales_tinykubes_scenario_near_the_benchmark(
     values: dict[str, str | float] = {
         "scaling.prometheusUrl": cluster.in_cluster_prometheus_url,
         "scaling.intervalSeconds": INTERVAL_SECONDS,
+        "scaling.rateWindowSeconds": int(RATE_WINDOW_SECONDS),
     }
     t0 = time.monotonic()
 

@@ -171,7 +171,10 @@ def _run_kopf(
             PrometheusClient(settings.prometheus_url), runtime.deps.monitoring
         )
         memo.scaling = ScalingDeps(
-            runtime.deps.kube, prometheus, period_seconds=settings.scaling_interval_seconds
+            runtime.deps.kube,
+            prometheus,
+            period_seconds=settings.scaling_interval_seconds,
+            rate_window_seconds=settings.rate_window_seconds,
         )
         memo.links = LinkDeps(
             prometheus,

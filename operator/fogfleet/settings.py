@@ -81,6 +81,12 @@ class Settings(BaseSettings):
     scaling_interval_seconds: Annotated[float, Field(gt=0)] = Field(
         15.0, description="how often each scaled module decides (the HPA's sync period)"
     )
+    rate_window_seconds: Annotated[int, Field(ge=1, le=3600)] = Field(
+        10,
+        description="rate() window of a predictive module's offered load: shorter follows a "
+        "surge sooner but counts fewer requests; keep it at least twice Prometheus' scrape "
+        "interval, or rate() finds fewer than two samples and the module reads NoData",
+    )
     link_interval_seconds: Annotated[float, Field(gt=0)] = Field(
         10.0, description="how often the robots' links are measured (needs PROMETHEUS_URL)"
     )

@@ -281,6 +281,14 @@ def test_chart_link_defaults_are_the_operators_own() -> None:
     assert links["nodeLabel"] == defaults.link_node_label
 
 
+def test_chart_scaling_defaults_are_the_operators_own() -> None:
+    from fogfleet.settings import Settings
+
+    scaling, defaults = _values()["scaling"], Settings()
+    assert scaling["intervalSeconds"] == defaults.scaling_interval_seconds
+    assert scaling["rateWindowSeconds"] == defaults.rate_window_seconds
+
+
 def test_chart_clusterrole_template_has_the_same_rules_as_the_manifest() -> None:
     # Without helm: the template's rules block is plain YAML between the metadata and the end.
     text = (CHART / "templates" / "clusterrole.yaml").read_text()
