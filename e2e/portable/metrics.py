@@ -1,16 +1,18 @@
-"""A module pod's own counters, read from inside the pod with ``kubectl exec``: the test runner
-needs no route to pod IPs and no Prometheus, and a NetworkPolicy cannot stand in the way.
-The workload image has Python on its PATH; the metrics server listens on all addresses."""
+"""The e2e suite's one reader of Prometheus' text format, on ``prometheus_client.parser``.
+
+A module pod's own counters are read from inside the pod with ``kubectl exec`` (:func:`scrape`:
+the test runner needs no route to pod IPs and no Prometheus, and a NetworkPolicy cannot stand
+in the way; the workload image has Python on its PATH and its metrics server listens on all
+addresses); an endpoint the runner reaches is read with :func:`read`."""
 
 from __future__ import annotations
 
-import re
+import urllib.request
 from typing import Any, Protocol
 
-__all__ = ["Metrics", "parse", "scrape"]
+from prometheus_client.parser import text_string_to_metric_families
 
-_LINE = re.compile(r"^(\w+)(?:\{([^}]*)\})?\s+([0-9.eE+-]+|[+-]Inf|NaN)$")
-_LABEL = re.compile(r'(\w+)="([^"]*)"')
+__all__ = ["Metrics", "parse", "read", "scrape"]
 
 
 class _Kubectl(Protocol):
@@ -18,30 +20,59 @@ class _Kubectl(Protocol):
 
 
 class Metrics:
-    """One scrape: series as (name, labels) -> value."""
+    """One scrape: every sample as (name, labels, value); histogram samples keep their
+    ``_bucket``/``_count``/``_sum`` names and counters their ``_total``."""
 
     def __init__(self, series: list[tuple[str, dict[str, str], float]]) -> None:
         self.series = series
 
-    def total(self, name: str, **labels: str) -> float:
-        """The sum of the series of ``name`` whose labels include ``labels`` (0 when none)."""
-        return sum(
-            value
+    def _matching(self, name: str, labels: dict[str, str]) -> list[tuple[dict[str, str], float]]:
+        return [
+            (have, value)
             for n, have, value in self.series
             if n == name and all(have.get(k) == v for k, v in labels.items())
-        )
+        ]
+
+    def total(self, name: str, **labels: str) -> float:
+        """The sum of the series of ``name`` whose labels include ``labels`` (0 when none)."""
+        return sum(value for _, value in self._matching(name, labels))
 
     def has(self, name: str) -> bool:
         return any(n == name for n, _, _ in self.series)
 
+    def totals(self, prefix: str = "") -> dict[str, float]:
+        """Per sample name starting with ``prefix``, its series summed over their labels
+        (histogram buckets left out: their sum means nothing)."""
+        out: dict[str, float] = {}
+        for n, _, value in self.series:
+            if n.startswith(prefix) and not n.endswith("_bucket"):
+                out[n] = out.get(n, 0.0) + value
+        return out
+
+    def buckets(self, name: str, **labels: str) -> dict[float, float]:
+        """Histogram ``name``'s cumulative buckets (le -> count, +Inf as ``inf``) over the
+        series whose labels include ``labels``; from one scrape, so consistent together."""
+        out: dict[float, float] = {}
+        for have, value in self._matching(f"{name}_bucket", labels):
+            le = float(have["le"])
+            out[le] = out.get(le, 0.0) + value
+        return out
+
 
 def parse(text: str) -> Metrics:
-    series = []
-    for line in text.splitlines():
-        m = _LINE.match(line.strip())
-        if m:
-            series.append((m.group(1), dict(_LABEL.findall(m.group(2) or "")), float(m.group(3))))
-    return Metrics(series)
+    return Metrics(
+        [
+            (sample.name, dict(sample.labels), float(sample.value))
+            for family in text_string_to_metric_families(text)
+            for sample in family.samples
+        ]
+    )
+
+
+def read(url: str, timeout: float = 5) -> Metrics:
+    """One scrape of an endpoint the test runner reaches."""
+    with urllib.request.urlopen(url, timeout=timeout) as response:
+        return parse(response.read().decode())
 
 
 def scrape(kube: _Kubectl, namespace: str, pod: str, container: str, port: int) -> Metrics:

@@ -3,8 +3,6 @@ reading a pod's metrics: shared by the real-node e2e tests."""
 
 from __future__ import annotations
 
-import re
-import urllib.request
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -13,6 +11,7 @@ from typing import Any
 from e2e.bed.harness import Cluster
 from e2e.bed.kube import Kube
 from e2e.bed.operator_fixtures import Operator, install_crds, wait_ready
+from e2e.portable.metrics import read
 
 __all__ = [
     "EDGE",
@@ -163,41 +162,15 @@ def operated_fleet(
 
 
 def scrape(url: str) -> dict[str, float]:
-    """Totals per metric name (labels summed) from a Prometheus text endpoint."""
-    text = urllib.request.urlopen(url, timeout=5).read().decode()
-    out: dict[str, float] = {}
-    for line in text.splitlines():
-        m = re.match(r"^(fogfleet_\w+)(\{[^}]*\})?\s+([0-9.eE+-]+)$", line)
-        if m and not re.search(r'[{,]le="', m.group(2) or ""):  # not a histogram bucket
-            out[m.group(1)] = out.get(m.group(1), 0.0) + float(m.group(3))
-    return out
+    """Totals per fogfleet metric name (labels summed, buckets left out) from one scrape."""
+    return read(url).totals("fogfleet_")
 
 
 def scrape_series(url: str, name: str, **labels: str) -> float:
     """The sum of the series of metric ``name`` whose labels include ``labels``."""
-    text = urllib.request.urlopen(url, timeout=5).read().decode()
-    total = 0.0
-    for line in text.splitlines():
-        m = re.match(r"^(\w+)\{([^}]*)\}\s+([0-9.eE+-]+)$", line)
-        if not m or m.group(1) != name:
-            continue
-        have = dict(re.findall(r'(\w+)="([^"]*)"', m.group(2)))
-        if all(have.get(k) == v for k, v in labels.items()):
-            total += float(m.group(3))
-    return total
+    return read(url).total(name, **labels)
 
 
 def scrape_buckets(url: str, name: str, **labels: str) -> dict[float, float]:
-    """The cumulative buckets (le -> count, +Inf as ``inf``) of histogram ``name`` whose
-    labels include ``labels``, from one scrape (so they are consistent with each other)."""
-    text = urllib.request.urlopen(url, timeout=5).read().decode()
-    out: dict[float, float] = {}
-    for line in text.splitlines():
-        m = re.match(r"^(\w+)\{([^}]*)\}\s+([0-9.eE+-]+)$", line)
-        if not m or m.group(1) != f"{name}_bucket":
-            continue
-        have = dict(re.findall(r'(\w+)="([^"]*)"', m.group(2)))
-        if all(have.get(k) == v for k, v in labels.items()):
-            le = float(have["le"])  # "+Inf" parses as inf
-            out[le] = out.get(le, 0.0) + float(m.group(3))
-    return out
+    """Histogram ``name``'s cumulative buckets (le -> count) whose labels include ``labels``."""
+    return read(url).buckets(name, **labels)

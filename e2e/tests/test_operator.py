@@ -37,6 +37,7 @@ from e2e.bed.operator_fixtures import (
     pods_by_instance,
     wait_ready,
 )
+from e2e.portable.metrics import parse as parse_metrics
 from fogfleet.api.v1alpha1.base import parse_cpu
 from fogfleet.controllers.ros import is_ros_object
 
@@ -107,8 +108,7 @@ def test_warehouse_runs_where_planned_replans_once_and_cleans_up(
     untouched_modules = {n for n in moved if "arm-motion-generation" not in n}
     assert len(untouched_modules) <= status["migrations"], (moved, status["choiceReason"])
     print(f"re-plan: {len(moved)} pods replaced, migrations {status['migrations']}")
-    metrics = operator.metrics()
-    assert 'fogfleet_plans_total{fleet="warehouse"' in metrics
+    assert parse_metrics(operator.metrics()).total("fogfleet_plans_total", fleet="warehouse") > 0
 
     # deleting the fleet removes every Deployment it owned
     kube.kubectl("delete", "robotfleet", "warehouse", "-n", namespace, "--wait=true", timeout=90)
@@ -354,12 +354,10 @@ def test_a_fleet_short_of_cpu_runs_degraded_on_its_least_important_module(
     msg = conditions(fleet(kube, namespace))["Degraded"]["message"]
     assert "bulk-mapper" in msg and "priority 5" in msg and "predicted miss" in msg, msg
     assert events(kube, namespace, "ShortOfCapacity")
-    gauge = [
-        line
-        for line in operator.metrics().splitlines()
-        if line.startswith('fogfleet_degraded_instances{fleet="warehouse"}')
-    ]
-    assert gauge and float(gauge[0].split()[-1]) >= 1, gauge
+    gauge = parse_metrics(operator.metrics()).total(
+        "fogfleet_degraded_instances", fleet="warehouse"
+    )
+    assert gauge >= 1, gauge
     wait_ready(kube, namespace)  # every module, degraded ones included, runs where planned
     assert_pods_where_planned(kube, namespace, instances=N_INSTANCES + 5)
     burst = 0

@@ -161,3 +161,22 @@ def test_metrics_are_summed_over_the_series_whose_labels_match() -> None:
     assert m.total("fogfleet_messages_received_total", topic="plan") == 3.0
     assert m.total("fogfleet_foreign_messages_total") == 0.0
     assert m.has("fogfleet_fallback_active") and not m.has("fogfleet_foreign_messages_total")
+
+
+def test_histograms_give_buckets_and_totals_leave_them_out() -> None:
+    m = parse(
+        "# TYPE fogfleet_input_gap_seconds histogram\n"
+        'fogfleet_input_gap_seconds_bucket{topic="a",le="0.1"} 4.0\n'
+        'fogfleet_input_gap_seconds_bucket{topic="a",le="+Inf"} 6.0\n'
+        'fogfleet_input_gap_seconds_bucket{topic="b",le="+Inf"} 9.0\n'
+        'fogfleet_input_gap_seconds_count{topic="a"} 6.0\n'
+        'fogfleet_input_gap_seconds_sum{topic="a"} 0.9\n'
+        "# TYPE other_total counter\n"
+        "other_total 2.0\n"
+    )
+    assert m.buckets("fogfleet_input_gap_seconds", topic="a") == {0.1: 4.0, float("inf"): 6.0}
+    assert m.totals("fogfleet_") == {
+        "fogfleet_input_gap_seconds_count": 6.0,
+        "fogfleet_input_gap_seconds_sum": 0.9,
+    }
+    assert m.total("other_total") == 2.0
