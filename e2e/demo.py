@@ -28,7 +28,6 @@ with. Nothing is deleted: the bed, the operator and the fleets keep running unti
 
 from __future__ import annotations
 
-import subprocess
 import sys
 import time
 from collections import Counter
@@ -43,7 +42,7 @@ sys.path.insert(0, str(ROOT))
 from e2e.bed import ensure_up  # noqa: E402
 from e2e.bed.cluster import Cluster, running  # noqa: E402
 from e2e.bed.kube import Kube, guard_kubeconfig  # noqa: E402
-from e2e.bed.operator_fixtures import conditions  # noqa: E402
+from e2e.bed.operator_fixtures import conditions, helm  # noqa: E402
 from fogfleet.controllers.ros import is_ros_object  # noqa: E402
 
 RELEASE, SYSTEM = "fogfleet", "fogfleet-system"
@@ -81,12 +80,6 @@ TWIN_PORT = 9123  # `fogfleet twin`'s default; the bed's Prometheus scrapes it t
 
 def say(msg: str) -> None:
     print(f"[demo] {msg}", flush=True)
-
-
-def helm(*args: str) -> None:
-    """The bed's helm (``harness.py helm``) with the bed's kubeconfig; its output streams."""
-    cmd = [sys.executable, str(ROOT / "e2e" / "bed" / "harness.py"), "helm", *args]
-    subprocess.run(cmd, check=True, cwd=ROOT)
 
 
 def install(kube: Kube, cluster: Cluster) -> None:
@@ -286,11 +279,7 @@ def remove() -> int:
     if cluster is None:
         return 0
     kube = _kube(cluster)
-    listed = subprocess.run(
-        [sys.executable, str(ROOT / "e2e" / "bed" / "harness.py"), "helm", "list", "-n", SYSTEM,
-         "-q"], capture_output=True, text=True, check=False, cwd=ROOT,
-    ).stdout.split()  # fmt: skip
-    if RELEASE in listed:
+    if RELEASE in helm("list", "-n", SYSTEM, "-q").split():
         say(f"removing the demo: helm uninstall {RELEASE} -n {SYSTEM}")
         helm("uninstall", RELEASE, "-n", SYSTEM, "--wait")
     for ns in DEMO_NAMESPACES:

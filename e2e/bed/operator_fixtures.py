@@ -21,14 +21,15 @@ from typing import Any
 
 import yaml
 
+from e2e.bed.base import BIN_DIR, CACHE_ROOT, KUBECONFIG
 from e2e.bed.kube import Kube
+from e2e.portable.chart import Helm
 from fogfleet.controllers.ros import is_ros_object
 
 ROOT = Path(__file__).resolve().parents[2]
 EXAMPLES = ROOT / "manifests" / "examples"
 CRDS = ROOT / "crds"
 CHART = ROOT / "charts" / "fogfleet"
-HARNESS = ROOT / "e2e" / "bed" / "harness.py"
 OPERATOR_LABELS = "app.kubernetes.io/name=fogfleet,app.kubernetes.io/component=operator"
 Obj = dict[str, Any]
 
@@ -315,10 +316,6 @@ def assert_pods_where_planned(
 
 
 def helm(*args: str, timeout: float = 300) -> str:
-    """The bed's helm (``harness.py helm``, its kubeconfig); asserts it succeeded."""
-    proc = subprocess.run(
-        [sys.executable, str(HARNESS), "helm", *args],
-        capture_output=True, text=True, timeout=timeout, check=False,
-    )  # fmt: skip
-    assert proc.returncode == 0, f"helm {' '.join(args)}:\n{proc.stdout}\n{proc.stderr}"
-    return proc.stdout
+    """The bed's helm with the bed's kubeconfig: the portable suite's one wrapper
+    (:class:`e2e.portable.chart.Helm`), so its output on failure is the same everywhere."""
+    return Helm(str(BIN_DIR / "helm"), KUBECONFIG, CACHE_ROOT / "helm-home")(*args, timeout=timeout)
