@@ -62,7 +62,6 @@ import sys
 import tempfile
 import threading
 import time
-import urllib.request
 from pathlib import Path
 from typing import Any
 
@@ -92,7 +91,7 @@ from e2e.bench.cluster import (  # noqa: E402
     table,
     teardown_cluster,
 )
-from e2e.portable.metrics import parse as parse_metrics  # noqa: E402
+from e2e.portable.metrics import read as read_metrics  # noqa: E402
 
 Obj = dict[str, Any]
 EDGES_PER_ROBOT = 0.4
@@ -263,8 +262,7 @@ def api_writes(metrics_port: int) -> float:
     """The operator's API writes so far: client-go's ``rest_client_requests_total`` from its
     /metrics, summed over the write methods (kopf's own annotation patches and the Lease are
     not counted: they do not go through fogfleet's client)."""
-    text = urllib.request.urlopen(f"http://127.0.0.1:{metrics_port}/metrics", timeout=10).read()
-    scraped = parse_metrics(text.decode())
+    scraped = read_metrics(f"http://127.0.0.1:{metrics_port}/metrics", timeout=10)
     return sum(scraped.total("rest_client_requests_total", method=m) for m in WRITE_METHODS)
 
 

@@ -6,10 +6,8 @@ by the fault tests (issue 37); the fleet is ``rosbed.split_fleet``.
 from __future__ import annotations
 
 import json
-import re
 import threading
 import time
-import urllib.request
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from functools import partial
@@ -18,6 +16,7 @@ from typing import Any, Self, TypeVar
 from e2e.bed.base import wait_for
 from e2e.bed.kube import Kube
 from e2e.faults.record import FaultResult, record_measured
+from e2e.portable.metrics import read
 
 __all__ = [
     "FLOWS", "NodeHistory", "Poller", "Snapshot", "fault_result", "scraped", "skew_messages",
@@ -94,18 +93,11 @@ def scraped(read: Callable[[], T]) -> tuple[T, float]:
     return value, (t0 + time.monotonic()) / 2
 
 
-_LINE = re.compile(r"^(fogfleet_\w+)(?:\{([^}]*)\})?\s+([0-9.eE+-]+)$")
-
-
 def _counters(url: str) -> dict[str, float]:
-    text = urllib.request.urlopen(url, timeout=5).read().decode()
+    """A module pod's message and cycle counters: ``published:TOPIC``, ``received:TOPIC``,
+    ``missed`` and ``cycles``."""
     out: dict[str, float] = {}
-    for line in text.splitlines():
-        m = _LINE.match(line)
-        if not m:
-            continue
-        labels = dict(re.findall(r'(\w+)="([^"]*)"', m.group(2) or ""))
-        name, value = m.group(1), float(m.group(3))
+    for name, labels, value in read(url).series:
         key = {
             "fogfleet_messages_published_total": f"published:{labels.get('topic')}",
             "fogfleet_messages_received_total": f"received:{labels.get('topic')}",
