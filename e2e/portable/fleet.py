@@ -15,7 +15,9 @@ from typing import Any
 
 from e2e.portable.nodes import Topology
 
-__all__ = ["DETECTOR", "FLEET", "MODULES", "PLANNER", "SAFETY", "SENSOR", "fleet_objects"]
+__all__ = [
+    "DETECTOR", "FLEET", "MODULES", "PLANNER", "SAFETY", "SENSOR", "fleet_objects", "module_object",
+]  # fmt: skip
 
 FLEET = "portable"
 SENSOR, DETECTOR, PLANNER, SAFETY = "sensor", "detector", "planner", "safety"
@@ -28,7 +30,7 @@ def _topics(items: list[tuple[str, int, int]]) -> list[dict[str, Any]]:
     return [{"name": n, "sizeBytes": s, "rateHz": r} for n, s, r in items]
 
 
-def _module(
+def module_object(
     name: str,
     namespace: str,
     image: str,
@@ -38,20 +40,26 @@ def _module(
     taxonomy: tuple[str, str, str],
     subscribes: list[tuple[str, int, int]],
     publishes: list[tuple[str, int, int]],
-    rows: list[tuple[list[str], str, float, float]],
+    rows: list[tuple[str | list[str], str | float, float, float]],
+    memory: str = "192Mi",
     **extra: Any,
 ) -> dict[str, Any]:
+    """A SoftwareModule the workload image plays (the e2e suite's one module builder).
+
+    ``rows`` are profile rows (hardware type or types, CPU, mean ms, std ms); ``extra`` goes
+    into the spec as it is."""
     spec: dict[str, Any] = {
         "template": {"image": image, "metricsPort": METRICS_PORT, "imagePullPolicy": pull_policy},
         "taxonomy": dict(zip(("executionPattern", "realtime", "safety"), taxonomy, strict=True)),
         "cycleTimeMillis": cycle_ms,
         "activationPercent": 100,
-        "resources": {"cpu": "100m", "memory": "192Mi"},
+        "resources": {"cpu": "100m", "memory": memory},
         "topics": {"subscribes": _topics(subscribes), "publishes": _topics(publishes)},
         "profile": [
+            # plain numbers (type: number), fractions unquoted
             {"hardwareType": hw, "cpu": cpu, "meanMillis": mean, "stdMillis": std}
             for hardware, cpu, mean, std in rows
-            for hw in hardware
+            for hw in ([hardware] if isinstance(hardware, str) else hardware)
         ],
         **extra,
     }
@@ -73,20 +81,20 @@ def fleet_objects(
     scan, objects, plan = ("scan", 4096, 10), ("objects", 512, 10), ("plan", 2048, 1)
     args = (namespace, image, pull_policy)
     modules = [
-        _module(SENSOR, *args, cycle_ms=100, taxonomy=("periodic", "hard", "critical"),
+        module_object(SENSOR, *args, cycle_ms=100, taxonomy=("periodic", "hard", "critical"),
                 subscribes=[], publishes=[scan], rows=[(robot_hw, "50m", 4, 0.5)]),
         # offloaded when it can be; its standby on the robot takes over when it falls silent
-        _module(DETECTOR, *args, cycle_ms=100, taxonomy=("continuous", "soft", "relevant"),
+        module_object(DETECTOR, *args, cycle_ms=100, taxonomy=("continuous", "soft", "relevant"),
                 subscribes=[scan], publishes=[objects],
                 rows=[(robot_hw, "100m", 30, 3), (off_hw, "100m", 15, 1.5)],
                 preferredTiers=off_tiers,
                 fallback={"mode": "onboard", "silentCycles": SILENT_CYCLES,
                           "stepBackCycles": 10}),
         # never on a robot
-        _module(PLANNER, *args, cycle_ms=1000, taxonomy=("periodic", "soft", "relevant"),
+        module_object(PLANNER, *args, cycle_ms=1000, taxonomy=("periodic", "soft", "relevant"),
                 subscribes=[scan], publishes=[plan], rows=[(off_hw, "100m", 120, 10)],
                 requirements={"tiers": off_tiers}),
-        _module(SAFETY, *args, cycle_ms=100, taxonomy=("periodic", "hard", "critical"),
+        module_object(SAFETY, *args, cycle_ms=100, taxonomy=("periodic", "hard", "critical"),
                 subscribes=[objects, plan], publishes=[("stop", 64, 10)],
                 rows=[(robot_hw, "50m", 3, 0.3)]),
     ]  # fmt: skip

@@ -11,6 +11,7 @@ from typing import Any
 from e2e.bed.harness import Cluster
 from e2e.bed.kube import Kube
 from e2e.bed.operator_fixtures import Operator, install_crds, wait_ready
+from e2e.portable.fleet import module_object
 from e2e.portable.metrics import read
 
 __all__ = [
@@ -57,38 +58,21 @@ def ros_module(
     probe: bool = False,
     **extra: Any,
 ) -> dict[str, Any]:
-    """A SoftwareModule the workload image plays; ``extra`` goes into its spec as it is."""
-
-    def topics(items: list[tuple[str, int, int]]) -> list[dict[str, Any]]:
-        return [{"name": n, "sizeBytes": s, "rateHz": r} for n, s, r in items]
-
-    spec: dict[str, Any] = {
-        "template": {"image": IMAGE, "metricsPort": 9100, "imagePullPolicy": "Never"},
-        "taxonomy": dict(zip(("executionPattern", "realtime", "safety"), taxonomy, strict=True)),
-        "cycleTimeMillis": cycle_ms,
-        "activationPercent": 100,
-        "resources": {"cpu": "100m", "memory": "256Mi"},
-        "topics": {"subscribes": topics(subscribes), "publishes": topics(publishes)},
-        "profile": [
-            # plain numbers (type: number), fractions unquoted
-            {"hardwareType": hw, "cpu": cpu, "meanMillis": mean, "stdMillis": std}
-            for hw, cpu, mean, std in profile
-        ],
-    }
+    """A SoftwareModule the workload image plays on the bed (:func:`module_object`), with
+    ``tiers`` as its requirements and ``probe`` adding the cycle-time sidecar users add to a
+    module nobody instrumented."""
     if tiers:
-        spec["requirements"] = {"tiers": tiers}
-    spec.update(extra)
-    if probe:  # the cycle-time sidecar users add to a module nobody instrumented
-        spec["template"]["sidecars"] = [
+        extra["requirements"] = {"tiers": tiers}
+    obj = module_object(
+        name, ns, IMAGE, "Never", cycle_ms=cycle_ms, taxonomy=taxonomy, subscribes=subscribes,
+        publishes=publishes, rows=list(profile), memory="256Mi", **extra,
+    )  # fmt: skip
+    if probe:
+        obj["spec"]["template"]["sidecars"] = [
             {"name": "cycle-probe", "image": IMAGE, "imagePullPolicy": "Never",
              "args": ["probe", "--port", str(PROBE_PORT)], "metricsPort": PROBE_PORT},
         ]  # fmt: skip
-    return {
-        "apiVersion": "fogfleet.io/v1alpha1",
-        "kind": "SoftwareModule",
-        "metadata": {"name": name, "namespace": ns},
-        "spec": spec,
-    }
+    return obj
 
 
 def bed_objects(ns: str, fleet: str, modules: list[dict[str, Any]]) -> list[dict[str, Any]]:

@@ -27,7 +27,7 @@ import pytest
 from e2e.bed.harness import Cluster
 from e2e.bed.kube import Kube
 from e2e.bed.operator_fixtures import all_pods, conditions, events, fleet, pods_by_instance
-from e2e.tests.cutfleet import (
+from e2e.faults.cutfleet import (
     CYCLE_S,
     LINK_STABLE_S,
     LINK_WINDOW_S,

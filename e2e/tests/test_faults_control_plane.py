@@ -33,7 +33,7 @@ from e2e.bed.operator_fixtures import (
     install_crds,
     wait_ready,
 )
-from e2e.tests.faultbed import fault_result, snapshot
+from e2e.faults.cost import fault_result, snapshot
 from e2e.tests.rosbed import EDGE, ROBOTS, split_fleet
 
 pytestmark = [

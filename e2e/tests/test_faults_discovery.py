@@ -47,8 +47,8 @@ from e2e.bed import realnodes
 from e2e.bed.harness import Cluster
 from e2e.bed.kube import Kube
 from e2e.bed.operator_fixtures import conditions, fleet, pods_by_instance
+from e2e.faults.cost import scraped, skew_messages
 from e2e.faults.record import FaultResult, record
-from e2e.tests.faultbed import scraped, skew_messages
 from e2e.tests.rosbed import EDGE, ROBOTS, bed_objects, operated_fleet, ros_module
 from fogfleet.render.names import discovery_service_name
 

@@ -31,7 +31,7 @@ from e2e.bed.operator_fixtures import (
     fleet,
     wait_ready,
 )
-from e2e.tests.faultbed import NodeHistory, Snapshot, fault_result, snapshot
+from e2e.faults.cost import NodeHistory, Snapshot, fault_result, snapshot
 from e2e.tests.incluster import installed, kill_leader
 from e2e.tests.rosbed import EDGE, ROBOTS, split_fleet
 

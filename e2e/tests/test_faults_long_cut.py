@@ -42,8 +42,7 @@ from e2e.bed.harness import Cluster
 from e2e.bed.images import PAUSE_REF
 from e2e.bed.kube import Kube
 from e2e.bed.operator_fixtures import all_pods, conditions, deployments, events, fleet
-from e2e.faults.record import FaultResult, record
-from e2e.tests.cutfleet import (
+from e2e.faults.cutfleet import (
     CYCLE_S,
     LITE_CYCLE_MS,
     fleet_pod,
@@ -55,6 +54,7 @@ from e2e.tests.cutfleet import (
     running_cut_fleet,
     took_over,
 )
+from e2e.faults.record import FaultResult, record
 from e2e.tests.rosbed import ROBOTS, scrape, scrape_series
 
 pytestmark = [

@@ -36,8 +36,8 @@ from e2e.bed import nodefaults, realnodes
 from e2e.bed.harness import Cluster
 from e2e.bed.kube import Kube
 from e2e.bed.operator_fixtures import all_pods, conditions, events, fleet
+from e2e.faults.cost import Poller
 from e2e.faults.record import record_measured
-from e2e.tests.faultbed import Poller
 from e2e.tests.rosbed import EDGE, ROBOTS, bed_objects, operated_fleet, ros_module, scrape_series
 
 pytestmark = [
