@@ -146,6 +146,28 @@ def _pump(proc: subprocess.Popen[str], lines: list[str], sink: TextIO | None) ->
             sink.flush()
 
 
+def kubectl(
+    binary: str | Path,
+    kubeconfig: Path,
+    *args: str,
+    input: str | None = None,
+    check: bool = True,
+    timeout: float = 120,
+    error: type[Exception] = HarnessError,
+) -> subprocess.CompletedProcess[str]:
+    """The e2e suite's one kubectl runner (stdout/stderr captured as text); a failure with
+    ``check`` raises ``error`` naming the command, its exit code and its output."""
+    proc = subprocess.run(
+        [str(binary), f"--kubeconfig={kubeconfig}", *args],
+        input=input, capture_output=True, text=True, timeout=timeout, check=False,
+    )  # fmt: skip
+    if check and proc.returncode != 0:
+        raise error(
+            f"kubectl {' '.join(args)} exited {proc.returncode}:\n{proc.stderr}{proc.stdout}"
+        )
+    return proc
+
+
 @contextlib.contextmanager
 def locked(lock_file: Path = LOCK_FILE) -> Iterator[None]:
     """Serialise build/up/down across processes (two pytest sessions, make in another shell);

@@ -24,6 +24,7 @@ from e2e.bed.base import (
     http_get,
     insecure_tls,
 )
+from e2e.bed.base import kubectl as run_kubectl
 from e2e.bed.bednet import DNS_SERVICE_IP
 from e2e.bed.clusterservices import COREDNS, IN_CLUSTER_PROMETHEUS_URL
 from e2e.bed.processes import _alive, log_tail
@@ -159,18 +160,11 @@ class Cluster:
     def kubectl(
         self, *args: str, input: str | None = None, check: bool = True, timeout: float = 120
     ) -> subprocess.CompletedProcess[str]:
-        """Run the harness's kubectl against this cluster (stdout/stderr captured as text)."""
-        proc = subprocess.run(
-            [str(self.bin_dir / "kubectl"), f"--kubeconfig={self.kubeconfig}", *args],
-            input=input,
-            capture_output=True,
-            text=True,
-            timeout=timeout,
-            check=False,
-        )
-        if check and proc.returncode != 0:
-            raise HarnessError(f"kubectl {' '.join(args)} failed: {proc.stderr.strip()}")
-        return proc
+        """Run the harness's kubectl against this cluster (:func:`e2e.bed.base.kubectl`)."""
+        return run_kubectl(
+            self.bin_dir / "kubectl", self.kubeconfig, *args,
+            input=input, check=check, timeout=timeout,
+        )  # fmt: skip
 
     def kubectl_json(self, *args: str) -> Any:
         return json.loads(self.kubectl(*args, "-o", "json").stdout)

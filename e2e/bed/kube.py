@@ -22,6 +22,7 @@ import yaml
 
 from e2e.bed import harness
 from e2e.bed.base import PROGRESS_SECONDS
+from e2e.bed.base import kubectl as run_kubectl
 
 __all__ = ["Kube", "UnsafeKubeconfig", "guard_kubeconfig"]
 
@@ -90,19 +91,10 @@ class Kube:
             other = yaml.safe_load(kubeconfig.read_text())
             if _current_server(other)[0] != self.server:
                 raise UnsafeKubeconfig(f"{kubeconfig} does not point at {self.server}")
-        proc = subprocess.run(
-            [self.kubectl_bin, f"--kubeconfig={config}", *args],
-            input=input,
-            capture_output=True,
-            text=True,
-            timeout=timeout,
-            check=False,
-        )
-        if check and proc.returncode != 0:
-            raise AssertionError(
-                f"kubectl {' '.join(args)} exited {proc.returncode}:\n{proc.stderr}{proc.stdout}"
-            )
-        return proc
+        return run_kubectl(
+            self.kubectl_bin, config, *args,
+            input=input, check=check, timeout=timeout, error=AssertionError,
+        )  # fmt: skip
 
     def kubectl_json(self, *args: str) -> Any:
         return json.loads(self.kubectl(*args, "-o", "json").stdout)
