@@ -28,9 +28,12 @@ with. Nothing is deleted: the bed, the operator and the fleets keep running unti
 
 from __future__ import annotations
 
+import contextlib
 import sys
+import threading
 import time
 from collections import Counter
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -82,6 +85,27 @@ def say(msg: str) -> None:
     print(f"[demo] {msg}", flush=True)
 
 
+@contextlib.contextmanager
+def heartbeat(what: str) -> Iterator[None]:
+    """Say that ``what`` is still running every ``PROGRESS_SECONDS`` while it blocks (a helm
+    ``--wait`` or a ``kubectl wait`` prints nothing until it is done): the demo is never
+    silent for long (issue 44)."""
+    done = threading.Event()
+    t0 = time.monotonic()
+
+    def beat() -> None:
+        while not done.wait(PROGRESS_SECONDS):
+            say(f"... {what}: {time.monotonic() - t0:.0f} s")
+
+    thread = threading.Thread(target=beat, daemon=True)
+    thread.start()
+    try:
+        yield
+    finally:
+        done.set()
+        thread.join()
+
+
 def install(kube: Kube, cluster: Cluster) -> None:
     """The README's Helm install with the cluster's Prometheus (upgrade --install, so a second
     demo finds it in place)."""
@@ -89,9 +113,10 @@ def install(kube: Kube, cluster: Cluster) -> None:
     say(f"helm install {RELEASE} charts/fogfleet -n {SYSTEM} --create-namespace "
         f"--set scaling.prometheusUrl={url}  (the README's)")  # fmt: skip
     t0 = time.monotonic()
-    helm("upgrade", "--install", "--take-ownership", RELEASE, "charts/fogfleet", "-n", SYSTEM,
-         "--create-namespace", "--set", f"scaling.prometheusUrl={url}",
-         "--wait", "--timeout", "300s")  # fmt: skip
+    with heartbeat("waiting for the operator's pods to be Ready (helm --wait)"):
+        helm("upgrade", "--install", "--take-ownership", RELEASE, "charts/fogfleet", "-n",
+             SYSTEM, "--create-namespace", "--set", f"scaling.prometheusUrl={url}",
+             "--wait", "--timeout", "300s")  # fmt: skip
     pods = kube.kubectl_json(
         "get", "pods", "-n", SYSTEM, "-l", "app.kubernetes.io/component=operator"
     )["items"]
@@ -108,8 +133,9 @@ def wait_gone_if_terminating(kube: Kube, namespace: str) -> None:
         return
     say(f"namespace {namespace} is still being deleted (an earlier demo's); waiting for it")
     limit = READY_TIMEOUT_SECONDS
-    kube.kubectl("wait", "--for=delete", f"namespace/{namespace}", f"--timeout={limit}s",
-                 check=False, timeout=limit + 20)  # fmt: skip
+    with heartbeat(f"waiting for namespace {namespace} to be deleted"):
+        kube.kubectl("wait", "--for=delete", f"namespace/{namespace}", f"--timeout={limit}s",
+                     check=False, timeout=limit + 20)  # fmt: skip
 
 
 def apply(kube: Kube, ex: Example) -> None:
