@@ -33,7 +33,9 @@ def test_every_call_runs_and_at_most_workers_at_once():
 
 def test_the_first_failure_is_raised_and_calls_not_started_are_dropped(monkeypatch):
     """The calls after the failing one block until run_all has seen the failure (its
-    ``wait`` returned), so no timing decides how many start: at most one more per worker."""
+    ``wait`` returned); released, the worker takes the next queued calls at once, before the
+    caller's thread may run again to cancel them (a busy machine): each must find the failure
+    and not start. At most the one other call that was running when it failed ran."""
     started: list[int] = []
     seen_failure = threading.Event()
     real_wait = parallel.wait
@@ -53,7 +55,7 @@ def test_the_first_failure_is_raised_and_calls_not_started_are_dropped(monkeypat
 
     with pytest.raises(DependencyUnavailable, match="connection refused"):
         run_all([lambda k=k: call(k) for k in range(40)], workers=2)
-    assert 0 in started and len(started) <= 3, started
+    assert 0 in started and len(started) <= 2, started
 
 
 def test_one_worker_runs_in_order_and_stops_at_the_first_failure():
