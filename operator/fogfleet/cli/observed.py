@@ -23,7 +23,7 @@ from fogfleet.controllers.observed import declared_rows, read_observations
 from fogfleet.controllers.observed import describe as say
 from fogfleet.domain.observed import correction
 from fogfleet.domain.problem import Allocation, Problem
-from fogfleet.domain.rows import Learnt
+from fogfleet.domain.rows import Learnt, carry_noise
 
 __all__ = ["learnt_corrections", "under_corrections"]
 
@@ -59,12 +59,14 @@ def under_corrections(
 ) -> Allocation:
     """``allocation`` (a plan's CPU amounts and its rows) with the execution times each
     instance really has on each node: its rows as the correction of its module there makes
-    them (``Learnt.row``)."""
+    them (``Learnt.row``; on a type where its noise is not known, the noise it shows
+    elsewhere, as the planner takes it: ``rows.carry_noise``)."""
     scale = np.ones((problem.n_instances, problem.n_nodes))
     noise = np.zeros((problem.n_instances, problem.n_nodes))
+    carried = carry_noise(corrections, (node.hardware_type for node in problem.nodes))
     for i, inst in enumerate(problem.instances):
         for j, node in enumerate(problem.nodes):
-            got = corrections.get((inst.module, node.hardware_type), Learnt())
+            got = carried.get((inst.module, node.hardware_type), Learnt())
             scale[i, j], noise[i, j] = got.factor, got.noise
     return Allocation(
         allocation.cpu_request,

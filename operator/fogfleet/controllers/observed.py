@@ -382,6 +382,7 @@ def _adopt(
                 "hardwareType": hw,
                 "factor": round(learnt.factor, 4),
                 "noiseMillis": round(learnt.noise * 1e3, 2),
+                "noiseCycles": round(learnt.noise_cycles, 1),
                 "samples": round(n, 1),
                 "adoptedAt": timestamp(now),
                 "reason": why,
@@ -447,9 +448,10 @@ def profile_corrections(modules: Iterable[Mapping[str, Any]]) -> dict[tuple[str,
             try:
                 factor = float(entry["factor"])
                 noise = float(entry.get("noiseMillis", 0.0)) / 1e3
+                cycles = float(entry.get("noiseCycles", 0.0))
                 hw = str(entry["hardwareType"])
             except (AttributeError, KeyError, TypeError, ValueError):
                 continue
-            if factor > 0 and noise >= 0 and hw:
-                out[(name, hw)] = Learnt(factor, noise)
+            if factor > 0 and noise >= 0 and cycles >= 0 and hw:
+                out[(name, hw)] = Learnt(factor, noise, cycles)
     return out

@@ -48,14 +48,28 @@ certainly shows:
   binomial share), not to the ratio; a well-measured share barely moves (486 of 5400: 9.0 %
   -> 8.4 %), a few misses fall far (2 of 140: 1.4 % -> 0.5 %);
 - a hardware type's noise counts only from ``spec.drift.minCycles`` cycles there (default
-  1000, a 10 Hz module's 100 s: at 1 % missed, ten misses to fit the tail to); until then the
-  prior (no noise) stands.
+  1000, a 10 Hz module's 100 s: at 1 % missed, ten misses to fit the tail to); until then it
+  is not known there (``Learnt.noise_cycles`` 0);
+- where the noise is not known (a type the module never ran on, or too few cycles), the
+  planner takes the largest noise the module showed on another type, not none
+  (``rows.carry_noise``). Both bounds above shrink the noise where it was measured, but the
+  gain of a move is the difference between two types, and the prior's zero on the type it
+  never ran on is the most optimistic end of that difference: with it, any noise learnt made
+  every unmeasured node look better by exactly that noise. 2 misses in 599 cycles (0.33 %)
+  of a 60 +- 6 ms pose estimator in a 100 ms cycle, the bed's re-run of issue 49, are a
+  13.4 ms noise by their ratio; over 1000 cycles or more (two instances' warm-up) the
+  Wilson bound still leaves 11.6 ms (1200 cycles, 4 missed), a predicted 0.11 % on the edge
+  it runs on against none on an edge it never ran on: the move the bed made, and that missed
+  more. With the noise carried both sides miss alike and the move gains nothing.
 
 The factor is a mean, not a tail: it is measured by every sample, is already held back by the
 prior, and a large error (a module four times slower than declared, which misses nearly every
-cycle) still corrects the profile at once. The predicted gain of a move is the planner's, on
-rows so corrected, and a move must beat the migration margin, and twice it to return an
-instance to the node it was last moved off (``scheduling.stickiness``: no back and forth).
+cycle) still corrects the profile at once; it is not carried to other types. The predicted
+gain of a move is the planner's, on rows so corrected: the noise where it was measured at the
+lower end of its bound, where it was not at the largest shown elsewhere, so the gain is the
+lower end of what the evidence supports. A move must beat the migration margin with it (the
+cost of moving), and twice it to return an instance to the node it was last moved off
+(``scheduling.stickiness``: no back and forth).
 
 **Drift** is a module's measured miss rate above the plan's prediction by more than what the
 module can afford (:func:`miss_budget`), which its real-time class decides
@@ -253,15 +267,17 @@ def correction(
     """Hardware type -> (correction, measured cycles) for the observations of one module (see
     the module docstring); types without a declared row or a measured cycle have none. The
     noise needs the module's ``timing`` on the type (none: no noise learnt there) and
-    ``min_cycles`` cycles there (fewer: none learnt; see "Evidence" in the module docstring)."""
+    ``min_cycles`` cycles there (fewer: none learnt, ``noise_cycles`` 0: not known there; see
+    "Evidence" in the module docstring)."""
     seen = list(observations)
     factors = _factors(seen, declared, prior)
     noise = _noise(seen, declared, timing or {}, factors)
     out = {}
     for hw, (factor, n) in sorted(factors.items()):
         m, var = noise.get(hw, (0.0, 0.0))
-        sigma = math.sqrt(var / (prior + m)) if m >= max(min_cycles, 1.0) else 0.0
-        out[hw] = (Learnt(factor, sigma), n)
+        known = m >= max(min_cycles, 1.0)
+        sigma = math.sqrt(var / (prior + m)) if known else 0.0
+        out[hw] = (Learnt(factor, sigma, m if known else 0.0), n)
     return out
 
 

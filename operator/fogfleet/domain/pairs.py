@@ -26,7 +26,7 @@ from fogfleet.api.v1alpha1.softwaremodule import SoftwareModule, auto_profiled
 
 from .network import LOCAL, Link, path
 from .problem import EXEC_SHARE_OF_CYCLE
-from .rows import Learnt, ProfileRow
+from .rows import Learnt, ProfileRow, carry_noise
 from .taxonomy import may_degrade, must_stay_onboard
 
 __all__ = ["Block", "Pair", "PairTable", "Refusal", "pad_rungs", "profile_rows", "rows_for"]
@@ -146,8 +146,10 @@ class PairTable:
         self.nodes = nodes
         self.caps = caps
         self.links = links
-        # (module, hardware type) -> the correction of the declared rows (domain.observed)
-        self.corrections = corrections or {}
+        # (module, hardware type) -> the correction of the declared rows (domain.observed),
+        # with a module's noise on the types where its own is not known (rows.carry_noise)
+        types = (nd.spec.hardware_type for nd in nodes)
+        self.corrections = carry_noise(corrections or {}, types)
         self._profiles: dict[tuple[int, str, Any], list[ProfileRow]] = {}
         self._transfers: dict[tuple[int, Link], tuple[float, float, float]] = {}
         self._blocks: dict[tuple[Any, ...], Block] = {}

@@ -8,8 +8,9 @@ from typing import Any
 import pytest
 
 from fogfleet.api.labels import ANNOTATION_MODULE, ANNOTATION_ROLE
-from fogfleet.controllers.observed import ObservedDeps, observe
+from fogfleet.controllers.observed import ObservedDeps, observe, profile_corrections
 from fogfleet.controllers.robotfleet import reconcile
+from fogfleet.domain.rows import Learnt
 from fogfleet.errors import DependencyUnavailable
 
 KEY = ("warehouse", "warehouse")
@@ -278,6 +279,7 @@ def test_misses_beside_a_work_as_declared_teach_the_cycles_noise(kube, deps, pro
     (fix,) = kube.modules[("warehouse", MODULE)]["status"]["profileCorrection"]
     assert fix["factor"] == pytest.approx(1.0, abs=1e-3)
     assert fix["noiseMillis"] > 1.0
+    assert fix["noiseCycles"] == 2000.0  # fitted from the cycles on that type (issue 49)
     assert "ms noise" in next(e for e in kube.events if e[1] == "ProfileCorrected")[2]
     run(kube, deps)
     after = deps.store.state(KEY).rendered.problem
@@ -421,3 +423,26 @@ def test_the_shown_measured_rate_follows_a_drifting_module_within_a_percentage_p
     assert row["measuredMissRate"] == pytest.approx(22 / 3600, rel=1e-3)
     prom.missed = {"nav-controller": 22.1}  # the same figure as shown (0.61 %): no rewrite
     assert observe(deps, od, 160.0) == set()
+
+
+def test_a_correction_says_whether_its_noise_is_known() -> None:
+    """status.profileCorrection's noiseCycles (issue 49): 0 with no noise is a type where the
+    noise was not fitted (too few cycles), so the planner carries the module's noise there."""
+
+    def module(*entries: dict[str, Any]) -> dict[str, Any]:
+        return {"metadata": {"name": "m"}, "status": {"profileCorrection": list(entries)}}
+
+    got = profile_corrections(
+        [
+            module(
+                {"hardwareType": "a", "factor": 1.0, "noiseMillis": 12.0, "noiseCycles": 1200},
+                {"hardwareType": "b", "factor": 1.1, "noiseMillis": 0.0, "noiseCycles": 0},
+                {"hardwareType": "c", "factor": 1.0, "noiseMillis": 0.0, "noiseCycles": 3000},
+                {"hardwareType": "d", "factor": 1.0, "noiseMillis": 5.0},  # before noiseCycles
+                {"hardwareType": "e", "factor": 1.0, "noiseCycles": -1},
+            )
+        ]
+    )
+    assert got[("m", "a")] == Learnt(1.0, 0.012, 1200) and got[("m", "a")].noise_known
+    assert not got[("m", "b")].noise_known and got[("m", "c")].noise_known
+    assert got[("m", "d")].noise_known and ("m", "e") not in got

@@ -22,7 +22,7 @@ from fogfleet.domain.observed import (
     miss_share_bound,
     timings,
 )
-from fogfleet.domain.rows import Learnt, ProfileRow
+from fogfleet.domain.rows import Learnt, ProfileRow, carry_noise
 from fogfleet.scheduling.evaluation import miss_probability
 
 ROWS = [ProfileRow(0.1, 0.040, 0.004), ProfileRow(0.2, 0.020, 0.002)]
@@ -257,3 +257,52 @@ def test_noise_from_a_few_hundred_warm_up_cycles_is_not_learnt() -> None:
     assert learnt.noise > 0.0
     ((learnt, _),) = correction(rows[:1], declared, 100, timing, min_cycles=500).values()
     assert learnt.noise > 0.0
+
+
+def test_the_noise_counts_where_it_was_fitted_and_says_from_how_many_cycles() -> None:
+    declared = {"bed-edge": [ROW_67M]}
+    timing = {"bed-edge": CONTROLLER}
+    many = Observation("m", "bed-edge", 0.067, 1200, 0.023, 0.026, 1200, 30)
+    ((learnt, _),) = correction([many], declared, 100, timing).values()
+    assert learnt.noise > 0 and learnt.noise_cycles == 1200 and learnt.noise_known
+    # fewer than minCycles: not known there (not: known to be none)
+    few = Observation("m", "bed-edge", 0.067, 600, 0.023, 0.026, 600, 30)
+    ((learnt, _),) = correction([few], declared, 100, timing).values()
+    assert learnt.noise == 0.0 and learnt.noise_cycles == 0.0 and not learnt.noise_known
+    # many cycles without a miss: known to be none
+    quiet = Observation("m", "bed-edge", 0.067, 1200, 0.023, 0.026, 1200, 0)
+    ((learnt, _),) = correction([quiet], declared, 100, timing).values()
+    assert learnt.noise == 0.0 and learnt.noise_known
+
+
+def test_a_type_without_a_known_noise_takes_the_largest_the_module_showed_elsewhere() -> None:
+    corrections = {
+        ("pose", "i9-13900"): Learnt(1.0, 0.013, 1200),
+        ("pose", "pi4"): Learnt(1.0, 0.020, 3000),
+        ("pose", "i9-9900"): Learnt(1.2),  # a factor, too few cycles for the noise
+        ("seg", "i9-13900"): Learnt(1.1),  # no noise known anywhere: nothing carried
+        ("nav", "pi4"): Learnt(1.0, 0.0, 5000),  # known quiet: nothing to carry
+    }
+    got = carry_noise(corrections, ["i9-13900", "i9-9900", "pi4", "cloud"])
+    assert got[("pose", "i9-13900")] == corrections[("pose", "i9-13900")]  # its own stands
+    assert got[("pose", "i9-9900")] == Learnt(1.2, 0.020)  # its factor, the largest noise
+    assert got[("pose", "cloud")] == Learnt(1.0, 0.020)  # never ran there
+    assert ("seg", "cloud") not in got and ("nav", "cloud") not in got
+    assert got[("seg", "i9-13900")] == Learnt(1.1)
+    assert carry_noise({}, ["pi4"]) == {}
+
+
+def test_the_planner_puts_the_learnt_noise_on_the_nodes_the_module_never_ran_on() -> None:
+    catalog = load_paths([WAREHOUSE])
+    (fleet,) = catalog.fleets
+    plain = build_problem(fleet, catalog)
+    i = 0
+    h = int(plain.home[i])
+    module, hw = plain.instances[i].module, plain.nodes[h].hardware_type
+    noisy = build_problem(fleet, catalog, corrections={(module, hw): Learnt(1.0, 0.005, 2000)})
+    others = [j for j, n in enumerate(plain.nodes) if n.hardware_type != hw and plain.allowed[i, j]]
+    assert others
+    for j in others:
+        assert noisy.nominal.exe_std[i, j] == pytest.approx(
+            np.hypot(plain.nominal.exe_std[i, j], 0.005)
+        )

@@ -83,6 +83,10 @@ class ProfileCorrection(FogModel):
     middleware, the node's other processes), in milliseconds: fitted so that the planner's
     normal tail at the deadline matches the measured miss rate, blended with the prior (0),
     and added to every row's std on this hardware type."""
+    noise_cycles: float = 0.0
+    """Cycles the noise was fitted from (spec.drift.minCycles or more); 0 with no noise: not
+    known on this hardware type, and the planner takes the largest noise the module showed on
+    another type instead (no move gains from a noise that was only not measured)."""
     samples: float
     """Measured cycles behind it."""
     adopted_at: str
