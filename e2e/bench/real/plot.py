@@ -23,6 +23,7 @@ COLOURS = {
     "nsga2": "#1f77b4",
     "nsga2-static": "#17becf",
     "k8s-default": "#d62728",
+    "k8s-requests": "#ff7f0e",
     "onboard": "#7f7f7f",
 }
 OTHER_COLOUR = "#9467bd"

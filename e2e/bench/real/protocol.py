@@ -1,14 +1,18 @@
 """The benchmark's protocol, fixed before any result (issue 33): which arms run how often, in
 what order, for how long, and what is measured.
 
-* **Arms.** ``nsga2`` (the operator's plan, closed loop on; planner seeds 1..n), ``k8s-default``
-  (plain Deployments that kube-scheduler binds, a fresh namespace each run so each is a fresh
-  draw of its placement), ``onboard`` (every module on its robot) and ``nsga2-static`` (the
-  paper's a-priori GA: the first plan, no closed loop; reported, not in the target).
-* **Blocks.** Runs go in blocks; every block holds one run of each two-sided arm (``nsga2``,
-  ``k8s-default``) and the other arms' runs are spread evenly over the blocks. The order
-  inside a block alternates (forward in even blocks, reversed in odd ones), so no arm always
-  runs first, or always right after the same other arm.
+* **Arms** (issue 49: nsga2 x6, nsga2-static x6, k8s-default x6, k8s-requests x6, onboard x1,
+  about 80 minutes here). ``nsga2`` (the operator's plan, closed loop on; planner seeds
+  1..n), ``nsga2-static`` (the paper's a-priori GA: the first plan, no closed loop; the loop's
+  yardstick), ``k8s-default`` (plain Deployments that kube-scheduler binds, requesting the
+  modules' declared CPU; a fresh namespace each run so each is a fresh draw of its
+  placement), ``k8s-requests`` (the same Deployments, each module requesting what it needs on
+  the reference hardware, ``scenario.honest_requests``, with kube-scheduler's default
+  scoring) and ``onboard`` (every module on its robot; one sanity run, its figures are known).
+* **Blocks.** Runs go in blocks; an arm of n runs has one run in each of n blocks, spread
+  evenly (with six blocks, every six-run arm is in every block; onboard in the first). The
+  order inside a block alternates (forward in even blocks, reversed in odd ones), so no arm
+  always runs first, or always right after the same other arm.
 * **Timing.** A warm-up after the fleet is Ready (long enough for the closed loop's re-plan:
   30 s measured + 10 s of drift, checked every 30 s), then one window between two counter
   snapshots. A plan that changes inside the window fails the run; a failed run is recorded,
@@ -28,6 +32,7 @@ __all__ = [
     "DEFAULT_RUNS",
     "PERCEPTION",
     "PRIMARY",
+    "REQUESTS",
     "STATIC",
     "Protocol",
     "ScheduledRun",
@@ -35,8 +40,9 @@ __all__ = [
 ]
 
 NSGA2, K8S, ONBOARD, STATIC = "nsga2", "k8s-default", "onboard", "nsga2-static"
-ARMS = (NSGA2, STATIC, K8S, ONBOARD)  # the order of every table
-DEFAULT_RUNS = {NSGA2: 6, K8S: 6, ONBOARD: 2, STATIC: 3}
+REQUESTS = "k8s-requests"  # k8s-default's Deployments with honest CPU requests (issue 49)
+ARMS = (NSGA2, STATIC, K8S, REQUESTS, ONBOARD)  # the order of every table and of a block
+DEFAULT_RUNS = {NSGA2: 6, STATIC: 6, K8S: 6, REQUESTS: 6, ONBOARD: 1}
 PRIMARY = "perception"
 PERCEPTION = ("human-pose-estimation", "scene-segmentation")
 
@@ -52,8 +58,9 @@ class ScheduledRun:
 
     @property
     def algorithm(self) -> str:
-        """The RobotFleet's spec.scheduler.algorithm (nsga2-static plans with nsga2)."""
-        return NSGA2 if self.arm == STATIC else self.arm
+        """The RobotFleet's spec.scheduler.algorithm (nsga2-static plans with nsga2,
+        k8s-requests hands the fleet to kube-scheduler as k8s-default does)."""
+        return {STATIC: NSGA2, REQUESTS: K8S}.get(self.arm, self.arm)
 
     @property
     def closed_loop(self) -> bool:

@@ -14,13 +14,13 @@ from dataclasses import dataclass
 from typing import Any
 
 from e2e.bench.real.measure import WindowRates
-from e2e.bench.real.protocol import PERCEPTION, PRIMARY, Protocol, ScheduledRun
-from e2e.bench.real.scenario import PROFILE, SCALE, Scenario
+from e2e.bench.real.protocol import PERCEPTION, PRIMARY, REQUESTS, Protocol, ScheduledRun
+from e2e.bench.real.scenario import PROFILE, REFERENCE, SCALE, SIGMAS, Scenario, honest_requests
 from e2e.bench.real.summary import summarise
 from fogfleet.bench.record import machine
 from fogfleet.sim.simulator import fleet_miss_rate
 
-__all__ = ["RunResult", "document", "machine"]
+__all__ = ["RunResult", "document", "machine", "requests_json"]
 
 
 @dataclass
@@ -85,13 +85,29 @@ def document(
 ) -> dict[str, Any]:
     """The bench-real.json document: the bed, the protocol, every run and the summary."""
     runs = [r.as_json() for r in results]
+    proto = protocol.as_json()
+    if protocol.runs.get(REQUESTS):
+        proto["k8sRequests"] = requests_json(scenario)
     return {
         "date": time.strftime("%Y-%m-%d"),
         "machine": machine(),
         "command": command,
         "bed": {"profile": PROFILE, "scale": SCALE, "nodes": scenario.hardware()},
-        "protocol": protocol.as_json(),
+        "protocol": proto,
         "primaryEndpoint": PRIMARY,
         "runs": runs,
         "summary": summarise(runs),
+    }
+
+
+def requests_json(scenario: Scenario) -> dict[str, Any]:
+    """How the k8s-requests arm's requests were chosen, and what they are (the protocol's
+    ``k8sRequests``): computed from the scenario's declared profile rows only, so they were
+    fixed before the arm's first run."""
+    got = honest_requests(scenario.of_kind("SoftwareModule"))
+    return {
+        "referenceHardware": REFERENCE,
+        "sigmas": SIGMAS,
+        "source": "e2e/bench/real/paper/modules.yaml",
+        "requests": {m: r.as_json() for m, r in sorted(got.items())},
     }

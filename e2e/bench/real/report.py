@@ -248,6 +248,30 @@ def _protocol(doc: Doc) -> list[str]:
         f" / median({CONTROL}); {100 * LEVEL:g} % percentile bootstrap CI ({RESAMPLES} resamples, "
         f"each arm resampled on its own, seed {SEED}); exact one-sided Mann-Whitney U p "
         f"({TREATED} < {CONTROL}); failed runs are listed, not counted",
+        *_requests_lines(proto.get("k8sRequests")),
+    ]
+
+
+def _requests_lines(given: Mapping[str, Any] | None) -> list[str]:
+    """How the k8s-requests arm's requests were chosen and what they were (issue 49)."""
+    if not given:
+        return []
+    sigmas = float(given.get("sigmas", 3))
+    said = []
+    for module, r in (given.get("requests") or {}).items():
+        sign = "<=" if r.get("fits", True) else "> (none fits: the largest row)"
+        said.append(
+            f"{module} {r['cpu']} ({r['meanMillis']:g} + {sigmas:g} x {r['stdMillis']:g} ms "
+            f"{sign} {r['cycleMillis']:g} ms)"
+        )
+    return [
+        f"- k8s-requests: the k8s-default Deployments with kube-scheduler's default scoring, "
+        f"each module requesting the smallest CPU among its profile rows on the reference "
+        f"hardware (`hardwareType: {given.get('referenceHardware', 'default')}`, the i9 rows "
+        f"of `{given.get('source', 'e2e/bench/real/paper/modules.yaml')}`) whose mean + "
+        f"{sigmas:g} std fits its cycle time, the largest row where none does; computed from "
+        "those rows by `e2e.bench.real.scenario.honest_requests`, from nothing the bed "
+        "measures, so fixed before the arm's first run: " + "; ".join(said)
     ]
 
 
@@ -283,7 +307,7 @@ def markdown(doc: Doc, *, plot_name: str) -> str:
             "",
             "The paper's real-robot experiment (multi-robot-edge-cloud-scheduling IV-C) on real",
             "kubelets and containerd: the fleet of `e2e/bench/real/paper/` on the paper bed",
-            "(`make cluster-up PROFILE=paper`). `make bench-real` runs it (about an hour) and",
+            "(`make cluster-up PROFILE=paper`). `make bench-real` runs it (about 80 minutes) and",
             "writes `bench-real.json`; `make bench-real-report` generates this page and its figure",
             "from that file. Rates are fractions of cycles missed, shown in percent.",
             "",

@@ -8,7 +8,8 @@ Each run of the schedule (``protocol.Protocol``):
    ``spec.scheduler`` set to the run's arm and seed; the operator (``fogfleet run``, scoped to
    the bench's namespaces, reading the bed's Prometheus) plans it (``nsga2``, ``onboard``) or
    hands it to kube-scheduler (``k8s-default``: plain Deployments, the real bindings read back
-   from the fleet's status);
+   from the fleet's status; ``k8s-requests``: the same with the modules' honest requests,
+   ``scenario.honest_requests``, computed once before the first run);
 2. once the fleet is Ready and every instance has reported cycles to Prometheus, and the
    previous run's namespace is gone, a warm-up in which the closed loop may correct what the
    plan got wrong (``DRIFT``, off for ``nsga2-static``), then, once the fleet is Ready again
@@ -44,12 +45,13 @@ from e2e.bench.real.measure import WindowRates, snapshot, window_rates
 from e2e.bench.real.protocol import (
     DEFAULT_RUNS,
     PRIMARY,
+    REQUESTS,
     Protocol,
     ScheduledRun,
     parse_arms,
 )
 from e2e.bench.real.record import RunResult, document
-from e2e.bench.real.scenario import FLEET, PROFILE, ROOT, Scenario
+from e2e.bench.real.scenario import FLEET, PROFILE, ROOT, Scenario, honest_requests
 from fogfleet.controllers.observed import describe
 from fogfleet.domain.rows import Learnt
 from fogfleet.sim import simulate
@@ -291,6 +293,11 @@ def run_bench(
     if missing:
         raise SystemExit(f"the paper fleet needs the paper bed's nodes; missing {sorted(missing)}")
     install_crds(kube)
+    # k8s-requests' requests, fixed here before its first run (from the profile rows only)
+    by_arm = {REQUESTS: scenario.with_honest_requests()} if protocol.runs.get(REQUESTS) else {}
+    if by_arm:
+        got = honest_requests(scenario.of_kind("SoftwareModule")).values()
+        log(f"{REQUESTS} requests: {'; '.join(r.describe() for r in got)}")
     tag = secrets.token_hex(2)
     schedule = [(r, f"paper-{r.arm.replace('-', '')}-{r.seed}-{tag}") for r in protocol.schedule()]
     op = Operator(
@@ -308,7 +315,8 @@ def run_bench(
         previous = None
         try:
             for run, ns in schedule:
-                results.append(one_run(kube, cluster, scenario, run, ns, protocol, previous))
+                arm_scenario = by_arm.get(run.arm, scenario)
+                results.append(one_run(kube, cluster, arm_scenario, run, ns, protocol, previous))
                 previous = ns
                 if on_run is not None:
                     on_run(results)

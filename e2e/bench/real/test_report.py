@@ -198,7 +198,7 @@ def test_the_markdown_has_every_run_and_the_figure() -> None:
     assert "node-a \\| lost" in md
     assert "![perception miss rate per run and arm](real-nodes-perception.svg)" in md
     assert "F = 15" in md and "`node-a` (2 CPU, edge)" in md
-    assert "nsga2 x 6, nsga2-static x 3, k8s-default x 6, onboard x 2" in md
+    assert "nsga2 x 6, nsga2-static x 6, k8s-default x 6, k8s-requests x 6, onboard x 1" in md
     assert "30 s warm-up, then a 60 s measured window" in md
 
 
