@@ -9,7 +9,9 @@ deploys:
    else ``Infeasible`` explains it by node and resource;
 3. the migration-margin rule keeps running modules where they are unless the new plan is
    better by the margin, and by twice it to return one to the node it was last moved off
-   (``stickiness.keep_running``; ``Decision.left`` remembers those nodes);
+   (``stickiness.keep_running``; ``Decision.left`` remembers those nodes); where what runs
+   no longer fits (a learnt profile asks for more CPU), it is held in place down the
+   degradation ladders unless the new plan beats that by the margin (``stickiness.hold``);
 4. the objectives reported are those of the placement deployed, not of the solver's proposal.
 
 The controller keeps the returned ``Decision`` by fingerprint and recomputes nothing.
@@ -17,6 +19,7 @@ The controller keeps the returned ``Decision`` by fingerprint and recomputes not
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import time
 from collections.abc import Collection, Mapping
@@ -126,6 +129,7 @@ def decide(
     was made for (then only what changed is re-planned). Raises ``Infeasible`` naming
     ``RobotFleet/<fleet>``."""
     t0, cpu0 = time.perf_counter(), time.thread_time()
+    holdable = _holdable(problem, last, last_problem)
     schedule, why_full = _incremental(planner, problem, settings, last, last_problem)
     incremental = schedule is not None
     if schedule is None:
@@ -143,8 +147,11 @@ def decide(
         message = infeasible_message(problem, placement, schedule.reasons)
         raise Infeasible(f"RobotFleet/{fleet}", "spec", message)
     left = _left_nodes(problem, last)
-    stick = stickiness.keep_running(problem, placement, settings, with_limits, left)
+    stick = stickiness.keep_running(problem, placement, settings, with_limits, left, holdable)
     chosen = stick.placement
+    if stick.levels is not None:  # held where it runs, with the rungs that fit it there
+        schedule = dataclasses.replace(schedule, levels=stick.levels)
+        problem = problem.with_levels(stick.levels)
     plan_id = hashlib.sha256(f"{fp}:{chosen.tobytes().hex()}".encode()).hexdigest()[:12]
     reason = schedule.choice_reason
     if stick.kept_current or stick.migrations:
@@ -156,7 +163,7 @@ def decide(
     )
     objectives = (
         dict(schedule.objectives)
-        if np.array_equal(chosen, placement)
+        if np.array_equal(chosen, placement) and stick.levels is None
         else objective_values(problem, chosen, with_limits, list(schedule.objectives))
     )
     return Decision(
@@ -175,6 +182,26 @@ def decide(
         cpu,
         _remember(problem, last, stick),
     )
+
+
+def _holdable(
+    problem: Problem, last: Decision | None, last_problem: Problem | None
+) -> NDArray[np.bool_] | None:
+    """(I,) the instances the migration-margin rule may hold in place below their row when what
+    runs no longer fits (``stickiness.hold``): those whose own inputs changed since the last
+    decision (``incremental.changed_instances``: a learnt profile, a new cycle time) and those
+    the last decision already ran below it; None without a last decision."""
+    if last is None or last_problem is None:
+        return None
+    out = np.zeros(problem.n_instances, dtype=bool)
+    out[sorted(changed_instances(last_problem, problem))] = True
+    levels = last.schedule.levels
+    if levels is not None:
+        where = {inst: k for k, inst in enumerate(last_problem.instances)}
+        for i, inst in enumerate(problem.instances):
+            k = where.get(inst)
+            out[i] |= k is not None and k < len(levels) and bool(levels[k] > 0)
+    return out
 
 
 def _left_nodes(problem: Problem, last: Decision | None) -> NDArray[np.int64]:

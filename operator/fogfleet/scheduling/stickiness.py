@@ -15,6 +15,21 @@ beat the other by the margin, but the model changes between re-plans: a module m
 node for the cycle noise learnt there starts measuring its new node afresh, while the old
 node keeps what was learnt. A return then needs a gain the noise of one estimate does not
 give; what the noise may fit is held back where it is learnt (``domain.observed``).
+
+**Holding what runs** (issue 49). A learnt profile can make a running instance *ask* for more
+CPU where it runs: a cycle noise of 11.6 ms on top of a pose estimator's 60 +- 6 ms puts its
+row's mean + 2 std past 90 % of its 100 ms cycle, so the planner's row on that edge becomes
+533m instead of 267m, and two of them no longer fit the 800m edge they run on. The rule above
+then had no current placement to keep: it moved instances "to make room", with no gain to
+beat, and the real-node benchmark's loop so put a pose estimator on the small edge, where it
+missed more than where it ran. So when the running placement no longer fits, it is first
+*held*: the same placement with the fewest rungs taken down the ladders
+(``scheduling.degrade``'s order, then ``give_back``), which is how it ran or close to it, and
+the new plan must beat that by the margin like any move. Only the instances whose own inputs
+changed since the last decision (a learnt profile, a new cycle time) or that it already ran
+below their row are held down (``decision``): a change to one module never degrades another
+that was running as planned. A hard real-time or safety-critical module has no rungs, so one
+that needs more CPU still moves at once.
 """
 
 from __future__ import annotations
@@ -32,7 +47,9 @@ from numpy.typing import NDArray
 from fogfleet.api.v1alpha1.robotfleet import SchedulerSettings
 from fogfleet.domain.problem import LazyLadder, Problem, freeze
 
+from .degrade import give_back, levels_of, steps
 from .evaluation import Evaluation
+from .explain import degraded_message
 from .heuristics import Fit
 from .objectives import feasible, objective_values
 
@@ -40,6 +57,7 @@ __all__ = [
     "Stickiness",
     "fill_around",
     "fingerprint",
+    "hold",
     "keep_running",
     "loads",
     "mask_unavailable",
@@ -133,6 +151,7 @@ class Stickiness:
     migrations: list[int]  # instances moved off a node they ran on
     kept_current: bool
     reason: str
+    levels: I64 | None = None  # the rungs of a held placement (``hold``); None: the plan's
 
 
 def release_robots(problem: Problem, robots: Collection[int]) -> Problem:
@@ -268,6 +287,24 @@ def _revert(problem: Problem, new: I64, cur: I64, usable: NDArray[np.bool_]) -> 
     return x
 
 
+def hold(problem: Problem, x: I64, holdable: NDArray[np.bool_]) -> Problem | None:
+    """The problem (with levels) in which the running placement ``x`` fits with the fewest
+    rungs taken, only by the ``holdable`` instances (module docstring), or None when it cannot
+    be made to fit so."""
+    base = problem.with_levels(None)
+    order = [i for i in steps(base) if holdable[i]]
+    if not order or not feasible(base.with_levels(levels_of(base, order, len(order))), x):
+        return None
+    lo, hi = -1, len(order)  # hi: fits; lo: assumed not to
+    while hi - lo > 1:
+        mid = (lo + hi) // 2
+        if feasible(base.with_levels(levels_of(base, order, mid)), x):
+            hi = mid
+        else:
+            lo = mid
+    return base.with_levels(give_back(base.with_levels(levels_of(base, order, hi)), x))
+
+
 def _returning(moved: Sequence[int], new: I64, left: I64 | None) -> bool:
     """Whether ``new`` returns one of the ``moved`` instances to the node it last left."""
     if left is None or not moved:
@@ -282,13 +319,15 @@ def keep_running(
     settings: SchedulerSettings,
     with_limits: bool = True,
     left: I64 | None = None,
+    holdable: NDArray[np.bool_] | None = None,
 ) -> Stickiness:
     """Prefer the current placement of running instances over ``new`` unless ``new`` is
     better by the migration margin (twice it when ``new`` returns an instance to the node it
     was last moved off, ``left``: (I,), -1 for none; module docstring). Instances without a
     usable current node are placed around the running ones (``new``'s node when it has room).
     ``with_limits``: the plan's allocation (False for plans made for the nominal one, such as
-    onboard)."""
+    onboard). ``holdable`` (I,): the instances that may be held in place down their ladders
+    when what runs no longer fits (``hold``; None: none)."""
     new = np.asarray(new, dtype=np.int64)
     cur = problem.current
     rows = np.arange(problem.n_instances)
@@ -296,19 +335,38 @@ def keep_running(
     moved = [int(i) for i in np.flatnonzero(usable & (new != cur))]
     if not moved:
         return Stickiness(new, [], bool(usable.any()), "nothing that runs moves")
+    names = [settings.objectives[0].value]  # only the first objective justifies a move
+    margin = settings.migration_margin_percent / 100.0
+    back = _returning(moved, new, left)
+    running = np.where(usable, cur, -1).astype(np.int64)
+    placeable = problem.allowed.any(axis=1)
+    if (
+        holdable is not None
+        and with_limits
+        and (usable == placeable).all()
+        and not feasible(problem, running)
+    ):
+        held = hold(problem, running, holdable)
+        if held is not None:
+            a = objective_values(problem, new, with_limits, names)
+            b = objective_values(held, running, with_limits, names)
+            better, why = _better(a, b, names, margin, HYSTERESIS if back else 1.0)
+            if not better:
+                note = degraded_message(held, running)
+                return Stickiness(
+                    running, [], True, f"kept running modules in place ({why}); {note}",
+                    held.levels,
+                )  # fmt: skip
     fit = Fit(problem, problem.limits)
-    pinned = release_overloads(problem, np.where(usable, cur, -1).astype(np.int64), new, fit)
+    pinned = release_overloads(problem, running, new, fit)
     sticky = fill_around(problem, pinned, new, fit)
     # an instance no node may take (its robot is down) is unplaced in ``new`` too
     if ((sticky < 0) & (new >= 0)).any() or not feasible(problem, sticky, with_limits):
         sticky = _revert(problem, new, cur, usable)
     kept = [int(i) for i in np.flatnonzero(usable & (sticky != cur))]
-    names = [settings.objectives[0].value]  # only the first objective justifies a move
     if (sticky >= 0).sum() == (new >= 0).sum() and feasible(problem, sticky, with_limits):
         a = objective_values(problem, new, with_limits, names)
         b = objective_values(problem, sticky, with_limits, names)
-        back = _returning(moved, new, left)
-        margin = settings.migration_margin_percent / 100.0
         better, why = _better(a, b, names, margin, HYSTERESIS if back else 1.0)
         if back:
             why = f"{why}, returning to a node it left (twice the margin)"
