@@ -22,9 +22,9 @@ from fogfleet.domain.tenancy import Held, claims_of
 from fogfleet.errors import Infeasible
 from fogfleet.scheduling import stickiness
 from fogfleet.scheduling.decision import Decision, decide, fingerprint, with_defaults
+from fogfleet.snapshot.objects import current_placement
 
 from .deps import Deps
-from .inputs import current_placement
 from .observe import FleetInputs, Parsed, record_references
 from .state import FleetState, Rendered
 

@@ -14,7 +14,7 @@ from dataclasses import dataclass, replace
 from typing import Any
 
 from fogfleet.api.labels import LABEL_FLEET
-from fogfleet.api.loader import Catalog, parse_object
+from fogfleet.api.loader import Catalog
 from fogfleet.api.v1alpha1.robotfleet import RobotFleet
 from fogfleet.api.v1alpha1.softwaremodule import SoftwareModule
 from fogfleet.domain.fallback import variant_names
@@ -24,16 +24,16 @@ from fogfleet.domain.rows import Learnt
 from fogfleet.domain.tenancy import Held
 from fogfleet.errors import InvalidSpec
 from fogfleet.render.deployments import Owner, label_value
+from fogfleet.snapshot.catalog import Inputs, gather
+from fogfleet.snapshot.objects import parse_fleet, profile_corrections, scaling_pools
+from fogfleet.snapshot.room import held_by_others, held_signature
 
 from .apply import owned
 from .deps import Deps
-from .inputs import Inputs, gather
-from .observed import profile_corrections
 from .ros import is_ros_object
 from .stamp import input_stamp
 from .state import FleetKey, FleetState, References, fleet_key
-from .status import scaling_status
-from .tenancy import claims_in, held_by_others, held_signature
+from .tenancy import claims_in
 
 __all__ = [
     "FleetInputs",
@@ -85,14 +85,6 @@ class FleetObject:
     def selector(self) -> dict[str, str]:
         """The fleet label of everything rendered for it."""
         return {LABEL_FLEET: label_value(self.key[1])}
-
-
-def parse_fleet(body: Mapping[str, Any]) -> RobotFleet:
-    """The fleet's spec as its model (InvalidSpec names the field)."""
-    parsed = parse_object({k: v for k, v in body.items() if k != "status"})
-    if not isinstance(parsed, RobotFleet):
-        raise InvalidSpec(f"RobotFleet/{fleet_key(body)[1]}", "kind", "not a RobotFleet")
-    return parsed
 
 
 @dataclass(frozen=True)
@@ -178,7 +170,7 @@ def parse(inputs: FleetInputs) -> Parsed:
     """The catalog of the fleet's inputs; InvalidSpec when the fleet references an invalid
     ComputeNode or SoftwareModule."""
     fleet = inputs.fleet
-    gathered = gather(fleet, inputs.compute_nodes, inputs.raw_modules, inputs.nodes, inputs.held)
+    gathered = gather(inputs.compute_nodes, inputs.raw_modules, inputs.nodes, inputs.held)
     ns = inputs.obj.key[0]
     modules = {
         m.metadata.name: m
@@ -207,21 +199,6 @@ def record_references(
     state.references = References(
         frozenset(names), frozenset(set(nodes) | names), frozenset(wanted), selector
     )
-
-
-def scaling_pools(modules: Iterable[Mapping[str, Any]]) -> dict[str, dict[str, int]]:
-    """The autoscaler's last decision per shared module: {module: {tier: replicas}}.
-
-    Read from the SoftwareModules as the API server sends them (one namespace's): the
-    catalog's modules are parsed without their status (``inputs.gather``), so they never
-    carry ``status.scaling``. A status this operator did not write in this shape is ignored."""
-    pools: dict[str, dict[str, int]] = {}
-    for raw in modules:
-        scaling = scaling_status(raw)
-        if scaling is not None:
-            tiers = {p.tier: p.replicas for p in scaling.pools}
-            pools[str(raw["metadata"]["name"])] = tiers or {"any": scaling.desired_replicas}
-    return pools
 
 
 def _profiled(raw_modules: Iterable[Mapping[str, Any]]) -> tuple[tuple[str, str], ...]:

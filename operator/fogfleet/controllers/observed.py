@@ -24,7 +24,7 @@ module in an Event of its own.
 from __future__ import annotations
 
 import logging
-from collections.abc import Collection, Iterable, Mapping
+from collections.abc import Collection, Mapping
 from dataclasses import dataclass
 from typing import Any
 
@@ -66,7 +66,6 @@ __all__ = [
     "describe",
     "drift_watch",
     "observe",
-    "profile_corrections",
     "read_observations",
 ]
 
@@ -436,22 +435,3 @@ def describe(hardware_type: str, learnt: Learnt, cycles: float) -> str:
     """One correction as the Events and the CLI say it."""
     noise = f" + {learnt.noise * 1e3:.1f} ms noise" if learnt.noise > 0 else ""
     return f"{hardware_type} x{learnt.factor:.2f}{noise} ({cycles:.0f} cycles)"
-
-
-def profile_corrections(modules: Iterable[Mapping[str, Any]]) -> dict[tuple[str, str], Learnt]:
-    """(module, hardware type) -> its correction, from the SoftwareModules'
-    status.profileCorrection (as the API server sends them); malformed entries are ignored."""
-    out: dict[tuple[str, str], Learnt] = {}
-    for raw in modules:
-        name = str((raw.get("metadata") or {}).get("name", ""))
-        for entry in (raw.get("status") or {}).get("profileCorrection") or []:
-            try:
-                factor = float(entry["factor"])
-                noise = float(entry.get("noiseMillis", 0.0)) / 1e3
-                cycles = float(entry.get("noiseCycles", 0.0))
-                hw = str(entry["hardwareType"])
-            except (AttributeError, KeyError, TypeError, ValueError):
-                continue
-            if factor > 0 and noise >= 0 and cycles >= 0 and hw:
-                out[(name, hw)] = Learnt(factor, noise, cycles)
-    return out

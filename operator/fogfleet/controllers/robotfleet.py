@@ -26,13 +26,13 @@ from dataclasses import replace
 from typing import Any
 
 from fogfleet.errors import InvalidSpec
+from fogfleet.snapshot.objects import current_placement
 
 from .apply import apply_step
 from .deps import Deps
 from .fleet_plan import Planned, plan_step
 from .fleet_render import render_step
 from .fleet_status import plan_events
-from .inputs import current_placement
 from .links import link_watch, takeovers_from_status
 from .node_events import hosted_modules, node_events
 from .observe import (

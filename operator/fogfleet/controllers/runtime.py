@@ -20,10 +20,11 @@ from typing import Any, TypeVar
 from fogfleet.api.labels import LABEL_FLEET, LABEL_INSTANCE
 from fogfleet.errors import FogfleetError
 from fogfleet.render.deployments import hash_annotation, label_value
+from fogfleet.snapshot.objects import profile_corrections
 
 from .deps import Deps
 from .links import LinkDeps, measure_links
-from .observed import ObservedDeps, observe, profile_corrections
+from .observed import ObservedDeps, observe
 from .outcome import Outcome
 from .queue import ReconcileQueue
 from .robotfleet import reconcile

@@ -26,9 +26,7 @@ from collections.abc import Iterable, Mapping
 from typing import Any
 
 from fogfleet.render.deployments import hash_annotation
-
-from .inputs import bound_nodes, node_health
-from .status import scaling_status
+from fogfleet.snapshot.objects import bound_nodes, node_health, scaling_status
 
 __all__ = [
     "RESYNC_COST_FACTOR",

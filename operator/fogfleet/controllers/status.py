@@ -14,10 +14,9 @@ from pydantic import BaseModel
 
 from fogfleet.api.labels import LABEL_INSTANCE
 from fogfleet.api.timestamps import timestamp
-from fogfleet.api.v1alpha1.base import status_part
-from fogfleet.api.v1alpha1.softwaremodule import ScalingStatus
 from fogfleet.domain.miss_rates import format_miss_rate
 from fogfleet.render.deployments import hash_annotation
+from fogfleet.snapshot.objects import scaling_status
 
 __all__ = [
     "Rollout",
@@ -38,12 +37,6 @@ __all__ = [
 ]
 
 Obj = dict[str, Any]
-
-
-def scaling_status(module: Mapping[str, Any]) -> ScalingStatus | None:
-    """The autoscaler's last decision on a SoftwareModule (``status.scaling``); None when there
-    is none or it is not in the shape we write."""
-    return status_part(module, "scaling", ScalingStatus)
 
 
 def wire_keys(model: type[BaseModel]) -> tuple[str, ...]:

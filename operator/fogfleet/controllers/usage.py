@@ -36,9 +36,10 @@ from fogfleet.api.v1alpha1.softwaremodule import SoftwareModuleStatus, Taxonomy
 from fogfleet.domain.miss_rates import pooled_miss_rate
 from fogfleet.domain.taxonomy import classify
 from fogfleet.domain.tenancy import Held
+from fogfleet.snapshot.objects import node_health
+from fogfleet.snapshot.room import pod_requests
 
 from .deps import Deps
-from .inputs import node_health
 from .status import (
     condition,
     merge_conditions,
@@ -47,7 +48,6 @@ from .status import (
     wire,
     without_transition_times,
 )
-from .tenancy import pod_requests
 
 __all__ = [
     "Usage",

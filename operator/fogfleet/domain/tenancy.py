@@ -30,13 +30,22 @@ class Held:
     cpu: float = 0.0
     memory: float = 0.0
     holders: tuple[str, ...] = field(default=())
+    shares: tuple[tuple[str, float], ...] = field(default=())
+    """(holder, CPU cores) in the order the holders came: who holds how much."""
 
     def plus(self, cpu: float, memory: float, holder: str) -> Held:
         holders = self.holders if holder in self.holders else (*self.holders, holder)
-        return Held(self.cpu + cpu, self.memory + memory, holders)
+        by = dict(self.shares)
+        by[holder] = by.get(holder, 0.0) + cpu
+        return Held(self.cpu + cpu, self.memory + memory, holders, tuple(by.items()))
 
     def describe(self) -> str:
         return f"{format_millicores(self.cpu)} CPU held by {', '.join(self.holders)}"
+
+    def itemised(self) -> str:
+        """Who holds how many cores: ``RobotFleet a/x 4 cores, pods in kube-system 0.5``."""
+        parts = [f"{h} {round(c, 3):g}" for h, c in self.shares if c > 0]
+        return (", ".join(parts) + " cores") if parts else "nobody"
 
 
 def claims_of(

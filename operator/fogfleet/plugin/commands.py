@@ -95,7 +95,6 @@ def top_doc(live: Live, now: float | None = None) -> Doc:
     expected = np.zeros(p.n_instances)
     expected[rows] = p.activation[rows] * alloc.cpu_use[rows, x[rows]]
     predicted = module_miss_rates(p, x, live.with_limits)
-    by_module = {str(m["metadata"]["name"]): m for m in live.raw_modules}
     active = {
         str(link.get("robot")): list(link.get("standbysActive") or [])
         for link in status.get("links") or []
@@ -104,7 +103,6 @@ def top_doc(live: Live, now: float | None = None) -> Doc:
     modules: list[Doc] = []
     for name in p.module_names:
         idx = np.array([i for i, inst in enumerate(p.instances) if inst.module == name])
-        mstatus = (by_module.get(name) or {}).get("status") or {}
         modules.append(
             {
                 "module": name,
@@ -114,7 +112,7 @@ def top_doc(live: Live, now: float | None = None) -> Doc:
                 "measuredMissRate": live.measured.get(name),
                 "cpuRequested": round(float(request[idx].sum()), 3),
                 "cpuExpected": round(float(expected[idx].sum()), 3),
-                "moduleSplit": mstatus.get("split"),
+                "moduleSplit": live.snapshot.module_splits.get(name),
                 "fallbacksActive": sorted(r for r, mods in active.items() if name in mods),
                 "takeovers": took.get(name, []),
                 "lastTakeover": _last_takeover(took.get(name, []), now),

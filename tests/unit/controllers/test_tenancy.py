@@ -9,8 +9,8 @@ import pytest
 from fogfleet.api.v1alpha1.base import parse_cpu
 from fogfleet.controllers.robotfleet import reconcile
 from fogfleet.controllers.ros import is_ros_object
-from fogfleet.controllers.tenancy import held_by_others
 from fogfleet.errors import Infeasible
+from fogfleet.snapshot.room import held_by_others
 
 A = ("warehouse", "warehouse")
 B = ("warehouse-b", "warehouse")

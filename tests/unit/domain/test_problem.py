@@ -159,7 +159,7 @@ def test_growing_the_edge_pool_keeps_a_serving_cloud_replica_in_the_cloud() -> N
 
 
 def test_the_fleet_controller_reads_pools_from_the_modules_status() -> None:
-    from fogfleet.controllers.observe import scaling_pools
+    from fogfleet.snapshot.objects import scaling_pools
 
     modules = [
         {

@@ -114,6 +114,12 @@ class FakeCluster:
     def list_deployments(self, namespace: str, selector: Mapping[str, str]) -> list[Obj]:
         return []
 
+    def list_fleets(self, namespace: str | None = None) -> list[Obj]:
+        return [self.fleet]
+
+    def list_node_load(self) -> list[Obj]:
+        return []
+
 
 def _run(argv: list[str], capsys: pytest.CaptureFixture[str]) -> tuple[int, str, str]:
     code = main(
