@@ -20,8 +20,9 @@ from fogfleet.errors import InvalidSpec
 
 from .common import AUTOSCALING_FIRST_SEED, SCHEDULERS
 from .explain import cmd_explain
-from .planning import cmd_plan, cmd_simulate
+from .planning import cmd_plan
 from .render import cmd_crds, cmd_render
+from .simulate import cmd_simulate
 from .validate import cmd_validate
 
 __all__ = ["main"]
@@ -154,7 +155,12 @@ def _parser() -> argparse.ArgumentParser:
 
     def fleet_args(sp: argparse.ArgumentParser, scheduler_choices: Sequence[str]) -> None:
         sp.add_argument("paths", nargs="+", help="CR YAML or JSON files or folders")
-        sp.add_argument("--fleet", help="only this RobotFleet (by name)")
+        sp.add_argument(
+            "--fleet",
+            metavar="NAMESPACE/NAME",
+            help="only this RobotFleet (NAME alone: every fleet of that name); the files' "
+            "fleets before it are planned too, as one site",
+        )
         sp.add_argument(
             "--scheduler", choices=scheduler_choices, help="override spec.scheduler.algorithm"
         )

@@ -1,5 +1,7 @@
-"""What the ``fogfleet`` commands share: reading fleets from YAML, scheduler settings from the
-command line, the planner with a progress bar, plain-text tables."""
+"""What the ``fogfleet`` commands share: reading fleets from YAML, selecting them
+(``--fleet NAMESPACE/NAME``), scheduler settings from the command line, the site plan every
+command plans a folder with (``snapshot.plan_site``), its refusals and degradations naming the
+room other fleets hold, the planner with a progress bar, plain-text tables."""
 
 from __future__ import annotations
 
@@ -14,9 +16,14 @@ __all__ = [
     "AUTOSCALING_FIRST_SEED",
     "SCHEDULERS",
     "catalog_of",
-    "fleets_of",
-    "plan_fleet",
+    "degradation",
+    "fleet_name",
+    "one_fleet",
+    "refusal",
+    "selected",
     "settings_of",
+    "site_plans",
+    "solver",
     "table",
 ]
 
@@ -35,11 +42,77 @@ def catalog_of(paths: Sequence[str]) -> Any:
     return catalog
 
 
-def fleets_of(catalog: Any, name: str | None) -> list[Any]:
-    fleets = [f for f in catalog.fleets if name is None or f.metadata.name == name]
-    if not fleets:
-        raise InvalidSpec(f"RobotFleet/{name}", "", "not found in the given files")
-    return fleets
+def fleet_name(fleet: Any) -> str:
+    """``namespace/name``: how the commands name a fleet, and how ``--fleet`` selects one."""
+    return f"{fleet.metadata.namespace or 'default'}/{fleet.metadata.name}"
+
+
+def selected(catalog: Any, wanted: str | None) -> list[int]:
+    """The indices of the fleets ``--fleet`` selects: ``NAMESPACE/NAME`` one fleet, ``NAME``
+    every fleet of that name (in any namespace), none given every fleet."""
+    fleets = catalog.fleets
+    if wanted is None:
+        return list(range(len(fleets)))
+    namespace, _, name = wanted.rpartition("/")
+    picked = [
+        k
+        for k, f in enumerate(fleets)
+        if f.metadata.name == name and (not namespace or fleet_name(f) == wanted)
+    ]
+    if not picked:
+        there = ", ".join(fleet_name(f) for f in fleets)
+        raise InvalidSpec(
+            f"RobotFleet/{wanted}", "", f"not found in the given files (they hold {there})"
+        )
+    return picked
+
+
+def site_plans(
+    catalog: Any, args: argparse.Namespace, scheduler: str | None, show_progress: bool = False
+) -> tuple[list[Any], list[Any]]:
+    """Every fleet of the files planned as one site (``snapshot.plan_site``), up to the last
+    one ``--fleet`` selects (the fleets after it cannot change its plan), and the selected
+    plans. Every command plans a folder so: each gives an instance the same node and CPU."""
+    from fogfleet.snapshot import plan_site
+
+    picked = selected(catalog, args.fleet)
+    plans = plan_site(
+        catalog,
+        catalog.fleets,
+        lambda fleet: settings_of(fleet, scheduler, args.seed, args),
+        solver(show_progress),
+        last=max(picked),
+    )
+    if len(plans) > 1:  # one site: each fleet plans into what the earlier ones left
+        order = ", ".join(p.name for p in plans)
+        print(f"Planning {len(plans)} fleets as one site, in this order: {order}", file=sys.stderr)
+    return plans, [plans[k] for k in picked]
+
+
+def one_fleet(plans: list[Any], paths: Sequence[str]) -> Any:
+    """The one selected plan of a command that explains one fleet (else: which to pass)."""
+    if len(plans) > 1:
+        names = ", ".join(p.name for p in plans)
+        raise InvalidSpec(
+            ", ".join(paths), "--fleet", f"the files hold fleets {names}: pass NAMESPACE/NAME"
+        )
+    return plans[0]
+
+
+def refusal(plan: Any) -> str:
+    """Why a site plan cannot run as planned, with the room the other fleets hold."""
+    from fogfleet.scheduling.explain import infeasible_message
+
+    why = infeasible_message(plan.problem, plan.schedule.placement, plan.schedule.reasons)
+    return f"{why}; {plan.room}" if plan.room else why
+
+
+def degradation(plan: Any) -> str:
+    """Why a site plan runs below its deadlines' CPU, with the room the other fleets hold."""
+    from fogfleet.scheduling.explain import degraded_message
+
+    why = degraded_message(plan.problem, plan.schedule.placement)
+    return f"{why}; {plan.room}" if plan.room else why
 
 
 def settings_of(
@@ -96,18 +169,19 @@ def progress_bar(enabled: bool) -> tuple[Callable[[int, int], None] | None, Call
     return update, close
 
 
-def plan_fleet(fleet: Any, catalog: Any, settings: Any, show_progress: bool) -> tuple[Any, Any]:
-    from fogfleet.domain.build import build_problem
-    from fogfleet.scheduling.solver import plan
+def solver(show_progress: bool) -> Callable[[Any, Any], Any]:
+    """``scheduling.solver.plan``, with a progress bar on stderr for NSGA-II runs."""
 
-    problem = build_problem(fleet, catalog)
-    progress, close = progress_bar(show_progress and settings.algorithm == "nsga2")
-    try:
-        schedule = plan(problem, settings, progress=progress)
-    finally:
-        close()
-    # a degraded plan's CPU amounts and predictions hold for the degraded problem
-    return problem.with_levels(schedule.levels), schedule
+    def solve(problem: Any, settings: Any) -> Any:
+        from fogfleet.scheduling.solver import plan
+
+        progress, close = progress_bar(show_progress and settings.algorithm == "nsga2")
+        try:
+            return plan(problem, settings, progress=progress)
+        finally:
+            close()
+
+    return solve
 
 
 def table(rows: list[list[str]], header: list[str]) -> str:

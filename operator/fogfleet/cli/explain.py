@@ -1,5 +1,6 @@
 """``fogfleet explain``: why each instance of a module runs where the plan puts it, offline
-(the plan of the fleet's YAML), with the same reasons and tables as ``kubectl fogfleet why``."""
+(the fleet's plan in its folder, planned as one site as ``fogfleet plan`` plans it), with the
+same reasons and tables as ``kubectl fogfleet why``."""
 
 from __future__ import annotations
 
@@ -7,43 +8,37 @@ import argparse
 import sys
 from typing import Any
 
-from fogfleet.domain.build import build_problem, refusals
-from fogfleet.errors import InvalidSpec
 from fogfleet.plugin.commands import why_doc
 from fogfleet.plugin.output import render, why_table
 from fogfleet.scheduling.why import explain_module
 
-from .common import catalog_of, fleets_of, plan_fleet, settings_of
+from .common import catalog_of, one_fleet, site_plans
 
 __all__ = ["cmd_explain"]
 
 
 def cmd_explain(args: argparse.Namespace) -> int:
-    catalog = catalog_of(args.paths)
-    fleets = fleets_of(catalog, args.fleet)
-    if len(fleets) > 1:
-        names = ", ".join(f.metadata.name for f in fleets)
-        raise InvalidSpec(
-            ", ".join(args.paths), "--fleet", f"the files hold fleets {names}: pass one"
-        )
-    fleet = fleets[0]
-    settings = settings_of(fleet, args.scheduler, args.seed, args)
-    problem, schedule = plan_fleet(fleet, catalog, settings, sys.stderr.isatty())
-    plain = build_problem(fleet, catalog)  # the build the plan's refusals came from
+    from fogfleet.snapshot import refused as refusals_of
 
-    def refused(i: int) -> dict[int, Any]:
-        return dict(refusals(fleet, catalog, plain.instances[i]))
+    catalog = catalog_of(args.paths)
+    _, plans = site_plans(catalog, args, args.scheduler, sys.stderr.isatty())
+    site = one_fleet(plans, args.paths)
+
+    def refused(i: int) -> dict[int, Any]:  # asked of the build the plan's refusals came from
+        return dict(refusals_of(site.snapshot, site.built, i))
 
     why = explain_module(  # a module (of a robot) the fleet does not run: InvalidSpec, exit 2
-        problem,
-        schedule.placement,
-        schedule.with_limits,
+        site.problem,
+        site.schedule.placement,
+        site.schedule.with_limits,
         args.module,
         robot=args.robot,
-        objectives=[o.value for o in settings.objectives],
+        objectives=[o.value for o in site.settings.objectives],
         refused=refused,
         limit=args.limit,
     )
     doc = why_doc(why)
+    if site.room:
+        print(f"Shared nodes of {site.name}: {site.room}", file=sys.stderr)
     print(render(doc, args.output, why_table(doc) if args.output == "table" else ""))
     return 0

@@ -1,10 +1,9 @@
-"""``fogfleet plan`` and ``fogfleet simulate``: a fleet's plan from YAML, and the simulated
-missed cycles of plans side by side."""
+"""``fogfleet plan``: the plans of a folder's fleets, planned as one site, and the placements
+saved from them (``fogfleet simulate --placement``)."""
 
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import json
 import sys
 from pathlib import Path
@@ -12,29 +11,27 @@ from typing import Any
 
 import numpy as np
 
-from fogfleet.api.loader import Catalog
 from fogfleet.api.v1alpha1.objectives import ObjectiveName
 from fogfleet.api.v1alpha1.robotfleet import PLACEMENT_LIST_LIMIT
 from fogfleet.commandline import BAD_INPUT, OK
 from fogfleet.domain.miss_rates import format_miss_rate, worst_module
-from fogfleet.domain.rows import Learnt
-from fogfleet.domain.tenancy import Held, claims_of, with_held
 from fogfleet.errors import InvalidSpec
-from fogfleet.scheduling.explain import degraded_message, infeasible_message, unplaced_reasons
+from fogfleet.scheduling.explain import unplaced_reasons
 from fogfleet.scheduling.objectives import module_miss_rates
 
-from .common import SCHEDULERS, catalog_of, fleets_of, plan_fleet, settings_of, table
+from .common import catalog_of, degradation, refusal, site_plans, table
 
-__all__ = ["REFERENCES", "cmd_plan", "cmd_simulate", "recorded_placement"]
-
-# The baselines ``simulate --scheduler all`` runs beside the planner: that one of them cannot
-# place the fleet (the on-board reference on a site whose robots are too small) is a result
-# of the comparison, reported, not an error of the run.
-REFERENCES = ("k8s-default", "onboard")
+__all__ = [
+    "cmd_plan",
+    "placement_rows",
+    "read_placement",
+    "recorded_placement",
+    "unplaced_modules",
+]
 MISS_RATE = ObjectiveName.MISS_RATE.value
 
 
-def _placement_rows(problem: Any, schedule: Any) -> list[dict[str, Any]]:
+def placement_rows(problem: Any, schedule: Any) -> list[dict[str, Any]]:
     alloc = problem.allocation(schedule.with_limits)
     rows = []
     for i, inst in enumerate(problem.instances):
@@ -57,24 +54,11 @@ def _placement_rows(problem: Any, schedule: Any) -> list[dict[str, Any]]:
 def cmd_plan(args: argparse.Namespace) -> int:
     catalog = catalog_of(args.paths)
     out: list[dict[str, Any]] = []
-    infeasible = False
-    fleets = fleets_of(catalog, args.fleet)
-    if len(fleets) > 1:  # one site: each fleet plans into what the earlier ones left
-        order = ", ".join(f"{f.metadata.namespace or 'default'}/{f.metadata.name}" for f in fleets)
-        print(f"Planning {len(fleets)} fleets as one site, in this order: {order}", file=sys.stderr)
-    held: dict[str, Held] = {}
-    for fleet in fleets:
-        settings = settings_of(fleet, args.scheduler, args.seed, args)
-        problem, schedule = plan_fleet(
-            fleet, site_catalog(catalog, held), settings, sys.stderr.isatty() and not args.json
-        )
-        name = f"RobotFleet {fleet.metadata.namespace or 'default'}/{fleet.metadata.name}"
-        for node, (cpu, mem) in claims_of(
-            problem, schedule.placement, schedule.with_limits
-        ).items():
-            held[node] = held.get(node, Held()).plus(cpu, mem, name)
-        infeasible |= not schedule.feasible
-        rows = _placement_rows(problem, schedule)
+    progress = sys.stderr.isatty() and not args.json
+    _, plans = site_plans(catalog, args, args.scheduler, progress)
+    for site in plans:
+        problem, schedule = site.problem, site.schedule
+        rows = placement_rows(problem, schedule)
         doc = {
             "fleet": f"{problem.namespace}/{problem.fleet}",
             "scheduler": schedule.scheduler,
@@ -91,12 +75,14 @@ def cmd_plan(args: argparse.Namespace) -> int:
             "moduleMissRates": module_miss_rates(problem, schedule.placement, schedule.with_limits),
         }
         doc["worstModule"] = worst_module(
-            doc["moduleMissRates"], unplaced=_unplaced_modules(problem, schedule.placement)
+            doc["moduleMissRates"], unplaced=unplaced_modules(problem, schedule.placement)
         )
+        if site.room:  # the other fleets of the folder hold room on this one's nodes
+            doc["heldByOthers"] = site.room
         if not schedule.feasible:
-            doc["infeasible"] = infeasible_message(problem, schedule.placement, schedule.reasons)
+            doc["infeasible"] = refusal(site)
         if schedule.degraded:
-            doc["degradedReason"] = degraded_message(problem, schedule.placement)
+            doc["degradedReason"] = degradation(site)
             # a warning people see even with --json on stdout
             print(f"DEGRADED {doc['fleet']}: {doc['degradedReason']}", file=sys.stderr)
         out.append(doc)
@@ -113,16 +99,7 @@ def cmd_plan(args: argparse.Namespace) -> int:
             _print_plan(doc)
     if args.json:
         print(json.dumps(out[0] if len(out) == 1 else out, indent=2))
-    return BAD_INPUT if infeasible else OK
-
-
-def site_catalog(catalog: Catalog, held: dict[str, Held]) -> Catalog:
-    """``catalog`` with each ComputeNode's capacity less what the fleets planned before hold
-    on its Node (``domain.tenancy``)."""
-    if not held:
-        return catalog
-    nodes = {name: with_held(cn, held.get(cn.node_name)) for name, cn in catalog.nodes.items()}
-    return dataclasses.replace(catalog, nodes=nodes)
+    return OK if all(doc["feasible"] for doc in out) else BAD_INPUT
 
 
 def _print_plan(doc: dict[str, Any]) -> None:
@@ -160,134 +137,20 @@ def _print_plan(doc: dict[str, Any]) -> None:
         )
     if doc["choiceReason"]:
         print(f"Choice: {doc['choiceReason']}")
+    if "heldByOthers" in doc:
+        print(f"Shared nodes: {doc['heldByOthers']}")
     for label, why in doc["unplaced"].items():
         print(f"UNPLACED {label}: {why}", file=sys.stderr)
     if "infeasible" in doc:
         print(f"INFEASIBLE {doc['fleet']}: {doc['infeasible']}", file=sys.stderr)
 
 
-def cmd_simulate(args: argparse.Namespace) -> int:
-    from fogfleet.domain.build import build_problem
-    from fogfleet.scheduling.solver import plan
-    from fogfleet.sim import simulate
-
-    catalog = catalog_of(args.paths)
-    fleet = fleets_of(catalog, args.fleet)[0]
-    problem = build_problem(fleet, catalog)
-    learnt: dict[tuple[str, str], tuple[Learnt, float]] = {}
-    if args.from_prometheus:
-        from .observed import describe, learnt_corrections
-
-        learnt = learnt_corrections(args.from_prometheus, fleet, catalog, args.window)
-        if not args.json:
-            print(f"Execution times measured over {args.window} s in {args.from_prometheus}:")
-            for line in describe(learnt) or ["none (every plan runs as declared)"]:
-                print(f"  {line}")
-    factors = {k: f for k, (f, _) in learnt.items()}
-    names = (
-        list(SCHEDULERS[:3])
-        if args.scheduler == "all"
-        else [args.scheduler or fleet.spec.scheduler.algorithm]
-    )
-    placements: dict[str, tuple[Any, Any]] = {}  # name -> (placement, allocation)
-    if args.placement:
-        placements["recorded"] = _read_placement(problem, Path(args.placement))
-    infeasible: list[str] = []  # the planner's: an error (exit 2)
-    references: list[str] = []  # a baseline's beside it (--scheduler all): a result
-    for name in names:
-        settings = settings_of(fleet, str(name), args.seed, args)
-        schedule = plan(problem, settings)
-        planned = problem.with_levels(schedule.levels)
-        placements[str(name)] = (schedule.placement, planned.allocation(schedule.with_limits))
-        if not schedule.feasible:
-            why = infeasible_message(problem, schedule.placement, schedule.reasons)
-            if len(names) > 1 and str(name) in REFERENCES:
-                references.append(f"{name} (a reference, compared only): {why}")
-            else:
-                infeasible.append(f"{name}: {why}")
-    if factors:  # what re-planning with the measured profiles would give
-        from .observed import under_corrections
-
-        real = build_problem(fleet, catalog, corrections=factors)
-        for name in names:
-            schedule = plan(real, settings_of(fleet, str(name), args.seed, args))
-            planned = real.with_levels(schedule.levels)
-            placements[f"{name} re-planned"] = (
-                schedule.placement,
-                planned.allocation(schedule.with_limits),
-            )
-        placements = {
-            k: (x, a if k.endswith(" re-planned") else under_corrections(problem, a, factors))
-            for k, (x, a) in placements.items()
-        }
-    result: dict[str, Any] = {}
-    for name, (placement, allocation) in placements.items():
-        sim = simulate(
-            problem,
-            placement,
-            allocation,
-            duration_s=args.duration,
-            seed=args.seed if args.seed is not None else 0,
-            all_active=args.all_active,
-        )
-        unplaced = _unplaced_modules(problem, placement)
-        predicted = module_miss_rates(problem, placement, True, allocation)
-        simulated = dict(sim.module_miss_rate)
-        result[name] = {
-            "missRate": sim.miss_rate,
-            "modules": simulated,
-            "predicted": predicted,
-            "worstModule": worst_module(simulated, predicted, unplaced),
-            "unplaced": unplaced,
-            "nodeUtilisation": {
-                problem.nodes[j].name: u for j, u in enumerate(sim.node_utilisation)
-            },
-        }
-    for line in [*infeasible, *references]:
-        print(f"INFEASIBLE {line}", file=sys.stderr)
-    if args.json:
-        print(json.dumps(result, indent=2))
-        return BAD_INPUT if infeasible else OK
-    modules = sorted({m for r in result.values() for m in [*r["modules"], *r["unplaced"]]})
-
-    def cell(s: str, m: str) -> str:
-        if m in result[s]["unplaced"]:
-            return "UNPLACED"
-        return format_miss_rate(result[s]["modules"].get(m))  # "-": no cycles
-
-    def overall(s: str) -> str:
-        # the fleet's rate covers the modules that ran: beside an unplaced module it would
-        # read as a figure for the whole fleet, which nothing simulated
-        if result[s]["unplaced"]:
-            return f"n/a ({len(result[s]['unplaced'])} unplaced)"
-        return format_miss_rate(result[s]["missRate"])
-
-    def worst(s: str) -> str:
-        m = result[s]["worstModule"]
-        if m is None:
-            return "-"
-        if m in result[s]["unplaced"]:
-            return f"{m} UNPLACED"
-        return f"{m} {format_miss_rate(result[s]['modules'].get(m))}"
-
-    rows = [[m, *(cell(s, m) for s in result)] for m in modules]
-    rows.append(["OVERALL", *(overall(s) for s in result)])
-    rows.append(["WORST MODULE", *(worst(s) for s in result)])
-    print(
-        f"Missed-cycle rate, fleet {problem.namespace}/{problem.fleet}, "
-        f"{args.duration:g} s simulated, seed {args.seed or 0}, "
-        + ("all modules active" if args.all_active else "activation rates of the modules")
-    )
-    print(table(rows, ["MODULE", *result.keys()]))
-    return BAD_INPUT if infeasible else OK
-
-
-def _unplaced_modules(problem: Any, placement: Any) -> list[str]:
+def unplaced_modules(problem: Any, placement: Any) -> list[str]:
     """The modules with an instance ``placement`` leaves unplaced (-1), sorted."""
     return sorted({problem.instances[int(i)].module for i in np.flatnonzero(placement < 0)})
 
 
-def _read_placement(problem: Any, path: Path) -> tuple[Any, Any]:
+def read_placement(problem: Any, path: Path) -> tuple[Any, Any]:
     from fogfleet.api.kubeyaml import read_documents
 
     if not path.is_file():

@@ -1,5 +1,6 @@
-"""``fogfleet render`` and ``fogfleet crds``: the Kubernetes objects of a fleet's plan, offline,
-and the CRDs generated from the models."""
+"""``fogfleet render`` and ``fogfleet crds``: the Kubernetes objects of a fleet's plan, offline
+(a folder's fleets planned as one site, as ``fogfleet plan`` plans them), and the CRDs
+generated from the models."""
 
 from __future__ import annotations
 
@@ -9,9 +10,8 @@ from pathlib import Path
 from typing import Any
 
 from fogfleet.commandline import BAD_INPUT, FAILED, OK
-from fogfleet.scheduling.explain import degraded_message, infeasible_message
 
-from .common import catalog_of, fleets_of, plan_fleet, settings_of
+from .common import catalog_of, degradation, refusal, site_plans
 
 __all__ = ["cmd_crds", "cmd_render"]
 
@@ -36,21 +36,24 @@ def cmd_render(args: argparse.Namespace) -> int:
 
     catalog = catalog_of(args.paths)
     docs: list[dict[str, Any]] = []
-    for fleet in fleets_of(catalog, args.fleet):
-        settings = settings_of(fleet, args.scheduler, args.seed, args)
-        problem, schedule = plan_fleet(fleet, catalog, settings, False)
+    _, plans = site_plans(catalog, args, args.scheduler)
+    for site in plans:
+        fleet, problem, schedule, settings = (
+            site.snapshot.fleet,
+            site.problem,
+            site.schedule,
+            site.settings,
+        )
         if not schedule.feasible and not args.allow_unplaced:
-            why = infeasible_message(problem, schedule.placement, schedule.reasons)
             print(
                 f"fogfleet render: RobotFleet {problem.namespace}/{problem.fleet} cannot run as "
-                f"planned ({why}); nothing rendered. --allow-unplaced renders what fits.",
+                f"planned ({refusal(site)}); nothing rendered. --allow-unplaced renders what fits.",
                 file=sys.stderr,
             )
             return BAD_INPUT
         if schedule.degraded:  # rendered all the same: say so where a pipe does not hide it
             print(
-                f"DEGRADED {problem.namespace}/{problem.fleet}: "
-                f"{degraded_message(problem, schedule.placement)}",
+                f"DEGRADED {problem.namespace}/{problem.fleet}: {degradation(site)}",
                 file=sys.stderr,
             )
         ns = problem.namespace

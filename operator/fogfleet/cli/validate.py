@@ -18,8 +18,8 @@ __all__ = ["cmd_validate"]
 
 def cmd_validate(args: argparse.Namespace) -> int:
     from fogfleet.api.loader import load_paths
-    from fogfleet.domain.build import build_problem
     from fogfleet.domain.checks import fleet_errors
+    from fogfleet.snapshot import built_problem, snapshot_of_catalog
 
     errors: list[InvalidSpec] = []
     catalog = load_paths(args.paths, errors)
@@ -27,7 +27,7 @@ def cmd_validate(args: argparse.Namespace) -> int:
         found = fleet_errors(fleet, catalog)
         if not found:
             try:  # the fleet against the catalog, as `plan` does it before the planner runs
-                build_problem(fleet, catalog)
+                built_problem(snapshot_of_catalog(catalog, fleet))
             except InvalidSpec as exc:
                 found = [exc]
         shown = {str(e) for e in errors}  # a node two fleets use is wrong once

@@ -408,15 +408,15 @@ def test_a_plan_that_converged_early_does_not_say_the_time_budget_was_reached(
     early too. The flag tells what the solver says stopped it."""
     import dataclasses
 
-    from fogfleet.cli import planning
+    from fogfleet.scheduling import solver
 
-    real = planning.plan_fleet
+    real = solver.plan
 
     def converged(*args, **kwargs):  # type: ignore[no-untyped-def]
-        problem, schedule = real(*args, **kwargs)
-        return problem, dataclasses.replace(schedule, generations=3, time_budget_reached=False)
+        schedule = real(*args, **kwargs)
+        return dataclasses.replace(schedule, generations=3, time_budget_reached=False)
 
-    monkeypatch.setattr(planning, "plan_fleet", converged)
+    monkeypatch.setattr(solver, "plan", converged)
     code, out, _ = run(
         capsys, "plan", str(SOLO), str(WAREHOUSE / "modules.yaml"), "--json", "--generations", "50"
     )
