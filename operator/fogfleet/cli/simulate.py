@@ -16,7 +16,16 @@ from fogfleet.domain.miss_rates import format_miss_rate, worst_module
 from fogfleet.domain.rows import Learnt
 from fogfleet.scheduling.objectives import module_miss_rates
 
-from .common import SCHEDULERS, catalog_of, refusal, settings_of, site_plans, solver, table
+from .common import (
+    SCHEDULERS,
+    catalog_of,
+    one_fleet,
+    refusal,
+    settings_of,
+    site_plans,
+    solver,
+    table,
+)
 from .planning import read_placement, unplaced_modules
 
 __all__ = ["REFERENCES", "cmd_simulate"]
@@ -32,6 +41,8 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     # --scheduler all compares schedulers on the site as the fleets' own schedulers plan it
     site = None if args.scheduler == "all" else args.scheduler
     _, plans = site_plans(catalog, args, site)
+    if args.placement:  # a saved plan is one fleet's
+        plans = [one_fleet(plans, args.paths)]
     results: dict[str, dict[str, Any]] = {}
     infeasible: list[str] = []  # the planner's: an error (exit 2)
     references: list[str] = []  # a baseline's beside it (--scheduler all): a result

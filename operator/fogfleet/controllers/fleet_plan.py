@@ -16,16 +16,15 @@ import numpy as np
 
 from fogfleet.api.v1alpha1.base import format_millicores
 from fogfleet.api.v1alpha1.robotfleet import RobotFleet, SchedulerName
-from fogfleet.domain.build import build_problem
 from fogfleet.domain.problem import Problem
 from fogfleet.domain.tenancy import Held, claims_of
 from fogfleet.errors import Infeasible
 from fogfleet.scheduling import stickiness
 from fogfleet.scheduling.decision import Decision, decide, fingerprint, with_defaults
-from fogfleet.snapshot.objects import current_placement
+from fogfleet.snapshot import built_problem, room_note, unavailable_in
 
 from .deps import Deps
-from .observe import FleetInputs, Parsed, record_references
+from .observe import FleetInputs, Parsed, fleet_snapshot, record_references
 from .state import FleetState, Rendered
 
 __all__ = ["Planned", "plan_fleet", "plan_step"]
@@ -106,14 +105,8 @@ def plan_step(
 ) -> Planned:
     """Build the fleet's planning problem, mask unavailable nodes and decide."""
     fleet = inputs.fleet
-    problem = build_problem(
-        fleet,
-        parsed.catalog,
-        current_placement(inputs.deployments),
-        parsed.pools,
-        inputs.measured,
-        inputs.corrections,
-    )
+    snapshot = fleet_snapshot(inputs, parsed)
+    problem = built_problem(snapshot)
     record_references(
         state,
         fleet,
@@ -122,11 +115,7 @@ def plan_step(
         {n.node_name for n in problem.nodes},
     )
     problem = _release_recovered(problem, inputs, last)
-    unavailable = {
-        j: parsed.inputs.unavailable[n.name]
-        for j, n in enumerate(problem.nodes)
-        if n.name in parsed.inputs.unavailable
-    }
+    unavailable = unavailable_in(snapshot, problem)
     before = problem.current
     problem, stranded = stickiness.mask_unavailable(problem, unavailable)
     never = {i: why for i, why in problem.reasons.items() if i not in stranded}
@@ -172,14 +161,12 @@ def shared_nodes(
 
 
 def _naming_the_others(err: Infeasible, problem: Problem, held: Mapping[str, Held]) -> Infeasible:
-    """An infeasible plan on nodes others hold part of says who holds what."""
-    names = {n.node_name for n in problem.nodes}
-    parts = [
-        f"{node}: {h.describe()}" for node, h in sorted(held.items()) if node in names and h.cpu > 0
-    ]
-    if not parts:
+    """An infeasible plan on nodes others hold part of says who holds how many cores there,
+    and what the fleet needs against what they leave it (``snapshot.room_note``)."""
+    room = room_note(problem, held)
+    if not room:
         return err
-    return Infeasible(err.obj, err.field, f"{err.message} (shared nodes: {'; '.join(parts)})")
+    return Infeasible(err.obj, err.field, f"{err.message}; {room}")
 
 
 def _release_recovered(problem: Problem, inputs: FleetInputs, last: Rendered | None) -> Problem:

@@ -24,8 +24,14 @@ from fogfleet.domain.rows import Learnt
 from fogfleet.domain.tenancy import Held
 from fogfleet.errors import InvalidSpec
 from fogfleet.render.deployments import Owner, label_value
+from fogfleet.snapshot import FleetSnapshot
 from fogfleet.snapshot.catalog import Inputs, gather
-from fogfleet.snapshot.objects import parse_fleet, profile_corrections, scaling_pools
+from fogfleet.snapshot.objects import (
+    current_placement,
+    parse_fleet,
+    profile_corrections,
+    scaling_pools,
+)
 from fogfleet.snapshot.room import held_by_others, held_signature
 
 from .apply import owned
@@ -39,6 +45,7 @@ __all__ = [
     "FleetInputs",
     "FleetObject",
     "Parsed",
+    "fleet_snapshot",
     "observe",
     "parse",
     "parse_fleet",
@@ -181,6 +188,25 @@ def parse(inputs: FleetInputs) -> Parsed:
     wanted = {m.name for m in fleet.spec.modules} | variant_names(fleet.spec, modules)
     _raise_broken_references(fleet, gathered.broken)
     return Parsed(gathered, modules, frozenset(wanted), scaling_pools(inputs.raw_modules))
+
+
+def fleet_snapshot(inputs: FleetInputs, parsed: Parsed) -> FleetSnapshot:
+    """What the fleet plans from, as every entry point has it (``snapshot.FleetSnapshot``):
+    the parsed catalog, unavailable nodes, current placement, pools, corrections, links
+    planned as measured and the room the other tenants hold."""
+    return FleetSnapshot(
+        key=inputs.obj.key,
+        fleet=inputs.fleet,
+        catalog=parsed.catalog,
+        unavailable=parsed.inputs.unavailable,
+        broken=parsed.inputs.broken,
+        current=current_placement(inputs.deployments),
+        pools=parsed.pools,
+        corrections=inputs.corrections,
+        measured_links=inputs.measured,
+        held=inputs.held,
+        status=inputs.obj.old_status,
+    )
 
 
 def record_references(

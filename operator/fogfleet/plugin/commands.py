@@ -15,9 +15,11 @@ import numpy as np
 
 from fogfleet.api.timestamps import parse_timestamp
 from fogfleet.domain.problem import Problem
+from fogfleet.errors import Infeasible
 from fogfleet.scheduling.decision import CorePlanner, decide, fingerprint, with_defaults
 from fogfleet.scheduling.objectives import REGISTRY, module_miss_rates, objective_values
 from fogfleet.scheduling.why import ModuleWhy, explain_module
+from fogfleet.snapshot import room_note
 
 from .live import Live
 
@@ -183,14 +185,18 @@ def plan_doc(live: Live, running: Live) -> Doc:
     fleet = live.fleet
     settings = with_defaults(fleet.spec.scheduler, {})
     before = _before(p, running)
-    decision = decide(
-        CorePlanner(),
-        p,
-        settings,
-        fleet=fleet.metadata.name,
-        fp=fingerprint(p, settings),
-        before=before,
-    )
+    try:
+        decision = decide(
+            CorePlanner(),
+            p,
+            settings,
+            fleet=fleet.metadata.name,
+            fp=fingerprint(p, settings),
+            before=before,
+        )
+    except Infeasible as err:  # on nodes others hold part of: say who, in cores
+        room = room_note(p, live.snapshot.held)
+        raise (Infeasible(err.obj, err.field, f"{err.message}; {room}") if room else err) from None
     planned = p.with_levels(decision.schedule.levels)
     names = list(REGISTRY)
     after = objective_values(planned, decision.placement, live.with_limits, names)

@@ -52,13 +52,13 @@ def prom() -> FakePrometheus:
 def builds(monkeypatch: pytest.MonkeyPatch) -> list[Any]:
     """The measured links each full pass built its problem with."""
     seen: list[Any] = []
-    real = fleet_plan.build_problem
+    real = fleet_plan.built_problem
 
-    def recording(*args: Any, **kwargs: Any) -> Any:
-        seen.append(dict(args[4]) if len(args) > 4 else {})
-        return real(*args, **kwargs)
+    def recording(snapshot: Any) -> Any:
+        seen.append(dict(snapshot.measured_links))
+        return real(snapshot)
 
-    monkeypatch.setattr(fleet_plan, "build_problem", recording)
+    monkeypatch.setattr(fleet_plan, "built_problem", recording)
     return seen
 
 

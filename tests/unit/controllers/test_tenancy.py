@@ -95,7 +95,7 @@ def test_a_fleet_that_no_longer_fits_names_who_holds_the_room(kube, deps) -> Non
     before = copy.deepcopy({k: d for k, d in kube.deployments.items() if k[0] == A[0]})
     with pytest.raises(Infeasible) as err:
         reconcile(kube.get_fleet(*B), deps)
-    assert "held by RobotFleet warehouse/warehouse" in str(err.value)
+    assert "(RobotFleet warehouse/warehouse " in str(err.value) and " cores" in str(err.value)
     conditions = {c["type"]: c for c in kube.fleets[B]["status"]["conditions"]}
     assert conditions["Scheduled"]["status"] == "False"
     assert {k: d for k, d in kube.deployments.items() if k[0] == A[0]} == before  # undisturbed

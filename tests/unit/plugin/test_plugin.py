@@ -238,3 +238,38 @@ def test_why_limit_below_one_exits_2(limit: str, capsys: pytest.CaptureFixture[s
         _run(["why", "warehouse", "nav-controller", "--limit", limit], capsys)
     assert exc.value.code == 2
     assert "--limit" in capsys.readouterr().err
+
+
+class CrowdedCluster(FakeCluster):
+    """The warehouse beside another fleet whose plan claims 10 cores of edge-1, and a pod of
+    another team that requests 1 core there."""
+
+    def list_fleets(self, namespace: str | None = None) -> list[Obj]:
+        other = {
+            "metadata": {"name": "other", "namespace": "north"},
+            "status": {"placement": [{"robot": "r", "module": "m", "node": "edge-1", "cpu": "10"}]},
+        }
+        return [self.fleet, other]
+
+    def list_node_load(self) -> list[Obj]:
+        return [
+            {
+                "metadata": {"namespace": "team", "labels": {}},
+                "spec": {"nodeName": "edge-1"},
+                "requests": {"cpu": 1.0, "memory": 0.0},
+            }
+        ]
+
+
+def test_the_plugin_plans_around_the_room_other_fleets_and_pods_hold() -> None:
+    """One site with the operator: the fleet's problem has edge-1 less what others hold."""
+    from fogfleet.plugin.live import read_fleet
+
+    alone = read_fleet(FakeCluster(), "warehouse", "warehouse")
+    crowded = read_fleet(CrowdedCluster(), "warehouse", "warehouse")
+    j = next(k for k, n in enumerate(alone.problem.nodes) if n.name == "edge-1")
+    assert alone.problem.capacity[j, 0] - crowded.problem.capacity[j, 0] == pytest.approx(11)
+    assert (
+        crowded.snapshot.held["edge-1"].itemised()
+        == "pods in team 1, RobotFleet north/other 10 cores"
+    )
