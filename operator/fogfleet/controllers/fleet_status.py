@@ -206,7 +206,7 @@ def _degraded(
         )
         return condition("Degraded", True, reason, msg, generation)
     if problem.degraded and rendered.plan is not None:
-        message = degraded_message(problem, rendered.plan.placement)
+        message = _with_room(degraded_message(problem, rendered.plan.placement), rendered.room)
         return condition("Degraded", True, "ShortOfCapacity", message, generation)
     message = "Every module is where it was planned"
     return condition("Degraded", False, "AsPlanned", message, generation)
@@ -301,8 +301,14 @@ def running_wire(status: RobotFleetStatus) -> Obj:
     return complete(wire(status), FLEET_STATUS_KEYS)
 
 
-def plan_events(problem: Problem, cached: Decision) -> list[tuple[str, str, str]]:
-    """The Events of a decision made now: Planned, ShortOfCapacity, Migrated."""
+def _with_room(message: str, room: str) -> str:
+    """A degradation with who else holds how many cores on the fleet's nodes."""
+    return f"{message}; {room}" if room else message
+
+
+def plan_events(problem: Problem, cached: Decision, room: str = "") -> list[tuple[str, str, str]]:
+    """The Events of a decision made now: Planned, ShortOfCapacity, Migrated; ``room``: who
+    else holds how many cores on the fleet's nodes (``snapshot.room_note``)."""
     p = cached.placement
     split = Counter(problem.nodes[j].tier.value for j in p if j >= 0)
     miss = cached.objectives.get(ObjectiveName.MISS_RATE)
@@ -322,7 +328,8 @@ def plan_events(problem: Problem, cached: Decision) -> list[tuple[str, str, str]
         )
     ]
     if problem.degraded:
-        events.append(("Warning", "ShortOfCapacity", degraded_message(problem, cached.placement)))
+        message = _with_room(degraded_message(problem, cached.placement), room)
+        events.append(("Warning", "ShortOfCapacity", message))
     if cached.moves:
         moved = f"Moved {len(cached.moves)} running modules: {', '.join(cached.moves[:10])}"
         events.append(("Normal", "Migrated", moved))

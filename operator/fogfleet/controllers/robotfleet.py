@@ -26,6 +26,7 @@ from dataclasses import replace
 from typing import Any
 
 from fogfleet.errors import InvalidSpec
+from fogfleet.snapshot import room_note
 from fogfleet.snapshot.objects import current_placement
 
 from .apply import apply_step
@@ -127,7 +128,7 @@ def _full_pass(
     outcome, _ = refresh(deps, state, inputs, rendered, planned.planned)
     decision = planned.decision if planned.planned else None
     if decision is not None:
-        events += plan_events(planned.problem, decision)
+        events += plan_events(planned.problem, decision, rendered.room)
     for kind, reason, message in events:
         deps.kube.emit_event(obj.involved, kind, reason, message)
     state.unavailable = unavailable  # once its Events are out (a failed pass posts them again)
@@ -178,6 +179,7 @@ def _remember(
         planned.decision,
         planned.baseline,
         measured=inputs.measured,
+        room=room_note(planned.problem, inputs.held),
     )
     state.rendered = rendered
     if state.links.takeovers is None:  # after a restart: what the status said they did

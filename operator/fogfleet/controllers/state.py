@@ -80,6 +80,7 @@ class Rendered:
     plan: Decision | None
     baseline: bool
     measured: Mapping[str, Link] = field(default_factory=dict)  # robots planned around
+    room: str = ""  # who else holds how many cores on its nodes (snapshot.room_note)
 
 
 @dataclass(frozen=True)

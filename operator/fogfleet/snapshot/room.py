@@ -98,7 +98,7 @@ def _cores(value: float) -> str:
 
 
 def room_note(problem: Problem, held: Mapping[str, Held]) -> str:
-    """``problem`` as built (not degraded), planned into the room ``held`` leaves: what the
+    """``problem``, planned into the room ``held`` leaves: what the
     fleet needs at its deadlines' CPU against what its nodes have and what they leave it, then
     each shared node with who holds how much. "" when nobody else holds room on its nodes."""
     shared = [
@@ -124,9 +124,13 @@ def room_note(problem: Problem, held: Mapping[str, Held]) -> str:
 
 
 def _needed_cores(problem: Problem) -> float:
-    """The CPU the fleet's instances request at their deadlines' amounts (the problem as built,
-    before a degradation), each on the node it may use that asks the least of it."""
-    masked = np.where(problem.allowed, problem.limits.cpu_request, np.inf)
+    """The CPU the fleet's instances request at their deadlines' amounts (a degraded problem's
+    ladder keeps them in its first rung), each on the node it may use that asks the least."""
+    cpu = problem.limits.cpu_request
+    ladder = problem.ladder if problem.levels is not None else None  # built only when degraded
+    if ladder is not None:
+        cpu = ladder.cpu[:, :, 0]
+    masked = np.where(problem.allowed, cpu, np.inf)
     least = masked.min(axis=1) if masked.size else np.zeros(0)
     return float(least[np.isfinite(least)].sum())
 
