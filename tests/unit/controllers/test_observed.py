@@ -8,10 +8,11 @@ from typing import Any
 import pytest
 
 from fogfleet.api.labels import ANNOTATION_MODULE, ANNOTATION_ROLE
-from fogfleet.controllers.observed import ObservedDeps, observe, profile_corrections
+from fogfleet.controllers.observed import ObservedDeps, observe
 from fogfleet.controllers.robotfleet import reconcile
 from fogfleet.domain.rows import Learnt
 from fogfleet.errors import DependencyUnavailable
+from fogfleet.snapshot.objects import profile_corrections
 
 KEY = ("warehouse", "warehouse")
 MODULE = "nav-localization"
