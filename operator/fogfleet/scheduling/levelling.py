@@ -53,11 +53,6 @@ PULL_SHARE = 0.02
 REPACKS = 8
 BISECTIONS = 7  # target levels tried per starting plan (the last step ~1/128 of the range)
 BETWEEN = 3  # targets tried between the lowest one found and the starting plan's peak
-# bisection steps always taken; later ones only while the work left pays for a failing target
-# (REPACKS packings) and the BETWEEN targets after it (issue 46: at 1000 robots the budget
-# holds ~5 packings; spent on bisecting below the first level found, seeds 2 and 4 ended
-# 5.7 and 7.2 % above the LP bound; spent on the targets between, 5.2 and 5.1 %)
-COARSE = 3
 # (instance, allowed remote node) cells the packings of one ``with_levelled`` call may look
 # at: bounds its work (not the clock, so a plan is reproducible). Counted as every node of the
 # fleet per pool instance before issue 46, the budget let 1000 robots x 8 modules pack twice
@@ -73,11 +68,9 @@ class Work:
 
     def __init__(self, cells: int = WORK_CELLS) -> None:
         self.left = cells
-        self.largest = 0  # the most one packing asked for
 
     def take(self, cells: int) -> bool:
         """Spend ``cells`` if that many are left."""
-        self.largest = max(self.largest, cells)
         if cells > self.left:
             self.left = 0
             return False
@@ -286,15 +279,11 @@ def levelled_plans(
 ) -> list[I64]:
     """Plans from ``x``: the lowest target peak found by bisecting between ``_floor`` and
     ``x``'s own peak, then ``between`` targets evenly spaced above it (the objectives trade
-    headroom for on-board use, and the best trade is rarely at either end). Past ``COARSE``
-    steps the bisection stops once ``work`` could not pay for the targets between."""
+    headroom for on-board use, and the best trade is rarely at either end)."""
     top = float(_Loads(fit, x).peak().max())
     lo, hi = min(_floor(fit), top), top
     found: list[I64] = []
-    for step in range(bisections):
-        spent = work is not None and work.left < (REPACKS + between) * work.largest
-        if found and step >= COARSE and spent:
-            break  # keep the work for the targets between
+    for _ in range(bisections):
         mid = (lo + hi) / 2
         y = level(fit, x, mid, work=work)
         if y is None:

@@ -75,19 +75,6 @@ def test_the_ladder_finds_plans_down_to_a_lower_peak_and_stops_without_work() ->
     assert levelled_plans(fit, x, work=Work(0)) == []
 
 
-def test_a_short_budget_goes_to_the_targets_between_not_to_deeper_bisection() -> None:
-    # issue 46: at 1000 robots the budget holds ~5 packings; bisecting below the first level
-    # found spent them all, and the plans between that level and the start were never tried
-    p = _fleet()
-    fit, x = _start(p)
-    probe = Work()
-    levelled_plans(fit, x, work=probe)
-    plans = levelled_plans(fit, x, work=Work(8 * probe.largest))
-    peaks = sorted({round(_peak(p, y), 6) for y in plans})
-    assert len(peaks) >= 2  # the lowest found and at least one target between
-    assert all(feasible(p, y, True) for y in plans)
-
-
 def test_nothing_is_added_without_the_reserve_objective() -> None:
     p = _fleet()
     _, x = _start(p)
