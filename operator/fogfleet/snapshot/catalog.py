@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, TypeVar
 
 from fogfleet.api.loader import Catalog, parse_object
 from fogfleet.api.v1alpha1.computenode import ComputeNode, NodeResources
@@ -57,12 +57,9 @@ def gather(
     unavailable: dict[str, str] = {}
     for raw in compute_nodes:
         name = (raw.get("metadata") or {}).get("name", "?")
-        try:
-            cn = parse_object(_clean(raw))
-        except InvalidSpec as exc:
-            broken[f"ComputeNode/{name}"] = exc
+        cn = _parsed(raw, ComputeNode, broken)
+        if cn is None:
             continue
-        assert isinstance(cn, ComputeNode)
         node = by_node.get(cn.node_name)
         why = node_health(node)
         if why:
@@ -74,15 +71,26 @@ def gather(
                 f"ComputeNode/{name}", "status.allocatable", str(exc)
             )
     for raw in modules:
-        name = (raw.get("metadata") or {}).get("name", "?")
-        try:
-            mod = parse_object(_clean(raw))
-        except InvalidSpec as exc:
-            broken[f"SoftwareModule/{name}"] = exc
-            continue
-        assert isinstance(mod, SoftwareModule)
-        catalog.add(with_profiled(mod, raw))
+        mod = _parsed(raw, SoftwareModule, broken)
+        if mod is not None:
+            catalog.add(with_profiled(mod, raw))
     return Inputs(catalog, unavailable, broken)
+
+
+_Model = TypeVar("_Model", ComputeNode, SoftwareModule)
+
+
+def _parsed(
+    raw: Mapping[str, Any], kind: type[_Model], broken: dict[str, InvalidSpec]
+) -> _Model | None:
+    """The object as its model, or None with its error kept in ``broken`` as KIND/NAME."""
+    try:
+        obj = parse_object(_clean(raw))
+    except InvalidSpec as exc:
+        broken[f"{kind.__name__}/{(raw.get('metadata') or {}).get('name', '?')}"] = exc
+        return None
+    assert isinstance(obj, kind)
+    return obj
 
 
 def _clean(raw: Mapping[str, Any]) -> Obj:
