@@ -68,6 +68,12 @@ def test_only_one_replica_holds_the_lease_and_a_standby_takes_over(
 def test_a_released_lease_is_taken_at_once(kube: Kube, namespace: str) -> None:
     a, b = _lock(kube, namespace, "replica-a"), _lock(kube, namespace, "replica-b")
     assert a.try_acquire()
+    time.sleep(1.1)  # so that an acquireTime kept from replica-a would show
     a.release()
+    released = time.time()
     assert b.try_acquire() is True
     assert _holder(kube, namespace) == "replica-b"
+    # the new holder acquired it now, not when replica-a did: a hand-off is a transition
+    assert lease_time(kube, "acquireTime", namespace) >= released - 0.5
+    lease = kube.kubectl_json("get", "lease", "fogfleet-operator", "-n", namespace)
+    assert lease["spec"]["leaseTransitions"] == 1

@@ -73,11 +73,14 @@ class LeaseLock:
         if held_by_other and not self._expired(spec):
             return False
         now = _now()
-        transitions = (spec.lease_transitions or 0) + (1 if held_by_other else 0)
+        # a new holder (after another, or after a release left it empty) is a transition and
+        # acquires now, as client-go's leaderelection records it; only a renewal keeps both
+        renewing = spec.holder_identity == s.identity
+        transitions = (spec.lease_transitions or 0) + (0 if renewing else 1)
         lease.spec = client.V1LeaseSpec(
             holder_identity=s.identity,
             lease_duration_seconds=s.lease_seconds,
-            acquire_time=spec.acquire_time if not held_by_other and spec.acquire_time else now,
+            acquire_time=spec.acquire_time if renewing and spec.acquire_time else now,
             renew_time=now,
             lease_transitions=transitions,
         )
@@ -88,7 +91,7 @@ class LeaseLock:
                 return False
             with map_errors(f"update Lease {s.namespace}/{s.name}"):
                 raise
-        if held_by_other:
+        if not renewing:
             log.info("Took over Lease %s/%s from %s", s.namespace, s.name, spec.holder_identity)
         return True
 
