@@ -7,7 +7,8 @@ proportion to its size and a memory limit; ``/fogfleet`` itself outweighs the co
 machine), ``runtime`` holds containerd and its shims, ``agents`` the kubelet, kube-proxy and
 kube-router.
 
-The node's agents and runtime run beside its quota, not inside it. The bed shrinks a robot's
+The node's agents and runtime run beside its quota, not inside it, and behind its pods
+(``AGENT_SHARES``). The bed shrinks a robot's
 computer (6 cores of a NUC) by F = 15 to 400m, but not the kubelet: its housekeeping, probes
 and status updates still come in bursts of tens of milliseconds of CPU, which on the real
 computer take one of its cores for a moment and here took the whole robot. Measured on
@@ -50,6 +51,15 @@ CFS_PERIOD_US = 10_000
 # nodes' quotas (which leave the control plane the rest): 1.0-1.2 % and 0.4-1.2 %.
 TOP_CPU_SHARES = 262_144
 SHARES_PER_CORE = 1024  # inside /fogfleet, a busy host is shared in proportion to node size
+# Inside a node its pods outweigh its agents and runtime 64 to 1: they still get all the CPU
+# the pods leave (the pods' quota caps them), but a burst of theirs no longer delays a module
+# waking for its cycle. On the real computer that burst takes one of its cores for a moment;
+# here, at equal weight, it took half the robot. Every node's kube-proxy and kube-router
+# resync when a fleet's 40 pods and Services come or go anywhere in the cluster (measured
+# 2026-11-28 during the leader-failover faults: 0.3-0.8 CPU seconds a second per node), and
+# the ROS fleet on the robots missed 2-14 of ~1000 cycles per fault (8 faults, 4 of them in
+# CI); with the pods first, 0-4 (6 faults; e2e/tests/test_faults_leader.py, bound 5).
+POD_SHARES, AGENT_SHARES = 1024, 16
 
 
 def _mounted(fstype: str) -> list[Path]:
@@ -102,6 +112,9 @@ def create(node: str, cpu_millis: int, memory_bytes: int) -> None:
     (CGROUP_ROOT / "cpu" / TOP / "cpu.shares").write_text(str(TOP_CPU_SHARES))
     cpu = CGROUP_ROOT / "cpu" / node_path(node).lstrip("/")
     (cpu / "cpu.shares").write_text(str(max(2, cpu_millis * SHARES_PER_CORE // 1000)))
+    (cpu / "pods" / "cpu.shares").write_text(str(POD_SHARES))
+    for sub in ("runtime", "agents"):
+        (cpu / sub / "cpu.shares").write_text(str(AGENT_SHARES))
     (cpu / "pods" / "cpu.cfs_period_us").write_text(str(CFS_PERIOD_US))
     set_cpu_quota(node, cpu_millis)
     mem = CGROUP_ROOT / "memory" / node_path(node).lstrip("/")

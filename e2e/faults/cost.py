@@ -8,6 +8,7 @@ from __future__ import annotations
 import json
 import threading
 import time
+from collections import Counter
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from functools import partial
@@ -17,6 +18,7 @@ from e2e.bed.base import wait_for
 from e2e.bed.kube import Kube
 from e2e.faults.record import FaultResult, record_measured
 from e2e.portable.metrics import read
+from fogfleet.api.labels import ANNOTATION_PLAN
 
 __all__ = [
     "FLOWS", "NodeHistory", "Poller", "Snapshot", "fault_result", "scraped", "skew_messages",
@@ -57,6 +59,11 @@ class Snapshot:
 
     def cycles_missed(self, later: Snapshot) -> int:
         return round(sum(_delta(self, later, key, "missed") for key in self.counters))
+
+    def missed_by_module(self, later: Snapshot) -> dict[str, int]:
+        """Cycles missed since this snapshot per robot/module, those that missed any."""
+        missed = {(r, m): round(_delta(self, later, (r, m), "missed")) for r, m in self.counters}
+        return {f"{r}/{m}": n for (r, m), n in sorted(missed.items()) if n}
 
     def cycles(self, later: Snapshot) -> int:
         return round(sum(_delta(self, later, key, "cycles") for key in self.counters))
@@ -166,27 +173,38 @@ class Poller:
 class NodeHistory(Poller):
     """Where each instance's pod ran, polled every ``interval`` seconds in a thread: per
     instance (its fogfleet.io/instance label), the nodes in the order its pods were bound to
-    them. ``moves()`` counts how often an instance changed node."""
+    them. ``moves()`` counts how often an instance changed node; ``plans`` says which plan
+    moved it: the plan id on the instance's Deployment (named as the instance) when the
+    poll first saw its pod on the new node (the pod follows its Deployment's update)."""
 
     def __init__(self, kube: Kube, namespace: str, selector: str, interval: float = 0.5) -> None:
         from kubernetes import client
 
         super().__init__(interval)
         self.nodes: dict[str, list[str]] = {}
+        self.plans: dict[str, list[str]] = {}  # per instance, the plan of each node it ran on
         self.polls = 0
         self.errors = 0
         self._api = client.CoreV1Api(kube.api_client())
+        self._apps = client.AppsV1Api(kube.api_client())
         self._namespace, self._selector = namespace, selector
+
+    def _list(self, call: Callable[..., Any]) -> list[dict[str, Any]]:
+        resp = call(self._namespace, label_selector=self._selector, _preload_content=False)
+        items: list[dict[str, Any]] = json.loads(resp.data)["items"]
+        return items
 
     def poll(self) -> None:
         try:
-            resp = self._api.list_namespaced_pod(
-                self._namespace, label_selector=self._selector, _preload_content=False
-            )
-            pods: list[dict[str, Any]] = json.loads(resp.data)["items"]  # type: ignore[attr-defined]
+            pods = self._list(self._api.list_namespaced_pod)
+            deployments = self._list(self._apps.list_namespaced_deployment)
         except Exception:  # the API may be away (a fault): poll again
             self.errors += 1
             return
+        plan_of = {
+            d["metadata"]["name"]: (d["metadata"].get("annotations") or {}).get(ANNOTATION_PLAN, "")
+            for d in deployments
+        }
         newest: dict[str, str] = {}  # per instance, the node of its newest bound pod
         for pod in sorted(pods, key=lambda p: str(p["metadata"]["creationTimestamp"])):
             meta, node = pod["metadata"], pod["spec"].get("nodeName")
@@ -197,6 +215,7 @@ class NodeHistory(Poller):
             seen = self.nodes.setdefault(instance, [])
             if not seen or seen[-1] != node:
                 seen.append(node)
+                self.plans.setdefault(instance, []).append(plan_of.get(instance, ""))
         self.polls += 1  # once what it saw is in ``nodes`` (``caught_up`` counts on it)
 
     def caught_up(self, timeout: float = 60) -> None:
@@ -209,3 +228,11 @@ class NodeHistory(Poller):
     def moves(self) -> dict[str, int]:
         """Instance -> times its pod changed node (0: it stayed where it was first bound)."""
         return {i: len(nodes) - 1 for i, nodes in self.nodes.items()}
+
+    def moved_twice_by_one_plan(self) -> dict[str, list[str]]:
+        """The instances one plan moved more than once (instance -> its plans, in order)."""
+        return {
+            i: plans
+            for i, plans in self.plans.items()
+            if any(n > 1 for n in Counter(plans[1:]).values())
+        }

@@ -7,7 +7,9 @@ The leader pod is deleted with grace 0 right after the warehouse is applied (it 
 and begun creating Deployments), and again right after a spec change that moves a few
 instances (an edge node taken out of spec.nodes). The standby must take the Lease and finish
 from what is in the cluster: one plan id on every Deployment, no instance's pod moved twice
-(each pod's node is polled every 0.5 s), no Deployment or Service without its fleet as owner.
+by one plan (each pod's node is polled every 0.5 s, with its Deployment's plan id), no
+Deployment or Service without its fleet as owner. After the rollout no pod moved twice at all;
+after the re-plan an instance the dying leader moved may move once more (docs/survives.md).
 
     flock /tmp/fogfleet-bed.lock pytest e2e/tests/test_faults_leader.py --with-e2e
 """
@@ -121,6 +123,7 @@ def _report(
         fault,
         messagesLost=lost,
         cyclesMissed=missed,
+        missedBy=before.missed_by_module(after),
         cycles=before.cycles(after),
         recoverySeconds=round(ready, 1),
         failoverSeconds=round(failover, 1),
@@ -222,6 +225,10 @@ def test_leader_killed_during_an_incremental_replan(kube: Kube, watched: str) ->
     changed = {d["metadata"]["name"]: d["metadata"]["annotations"].get(PLAN)
                for d in deps if moves.get(d["metadata"]["name"])}  # fmt: skip
     assert changed and set(changed.values()) == {plan_after}, changed
-    assert max(moves.values()) <= 1, {i: history.nodes[i] for i, n in moves.items() if n > 1}
+    # No plan moves an instance twice. An instance the dying leader's incremental plan had
+    # already moved may be moved again by the new leader's whole-fleet plan (it has no last
+    # decision in memory; docs/survives.md): one move per plan, counted in movedTwice.
+    twice = history.moved_twice_by_one_plan()
+    assert not twice, {i: (history.nodes[i], twice[i]) for i in twice}
     assert failover <= FAILOVER_BOUND_S
     assert ready <= READY_BOUND_S
