@@ -23,11 +23,10 @@ from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
-import scipy.sparse as sp
 from numpy.typing import NDArray
-from scipy.optimize import Bounds, LinearConstraint, linprog, milp
 
 from fogfleet.api.v1alpha1.objectives import ObjectiveName
 from fogfleet.domain.problem import Problem
@@ -35,6 +34,13 @@ from fogfleet.errors import Infeasible, InvalidSpec
 
 from .heuristics import Fit, uncontended_miss
 from .objectives import UPLINK_SHARE, evaluate
+
+if TYPE_CHECKING:
+    import scipy.sparse as sp
+    from scipy.optimize import LinearConstraint
+
+# scipy (0.4 s to import) is imported where the solver runs: `kubectl fogfleet top` and the
+# other commands that only read a plan reach this module through fogfleet.scheduling
 
 __all__ = [
     "COST_TIE_BREAK",
@@ -140,6 +146,8 @@ def solve_exact(
             f"exact planning is limited to {max_pairs} (instance, node) pairs; "
             f"this fleet has {n_pairs}",
         )
+    from scipy.optimize import Bounds, milp
+
     nv = n_pairs + 1  # and z, the peak utilisation (reserve)
     res = milp(
         _costs(problem, w, pi, pj),
@@ -170,6 +178,9 @@ def lp_bound(
     point method: at 1000 robots x 8 modules (2.4 M pairs) ``solve_exact(relax=True)``'s
     simplex did not finish in 60 s, the interior point method took ~3 CPU minutes. Raises
     Infeasible when it finds no optimum."""
+    import scipy.sparse as sp
+    from scipy.optimize import linprog
+
     w = dict(DEFAULT_WEIGHTS if weights is None else weights)
     pi, pj = np.nonzero(problem.allowed)
     lc = _constraints(problem, pi, pj)
@@ -320,6 +331,9 @@ def _costs(problem: Problem, w: Mapping[str, float], pi: I64, pj: I64) -> F64:
 def _constraints(problem: Problem, pi: I64, pj: I64) -> LinearConstraint:
     """Each placeable instance on exactly one node; every node within its capacity, and z at
     least its utilisation; every robot's off-board traffic within its uplink share."""
+    import scipy.sparse as sp
+    from scipy.optimize import LinearConstraint
+
     n_pairs = len(pi)
     nv = n_pairs + 1
     cols = np.arange(n_pairs)
@@ -339,12 +353,14 @@ def _constraints(problem: Problem, pi: I64, pj: I64) -> LinearConstraint:
     return LinearConstraint(A, np.concatenate(lo), np.concatenate(hi))
 
 
-_Rows = list[tuple[sp.csr_matrix, F64, F64]]  # (matrix, lower bounds, upper bounds)
+_Rows = list[tuple["sp.csr_matrix", F64, F64]]  # (matrix, lower bounds, upper bounds)
 
 
 def _capacity_rows(problem: Problem, pi: I64, pj: I64) -> _Rows:
     """Per resource: each node's requests within its capacity, and (the reserve) z at least
     each node's utilisation u_j^r / L_j^r."""
+    import scipy.sparse as sp
+
     alloc = problem.limits
     n_n, n_pairs = problem.n_nodes, len(pi)
     nv, cols, cap = n_pairs + 1, np.arange(n_pairs), problem.capacity
@@ -377,6 +393,8 @@ def _capacity_rows(problem: Problem, pi: I64, pj: I64) -> _Rows:
 
 def _uplink_rows(problem: Problem, pi: I64, pj: I64) -> _Rows:
     """Each robot's off-board traffic within ``UPLINK_SHARE`` of its uplink."""
+    import scipy.sparse as sp
+
     n_pairs = len(pi)
     cols = np.arange(n_pairs)
     robots = np.flatnonzero(problem.tier == 0)
