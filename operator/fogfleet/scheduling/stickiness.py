@@ -30,6 +30,12 @@ changed since the last decision (a learnt profile, a new cycle time) or that it 
 below their row are held down (``decision``): a change to one module never degrades another
 that was running as planned. A hard real-time or safety-critical module has no rungs, so one
 that needs more CPU still moves at once.
+
+**Each move pays for itself** (``trim_moves``). A plan that beats what runs by the margin is
+taken less each of its moves that gains less than the margin on its own: the GA moves what its
+search happened to move, and a whole plan that wins on one module's move would otherwise
+carry the rest (seen in the e2e fallback test, 2026-11-28: the healthy robot's detector moved
+on board with the degraded robot's).
 """
 
 from __future__ import annotations
@@ -63,6 +69,7 @@ __all__ = [
     "mask_unavailable",
     "release_overloads",
     "release_robots",
+    "trim_moves",
 ]
 
 log = logging.getLogger(__name__)
@@ -71,6 +78,8 @@ I64 = NDArray[np.int64]
 ABS_TOLERANCE = 1e-3
 # How many times the margin a plan must beat to return an instance to the node it left.
 HYSTERESIS = 2.0
+# Above this many moves of running instances a plan is not trimmed move by move (trim_moves).
+TRIM_MAX_MOVES = 64
 
 
 def fingerprint(problem: Problem, settings: SchedulerSettings) -> str:
@@ -287,6 +296,40 @@ def _revert(problem: Problem, new: I64, cur: I64, usable: NDArray[np.bool_]) -> 
     return x
 
 
+def trim_moves(
+    problem: Problem,
+    new: I64,
+    usable: NDArray[np.bool_],
+    names: Sequence[str],
+    margin: float,
+    with_limits: bool = True,
+) -> I64:
+    """``new`` without the moves that do not pay for themselves: each running instance it
+    moves goes back to its current node, one at a time in index order, wherever the plan stays
+    feasible and ``new`` is not better than the result by the margin (the first objective;
+    module docstring). The margin rule judges a whole plan, so without this a move the fleet
+    needs (a detector off a degraded link) carried moves it does not (the other robot's
+    detector, which the GA happened to move too). Each undo is judged against ``new`` itself,
+    so together they cost at most the margin. Above ``TRIM_MAX_MOVES`` moves ``new`` is kept
+    as it is (one evaluation of the fleet per move)."""
+    cur = problem.current
+    x = np.asarray(new, dtype=np.int64).copy()
+    moved = np.flatnonzero(usable & (x != cur))
+    if len(moved) == 0 or len(moved) > TRIM_MAX_MOVES:
+        return x
+    planned = objective_values(problem, x, with_limits, names)
+    for i in moved:
+        y = x.copy()
+        y[i] = cur[i]
+        if not feasible(problem, y, with_limits):
+            continue
+        undone = objective_values(problem, y, with_limits, names)
+        better, _ = _better(planned, undone, names, margin)
+        if not better:
+            x = y
+    return x
+
+
 def hold(problem: Problem, x: I64, holdable: NDArray[np.bool_]) -> Problem | None:
     """The problem (with levels) in which the running placement ``x`` fits with the fewest
     rungs taken, only by the ``holdable`` instances (module docstring), or None when it cannot
@@ -373,13 +416,27 @@ def keep_running(
         if not better:
             note = f"; {len(kept)} had to move to make room" if kept else ""
             return Stickiness(sticky, kept, True, f"kept running modules in place ({why}){note}")
-        return Stickiness(new, moved, False, f"moved {len(moved)} running module(s): {why}")
-    return Stickiness(
-        new,
-        moved,
-        False,
-        f"moved {len(moved)} running module(s): the current placement no longer fits",
+        return _trimmed(problem, new, usable, names, margin, with_limits, why)
+    return _trimmed(
+        problem, new, usable, names, margin, with_limits, "the current placement no longer fits"
     )
+
+
+def _trimmed(
+    problem: Problem,
+    new: I64,
+    usable: NDArray[np.bool_],
+    names: Sequence[str],
+    margin: float,
+    with_limits: bool,
+    why: str,
+) -> Stickiness:
+    """``new`` accepted, less the moves that do not pay for themselves (``trim_moves``)."""
+    x = trim_moves(problem, new, usable, names, margin, with_limits)
+    moved = [int(i) for i in np.flatnonzero(usable & (x != problem.current))]
+    undone = int((usable & (new != problem.current)).sum()) - len(moved)
+    note = f"; {undone} other move(s) left out, they gained less than the margin" if undone else ""
+    return Stickiness(x, moved, False, f"moved {len(moved)} running module(s): {why}{note}")
 
 
 def placement_array(values: Any) -> I64:
