@@ -218,13 +218,15 @@ def test_leader_killed_during_an_incremental_replan(kube: Kube, watched: str) ->
         "last decision in memory, so not incrementally)",
         len(moving),
     )
-    # one new plan: the Deployments it changed carry its id; those it left as they were keep
-    # the id of the plan that wrote them (the plan id is not a reason to rewrite a Deployment)
-    (plan_after,) = plans - {plan_before}
+    # The Deployments a plan moved carry its id; those it left as they were keep the id of the
+    # plan that wrote them (the plan id is not a reason to rewrite a Deployment). New ids: the
+    # new leader's, and the dying leader's where it had rolled out part of its re-plan.
+    new_plans = plans - {plan_before}
+    assert 1 <= len(new_plans) <= 2, plans
     deps = _warehouse_deployments(kube, ns)
     changed = {d["metadata"]["name"]: d["metadata"]["annotations"].get(PLAN)
                for d in deps if moves.get(d["metadata"]["name"])}  # fmt: skip
-    assert changed and set(changed.values()) == {plan_after}, changed
+    assert changed and set(changed.values()) <= new_plans, changed
     # No plan moves an instance twice. An instance the dying leader's incremental plan had
     # already moved may be moved again by the new leader's whole-fleet plan (it has no last
     # decision in memory; docs/survives.md): one move per plan, counted in movedTwice.
