@@ -27,6 +27,7 @@ from e2e.bench.real.scenario import Scenario
 
 pytestmark = [
     pytest.mark.e2e,
+    pytest.mark.long,
     pytest.mark.bed("restarts the bed with the paper profile (nodes-paper.yaml)"),
     pytest.mark.real,
     pytest.mark.paperbed,

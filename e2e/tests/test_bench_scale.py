@@ -26,6 +26,7 @@ pytestmark = [
 ]
 
 
+@pytest.mark.long
 def test_a_small_fleet_goes_through_every_step_of_the_scale_benchmark(
     kube: Kube, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:

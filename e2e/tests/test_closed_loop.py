@@ -26,6 +26,7 @@ from e2e.tests.rosbed import EDGE, ROBOTS, bed_objects, operated_fleet, ros_modu
 
 pytestmark = [
     pytest.mark.e2e,
+    pytest.mark.long,
     pytest.mark.bed("the bed's Prometheus scraping pod IPs from the host"),
     pytest.mark.real,
     pytest.mark.closedloop,

@@ -41,7 +41,7 @@ pytestmark = [
     pytest.mark.bed("restarts the bed's own kube-apiserver and etcd processes by pid"),
     pytest.mark.real,
     pytest.mark.faults,
-    pytest.mark.slowfault,
+    pytest.mark.long,
     pytest.mark.timeout(420),
 ]
 

@@ -54,6 +54,7 @@ from fogfleet.render.names import discovery_service_name
 
 pytestmark = [
     pytest.mark.e2e,
+    pytest.mark.long,
     pytest.mark.bed("kills a real robot's discovery server process and deletes its pod"),
     pytest.mark.real,
     pytest.mark.faults,

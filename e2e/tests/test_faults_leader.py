@@ -39,6 +39,7 @@ from e2e.tests.rosbed import EDGE, ROBOTS, split_fleet
 
 pytestmark = [
     pytest.mark.e2e,
+    pytest.mark.long,
     pytest.mark.bed("the chart on the bed's real nodes (its image imported there), kwok nodes"),
     pytest.mark.real,
     pytest.mark.incluster,

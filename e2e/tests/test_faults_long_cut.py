@@ -59,6 +59,7 @@ from e2e.tests.rosbed import ROBOTS, scrape, scrape_series
 
 pytestmark = [
     pytest.mark.e2e,
+    pytest.mark.long,
     pytest.mark.bed("emulated links: cuts a real robot's link past the eviction timeout"),
     pytest.mark.real,
     pytest.mark.faults,

@@ -310,7 +310,7 @@ def _discovery_servers(kube: Kube, ns: str) -> dict[str, dict[str, Any]]:
     }
 
 
-@pytest.mark.slowfault
+@pytest.mark.long
 def test_a_rebooted_edge_node_gets_its_modules_back_and_the_fleet_says_so(
     kube: Kube, node_fleet: str
 ) -> None:
@@ -379,7 +379,7 @@ def test_a_rebooted_edge_node_gets_its_modules_back_and_the_fleet_says_so(
     })  # fmt: skip
 
 
-@pytest.mark.slowfault
+@pytest.mark.long
 def test_a_rebooted_robot_restores_its_modules_in_their_pods(kube: Kube, node_fleet: str) -> None:
     """Robot-1 reboots (down DOWN_SECONDS): its camera, safety module and discovery server are
     pinned to it and tolerate its NotReady taints, so they are not evicted: its kubelet starts

@@ -53,6 +53,7 @@ from fogfleet.twin.app import Twin
 
 pytestmark = [
     pytest.mark.e2e,
+    pytest.mark.long,
     pytest.mark.incluster,
     pytest.mark.inclusterloop,
     pytest.mark.bed(
