@@ -16,7 +16,14 @@ from typing import Any
 
 from fogfleet.sim.simulator import fleet_miss_rate
 
-__all__ = ["Counts", "WindowRates", "snapshot", "window_rates"]
+__all__ = [
+    "Counts",
+    "WindowRates",
+    "counting_unrun",
+    "simulated_rates",
+    "snapshot",
+    "window_rates",
+]
 
 CYCLES = "fogfleet_cycle_time_seconds_count"
 MISSED = "fogfleet_missed_cycles_total"
@@ -83,4 +90,30 @@ def window_rates(before: Counts, after: Counts) -> WindowRates:
     rates = {m: (missed[m] / c if c > 0 else math.nan) for m, c in cycles.items()}
     return WindowRates(
         rates, {m: round(c) for m, c in cycles.items()}, {m: round(x) for m, x in missed.items()}
+    )
+
+
+def counting_unrun(rates: WindowRates, due: Mapping[str, float]) -> WindowRates:
+    """``rates`` with the cycles of instances that never ran in the window counted as missed
+    (``due``: module -> the cycles its unrun instances were due, ``window / cycle time`` each;
+    the protocol's Pending rule). A module with no instance running is all misses."""
+    cycles = {m: float(c) for m, c in rates.cycles.items()}
+    missed = {m: float(rates.missed.get(m, 0)) for m in rates.cycles}
+    for module, n in due.items():
+        cycles[module] = cycles.get(module, 0.0) + n
+        missed[module] = missed.get(module, 0.0) + n
+    return WindowRates(
+        {m: (missed[m] / c if c > 0 else math.nan) for m, c in cycles.items()},
+        {m: round(c) for m, c in cycles.items()},
+        {m: round(x) for m, x in missed.items()},
+    )
+
+
+def simulated_rates(rates: Mapping[str, float], cycles: Mapping[str, int]) -> WindowRates:
+    """The simulator's per-module rates and cycles as a ``WindowRates`` (a module none of
+    whose instances ran has no cycles and misses none)."""
+    return WindowRates(
+        dict(rates),
+        {m: int(c) for m, c in cycles.items()},
+        {m: round(rates[m] * c) if c else 0 for m, c in cycles.items()},
     )

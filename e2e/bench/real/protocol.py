@@ -17,6 +17,12 @@ what order, for how long, and what is measured.
   30 s measured + 10 s of drift, checked every 30 s), then one window between two counter
   snapshots. A plan that changes inside the window fails the run; a failed run is recorded,
   never dropped.
+* **Pending** (fixed 2026-11-29, before the first run with k8s-requests). In the
+  kube-scheduler arms an instance whose pod kube-scheduler cannot bind anywhere (Pending,
+  Unschedulable: its request fits no node's room) does not fail the run: it missed every cycle
+  of the window, in the measurement and in the simulation alike (the cycles it was due,
+  ``window / cycle time``), and its placement is recorded as ``Pending``. That is what a user
+  with those requests gets. In the planner arms a pod left Pending fails the run.
 * **Endpoint.** Primary: missed / cycles pooled over every human-pose-estimation and
   scene-segmentation instance of the run (the paper's Fig. 9b metric). Secondary: the mean
   over modules (the planner's and the simulator's figure), and each module's rate.
@@ -30,6 +36,7 @@ from dataclasses import dataclass, field
 __all__ = [
     "ARMS",
     "DEFAULT_RUNS",
+    "PENDING",
     "PERCEPTION",
     "PRIMARY",
     "REQUESTS",
@@ -44,6 +51,7 @@ REQUESTS = "k8s-requests"  # k8s-default's Deployments with honest CPU requests 
 ARMS = (NSGA2, STATIC, K8S, REQUESTS, ONBOARD)  # the order of every table and of a block
 DEFAULT_RUNS = {NSGA2: 6, STATIC: 6, K8S: 6, REQUESTS: 6, ONBOARD: 1}
 PRIMARY = "perception"
+PENDING = "Pending"  # the placement recorded for an instance kube-scheduler could not bind
 PERCEPTION = ("human-pose-estimation", "scene-segmentation")
 
 
@@ -61,6 +69,11 @@ class ScheduledRun:
         """The RobotFleet's spec.scheduler.algorithm (nsga2-static plans with nsga2,
         k8s-requests hands the fleet to kube-scheduler as k8s-default does)."""
         return {STATIC: NSGA2, REQUESTS: K8S}.get(self.arm, self.arm)
+
+    @property
+    def kube_scheduler(self) -> bool:
+        """kube-scheduler binds the run's pods (an unbindable one stays Pending and misses)."""
+        return self.algorithm == K8S
 
     @property
     def closed_loop(self) -> bool:

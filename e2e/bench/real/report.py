@@ -280,7 +280,10 @@ def _requests_lines(given: Mapping[str, Any] | None) -> list[str]:
         f"of `{given.get('source', 'e2e/bench/real/paper/modules.yaml')}`) whose mean + "
         f"{sigmas:g} std fits its cycle time, the largest row where none does; computed from "
         "those rows by `e2e.bench.real.scenario.honest_requests`, from nothing the bed "
-        "measures, so fixed before the arm's first run: " + "; ".join(said)
+        "measures, so fixed before the arm's first run: " + "; ".join(said),
+        "- Pending: in kube-scheduler's arms an instance whose pod kube-scheduler cannot bind "
+        "misses every cycle it was due in the window, measured and simulated alike; its "
+        "placement reads `Pending`",
     ]
 
 

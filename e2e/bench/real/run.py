@@ -10,11 +10,12 @@ Each run of the schedule (``protocol.Protocol``):
    hands it to kube-scheduler (``k8s-default``: plain Deployments, the real bindings read back
    from the fleet's status; ``k8s-requests``: the same with the modules' honest requests,
    ``scenario.honest_requests``, computed once before the first run);
-2. once the fleet is Ready and every instance has reported cycles to Prometheus, and the
-   previous run's namespace is gone, a warm-up in which the closed loop may correct what the
-   plan got wrong (``DRIFT``, off for ``nsga2-static``), then, once the fleet is Ready again
-   and rolled out, two snapshots of the workload's counters a window apart (``measure``); a
-   plan that changes inside the window fails the run;
+2. once the fleet is Ready (kube-scheduler's arms: every instance Ready or Pending, which
+   misses every cycle: ``protocol``'s Pending rule) and every running instance has reported
+   cycles to Prometheus, and the previous run's namespace is gone, a warm-up in which the
+   closed loop may correct what the plan got wrong (``DRIFT``, off for ``nsga2-static``), then,
+   once the fleet is Ready again and rolled out, two snapshots of the workload's counters a
+   window apart (``measure``); a plan that changes inside the window fails the run;
 3. the simulator runs the placement the cluster ran, with the allocation it ran with, for the
    window, seeded with the run's seed (``fogfleet.sim.simulate``);
 4. the namespace is deleted (and waited out while the next run starts).
@@ -41,9 +42,17 @@ from e2e.bed.cpu_meter import CpuMeter
 from e2e.bed.kube import Kube, guard_kubeconfig
 from e2e.bed.operator_fixtures import Operator, fleet, install_crds, wait_ready
 from e2e.bench.real import report
-from e2e.bench.real.measure import WindowRates, snapshot, window_rates
+from e2e.bench.real.binding import Key, wait_bound_or_pending
+from e2e.bench.real.measure import (
+    WindowRates,
+    counting_unrun,
+    simulated_rates,
+    snapshot,
+    window_rates,
+)
 from e2e.bench.real.protocol import (
     DEFAULT_RUNS,
+    PENDING,
     PRIMARY,
     REQUESTS,
     Protocol,
@@ -98,9 +107,10 @@ def _apply_and_warm_up(
     namespace: str,
     protocol: Protocol,
     previous: str | None,
-) -> float:
+) -> tuple[float, set[Key]]:
     """Apply the run's fleet, wait until it runs and is counted, warm up; the seconds from
-    apply to Ready."""
+    apply to Ready (kube-scheduler's arms: to every instance Ready or Unschedulable) and the
+    instances left Pending (the protocol's Pending rule)."""
     kube.apply(
         {
             "apiVersion": "v1",
@@ -111,21 +121,31 @@ def _apply_and_warm_up(
     t0 = time.monotonic()
     drift = DRIFT if run.closed_loop else NO_DRIFT
     kube.apply(scenario.namespaced(namespace, run.algorithm, drift, seed=run.seed))
-    wait_ready(kube, namespace, FLEET, timeout=300)
+    pending = _wait_running(kube, scenario, run, namespace)
     ready_s = time.monotonic() - t0
-    _wait_counted(kube, cluster, namespace, scenario.instances)
+    _wait_counted(kube, cluster, namespace, scenario.instances - len(pending))
     if previous:
         _wait_gone(kube, previous)
     time.sleep(protocol.warmup_s)
     # a correction in the warm-up rolls pods out: measure the plan that stands
-    wait_ready(kube, namespace, FLEET, timeout=300)
+    if _wait_running(kube, scenario, run, namespace) != pending:
+        raise PlanChanged("the instances left Pending changed in the warm-up")
     _wait_settled(kube, namespace)
-    _wait_counted(kube, cluster, namespace, scenario.instances)
-    return ready_s
+    _wait_counted(kube, cluster, namespace, scenario.instances - len(pending))
+    return ready_s, pending
+
+
+def _wait_running(kube: Kube, scenario: Scenario, run: ScheduledRun, namespace: str) -> set[Key]:
+    """The fleet Ready; in kube-scheduler's arms, every instance Ready or Unschedulable (the
+    fleet is not Ready while one is Pending). The instances left Pending."""
+    if run.kube_scheduler:
+        return wait_bound_or_pending(kube, namespace, scenario.instances, timeout=300)
+    wait_ready(kube, namespace, FLEET, timeout=300)
+    return set()
 
 
 def _measure_window(
-    kube: Kube, cluster: harness.Cluster, scenario: Scenario, namespace: str, window_s: float
+    kube: Kube, cluster: harness.Cluster, running: int, namespace: str, window_s: float
 ) -> tuple[WindowRates, dict[str, Any], dict[str, float]]:
     """Two counter snapshots ``window_s`` apart: the rates, the fleet object at the end, and
     the CPU seconds each part of the bed spent in between."""
@@ -137,7 +157,7 @@ def _measure_window(
     after = snapshot(cluster.prometheus_query, namespace)
     cpu = meter.stop()
     missing = set(after.cycles) - set(before.cycles)
-    if len(before.cycles) < scenario.instances or missing:
+    if len(before.cycles) < running or missing:
         raise PlanChanged(
             f"instances came and went during the window (before {sorted(before.cycles)}, "
             f"after {sorted(after.cycles)})"
@@ -163,24 +183,27 @@ def one_run(
     log(f"#{run.position + 1} block {run.block + 1}: {run.arm} seed {run.seed} in {namespace}")
     result = RunResult(run, protocol.window_s)
     try:
-        result.ready_s = _apply_and_warm_up(
+        result.ready_s, pending = _apply_and_warm_up(
             kube, cluster, scenario, run, namespace, protocol, previous
         )
         measured, obj, result.cpu_seconds = _measure_window(
-            kube, cluster, scenario, namespace, protocol.window_s
+            kube, cluster, scenario.instances - len(pending), namespace, protocol.window_s
         )
-        result.measured = measured
+        # an instance left Pending missed every cycle it was due, measured and simulated
+        due = scenario.due_cycles(pending, protocol.window_s)
+        result.measured = counting_unrun(measured, due)
         result.corrected = tuple(_corrections(kube, namespace))
         result.placement = {
             p["robot"] + "/" + p["module"]: p["node"] for p in obj["status"]["placement"]
-        }
-        placement, allocation = scenario.placement_of(obj)
+        } | {f"{robot}/{module}": PENDING for module, robot in pending}
+        placement, allocation = scenario.placement_of(obj)  # a Pending instance: not run
         sim = simulate(
             scenario.problem, placement, allocation, protocol.window_s, seed=run.seed,
             all_active=True,
         )  # fmt: skip
-        result.simulated = dict(sim.module_miss_rate)
-        result.simulated_cycles = dict(sim.module_cycles)
+        simulated = counting_unrun(simulated_rates(sim.module_miss_rate, sim.module_cycles), due)
+        result.simulated = simulated.modules
+        result.simulated_cycles = simulated.cycles
     except (AssertionError, harness.HarnessError, OSError) as exc:  # a wait timed out, a
         # Prometheus query failed, PlanChanged: recorded, never dropped
         result.failed = str(exc).splitlines()[0][:300]

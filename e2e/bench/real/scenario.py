@@ -178,6 +178,16 @@ class Scenario:
     def instances(self) -> int:
         return self.problem.n_instances
 
+    def due_cycles(self, instances: Iterable[tuple[str, str]], window_s: float) -> dict[str, float]:
+        """Per module, the cycles ``instances`` ((module, robot) each) were due over a window
+        of ``window_s``: the window over each one's cycle time."""
+        cycle = {(inst.module, inst.robot): float(self.problem.cycle[i])
+                 for i, inst in enumerate(self.problem.instances)}  # fmt: skip
+        due: dict[str, float] = {}
+        for key in instances:
+            due[key[0]] = due.get(key[0], 0.0) + window_s / cycle[key]
+        return due
+
     def placement_of(self, fleet_object: Obj) -> tuple[Any, Allocation]:
         """The placement the cluster ran (the fleet's status) and the allocation it ran with."""
         return recorded_placement(self.problem, fleet_object, "RobotFleet status")

@@ -2,9 +2,17 @@
 
 from __future__ import annotations
 
+import math
+
 import pytest
 
-from e2e.bench.real.measure import Counts, snapshot, window_rates
+from e2e.bench.real.measure import (
+    Counts,
+    counting_unrun,
+    simulated_rates,
+    snapshot,
+    window_rates,
+)
 
 
 def test_a_windows_rate_is_the_difference_of_two_snapshots_per_module() -> None:
@@ -41,3 +49,22 @@ def test_snapshot_sums_per_module_and_robot_in_the_namespace() -> None:
     counts = snapshot(query, "ns-1")
     assert counts.cycles == {("pose", "r1"): 7.0}
     assert all('namespace="ns-1"' in q and "sum by (module, robot)" in q for q in asked)
+
+
+def test_an_instance_left_pending_misses_every_cycle_it_was_due() -> None:
+    before = Counts(cycles={("pose", "r1"): 100}, missed={("pose", "r1"): 0})
+    after = Counts(cycles={("pose", "r1"): 700}, missed={("pose", "r1"): 6})
+    # a second pose instance (10 Hz) Pending through a 60 s window, and a whole module
+    rates = counting_unrun(window_rates(before, after), {"pose": 600.0, "seg": 300.0})
+    assert rates.cycles == {"pose": 1200, "seg": 300}
+    assert rates.missed == {"pose": 606, "seg": 300}
+    assert rates.modules == {"pose": pytest.approx(606 / 1200), "seg": 1.0}
+    assert counting_unrun(window_rates(before, after), {}) == window_rates(before, after)
+
+
+def test_the_simulators_rates_count_alike() -> None:
+    sim = simulated_rates({"pose": 0.01, "seg": math.nan}, {"pose": 600, "seg": 0})
+    assert sim.missed == {"pose": 6, "seg": 0}
+    rates = counting_unrun(sim, {"seg": 300.0})
+    assert rates.modules == {"pose": pytest.approx(0.01), "seg": 1.0}
+    assert rates.pooled(["pose", "seg"]) == (306, 900)

@@ -31,6 +31,12 @@ def test_the_default_schedule_is_the_issues_protocol() -> None:
 def test_k8s_requests_hands_the_fleet_to_kube_scheduler_like_k8s_default() -> None:
     (run,) = Protocol(runs={"k8s-requests": 1}).schedule()
     assert run.algorithm == "k8s-default" and run.arm == "k8s-requests"
+    # the Pending rule applies to kube-scheduler's arms only
+    kinds = {r.arm: r.kube_scheduler for r in Protocol().schedule()}
+    assert kinds == {
+        "nsga2": False, "nsga2-static": False, "k8s-default": True, "k8s-requests": True,
+        "onboard": False,
+    }  # fmt: skip
     assert Protocol().as_json()["arms"] == {
         "nsga2": 6, "nsga2-static": 6, "k8s-default": 6, "k8s-requests": 6, "onboard": 1
     }  # fmt: skip

@@ -137,3 +137,15 @@ def test_the_page_says_how_the_requests_were_chosen_and_that_they_were_fixed_fir
     assert "human-pose-estimation 267m (60 + 3 x 6 ms <= 100 ms)" in line
     # a document without the arm says nothing of it
     assert "k8s-requests:" not in markdown({"protocol": {}}, plot_name="x.svg")
+
+
+def test_an_instance_left_pending_was_due_the_window_over_its_cycle_time() -> None:
+    scenario = Scenario()
+    robot = next(i.robot for i in scenario.problem.instances if i.module == "scene-segmentation")
+    pose = [("human-pose-estimation", robot), ("scene-segmentation", robot)]
+    # 100 ms and 150 ms cycles over a 60 s window
+    assert scenario.due_cycles(pose, 60.0) == {
+        "human-pose-estimation": pytest.approx(600.0),
+        "scene-segmentation": pytest.approx(400.0),
+    }
+    assert scenario.due_cycles([], 60.0) == {}
