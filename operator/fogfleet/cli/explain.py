@@ -35,6 +35,7 @@ def cmd_explain(args: argparse.Namespace) -> int:
         robot=args.robot,
         objectives=[o.value for o in site.settings.objectives],
         refused=refused,
+        held=site.snapshot.held,
         limit=args.limit,
     )
     doc = why_doc(why)

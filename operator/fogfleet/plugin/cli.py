@@ -7,10 +7,12 @@ not be read, 2 bad arguments or input (argparse's own code for bad arguments).""
 from __future__ import annotations
 
 import argparse
+import sys
 import time
 from collections.abc import Callable, Sequence
 
 from fogfleet.commandline import OK, positive, run_command
+from fogfleet.snapshot import room_note
 
 from .commands import diff_doc, plan_doc, top_doc, why_doc, why_of
 from .live import Source, WhatIf, read_fleet
@@ -119,6 +121,9 @@ def _run(
     if args.command == "why":
         doc = why_doc(why_of(live, args.module, args.robot, args.limit))
         text = render(doc, args.output, why_table(doc) if args.output == "table" else "")
+        room = room_note(live.problem, live.snapshot.held)
+        if room:  # as `fogfleet explain` says it: the fleet was planned into what others left
+            print(f"Shared nodes of {doc['fleet']}: {room}", file=sys.stderr)
     elif args.command == "top":
         doc = top_doc(live, clock())
         text = render(doc, args.output, top_table(doc) if args.output == "table" else "")

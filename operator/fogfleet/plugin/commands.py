@@ -40,6 +40,7 @@ def why_of(live: Live, module: str, robot: str | None = None, limit: int = 50) -
         objectives=[o.value for o in spec.objectives],
         refused=live.refused,
         unavailable=live.unavailable,
+        held=live.snapshot.held,
         limit=limit,
     )
     return ModuleWhy(**{**w.__dict__, "measured_miss_rate": live.measured.get(module)})

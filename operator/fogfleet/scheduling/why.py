@@ -26,6 +26,7 @@ from numpy.typing import NDArray
 
 from fogfleet.api.v1alpha1.base import format_cores
 from fogfleet.domain.problem import Problem
+from fogfleet.domain.tenancy import Held
 from fogfleet.errors import InvalidSpec
 
 from .evaluation import UPLINK_SHARE
@@ -98,12 +99,14 @@ def explain_module(
     objectives: Sequence[str] = tuple(REGISTRY),
     refused: Refused | None = None,
     unavailable: Mapping[int, str] | None = None,
+    held: Mapping[str, Held] | None = None,
     limit: int = 50,
 ) -> ModuleWhy:
     """Explain the instances of ``module`` (of ``robot``) in the plan ``placement`` (I,).
 
     ``refused(i)`` gives instance i's refusals by node (``domain.build.refusals``; None: not a
-    node it could use); ``unavailable`` the nodes masked out and why. At most ``limit``
+    node it could use); ``unavailable`` the nodes masked out and why; ``held`` what other
+    fleets and pods hold on each Kubernetes node (a node too full names them). At most ``limit``
     instances are explained (the rest are counted in ``omitted``)."""
     chosen = instances_of(problem, module, robot)
     if not chosen:
@@ -144,7 +147,7 @@ def explain_module(
             deltas = {n: float(vals[n][k]) - base[n] for n in EVALUATORS}
             broken = [c for c in np.flatnonzero(G[k, :-1] > np.maximum(g0[:-1], 0.0) + EPS)]
             if broken:
-                rule, why = _constraint(problem, pp, ev, i, j, names[int(broken[0])])
+                rule, why = _constraint(problem, pp, ev, i, j, names[int(broken[0])], held or {})
             else:
                 rule, why = "objectives", _trade(deltas, objectives)
             nd = problem.nodes[j]
@@ -208,9 +211,16 @@ def _refusals(
 
 
 def _constraint(
-    problem: Problem, pp: PlacementProblem, ev: Evaluation, i: int, j: int, column: str
+    problem: Problem,
+    pp: PlacementProblem,
+    ev: Evaluation,
+    i: int,
+    j: int,
+    column: str,
+    held: Mapping[str, Held],
 ) -> tuple[str, str]:
-    """The constraint the move of instance i to node j would break, with the amounts."""
+    """The constraint the move of instance i to node j would break, with the amounts; on a
+    node others hold CPU of, who holds how much (the room the fleet was planned into)."""
     what, _, name = column.partition(":")
     k = problem.node_index(name)
     need = pp.fit.demand_at(np.array([i]), np.array([j]))[0]
@@ -225,9 +235,16 @@ def _constraint(
     r = {"cpu": 0, "memory": 1, "gpu": 2}[what]
     used = float((ev.cpu_requested, ev.mem_requested, ev.gpu_requested)[r][0, k])
     free = max(float(cap[r]) - used, 0.0)
+    others = held.get(problem.nodes[k].node_name, Held())
+    shared = (
+        f"; other fleets and pods hold {_amount('cpu', others.cpu)} more there "
+        f"({others.itemised()})"
+        if what == "cpu" and others.cpu > 0
+        else ""
+    )
     return "capacity", (
         f"needs {_amount(what, float(need[r]))} {what} but {name} has "
-        f"{_amount(what, free)} of {_amount(what, float(cap[r]))} free"
+        f"{_amount(what, free)} of {_amount(what, float(cap[r]))} free{shared}"
     )
 
 

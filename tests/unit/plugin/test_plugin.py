@@ -273,3 +273,27 @@ def test_the_plugin_plans_around_the_room_other_fleets_and_pods_hold() -> None:
         crowded.snapshot.held["edge-1"].itemised()
         == "pods in team 1, RobotFleet north/other 10 cores"
     )
+
+
+def test_why_names_the_fleets_and_pods_that_fill_a_node(capsys: pytest.CaptureFixture[str]) -> None:
+    """A node too full for a move says who else holds it, in cores, as `explain` does."""
+    code = main(
+        ["why", "warehouse", "scene-segmentation", "-o", "json"],
+        connect=lambda kubeconfig, context: (CrowdedCluster(), "warehouse"),
+        clock=lambda: TAKEOVER_AT + 150,
+    )
+    out = capsys.readouterr()
+    assert code == 0
+    full = [
+        a["reason"]
+        for i in json.loads(out.out)["instances"]
+        for a in i["alternatives"]
+        if a["rule"] == "capacity" and a["node"] == "edge-1"
+    ]
+    assert full, "edge-1, less 11 cores, is too full for a segmentation instance"
+    assert all(
+        "other fleets and pods hold 11 more there (pods in team 1, RobotFleet north/other 10 cores)"
+        in r
+        for r in full
+    ), full
+    assert "Shared nodes of warehouse/warehouse: other fleets and pods hold 11 cores" in out.err

@@ -113,3 +113,22 @@ def test_unavailable_node_is_said_so() -> None:
     )
     (edge1,) = [a for a in why.instances[0].alternatives if a.node == "edge-1"]
     assert edge1.rule == "unavailable" and "NotReady" in edge1.reason
+
+
+def test_a_full_node_names_who_else_holds_it() -> None:
+    """With ``held`` (the room other fleets and pods hold), a capacity reason says who."""
+    from fogfleet.domain.tenancy import Held
+
+    _, _, problem, x = _warehouse()
+    plain = [a for i in _why("scene-segmentation").instances for a in i.alternatives]
+    node = next(a.node for a in plain if a.rule == "capacity")
+    k8s_node = problem.nodes[problem.node_index(node)].node_name
+    held = {k8s_node: Held().plus(2.0, 0.0, "RobotFleet north/other")}
+    why = explain_module(problem, x, True, "scene-segmentation", held=held)
+    reasons = [a.reason for i in why.instances for a in i.alternatives if a.node == node]
+    assert reasons and all(
+        r.endswith("; other fleets and pods hold 2 more there (RobotFleet north/other 2 cores)")
+        for r in reasons
+        if "cpu but" in r
+    ), reasons
+    assert not any("other fleets" in a.reason for a in plain)
