@@ -30,6 +30,7 @@ from fogfleet.snapshot.objects import (
     current_placement,
     parse_fleet,
     profile_corrections,
+    profiled,
     scaling_pools,
 )
 from fogfleet.snapshot.room import held_by_others, held_signature
@@ -153,7 +154,7 @@ def relisted(deps: Deps, state: FleetState, inputs: FleetInputs) -> FleetInputs:
             state.deployment_stamps,
         ),
         inputs.measured,
-        (tuple(sorted(inputs.corrections.items())), _profiled(inputs.raw_modules)),
+        (tuple(sorted(inputs.corrections.items())), profiled(inputs.raw_modules)),
         held_signature(inputs.held, state.references.nodes if state.references else None),
     )
     return replace(inputs, listed=listed, stamp=stamp)
@@ -224,20 +225,6 @@ def record_references(
     wanted = modules if modules is not None else (m.name for m in fleet.spec.modules)
     state.references = References(
         frozenset(names), frozenset(set(nodes) | names), frozenset(wanted), selector
-    )
-
-
-def _profiled(raw_modules: Iterable[Mapping[str, Any]]) -> tuple[tuple[str, str], ...]:
-    """What the modules' automatic profiling has recorded (a new profile is a new input)."""
-    return tuple(
-        sorted(
-            (
-                str(m["metadata"]["name"]),
-                repr(((m.get("status") or {}).get("profiling") or {}).get("rows")),
-            )
-            for m in raw_modules
-            if (m.get("status") or {}).get("profiling")
-        )
     )
 
 

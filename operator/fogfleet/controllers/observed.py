@@ -56,6 +56,7 @@ from fogfleet.render.names import deployment_name, pod_deployment
 from fogfleet.scheduling.decision import Decision
 from fogfleet.scheduling.objectives import module_miss_rates
 from fogfleet.scheduling.stickiness import loads
+from fogfleet.snapshot.objects import recorded_corrections
 
 from .deps import Deps
 from .state import DriftWatch, FleetKey, FleetState
@@ -372,10 +373,7 @@ def _adopt(
         )
         if name not in modules:
             why += f" (re-planned for the drift of {', '.join(modules)})"
-        old = {
-            c.get("hardwareType"): c
-            for c in ((raw.get("status") or {}).get("profileCorrection") or [])
-        }
+        old = recorded_corrections(raw)
         for hw, (learnt, n) in factors.items():
             old[hw] = {
                 "hardwareType": hw,

@@ -40,6 +40,7 @@ from fogfleet.domain.profiling import (
 from fogfleet.domain.references import resolve_nodes
 from fogfleet.errors import FogfleetError
 from fogfleet.render.profiling import profiling_selector, render_profiling_job
+from fogfleet.snapshot.objects import profiling_record
 
 from .deps import Deps
 
@@ -84,9 +85,9 @@ def profile_first(
         return Waiting(), False
     by_name = {m.metadata.name: m for m in modules if m is not None}
     raw = {r["metadata"]["name"]: r for r in raw_modules if r["metadata"]["name"] in needs}
-    before = {n: (r.get("status") or {}).get("profiling") for n, r in raw.items()}
+    before = {n: profiling_record(r) for n, r in raw.items()}
     waiting = advance_profiling(deps, needs, by_name, raw)
-    recorded = any((r.get("status") or {}).get("profiling") != before[n] for n, r in raw.items())
+    recorded = any(profiling_record(r) != before[n] for n, r in raw.items())
     return waiting, recorded and not waiting
 
 

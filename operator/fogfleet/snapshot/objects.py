@@ -25,6 +25,9 @@ __all__ = [
     "node_health",
     "parse_fleet",
     "profile_corrections",
+    "profiled",
+    "profiling_record",
+    "recorded_corrections",
     "scaling_pools",
     "scaling_status",
 ]
@@ -125,6 +128,30 @@ def profile_corrections(modules: Iterable[Mapping[str, Any]]) -> dict[tuple[str,
             if factor > 0 and noise >= 0 and cycles >= 0 and hw:
                 out[(name, hw)] = Learnt(factor, noise, cycles)
     return out
+
+
+def recorded_corrections(module: Mapping[str, Any]) -> dict[Any, Obj]:
+    """A SoftwareModule's status.profileCorrection entries as recorded, by hardware type (the
+    closed loop rewrites the types it learns and keeps the others)."""
+    entries = (module.get("status") or {}).get("profileCorrection") or []
+    return {e.get("hardwareType"): dict(e) for e in entries if isinstance(e, Mapping)}
+
+
+def profiling_record(module: Mapping[str, Any]) -> Any:
+    """A SoftwareModule's status.profiling as recorded (None: never profiled)."""
+    return (module.get("status") or {}).get("profiling")
+
+
+def profiled(modules: Iterable[Mapping[str, Any]]) -> tuple[tuple[str, str], ...]:
+    """What the modules' automatic profiling has recorded, per module (a new profile is a new
+    planning input)."""
+    return tuple(
+        sorted(
+            (str(m["metadata"]["name"]), repr((profiling_record(m) or {}).get("rows")))
+            for m in modules
+            if profiling_record(m)
+        )
+    )
 
 
 def measured_rates(raw: Obj, raw_modules: Iterable[Obj]) -> dict[str, float]:
