@@ -30,13 +30,16 @@ import shutil
 import subprocess
 from collections.abc import Callable, Iterator
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import pytest
 
 from e2e.bed import harness, realnodes
 from e2e.bed.kube import Kube, UnsafeKubeconfig, guard_kubeconfig
 from e2e.bed.operator_fixtures import Operator, install_crds
+
+if TYPE_CHECKING:
+    from e2e.tests.scaling_rig import Rig
 
 ENV_EXTERNAL = "FOGFLEET_E2E_EXTERNAL"
 ENV_KUBECONFIG = "FOGFLEET_E2E_KUBECONFIG"
@@ -264,6 +267,17 @@ def operator(
 def diagnostics() -> list[Diagnostic]:
     """Append `() -> (title, text)` callables; they are dumped when the test fails."""
     return []
+
+
+@pytest.fixture
+def rig(
+    kube: Kube, cluster: harness.Cluster, crds: None, namespace: str, diagnostics: list[Diagnostic]
+) -> Iterator[Rig]:
+    """The SLO scaler's rig in the test's namespace (``scaling_rig``; the autoscaling tests)."""
+    from e2e.tests.scaling_rig import scaling_rig  # the scaler's imports, only where used
+
+    with scaling_rig(kube, cluster, namespace, diagnostics) as r:
+        yield r
 
 
 # --------------------------------------------------------------------------------------------

@@ -46,7 +46,7 @@ from e2e.bed.harness import Cluster
 from e2e.bed.kube import Kube
 from e2e.bed.operator_fixtures import example_in, free_port, of_kind
 from e2e.tests.incluster import installed
-from e2e.tests.test_autoscaling import delete_fleet_objects, look
+from e2e.tests.scaling_rig import delete_fleet_objects, look
 from fogfleet.adapters.kube import KubeClient, load_config
 from fogfleet.bench.autoscaling import RATE_WINDOW_SECONDS, REQUESTS_PER_PHASE, make_workload
 from fogfleet.twin.app import Twin
