@@ -9,20 +9,13 @@ from collections.abc import Iterable
 from typing import Any
 
 from e2e.bed.kube import Kube
-from e2e.bed.operator_fixtures import all_pods
+from e2e.bed.operator_fixtures import all_pods, conditions
 
 __all__ = ["instance_states", "wait_bound_or_pending"]
 
 Key = tuple[str, str]  # (module, robot), as the workload's metrics name an instance
 MODULE, ROBOT = "fogfleet.io/module", "fogfleet.io/robot"  # labels and annotations alike
 COMPONENT = "app.kubernetes.io/component"  # set on standbys and profiling pods, not modules
-
-
-def _condition(pod: dict[str, Any], kind: str) -> dict[str, Any]:
-    for c in (pod.get("status") or {}).get("conditions") or []:
-        if c.get("type") == kind:
-            return dict(c)
-    return {}
 
 
 def instance_states(pods: Iterable[dict[str, Any]]) -> dict[Key, str]:
@@ -38,8 +31,9 @@ def instance_states(pods: Iterable[dict[str, Any]]) -> dict[Key, str]:
             continue  # a discovery server, a standby, or a pod on its way out
         names = {**labels, **(meta.get("annotations") or {})}  # annotations: the exact names
         key = (str(names[MODULE]), str(names.get(ROBOT, "")))
-        scheduled = _condition(pod, "PodScheduled")
-        if _condition(pod, "Ready").get("status") == "True":
+        conds = conditions(pod)
+        scheduled = conds.get("PodScheduled", {})
+        if conds.get("Ready", {}).get("status") == "True":
             state = "Ready"
         elif scheduled.get("status") == "False" and scheduled.get("reason") == "Unschedulable":
             state = "Unschedulable"
