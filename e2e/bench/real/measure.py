@@ -87,9 +87,15 @@ def window_rates(before: Counts, after: Counts) -> WindowRates:
         missed[module] = (
             missed.get(module, 0.0) + after.missed.get(key, 0.0) - before.missed.get(key, 0.0)
         )
-    rates = {m: (missed[m] / c if c > 0 else math.nan) for m, c in cycles.items()}
+    return _rates(cycles, missed)
+
+
+def _rates(cycles: Mapping[str, float], missed: Mapping[str, float]) -> WindowRates:
+    """Per module: missed / cycles (NaN where none ran), and both counts rounded."""
     return WindowRates(
-        rates, {m: round(c) for m, c in cycles.items()}, {m: round(x) for m, x in missed.items()}
+        {m: (missed[m] / c if c > 0 else math.nan) for m, c in cycles.items()},
+        {m: round(c) for m, c in cycles.items()},
+        {m: round(x) for m, x in missed.items()},
     )
 
 
@@ -102,11 +108,7 @@ def counting_unrun(rates: WindowRates, due: Mapping[str, float]) -> WindowRates:
     for module, n in due.items():
         cycles[module] = cycles.get(module, 0.0) + n
         missed[module] = missed.get(module, 0.0) + n
-    return WindowRates(
-        {m: (missed[m] / c if c > 0 else math.nan) for m, c in cycles.items()},
-        {m: round(c) for m, c in cycles.items()},
-        {m: round(x) for m, x in missed.items()},
-    )
+    return _rates(cycles, missed)
 
 
 def simulated_rates(rates: Mapping[str, float], cycles: Mapping[str, int]) -> WindowRates:
