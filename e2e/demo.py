@@ -283,7 +283,7 @@ running. In your own shell:
 Cut {robot}'s link: the edge's human-pose-estimation goes silent for it and its standby on the
 robot takes over (human-pose-lite, on board):
   {harness} link {robot} --loss 100%
-  kubectl get robotfleet {ns} -n {ns} -o jsonpath={degraded}  # in ~15 s: link lost
+  kubectl get robotfleet {ns} -n {ns} -o jsonpath={degraded}  # within a minute: link lost
   {harness} link {robot} --reset
   kubectl fogfleet top {ns} -n {ns}    # in ~15 s, LAST-TAKEOVER: how fast the standby took over
   kubectl get events -n {ns} --field-selector reason=StandbyTookOver   # the same, as Events

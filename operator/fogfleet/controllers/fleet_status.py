@@ -116,15 +116,22 @@ def fleet_status(
     drift: DriftReport | None = None,
     shared: list[Obj] | None = None,
     monitored: Obj | None = None,
+    replan_failed: tuple[str, str] | None = None,
 ) -> RobotFleetStatus:
     """The status of a fleet whose instances stand where ``placement`` (placement_entries)
     says; the per-instance list only up to PLACEMENT_LIST_LIMIT entries. ``monitored``: the
-    operator's Monitored condition (``monitoring.Monitoring``)."""
+    operator's Monitored condition (``monitoring.Monitoring``); ``replan_failed``: (reason,
+    message) of a re-plan that failed while the fleet runs ``rendered``, its last plan: Ready
+    and Scheduled say it, Degraded and the rest still describe what runs."""
     problem, plan = rendered.problem, rendered.plan
     tiers = Counter(str(entry["tier"]) for entry in placement)
+    if replan_failed is not None:
+        reason, message = replan_failed
+        held = [condition(t, False, reason, message, generation) for t in ("Ready", "Scheduled")]
+    else:
+        held = [_ready(rendered, roll, generation), _scheduled(rendered, placement, generation)]
     conds = [
-        _ready(rendered, roll, generation),
-        _scheduled(rendered, placement, generation),
+        *held,
         _degraded(rendered, roll, links, generation),
     ]
     if drift is not None and drift.condition is not None:

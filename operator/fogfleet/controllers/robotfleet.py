@@ -13,7 +13,10 @@ server-side apply, prunes stale Deployments, and writes the status in one patch.
 leaves in the fleet's ``FleetState`` is all the next one, and the link, drift and usage
 passes, read. Invalid input (bad spec, dangling reference, a fleet that cannot fit) touches
 nothing that runs: it sets ``Ready=False`` with the reason, posts an Event and re-raises so the
-handler can map it.
+handler can map it. A fleet that runs a plan and then cannot be planned again (a changed spec,
+learnt profiles or a lost node that leave no placement) keeps its last plan, and its status
+keeps following it (``Ready`` and ``Scheduled`` False say why; Degraded, links and drift stay
+current).
 
 Blocking (API calls, the GA): run it in a worker thread (``asyncio.to_thread``).
 """
@@ -25,7 +28,7 @@ import time
 from dataclasses import replace
 from typing import Any
 
-from fogfleet.errors import InvalidSpec
+from fogfleet.errors import Infeasible, InvalidSpec
 from fogfleet.snapshot import room_note
 from fogfleet.snapshot.objects import current_placement
 
@@ -52,7 +55,7 @@ from .outcome import Outcome
 from .profiling import PROFILING_POLL_SECONDS, profile_first
 from .stamp import RESYNC_MAX_DEFER_SECONDS, resync_overdue
 from .state import FleetState, Rendered
-from .status_step import paused, refresh, report_failure, waiting_for_profiles
+from .status_step import keep_last_plan, paused, refresh, report_failure, waiting_for_profiles
 
 __all__ = ["Outcome", "reconcile"]
 
@@ -79,7 +82,14 @@ def reconcile(body: Obj, deps: Deps) -> Outcome:
             inputs = replace(inputs, obj=replace(obj, old_status=status))
         else:
             log.debug("RobotFleet %s/%s: inputs changed, full reconcile", *obj.key)
-        return _full_pass(deps, state, inputs, last)
+        claims, shared = state.claims, state.shared
+        try:
+            return _full_pass(deps, state, inputs, last)
+        except Infeasible as exc:
+            if last is None or last.plan is None:
+                raise
+            state.claims, state.shared = claims, shared  # its pods stay on the last plan
+            return keep_last_plan(deps, state, inputs, last, exc)
     except InvalidSpec as exc:
         report_failure(deps, obj, exc)
         raise

@@ -26,17 +26,32 @@ from .outcome import Outcome
 from .state import FleetState, Rendered
 from .status import condition, rollout, same_status
 
-__all__ = ["hold", "paused", "refresh", "report_failure", "waiting_for_profiles"]
+__all__ = [
+    "hold",
+    "keep_last_plan",
+    "paused",
+    "refresh",
+    "report_failure",
+    "waiting_for_profiles",
+]
 
 log = logging.getLogger(__name__)
 Obj = dict[str, Any]
+RUNS_ITS_LAST_PLAN = "the fleet runs its last plan until a new one fits"
 
 
 def refresh(
-    deps: Deps, state: FleetState, inputs: FleetInputs, rendered: Rendered, planned: bool
+    deps: Deps,
+    state: FleetState,
+    inputs: FleetInputs,
+    rendered: Rendered,
+    planned: bool,
+    replan_failed: InvalidSpec | None = None,
 ) -> tuple[Outcome, Obj]:
     """The status from where the rendered Deployments stand (one patch, only if it changed),
-    and the fleet's status now."""
+    and the fleet's status now. ``replan_failed``: why a new plan could not be made, while
+    the fleet runs ``rendered`` (Ready and Scheduled False say it, with a PlanFailed Event
+    when it changes; Degraded, links and drift go on describing what runs)."""
     obj = inputs.obj
     ns, name = obj.key
     pods = deps.kube.list_pods(ns, {LABEL_FLEET: label_value(name)})
@@ -50,6 +65,9 @@ def refresh(
         state.links.watch, state.links.robots, state.links.standbys_active, state.links.takeovers
     )
     drift = drift_report(state.drift.watch, state.drift.modules, state.drift.onboard)
+    held = None
+    if replan_failed is not None:
+        held = (replan_failed.reason, f"{replan_failed}; {RUNS_ITS_LAST_PLAN}")
     status = running_wire(
         fleet_status(
             inputs.fleet,
@@ -62,14 +80,18 @@ def refresh(
             drift,
             state.shared if not rendered.baseline else None,
             deps.monitoring.condition(obj.generation),
+            held,
         )
     )
-    ready = not roll.waiting and not roll.moving and not rendered.stranded
+    ready = not roll.waiting and not roll.moving and not rendered.stranded and held is None
     events = [
         *link_events(obj.old_status.get("links") or [], links.entries),
         *drift_events(obj.old_status.get("measured") or [], drift.entries, drift.notes),
         *takeover_events(obj.old_status.get("fallbacks") or [], status.get("fallbacks") or []),
     ]
+    if held is not None and _condition_message(obj.old_status, "Scheduled") != held[1]:
+        events.append(("Warning", "PlanFailed", held[1]))
+        log.warning("Could not re-plan RobotFleet %s/%s: %s", ns, name, held[1])
     written = _write(deps, obj, status, events)
     if written is not None and ready != _is_ready(obj.old_status):
         log.info(
@@ -89,6 +111,19 @@ def refresh(
         status_write_seconds=written or 0.0,
     )
     return outcome, (status if written is not None else obj.old_status)
+
+
+def keep_last_plan(
+    deps: Deps, state: FleetState, inputs: FleetInputs, last: Rendered, exc: InvalidSpec
+) -> Outcome:
+    """A re-plan of a running fleet found no placement (a changed spec, learnt profiles that
+    no longer fit, a node gone): nothing that runs is touched, and the status goes on saying
+    where the fleet stands on its last plan (rollout, links, standbys, drift) with Ready and
+    Scheduled False and why; each pass tries to plan again."""
+    deps.metrics.count_error(inputs.obj.key[1], exc.reason)
+    state.rendered = last  # its stamp is not the inputs': the next pass plans again
+    outcome, _ = refresh(deps, state, inputs, last, planned=False, replan_failed=exc)
+    return outcome
 
 
 def hold(

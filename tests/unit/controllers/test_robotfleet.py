@@ -583,3 +583,47 @@ def test_a_robot_that_is_down_leaves_everything_where_it_runs(kube, deps):
     assert "robot-1 is NotReady" in cond["message"]
     kube.set_ready("robot-1", True)
     assert run(kube, deps).ready and placement(kube) == before
+
+
+def test_a_running_fleet_that_no_longer_fits_keeps_its_plan_and_its_status_follows_it(kube, deps):
+    """A re-plan that finds no placement (here every node shrinks) touches nothing that runs;
+    Ready and Scheduled say why (one PlanFailed Event per reason), and Degraded goes on saying
+    where the fleet stands on its last plan (a pod elsewhere shows as moving)."""
+    run(kube, deps)
+    kube.run_pods()
+    run(kube, deps)
+    before, deployments = placement(kube), copy.deepcopy(kube.deployments)
+    specs = {name: copy.deepcopy(cn["spec"]) for name, cn in kube.compute_nodes.items()}
+    for cn in kube.compute_nodes.values():
+        cn["spec"]["capacity"] = {"cpu": 3, "memory": "16Gi"}
+        cn["spec"]["reserved"] = {"cpu": "0", "memory": "0"}
+        cn["metadata"]["generation"] += 1
+    out = run(kube, deps)
+    assert not out.ready and not out.planned and placement(kube) == before
+    assert kube.deployments == deployments
+    cond = conditions(kube)
+    for type_ in ("Ready", "Scheduled"):
+        assert (cond[type_]["status"], cond[type_]["reason"]) == ("False", "Infeasible")
+        assert "the fleet runs its last plan" in cond[type_]["message"]
+    assert cond["Degraded"]["reason"] == "AsPlanned"
+    failed = [e for e in kube.events if e[1] == "PlanFailed"]
+    assert len(failed) == 1 and failed[0][0] == "Warning"
+
+    calls = deps.planner.calls
+    moved = next(p for k, p in kube.pods.items() if "nav-controller" in k[1])
+    moved["spec"]["nodeName"] = "edge-1"  # not where the last plan put it
+    out = run(kube, deps)
+    assert out.waiting == 1
+    assert deps.planner.calls == calls, "same inputs, same failure: no second GA run"
+    cond = conditions(kube)
+    assert cond["Degraded"]["reason"] == "Migrating", cond["Degraded"]
+    assert cond["Scheduled"]["status"] == "False"
+    assert len([e for e in kube.events if e[1] == "PlanFailed"]) == 1, "one Event per reason"
+
+    for name, cn in kube.compute_nodes.items():  # room again: planned as before
+        cn["spec"] = specs[name]
+        cn["metadata"]["generation"] += 1
+    kube.run_pods()
+    out = run(kube, deps)
+    assert out.ready and placement(kube) == before
+    assert conditions(kube)["Scheduled"]["status"] == "True"
