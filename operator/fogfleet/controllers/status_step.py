@@ -104,7 +104,9 @@ def refresh(
     outcome = Outcome(
         planned=planned,
         ready=ready,
-        requeue_after=None if ready else deps.requeue_seconds,
+        # a fleet held on its last plan plans again when its inputs change (events, the drift
+        # timer), not every few seconds: each try builds the whole problem
+        requeue_after=None if ready or held is not None else deps.requeue_seconds,
         message=_condition_message(status, "Ready"),
         waiting=len(roll.waiting) + len(roll.moving),
         unsettled=frozenset(roll.waiting).union(roll.moving),

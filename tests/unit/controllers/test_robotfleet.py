@@ -600,6 +600,7 @@ def test_a_running_fleet_that_no_longer_fits_keeps_its_plan_and_its_status_follo
         cn["metadata"]["generation"] += 1
     out = run(kube, deps)
     assert not out.ready and not out.planned and placement(kube) == before
+    assert out.requeue_after is None, "planned again when its inputs change, not on a timer"
     assert kube.deployments == deployments
     cond = conditions(kube)
     for type_ in ("Ready", "Scheduled"):
