@@ -127,11 +127,16 @@ def fleet_status(
     tiers = Counter(str(entry["tier"]) for entry in placement)
     if replan_failed is not None:
         reason, message = replan_failed
-        held = [condition(t, False, reason, message, generation) for t in ("Ready", "Scheduled")]
+        ready_scheduled = [
+            condition(t, False, reason, message, generation) for t in ("Ready", "Scheduled")
+        ]
     else:
-        held = [_ready(rendered, roll, generation), _scheduled(rendered, placement, generation)]
+        ready_scheduled = [
+            _ready(rendered, roll, generation),
+            _scheduled(rendered, placement, generation),
+        ]
     conds = [
-        *held,
+        *ready_scheduled,
         _degraded(rendered, roll, links, generation),
     ]
     if drift is not None and drift.condition is not None:
