@@ -46,7 +46,7 @@ test: venv lint crds-check docs-check cluster-tools unit integration chart-lint 
 crds: venv ## Write the CRD YAML in crds/ and the chart's generated files (CRD templates, Grafana dashboard, alert rules)
 	$(BIN)/fogfleet crds --out crds
 
-crds-check: venv ## Fail when crds/ or the chart's generated files drift from the models and contract/dashboard.py
+crds-check: venv ## Fail when crds/ or the chart's generated files drift from the models and artefacts/dashboard.py
 	$(BIN)/fogfleet crds --check crds
 
 docs-check: venv ## Fail when README.md or docs/ name a missing file, anchor, make target or CLI flag

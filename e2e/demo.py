@@ -46,7 +46,7 @@ from e2e.bed import ensure_up  # noqa: E402
 from e2e.bed.cluster import Cluster, running  # noqa: E402
 from e2e.bed.kube import Kube, guard_kubeconfig  # noqa: E402
 from e2e.bed.operator_fixtures import conditions, helm  # noqa: E402
-from fogfleet.controllers.ros import is_ros_object  # noqa: E402
+from fogfleet.render.wiring import is_ros_object  # noqa: E402
 
 RELEASE, SYSTEM = "fogfleet", "fogfleet-system"
 DEMO_NAMESPACES = ("warehouse", "warehouse-lite", "single-robot", "shared-detector", "pod-template")

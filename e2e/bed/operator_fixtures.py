@@ -24,7 +24,7 @@ import yaml
 from e2e.bed.base import BIN_DIR, CACHE_ROOT, KUBECONFIG
 from e2e.bed.kube import Kube
 from e2e.portable.chart import Helm
-from fogfleet.controllers.ros import is_ros_object
+from fogfleet.render.wiring import is_ros_object
 
 ROOT = Path(__file__).resolve().parents[2]
 EXAMPLES = ROOT / "manifests" / "examples"

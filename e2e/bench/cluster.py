@@ -457,7 +457,7 @@ def run_plain(
     deps = render_fleet(problem, modules, None, baseline=True)
     assert len(deps) == spec.pods, len(deps)
     servers = plain_discovery(problem, cat.fleets[0])
-    # the servers first, as the operator writes them (controllers/ros.py before the modules)
+    # the servers first, as the operator writes them (controllers/fleet/apply.py)
     docs = [*servers, *deps]
     watcher = Watcher(kube, ns, spec.pods)
     try:

@@ -25,7 +25,7 @@ from e2e.bed.kube import Kube
 from e2e.bed.operator_fixtures import EXAMPLES, bound_node, free_port
 from fogfleet.adapters.kube import KubeClient, load_config
 from fogfleet.adapters.prometheus import PrometheusClient
-from fogfleet.controllers.scaling import ScalingDeps, reconcile_scaling
+from fogfleet.controllers.module.scaling import ScalingDeps, reconcile_scaling
 from fogfleet.render.ros import PLANNED_TOLERATION
 from fogfleet.twin.app import Twin
 

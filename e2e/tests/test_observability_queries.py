@@ -10,7 +10,7 @@ What "works" means, honestly:
   expression is empty while the fleet is healthy (no Degraded fleet, no lost link, no
   error), which proves nothing: a misspelt metric or label would be empty too. So for each
   alert the test queries its ``series`` - the same expression without the threshold
-  (``contract.dashboard.Alert.series``; a unit test checks expr == series + threshold) - and
+  (``artefacts.dashboard.Alert.series``; a unit test checks expr == series + threshold) - and
   requires a series. The alert then fires exactly when that series crosses the threshold.
 
 The expressions are read from the chart's files (``charts/fogfleet/dashboards/``), the ones a
@@ -35,7 +35,7 @@ from e2e.bed.harness import Cluster
 from e2e.bed.kube import Kube
 from e2e.bed.operator_fixtures import ROOT, Operator, install_crds, wait_ready
 from e2e.tests.rosbed import EDGE, ROBOTS, bed_objects, ros_module
-from fogfleet.contract.dashboard import ALERTS
+from fogfleet.artefacts.dashboard import ALERTS
 
 pytestmark = [
     pytest.mark.e2e,

@@ -39,7 +39,7 @@ from e2e.bed.operator_fixtures import (
 )
 from e2e.portable.metrics import parse as parse_metrics
 from fogfleet.api.v1alpha1.base import parse_cpu
-from fogfleet.controllers.ros import is_ros_object
+from fogfleet.render.wiring import is_ros_object
 
 pytestmark = [
     pytest.mark.e2e,

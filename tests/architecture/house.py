@@ -46,6 +46,12 @@ def folder_of(path: Path, package: Path) -> str:
     return parts[0] if len(parts) > 1 else path.stem
 
 
+def room_of(path: Path, package: Path) -> str:
+    """``controllers/fleet`` for a file in a room of a folder, else the folder."""
+    parts = path.relative_to(package).parts
+    return "/".join(parts[:2]) if len(parts) > 2 else folder_of(path, package)
+
+
 def folders(package: Path) -> dict[str, dict[str, int]]:
     out: dict[str, dict[str, int]] = {}
     for path in sorted(package.rglob("*.py")):
@@ -74,6 +80,30 @@ def arrows(package: Path) -> dict[str, int]:
     return dict(sorted(found.items()))
 
 
+def rooms(package: Path, folder: str) -> dict[str, Any]:
+    """Inside one folder (``controllers``, ``runtime``): files and lines per room (its
+    sub-folders; ``(top)`` for its own modules) and the import arrows between its rooms."""
+    base = package / folder
+    if not base.is_dir():
+        return {}
+    sizes: dict[str, dict[str, int]] = {}
+    found: Counter[str] = Counter()
+    for path in sorted(base.rglob("*.py")):
+        src = folder_of(path, base) if len(path.relative_to(base).parts) > 1 else "(top)"
+        row = sizes.setdefault(src, {"files": 0, "lines": 0})
+        row["files"] += 1
+        row["lines"] += len(path.read_text().splitlines())
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
+                parts = node.module.split(".")
+                if parts[:2] != ["fogfleet", folder] or len(parts) < 3:
+                    continue
+                dst = parts[2] if (base / parts[2]).is_dir() else "(top)"
+                if dst != src:
+                    found[f"{src} -> {dst}"] += 1
+    return {"rooms": sizes, "arrows": dict(sorted(found.items()))}
+
+
 def longest(package: Path, n: int = 5) -> list[tuple[int, str]]:
     rows = []
     for path in package.rglob("*.py"):
@@ -89,7 +119,7 @@ def trace_reconcile(tree: Path, package: Path) -> dict[str, Any]:
     sys.path[:0] = [str(tree / "operator"), str(tree / "tests" / "unit" / "controllers")]
     conftest = importlib.import_module("conftest")
     deps_module = importlib.import_module("fogfleet.controllers.deps")
-    reconcile = importlib.import_module("fogfleet.controllers.robotfleet").reconcile
+    reconcile = importlib.import_module("fogfleet.controllers.fleet.reconcile").reconcile
     kube = conftest.FakeKube()
     kube.load_warehouse()
     deps = deps_module.Deps(kube=kube, planner=conftest.CountingPlanner())
@@ -132,11 +162,11 @@ def trace_reconcile(tree: Path, package: Path) -> dict[str, Any]:
     finally:
         sys.setprofile(None)
     files = {f for f, _ in places}
-    by_folder = Counter(folder_of(Path(f), package) for f, _ in places)
+    by_folder = Counter(room_of(Path(f), package) for f, _ in places)
     return {
         "places": len(places),
         "files": len(files),
-        "places_by_folder": dict(sorted(by_folder.items())),
+        "places_by_room": dict(sorted(by_folder.items())),
         "folder_crossings": len(crossings),  # distinct caller -> callee pairs across folders
         "climbs": climbs,
     }
@@ -150,6 +180,7 @@ def main() -> None:
     report = {
         "folders": folders(package),
         "arrows": arrows(package),
+        "rooms": {f: rooms(package, f) for f in ("controllers", "runtime")},
         "longest": longest(package),
         "reconcile": trace_reconcile(tree, package),
     }

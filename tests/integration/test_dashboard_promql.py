@@ -13,7 +13,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from fogfleet.contract import dashboard as dash
+from fogfleet.artefacts import dashboard as dash
 
 CHART = Path(__file__).resolve().parents[2] / "charts" / "fogfleet"
 

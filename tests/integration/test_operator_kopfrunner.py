@@ -1,4 +1,4 @@
-"""The real operator (``fogfleet.handlers`` on kopf, our KubeClient and watch caches) run by
+"""The real operator (``fogfleet.runtime.handlers`` on kopf, our KubeClient and watch caches) run by
 ``kopf.testing.KopfRunner`` against the fake API server of :mod:`fakeapi`.
 
 It checks the operator's behaviour on the wire: which objects it server-side applies and how it
@@ -20,8 +20,8 @@ import yaml
 from kopf.testing import KopfRunner
 
 from fogfleet.api.labels import LABEL_MODULE, LABEL_ROBOT
-from fogfleet.handlers import register
-from fogfleet.operator_main import build_runtime
+from fogfleet.runtime.handlers import register
+from fogfleet.runtime.main import build_runtime
 from fogfleet.settings import Settings
 
 from .fakeapi import FakeApi

@@ -299,7 +299,7 @@ def test_chart_clusterrole_template_has_the_same_rules_as_the_manifest() -> None
 
 def test_chart_crds_are_the_generated_crds() -> None:
     """The chart templates the generated CRDs (kept on uninstall), and has no crds/ folder."""
-    from fogfleet.api.crdgen import render_chart_crd_text
+    from fogfleet.artefacts.crds import render_chart_crd_text
 
     for path in sorted((REPO / "crds").glob("*.yaml")):
         want = render_chart_crd_text(yaml.safe_load(path.read_text()))

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import kopf
 
-from fogfleet.handlers import register
+from fogfleet.runtime.handlers import register
 from fogfleet.settings import Settings
 
 

@@ -61,7 +61,7 @@ from e2e.bench.real.protocol import (
 )
 from e2e.bench.real.record import RunResult, document
 from e2e.bench.real.scenario import FLEET, PROFILE, ROOT, Scenario, honest_requests
-from fogfleet.controllers.observed import describe
+from fogfleet.controllers.measure.observed import describe
 from fogfleet.domain.rows import Learnt
 from fogfleet.sim import simulate
 

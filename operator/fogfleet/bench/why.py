@@ -6,8 +6,8 @@ nodes) with a placement from the greedy heuristic (what runs does not change the
 size, the median of ``runs`` timings of each step ``why FLEET MODULE --robot R`` takes after
 reading the objects: the problem build (``domain.build.build_problem``, the operator's own),
 the build's refusals for the instance (``domain.build.refusals``) and the explanation
-(``scheduling.why.explain_module``: every node the instance could use, each move scored
-incrementally); then the explanation of a shared module's replicas (no ``--robot``).
+(``scheduling.explain.alternatives.explain_module``: every node the instance could use, each
+move scored incrementally); then the explanation of a shared module's replicas (no ``--robot``).
 """
 
 from __future__ import annotations
@@ -20,8 +20,8 @@ from typing import Any
 from fogfleet.api.v1alpha1.robotfleet import SchedulerSettings
 from fogfleet.bench.scheduling import synthetic_fleet
 from fogfleet.domain.build import build_problem, refusals
+from fogfleet.scheduling.explain.alternatives import explain_module
 from fogfleet.scheduling.heuristics import greedy_schedule
-from fogfleet.scheduling.why import explain_module
 
 __all__ = ["why_rows"]
 

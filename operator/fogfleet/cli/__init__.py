@@ -29,7 +29,7 @@ __all__ = ["main"]
 
 
 def cmd_run(args: argparse.Namespace) -> int:
-    from fogfleet.operator_main import run
+    from fogfleet.runtime.main import run
     from fogfleet.settings import Settings
 
     run(Settings())

@@ -101,7 +101,7 @@ def one_fleet(plans: list[Any], paths: Sequence[str]) -> Any:
 
 def refusal(plan: Any) -> str:
     """Why a site plan cannot run as planned, with the room the other fleets hold."""
-    from fogfleet.scheduling.explain import infeasible_message
+    from fogfleet.scheduling.explain.shortfall import infeasible_message
 
     why = infeasible_message(plan.problem, plan.schedule.placement, plan.schedule.reasons)
     return f"{why}; {plan.room}" if plan.room else why
@@ -109,7 +109,7 @@ def refusal(plan: Any) -> str:
 
 def degradation(plan: Any) -> str:
     """Why a site plan runs below its deadlines' CPU, with the room the other fleets hold."""
-    from fogfleet.scheduling.explain import degraded_message
+    from fogfleet.scheduling.explain.shortfall import degraded_message
 
     why = degraded_message(plan.problem, plan.schedule.placement)
     return f"{why}; {plan.room}" if plan.room else why

@@ -10,7 +10,7 @@ from typing import Any
 
 from fogfleet.plugin.commands import why_doc
 from fogfleet.plugin.output import render, why_table
-from fogfleet.scheduling.why import explain_module
+from fogfleet.scheduling.explain.alternatives import explain_module
 
 from .common import catalog_of, one_fleet, site_plans
 

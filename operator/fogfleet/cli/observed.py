@@ -19,8 +19,8 @@ import numpy as np
 from fogfleet.adapters.prometheus import PrometheusClient
 from fogfleet.api.loader import Catalog
 from fogfleet.api.v1alpha1.robotfleet import RobotFleet
-from fogfleet.controllers.observed import declared_rows, read_observations
-from fogfleet.controllers.observed import describe as say
+from fogfleet.controllers.measure.observed import declared_rows, read_observations
+from fogfleet.controllers.measure.observed import describe as say
 from fogfleet.domain.observed import correction
 from fogfleet.domain.problem import Allocation, Problem
 from fogfleet.domain.rows import Learnt, carry_noise

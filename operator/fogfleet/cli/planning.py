@@ -16,7 +16,7 @@ from fogfleet.api.v1alpha1.robotfleet import PLACEMENT_LIST_LIMIT
 from fogfleet.commandline import BAD_INPUT, OK
 from fogfleet.domain.miss_rates import format_miss_rate, worst_module
 from fogfleet.errors import InvalidSpec
-from fogfleet.scheduling.explain import unplaced_reasons
+from fogfleet.scheduling.explain.shortfall import unplaced_reasons
 from fogfleet.scheduling.objectives import module_miss_rates
 
 from .common import catalog_of, degradation, refusal, site_plans, table

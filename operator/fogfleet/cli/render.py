@@ -129,10 +129,10 @@ def _hpas(
 
 
 def cmd_crds(args: argparse.Namespace) -> int:
-    from fogfleet.api import crdgen
+    from fogfleet.artefacts import files
 
     if args.check:
-        drift = crdgen.check_crds(Path(args.check))
+        drift = files.check_crds(Path(args.check))
         for line in drift:
             print(line, file=sys.stderr)
         if drift:
@@ -143,6 +143,6 @@ def cmd_crds(args: argparse.Namespace) -> int:
             return FAILED
         print(f"{args.check}: CRDs match the models")
         return OK
-    for path in crdgen.write_crds(Path(args.out)):
+    for path in files.write_crds(Path(args.out)):
         print(path)
     return 0

@@ -12,10 +12,9 @@ from typing import Any, Protocol
 
 from fogfleet.adapters.ports import KubePort, MetricsPort, NullMetrics, Watches
 from fogfleet.adapters.prometheus import PrometheusPort
+from fogfleet.controllers.measure.monitoring import Monitoring
+from fogfleet.controllers.state import FleetStore
 from fogfleet.scheduling.decision import CorePlanner, Planner
-
-from .monitoring import Monitoring
-from .state import FleetStore
 
 __all__ = ["Deps", "ScalingDeps", "ScalingKube"]
 
@@ -37,7 +36,7 @@ class Deps:
     # a render is re-done once older than this (or than stamp.RESYNC_COST_FACTOR times what
     # it took; 0: every reconcile is a full pass)
     full_reconcile_seconds: float = 60.0
-    # one fleet plans at a time, into what the others claimed (controllers/tenancy.py)
+    # one fleet plans at a time, into what the others claimed (controllers/fleet/tenancy.py)
     planning: threading.Lock = field(default_factory=threading.Lock)
     # the operator's Prometheus as every fleet's Monitored condition tells it (none by default)
     monitoring: Monitoring = field(default_factory=Monitoring)

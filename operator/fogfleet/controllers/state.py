@@ -33,6 +33,7 @@ from numpy.typing import NDArray
 from fogfleet.api.v1alpha1.computenode import ComputeNode
 from fogfleet.api.v1alpha1.linkhealth import LinkHealth
 from fogfleet.api.v1alpha1.observed import DriftSettings
+from fogfleet.controllers.stamp import DeploymentStamps
 from fogfleet.domain.linkhealth import RobotLink
 from fogfleet.domain.network import Link
 from fogfleet.domain.observed import MissBudget, ModuleDrift
@@ -40,8 +41,6 @@ from fogfleet.domain.onboard import OnboardNeed
 from fogfleet.domain.problem import Problem
 from fogfleet.domain.takeovers import Mark, SeriesKey, Takeovers
 from fogfleet.scheduling.decision import Decision
-
-from .stamp import DeploymentStamps
 
 __all__ = [
     "DriftWatch",
@@ -109,8 +108,8 @@ class LinkWatch:
 
 @dataclass
 class FleetLinks:
-    """The robots' links as measured, and what their standbys did (controllers/links.py writes
-    it; cache, re-measured, but for ``takeovers``)."""
+    """The robots' links as measured, and what their standbys did (``measure/links.py``
+    writes it; cache, re-measured, but for ``takeovers``)."""
 
     watch: LinkWatch | None = None
     robots: dict[str, RobotLink] = field(default_factory=dict)
@@ -145,7 +144,7 @@ class DriftWatch:
 
 @dataclass
 class FleetDrift:
-    """Each module's measured against predicted misses (controllers/observed.py; cache)."""
+    """Each module's measured against predicted misses (controllers/measure/observed.py; cache)."""
 
     watch: DriftWatch | None = None
     modules: dict[str, ModuleDrift] | None = None  # None: not measured yet
@@ -176,7 +175,7 @@ class FleetState:
     references: References | None = None  # None until a reconcile recorded them
     plan: Decision | None = None  # the deployed plan, by input fingerprint
     # Kubernetes Node -> (CPU cores, memory bytes) the plan requests there: what the other
-    # fleets plan around (controllers/tenancy.py); recorded with the plan, under the lock
+    # fleets plan around (controllers/fleet/tenancy.py); recorded with the plan, under the lock
     claims: dict[str, tuple[float, float]] = field(default_factory=dict)
     shared: list[Obj] = field(default_factory=list)  # status.sharedNodes of the plan
     failure: tuple[str, Exception] | None = None  # (fingerprint, the error it gave)

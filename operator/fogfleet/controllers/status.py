@@ -7,13 +7,14 @@ Pure functions of the plan and of what the cluster shows (Deployments and their 
 from __future__ import annotations
 
 import math
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from typing import Any
 
 from pydantic import BaseModel
 
 from fogfleet.api.labels import LABEL_INSTANCE
 from fogfleet.api.timestamps import timestamp
+from fogfleet.api.v1alpha1.common import Condition
 from fogfleet.domain.miss_rates import format_miss_rate
 from fogfleet.render.deployments import hash_annotation
 from fogfleet.snapshot.objects import scaling_status
@@ -22,6 +23,7 @@ __all__ = [
     "Rollout",
     "complete",
     "condition",
+    "find_condition",
     "finite",
     "merge_conditions",
     "miss_fields",
@@ -30,6 +32,7 @@ __all__ = [
     "rollout",
     "same_status",
     "scaling_status",
+    "set_conditions",
     "split_text",
     "wire",
     "wire_keys",
@@ -71,27 +74,47 @@ def now() -> str:
 def condition(
     type_: str, ok: bool | None, reason: str, message: str, generation: int | None
 ) -> Obj:
-    status = "Unknown" if ok is None else ("True" if ok else "False")
-    return {
-        "type": type_,
-        "status": status,
-        "reason": reason,
-        "message": message[:2000],
-        "observedGeneration": generation,
-    }
+    """A condition as written, built as the API's ``Condition`` model (so a reason that is not
+    one CamelCase word fails here, in the writer, not at the API server)."""
+    built = Condition(
+        type=type_,
+        status="Unknown" if ok is None else ("True" if ok else "False"),
+        reason=reason,
+        message=message[:2000],
+        observed_generation=generation,
+    )
+    return wire(built)
 
 
-def merge_conditions(old: Iterable[Mapping[str, Any]], new: Sequence[Obj]) -> list[Obj]:
-    """Keep lastTransitionTime where a condition's status did not change."""
-    before = {c.get("type"): c for c in old}
+def find_condition(conditions: Iterable[Mapping[str, Any]] | None, type_: str) -> Obj | None:
+    """The condition of type ``type_``, or None (apimachinery's ``meta.FindStatusCondition``)."""
+    return next((dict(c) for c in conditions or () if c.get("type") == type_), None)
+
+
+def set_conditions(
+    old: Iterable[Mapping[str, Any]] | None,
+    new: Sequence[Obj],
+    keep: Callable[[str], bool] = lambda _type: True,
+) -> list[Obj]:
+    """``new`` set into ``old``, as apimachinery's ``meta.SetStatusCondition`` sets one: each
+    new condition keeps its old ``lastTransitionTime`` while its status is unchanged and gets
+    the current time when it changes. The old conditions of other types follow, those whose
+    type ``keep`` accepts (default: all of them). The one way every status writer merges its
+    conditions."""
+    before = [dict(c) for c in old or ()]
+    ours = {c["type"] for c in new}
     out = []
     for c in new:
-        prev = before.get(c["type"])
-        stamp = (
-            prev.get("lastTransitionTime") if prev and prev.get("status") == c["status"] else None
-        )
+        prev = find_condition(before, c["type"])
+        same = prev is not None and prev.get("status") == c["status"]
+        stamp = prev.get("lastTransitionTime") if prev is not None and same else None
         out.append({**c, "lastTransitionTime": stamp or now()})
-    return out
+    return out + [c for c in before if c.get("type") not in ours and keep(str(c.get("type")))]
+
+
+def merge_conditions(old: Iterable[Mapping[str, Any]] | None, new: Sequence[Obj]) -> list[Obj]:
+    """``new`` as the whole list of conditions: ``set_conditions`` dropping the old others."""
+    return set_conditions(old, new, keep=lambda _type: False)
 
 
 def without_transition_times(conditions: Any) -> list[Obj]:

@@ -1,7 +1,7 @@
 """What ``kubectl fogfleet`` computes, as plain documents (``plugin.output`` prints them as
 tables, JSON or YAML): ``why``, ``top``, ``diff`` and ``plan --what-if``.
 
-Every figure comes from the planner's code: ``scheduling.why`` for the reasons,
+Every figure comes from the planner's code: ``scheduling.explain.alternatives`` for the reasons,
 ``objectives.module_miss_rates``/``objective_values`` for predictions, ``decision.decide``
 (what the operator runs on a full pass, migration-margin rule included) for a re-plan."""
 
@@ -17,8 +17,8 @@ from fogfleet.api.timestamps import parse_timestamp
 from fogfleet.domain.problem import Problem
 from fogfleet.errors import Infeasible
 from fogfleet.scheduling.decision import CorePlanner, decide, fingerprint, with_defaults
+from fogfleet.scheduling.explain.alternatives import ModuleWhy, explain_module
 from fogfleet.scheduling.objectives import REGISTRY, module_miss_rates, objective_values
-from fogfleet.scheduling.why import ModuleWhy, explain_module
 from fogfleet.snapshot import room_note
 
 from .live import Live
@@ -29,7 +29,8 @@ Doc = dict[str, Any]
 
 
 def why_of(live: Live, module: str, robot: str | None = None, limit: int = 50) -> ModuleWhy:
-    """``scheduling.why.explain_module`` on the running fleet, with the measured miss rate."""
+    """``scheduling.explain.alternatives.explain_module`` on the running fleet, with the
+    measured miss rate."""
     spec = live.fleet.spec.scheduler
     w = explain_module(
         live.problem,

@@ -75,10 +75,12 @@ __all__ = [
     "identity_of",
     "label_value",
     "node_affinity",
+    "owner_references",
     "render_fleet",
     "render_instance",
     "spec_hash",
     "spread_replicas",
+    "with_spec_hash",
 ]
 
 COMPONENT_STANDBY = "fallback-standby"
@@ -343,17 +345,32 @@ def _metadata(
         "annotations": annotations,
     }
     if owner is not None:
-        metadata["ownerReferences"] = [
-            {
-                "apiVersion": API_VERSION,
-                "kind": "RobotFleet",
-                "name": owner.name,
-                "uid": owner.uid,
-                "controller": True,
-                "blockOwnerDeletion": True,
-            }
-        ]
+        metadata["ownerReferences"] = owner_references(owner)
     return metadata
+
+
+def owner_references(owner: Owner | None) -> list[dict[str, Any]]:
+    """The ownerReferences of an object the fleet ``owner`` owns (none without an owner)."""
+    if owner is None:
+        return []
+    return [
+        {
+            "apiVersion": API_VERSION,
+            "kind": "RobotFleet",
+            "name": owner.name,
+            "uid": owner.uid,
+            "controller": True,
+            "blockOwnerDeletion": True,
+        }
+    ]
+
+
+def with_spec_hash(obj: Mapping[str, Any]) -> dict[str, Any]:
+    """``obj`` with its spec-hash annotation (on its own copy of the metadata): how the apply
+    engine knows an object there is unchanged."""
+    meta = obj["metadata"]
+    annotations = {**(meta.get("annotations") or {}), ANNOTATION_SPEC_HASH: spec_hash(obj)}
+    return {**obj, "metadata": {**meta, "annotations": annotations}}
 
 
 def _deployment(

@@ -35,7 +35,7 @@ from fogfleet.domain.problem import Problem
 from fogfleet.errors import Infeasible
 
 from . import stickiness
-from .explain import infeasible_message
+from .explain.shortfall import infeasible_message
 from .incremental import Replan, changed_instances, replan
 from .objectives import feasible, objective_values
 from .schedule import Schedule

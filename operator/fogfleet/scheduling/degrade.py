@@ -30,7 +30,7 @@ from numpy.typing import NDArray
 from fogfleet.domain.problem import Problem
 
 from .evaluation import Evaluation
-from .explain import degraded_message
+from .explain.shortfall import degraded_message
 from .heuristics import greedy
 from .objectives import constraints, evaluate
 from .schedule import Schedule

@@ -55,7 +55,7 @@ from fogfleet.domain.problem import LazyLadder, Problem, freeze
 
 from .degrade import give_back, levels_of, steps
 from .evaluation import Evaluation
-from .explain import degraded_message
+from .explain.shortfall import degraded_message
 from .heuristics import Fit
 from .objectives import feasible, objective_values
 

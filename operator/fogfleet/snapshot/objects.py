@@ -30,6 +30,7 @@ __all__ = [
     "recorded_corrections",
     "scaling_pools",
     "scaling_status",
+    "written_status",
 ]
 
 Obj = dict[str, Any]
@@ -128,6 +129,14 @@ def profile_corrections(modules: Iterable[Mapping[str, Any]]) -> dict[tuple[str,
             if factor > 0 and noise >= 0 and cycles >= 0 and hw:
                 out[(name, hw)] = Learnt(factor, noise, cycles)
     return out
+
+
+def written_status(obj: Mapping[str, Any]) -> Obj:
+    """An object's status as its writers last wrote it: what a status writer compares its new
+    status with and sets its conditions into. Planning never reads it raw: it asks the typed
+    readers of this module."""
+    status = obj.get("status")
+    return dict(status) if isinstance(status, Mapping) else {}
 
 
 def recorded_corrections(module: Mapping[str, Any]) -> dict[Any, Obj]:

@@ -42,7 +42,7 @@ class WorkloadMetrics:
         self._cycle_lock = threading.Lock()
         ids = {"module": module, "robot": robot, "tier": tier}
         # what one cycle's work took, by where and with how much CPU it ran: what the operator
-        # learns a module's real profile from (issue 10; controllers/observed.py)
+        # learns a module's real profile from (issue 10; controllers/measure/observed.py)
         self.execution = Histogram(
             EXECUTION_TIME.removesuffix("_seconds"),
             "Execution time of one cycle's work (eq. 4's t_exe), by hardware type and CPU limit",
@@ -185,7 +185,7 @@ class WorkloadMetrics:
             # keep-alive, gzip, and the headers and body in one write (unbuffered, the body
             # waited for the ACK of the headers: Nagle's rule against the scraper's delayed
             # ACK): a scrape is then one round trip over the robot's link, so the fastest
-            # scrape measures the link (controllers/links.py), and it costs the link less
+            # scrape measures the link (controllers/measure/links.py), and it costs the link less
             protocol_version = "HTTP/1.1"
             wbufsize = 1 << 16  # handle_one_request flushes it once the answer is complete
             disable_nagle_algorithm = True

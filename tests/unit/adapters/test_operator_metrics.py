@@ -19,8 +19,8 @@ from fogfleet.adapters.metrics import PrometheusMetrics
 from fogfleet.adapters.watched import WatchedKube
 from fogfleet.contract.metrics import OPERATOR_METRICS
 from fogfleet.controllers.outcome import Outcome
-from fogfleet.controllers.queue import ReconcileQueue
 from fogfleet.errors import DependencyUnavailable
+from fogfleet.runtime.queue import ReconcileQueue
 
 KEY = ("ns", "fleet")
 

@@ -283,11 +283,11 @@ def test_dangling_robot_reference_names_the_list_entry(tmp_path: Path) -> None:
 
 def test_every_cross_field_rule_is_stated_once_and_reaches_its_crd() -> None:
     """The models' RULES are what the CRDs validate with (one statement, two checkers)."""
-    from fogfleet.api.crdgen import render_crds
     from fogfleet.api.v1alpha1.computenode import ComputeNodeSpec
     from fogfleet.api.v1alpha1.fallback import Fallback
     from fogfleet.api.v1alpha1.robotfleet import RobotFleetSpec, SchedulerSettings
     from fogfleet.api.v1alpha1.softwaremodule import SoftwareModuleSpec
+    from fogfleet.artefacts.crds import render_crds
 
     crds = {c["spec"]["names"]["kind"]: c for c in render_crds().values()}
 

@@ -9,8 +9,8 @@ from typing import Any
 import pytest
 import yaml
 
-from fogfleet.api.crdgen import render_crds
 from fogfleet.api.loader import parse_object
+from fogfleet.artefacts.crds import render_crds
 from fogfleet.errors import InvalidSpec
 
 REPO = Path(__file__).resolve().parents[3]

@@ -22,7 +22,7 @@ from fogfleet.autoscaling.behavior import BehaviorState, Recommendation, ScaleEv
 from fogfleet.autoscaling.policy import MetricsSnapshot, ScalerState
 from fogfleet.autoscaling.pools import pools_for, service_rate
 from fogfleet.autoscaling.state import ANNOTATION_STATE, dump_state, load_state
-from fogfleet.controllers.scaling import ScalingDeps, reconcile_scaling
+from fogfleet.controllers.module.scaling import ScalingDeps, reconcile_scaling
 from fogfleet.errors import DependencyUnavailable, InvalidSpec
 
 ROOT = Path(__file__).resolve().parents[3]

@@ -14,7 +14,7 @@ import pytest
 
 from fogfleet.api.loader import load_paths
 from fogfleet.cli import main
-from fogfleet.controllers.observed import declared_rows
+from fogfleet.controllers.measure.observed import declared_rows
 from fogfleet.domain.observed import declared_row
 
 WAREHOUSE = Path(__file__).resolve().parents[3] / "manifests" / "examples" / "warehouse"

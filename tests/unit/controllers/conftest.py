@@ -55,6 +55,7 @@ class FakeKube:
         self.pods: dict[tuple[str, str], Obj] = {}
         self.applied: list[str] = []
         self.applied_services: list[str] = []
+        self.applied_policies: list[str] = []
         self.deleted: list[str] = []
         self.status_patches: list[Obj] = []
         self.module_patches: list[tuple[str, str]] = []
@@ -180,6 +181,7 @@ class FakeKube:
 
     def apply_network_policy(self, body: Obj) -> Obj:
         self.network_policies[(body["metadata"]["namespace"], body["metadata"]["name"])] = body
+        self.applied_policies.append(body["metadata"]["name"])
         return copy.deepcopy(body)
 
     def list_network_policies(self, namespace: str, selector: Mapping[str, str]) -> list[Obj]:

@@ -10,7 +10,7 @@ from typing import Any
 
 import pytest
 
-from fogfleet.controllers.robotfleet import reconcile
+from fogfleet.controllers.fleet.reconcile import reconcile
 
 KEY = ("warehouse", "warehouse")
 

@@ -9,10 +9,10 @@ from collections import Counter
 
 import pytest
 
-import fogfleet.controllers.fleet_status as fleet_status
+import fogfleet.controllers.fleet.status as fleet_status
 from fogfleet.cli.planning import recorded_placement
-from fogfleet.controllers.robotfleet import reconcile
-from fogfleet.controllers.usage import reconcile_usage
+from fogfleet.controllers.fleet.reconcile import reconcile
+from fogfleet.controllers.measure.usage import reconcile_usage
 from fogfleet.errors import InvalidSpec
 
 KEY = ("warehouse", "warehouse")

@@ -7,10 +7,10 @@ from typing import Any
 
 import pytest
 
-import fogfleet.controllers.fleet_plan as fleet_plan
+import fogfleet.controllers.fleet.plan as fleet_plan
 from fogfleet.api.timestamps import timestamp
-from fogfleet.controllers.links import LinkDeps, link_events, measure_links, takeover_events
-from fogfleet.controllers.robotfleet import reconcile
+from fogfleet.controllers.fleet.reconcile import reconcile
+from fogfleet.controllers.measure.links import LinkDeps, link_events, measure_links, takeover_events
 from fogfleet.errors import DependencyUnavailable
 
 KEY = ("warehouse", "warehouse")

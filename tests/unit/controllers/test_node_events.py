@@ -3,8 +3,8 @@ controller posting them once per change (a rebooted node, issue 37)."""
 
 from __future__ import annotations
 
-from fogfleet.controllers.node_events import node_events
-from fogfleet.controllers.robotfleet import reconcile
+from fogfleet.controllers.fleet.node_events import node_events
+from fogfleet.controllers.fleet.reconcile import reconcile
 
 KEY = ("warehouse", "warehouse")
 HOSTED = {"edge-1": ["r1/detector", "r2/detector", "r2/planner"], "r1": ["r1/camera"]}

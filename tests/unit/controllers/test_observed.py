@@ -8,8 +8,8 @@ from typing import Any
 import pytest
 
 from fogfleet.api.labels import ANNOTATION_MODULE, ANNOTATION_ROLE
-from fogfleet.controllers.observed import ObservedDeps, observe
-from fogfleet.controllers.robotfleet import reconcile
+from fogfleet.controllers.fleet.reconcile import reconcile
+from fogfleet.controllers.measure.observed import ObservedDeps, observe
 from fogfleet.domain.rows import Learnt
 from fogfleet.errors import DependencyUnavailable
 from fogfleet.snapshot.objects import profile_corrections

@@ -14,7 +14,7 @@ import pytest
 from virtualtime import run_in_virtual_time
 
 from fogfleet.controllers.outcome import Outcome
-from fogfleet.controllers.queue import ReconcileQueue
+from fogfleet.runtime.queue import ReconcileQueue
 
 
 def test_a_burst_of_triggers_makes_one_reconcile() -> None:
@@ -62,8 +62,8 @@ def test_reconciles_of_one_fleet_never_overlap_and_requeue_until_ready() -> None
 
 
 def test_failing_background_runs_back_off_exponentially_and_a_success_resets() -> None:
-    from fogfleet.controllers.queue import backoff_delay
     from fogfleet.errors import DependencyUnavailable
+    from fogfleet.runtime.queue import backoff_delay
 
     assert [backoff_delay(10, k) for k in range(7)] == [10, 20, 40, 80, 160, 300, 300]
     stamps: list[float] = []
@@ -85,7 +85,7 @@ def test_failing_background_runs_back_off_exponentially_and_a_success_resets() -
     gaps = [b - a for a, b in itertools.pairwise(stamps)]
     assert len(stamps) == 4, stamps  # three failures, then the success: no more runs
     assert gaps == pytest.approx([0.02, 0.04, 0.08]), gaps
-    assert q._failures == {}
+    assert q.failures(("ns", "f")) == 0  # a success resets the count
 
 
 def _timing_runner(runs: list[float]) -> Callable[[tuple[str, str]], Awaitable[Outcome]]:
@@ -192,3 +192,30 @@ def test_forgetting_a_fleet_drops_its_lock_timer_and_failures() -> None:
     q = ReconcileQueue(runner, debounce=0.01, retry=60.0)
     assert run_in_virtual_time(main()) == set()
     assert held == [{gone}]  # while held, the lock stays (a waiter could be queued on it)
+
+
+def test_a_closed_queue_runs_nothing_and_a_run_failing_while_it_closes_leaves_no_retry() -> None:
+    """The operator stopping (or losing its Lease) closes the queue and then its threads: a run
+    that fails meanwhile must not schedule a retry that would find the threads gone."""
+    runs: list[float] = []
+    closing: list[asyncio.Task[None]] = []
+
+    async def runner(key: tuple[str, str]) -> Outcome:
+        runs.append(asyncio.get_running_loop().time())
+        closing.append(asyncio.create_task(q.close()))  # the operator stops during this run
+        await asyncio.sleep(0)
+        raise RuntimeError("the API server went away")
+
+    async def main() -> tuple[bool, Outcome | None]:
+        q.schedule(("ns", "f"), 0.0)  # a background run: its failure would be retried
+        await asyncio.sleep(1.0)
+        await asyncio.gather(*closing)
+        q.schedule(("ns", "f"), 0.0)
+        q.schedule_debounced(("ns", "g"))
+        late = await q.run_now(("ns", "f"))
+        await asyncio.sleep(600.0)  # longer than any retry
+        return bool(q.pending()), late
+
+    q = ReconcileQueue(runner, debounce=0.01, retry=0.01)
+    pending, late = run_in_virtual_time(main())
+    assert runs == [0.0] and not pending and late is None

@@ -7,11 +7,11 @@ import copy
 import pytest
 
 from fogfleet.api.v1alpha1.base import parse_cpu
-from fogfleet.controllers.robotfleet import reconcile
-from fogfleet.controllers.ros import is_ros_object
+from fogfleet.controllers.fleet.reconcile import reconcile
 from fogfleet.errors import DanglingReference, Infeasible
 from fogfleet.render.deployments import identity_of
 from fogfleet.render.names import discovery_service_name, robot_network_policy_name
+from fogfleet.render.wiring import is_ros_object
 
 KEY = ("warehouse", "warehouse")
 
@@ -319,10 +319,13 @@ def test_an_unchanged_fleet_writes_nothing_again_and_a_changed_server_is_reappli
     deps.full_reconcile_seconds = 0.0  # the full pass every time, not a status refresh
     run(kube, deps)
     assert len(kube.applied_services) == 5 and len(kube.applied) == 45  # 40 modules + 5 servers
+    policies = len(kube.applied_policies)
+    assert policies == len(kube.network_policies) > 0
     ips = {k[1]: s["spec"]["clusterIP"] for k, s in kube.services.items()}
     kube.run_pods()
     run(kube, deps)
     assert len(kube.applied_services) == 5 and len(kube.applied) == 45
+    assert len(kube.applied_policies) == policies  # one apply engine: NetworkPolicies too
     kube.fleets[KEY]["spec"]["ros"] = {"discoveryServerPort": 11911}
     kube.fleets[KEY]["metadata"]["generation"] = 2
     run(kube, deps)

@@ -10,10 +10,10 @@ import pytest
 from virtualtime import run_in_virtual_time
 
 from fogfleet.controllers.deps import Deps
-from fogfleet.controllers.monitoring import Monitoring
-from fogfleet.controllers.runtime import Runtime
+from fogfleet.controllers.measure.monitoring import Monitoring
 from fogfleet.controllers.state import References
 from fogfleet.errors import DependencyUnavailable
+from fogfleet.runtime.dispatch import Runtime
 
 FLEETS = [("wh", "a"), ("wh", "b"), ("lab", "c")]
 UNKNOWN = ("wh", "not-reconciled-yet")
@@ -58,7 +58,7 @@ def test_each_change_of_prometheus_rechecks_every_reconciled_fleet_once(
         await runtime.close()
         return seen
 
-    with caplog.at_level("INFO", logger="fogfleet.controllers.runtime"):
+    with caplog.at_level("INFO", logger="fogfleet.runtime.dispatch"):
         start, outage, same, back, after = run_in_virtual_time(main())
     assert start == set() and same == set() and after == set()
     assert outage == set(FLEETS) and back == set(FLEETS), "every reconciled fleet, once"

@@ -13,8 +13,8 @@ import pytest
 
 from fogfleet.controllers.deps import Deps
 from fogfleet.controllers.outcome import Outcome
-from fogfleet.controllers.runtime import Runtime
 from fogfleet.controllers.state import References
+from fogfleet.runtime.dispatch import Runtime
 
 KEY = ("wh", "fleet")
 
@@ -152,7 +152,7 @@ def test_the_caches_report_modules_and_compute_nodes_one_watch_per_kind(listener
 def test_a_large_rollout_refreshes_its_status_less_often(waiting: int, cap: float | None):
     """Many modules still rolling out: Pod events wait up to ROLLOUT_BUSY_MAX_WAIT_SECONDS;
     the last few modules get the queue's short cap (Ready follows the last pod quickly)."""
-    from fogfleet.controllers import runtime as rt
+    from fogfleet.runtime import dispatch as rt
 
     def count(runtime: Runtime) -> None:
         runtime.store.state(KEY).rollout.waiting = waiting
@@ -250,7 +250,7 @@ def test_the_usage_pass_follows_placements_not_every_refresh(kube, deps):
     ],
 )
 def test_a_rollout_near_its_end_at_its_pace_gets_the_short_wait(counts, cap):
-    from fogfleet.controllers import runtime as rt
+    from fogfleet.runtime import dispatch as rt
 
     def count(runtime: Runtime) -> None:
         for at, waiting in counts:
@@ -332,7 +332,7 @@ def refreshes_after(unsettled: set[str], events: list[tuple[str, bool]]) -> list
 
 
 def test_the_last_pod_a_rollout_waits_for_rechecks_its_fleet_at_once():
-    from fogfleet.controllers import runtime as rt
+    from fogfleet.runtime import dispatch as rt
 
     quiet = ("debounced", rt.ROLLOUT_QUIET_SECONDS)
     # d-1 and d-2 were rolling out: the first ready pod waits for more, the second is the last

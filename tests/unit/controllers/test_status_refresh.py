@@ -6,11 +6,11 @@ from __future__ import annotations
 import pytest
 from test_rollout import desired  # the same directory: pytest puts it on sys.path
 
-import fogfleet.controllers.fleet_plan as fleet_plan
-import fogfleet.controllers.robotfleet as robotfleet
-from fogfleet.controllers.robotfleet import reconcile
-from fogfleet.controllers.ros import is_ros_object
+import fogfleet.controllers.fleet.plan as fleet_plan
+import fogfleet.controllers.fleet.reconcile as robotfleet
+from fogfleet.controllers.fleet.reconcile import reconcile
 from fogfleet.controllers.stamp import resync_overdue
+from fogfleet.render.wiring import is_ros_object
 
 KEY = ("warehouse", "warehouse")
 

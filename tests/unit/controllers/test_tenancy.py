@@ -7,9 +7,9 @@ import copy
 import pytest
 
 from fogfleet.api.v1alpha1.base import parse_cpu
-from fogfleet.controllers.robotfleet import reconcile
-from fogfleet.controllers.ros import is_ros_object
+from fogfleet.controllers.fleet.reconcile import reconcile
 from fogfleet.errors import Infeasible
+from fogfleet.render.wiring import is_ros_object
 from fogfleet.snapshot.room import held_by_others
 
 A = ("warehouse", "warehouse")

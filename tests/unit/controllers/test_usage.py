@@ -9,8 +9,8 @@ import pytest
 
 from fogfleet.api.v1alpha1.computenode import ComputeNodeStatus
 from fogfleet.api.v1alpha1.softwaremodule import SoftwareModuleStatus
-from fogfleet.controllers.robotfleet import reconcile
-from fogfleet.controllers.usage import reconcile_usage
+from fogfleet.controllers.fleet.reconcile import reconcile
+from fogfleet.controllers.measure.usage import reconcile_usage
 from fogfleet.domain.observed import ModuleDrift
 
 KEY = ("warehouse", "warehouse")

@@ -5,7 +5,7 @@ from __future__ import annotations
 import copy
 from typing import Any
 
-from fogfleet.controllers.robotfleet import reconcile
+from fogfleet.controllers.fleet.reconcile import reconcile
 
 KEY = ("warehouse", "warehouse")
 HPE, LITE = "human-pose-estimation", "human-pose-lite"

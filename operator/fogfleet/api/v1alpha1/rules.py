@@ -3,7 +3,7 @@ and the same rule as a predicate the models check (for the CLI, the operator and
 one message naming the field and the reason.
 
 A model lists its rules in ``RULES`` and calls :func:`enforce` from a ``model_validator``;
-``api.crdgen`` writes ``rule.crd()`` into the schema node of that model. A test checks that
+``artefacts.crds`` writes ``rule.crd()`` into the schema node of that model. A test checks that
 every model rule reaches its CRD.
 """
 
