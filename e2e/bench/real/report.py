@@ -219,6 +219,22 @@ def _bed_line(doc: Doc) -> str:
     )
 
 
+def _stopped(doc: Doc) -> list[str]:
+    """A run of the protocol stopped before its end says so (``complete`` false): how many of
+    the scheduled runs ran; every figure is over those."""
+    if doc.get("complete", True):
+        return []
+    runs = doc.get("runs") or []
+    scheduled = sum((doc.get("protocol") or {}).get("arms", {}).values())
+    blocks = (doc.get("protocol") or {}).get("blocks", "?")
+    reached = 1 + max((int(r.get("block", 0)) for r in runs), default=-1)
+    return [
+        f"Stopped before its end: {len(runs)} of the {scheduled} scheduled runs ran (block "
+        f"{reached} of {blocks}); the schedule and protocol are unchanged, the runs left were "
+        "never started, and every figure here is over the runs that ran."
+    ]
+
+
 def table(doc: Doc) -> str:
     """Plain-text tables for a terminal: every run, per arm, the comparison and targets, and
     per module x arm measured vs simulated."""
@@ -228,6 +244,7 @@ def table(doc: Doc) -> str:
         [
             f"Real nodes, {_bed_line(doc)}; {proto.get('warmupSeconds', '?')} s warm-up, "
             f"{proto.get('windowSeconds', '?')} s windows",
+            *_stopped(doc),
             "",
             _text_table(RUN_HEADER, _run_rows(doc)),
             "",
@@ -325,6 +342,7 @@ def markdown(doc: Doc, *, plot_name: str) -> str:
             "",
             _bed_line(doc),
             "",
+            *(f"**{line}**\n" for line in _stopped(doc)),
             "Protocol:",
             "",
             *_protocol(doc),

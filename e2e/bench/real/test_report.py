@@ -275,3 +275,14 @@ def test_the_ci_lower_end_against_k8s_default_must_reach_90_percent() -> None:
     t = summarise(_runs(nsga2=0.001, k8s=0.02))
     assert t["perception"]["ci95"][0] >= 0.9 and t["targets"]["ciLowAtLeast90"]
     assert not summarise(_runs(nsga2=0.003, k8s=0.02))["targets"]["ciLowAtLeast90"]
+
+
+def test_a_run_stopped_before_its_end_says_how_far_it_got() -> None:
+    runs = _runs()
+    whole = _doc(runs)
+    assert "Stopped before its end" not in markdown(whole, plot_name="x.svg")
+    stopped = {**whole, "complete": False, "runs": runs[:3]}
+    text = markdown(stopped, plot_name="x.svg")
+    scheduled = sum(stopped["protocol"]["arms"].values())
+    assert f"3 of the {scheduled} scheduled runs ran" in text
+    assert "Stopped before its end" in table(stopped)
