@@ -122,19 +122,20 @@ def apply_step(
     listed: list[Obj],
     problem: Problem,
     stranded: frozenset[int],
-    objects: RosObjects | None = None,
-    selector: Mapping[str, str] | None = None,
+    objects: RosObjects | None,
+    selector: Mapping[str, str],
 ) -> tuple[int, int]:
-    """Apply the fleet's discovery servers and NetworkPolicies (``objects``), then its
-    modules' Deployments (``desired``) against ``listed`` (the fleet's Deployments); count
-    what changed of the modules' (applied, pruned)."""
+    """Apply the fleet's discovery servers and NetworkPolicies (``objects``; ``selector``
+    picks the fleet's own policies, the only ones pruned), then its modules' Deployments
+    (``desired``) against ``listed`` (the fleet's Deployments); count what changed of the
+    modules' (applied, pruned)."""
     kube, n = deps.kube, deps.api_concurrency
     deployments = Kind(kube.apply_deployment, kube.delete_deployment)
     if objects is not None:
         servers = [d for d in listed if is_ros_object(d)]
         sync(deployments, namespace, objects.servers, servers, n)
         policies = Kind(kube.apply_network_policy, kube.delete_network_policy)
-        there = kube.list_network_policies(namespace, selector or {})
+        there = kube.list_network_policies(namespace, selector)
         sync(policies, namespace, objects.policies, there, n)
     idents = {
         (problem.instances[i].robot, problem.instances[i].module, problem.instances[i].replica)
