@@ -146,8 +146,8 @@ bench-cluster: venv ## Operator benchmarks on the local control plane: apply-to-
 bench-scale: venv cluster-tools ## The operator at 100, 300 and 1000 robots x 8 modules on kwok nodes: apply-to-Running vs plain, Ready lag, peak RSS, a robot joining; writes bench-scale.json
 	$(BIN)/python -m e2e.bench.scale --sizes $(or $(SIZES),100,300,1000) --repeats $(or $(REPEATS),1)
 
-bench-real: venv cluster-tools images ## The paper's real experiment on the paper bed (started if not running): nsga2, nsga2-static, kube-scheduler (k8s-default) and kube-scheduler with honest requests (k8s-requests) x6 each + on-board x1, 90 s warm-up + 60 s windows; writes bench-real.json (~80 min)
-	$(BIN)/python -m e2e.bench.real
+bench-real: venv cluster-tools images ## The paper's real experiment on the paper bed (started if not running): nsga2, nsga2-static, kube-scheduler (k8s-default) and kube-scheduler with honest requests (k8s-requests) x6 each + on-board x1, 90 s warm-up + 60 s windows; writes bench-real.json (~80 min); RESUME=FILE finishes a stopped run's schedule
+	$(BIN)/python -m e2e.bench.real $(if $(RESUME),--resume $(RESUME))
 
 bench-real-report: venv ## Tables, docs/benchmarks/real-nodes.md and its plot from bench-real.json
 	$(BIN)/python -m e2e.bench.real.report --json bench-real.json --docs docs/benchmarks/real-nodes.md --plot docs/benchmarks/real-nodes-perception.svg

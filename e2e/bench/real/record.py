@@ -20,7 +20,7 @@ from e2e.bench.real.summary import summarise
 from fogfleet.bench.record import machine
 from fogfleet.sim.simulator import fleet_miss_rate
 
-__all__ = ["RunResult", "document", "machine", "requests_json"]
+__all__ = ["RunResult", "document", "machine", "protocol_json", "requests_json"]
 
 
 @dataclass
@@ -81,13 +81,16 @@ def _rate(missed: float, cycles: float) -> float | None:
 
 
 def document(
-    results: Sequence[RunResult], protocol: Protocol, scenario: Scenario, command: str
+    results: Sequence[RunResult],
+    protocol: Protocol,
+    scenario: Scenario,
+    command: str,
+    earlier: Sequence[dict[str, Any]] = (),
 ) -> dict[str, Any]:
-    """The bench-real.json document: the bed, the protocol, every run and the summary."""
-    runs = [r.as_json() for r in results]
-    proto = protocol.as_json()
-    if protocol.runs.get(REQUESTS):
-        proto["k8sRequests"] = requests_json(scenario)
+    """The bench-real.json document: the bed, the protocol, every run and the summary
+    (``earlier``: the runs of a stopped run this one resumes, as it recorded them)."""
+    runs = [*earlier, *(r.as_json() for r in results)]
+    proto = protocol_json(protocol, scenario)
     return {
         "date": time.strftime("%Y-%m-%d"),
         "machine": machine(),
@@ -98,6 +101,14 @@ def document(
         "runs": runs,
         "summary": summarise(runs),
     }
+
+
+def protocol_json(protocol: Protocol, scenario: Scenario) -> dict[str, Any]:
+    """The document's ``protocol``: the protocol, and k8s-requests' requests when it runs."""
+    proto = protocol.as_json()
+    if protocol.runs.get(REQUESTS):
+        proto["k8sRequests"] = requests_json(scenario)
+    return proto
 
 
 def requests_json(scenario: Scenario) -> dict[str, Any]:

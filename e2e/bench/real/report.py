@@ -235,6 +235,22 @@ def _stopped(doc: Doc) -> list[str]:
     ]
 
 
+def _parts(doc: Doc) -> list[str]:
+    """A resumed run names its parts: which runs ran when, with which command."""
+    parts = doc.get("parts") or []
+    if not parts:
+        return []
+    said = "; ".join(
+        f"runs {p['runs'][0]}-{p['runs'][1]} on {p.get('date', '?')} "
+        f"(`{p.get('command', '?')}`, {p.get('totalSeconds', '?')} s)"
+        for p in parts
+    )
+    return [
+        f"Ran in {len(parts)} parts: {said}. A resumed run keeps the protocol and the "
+        "schedule; it runs the scheduled runs the stopped one never started, in their places."
+    ]
+
+
 def table(doc: Doc) -> str:
     """Plain-text tables for a terminal: every run, per arm, the comparison and targets, and
     per module x arm measured vs simulated."""
@@ -245,6 +261,7 @@ def table(doc: Doc) -> str:
             f"Real nodes, {_bed_line(doc)}; {proto.get('warmupSeconds', '?')} s warm-up, "
             f"{proto.get('windowSeconds', '?')} s windows",
             *_stopped(doc),
+            *_parts(doc),
             "",
             _text_table(RUN_HEADER, _run_rows(doc)),
             "",
@@ -343,6 +360,7 @@ def markdown(doc: Doc, *, plot_name: str) -> str:
             _bed_line(doc),
             "",
             *(f"**{line}**\n" for line in _stopped(doc)),
+            *(f"{line}\n" for line in _parts(doc)),
             "Protocol:",
             "",
             *_protocol(doc),

@@ -59,7 +59,8 @@ from e2e.bench.real.protocol import (
     ScheduledRun,
     parse_arms,
 )
-from e2e.bench.real.record import RunResult, document
+from e2e.bench.real.record import RunResult, document, protocol_json
+from e2e.bench.real.resume import part, runs_left
 from e2e.bench.real.scenario import FLEET, PROFILE, ROOT, Scenario, honest_requests
 from fogfleet.controllers.measure.observed import describe
 from fogfleet.domain.rows import Learnt
@@ -308,9 +309,11 @@ def run_bench(
     protocol: Protocol,
     workdir: Path,
     on_run: Callable[[list[RunResult]], object] | None = None,
+    runs: Sequence[ScheduledRun] | None = None,
 ) -> list[RunResult]:
-    """Every run of the schedule on a running paper bed (the operator is started and stopped
-    here); ``on_run`` sees the results after every run."""
+    """Every run of the schedule (or ``runs``, the part of it a resumed run has left) on a
+    running paper bed (the operator is started and stopped here); ``on_run`` sees the results
+    after every run."""
     scenario = Scenario()
     missing = {n["metadata"]["name"] for n in scenario.nodes()} - set(cluster.real_nodes)
     if missing:
@@ -322,7 +325,8 @@ def run_bench(
         got = honest_requests(scenario.of_kind("SoftwareModule")).values()
         log(f"{REQUESTS} requests: {'; '.join(r.describe() for r in got)}")
     tag = secrets.token_hex(2)
-    schedule = [(r, f"paper-{r.arm.replace('-', '')}-{r.seed}-{tag}") for r in protocol.schedule()]
+    todo = protocol.schedule() if runs is None else runs
+    schedule = [(r, f"paper-{r.arm.replace('-', '')}-{r.seed}-{tag}") for r in todo]
     op = Operator(
         kube.kubeconfig,
         [ns for _, ns in schedule],
@@ -361,6 +365,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         help="runs per arm (the protocol's by default)",
     )
     ap.add_argument("--json", type=Path, default=ROOT / "bench-real.json", help="output file")
+    ap.add_argument(
+        "--resume",
+        type=Path,
+        help="a stopped run's bench-real.json: run the scheduled runs it never started, keep "
+        "its runs, and write the whole to --json (refused if its protocol differs)",
+    )
     ns = ap.parse_args(argv)
     try:
         runs = parse_arms(ns.arms)
@@ -370,20 +380,33 @@ def main(argv: Sequence[str] | None = None) -> int:
         ap.error("--window must be > 0 and --warmup >= 0")
     protocol = Protocol(ns.window, ns.warmup, runs)
     command = "python -m e2e.bench.real " + shlex.join(sys.argv[1:] if argv is None else argv)
+    scenario = Scenario()
+    stopped: dict[str, Any] = {}
+    todo = protocol.schedule()
+    if ns.resume is not None:
+        try:
+            stopped = json.loads(ns.resume.read_text(encoding="utf-8"))
+            todo = runs_left(stopped, protocol_json(protocol, scenario), todo)
+        except (OSError, ValueError) as exc:
+            ap.error(f"--resume {ns.resume}: {exc}")
+    earlier = list(stopped.get("runs") or [])
     kube, cluster = connect()
     t0 = time.monotonic()
-    scenario = Scenario()
 
     def write(results: list[RunResult], complete: bool = False) -> dict[str, Any]:
         """bench-real.json after every run: a run that fails keeps what was measured."""
-        doc = document(results, protocol, scenario, command.strip())
+        doc = document(results, protocol, scenario, command.strip(), earlier)
         doc |= {"complete": complete, "totalSeconds": round(time.monotonic() - t0)}
+        if earlier:
+            ran = len(earlier) + len(results)
+            before = stopped.get("parts") or [part(stopped, 1, len(earlier))]
+            doc["parts"] = [*before, part(doc, len(earlier) + 1, ran)]
         ns.json.write_text(json.dumps(doc, indent=2) + "\n")
         return doc
 
     workdir = Path(tempfile.mkdtemp(prefix="bench-real-"))
-    log(f"operator log: {workdir / 'operator.log'}; {len(protocol.schedule())} runs")
-    results = run_bench(kube, cluster, protocol, workdir, write)
+    log(f"operator log: {workdir / 'operator.log'}; {len(todo)} runs")
+    results = run_bench(kube, cluster, protocol, workdir, write, todo)
     doc = write(results, complete=True)
     print(report.table(doc))
     failed = [r for r in results if r.failed]
