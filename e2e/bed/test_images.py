@@ -13,14 +13,14 @@ def test_dockerignore_last_match_wins_and_negation_re_includes() -> None:
     patterns = ["*", "!pyproject.toml", "!operator/", "**/__pycache__", "**/*.pyc"]
     assert images._ignored("e2e/bed/harness.py", patterns)
     assert not images._ignored("pyproject.toml", patterns)
-    assert not images._ignored("operator/fogfleet/cli/__init__.py", patterns)
+    assert not images._ignored("operator/fogfleet/commandline/cli/__init__.py", patterns)
     assert images._ignored("operator/fogfleet/__pycache__/cli.cpython-311.pyc", patterns)
 
 
 def test_the_operator_recipe_reads_the_package_and_not_the_tests() -> None:
     recipe = next(r for r in images.RECIPES if r.name == "operator")
     files = {str(p.relative_to(images.REPO_ROOT)) for p in images._context_files(recipe)}
-    assert "operator/fogfleet/cli/__init__.py" in files and "pyproject.toml" in files
+    assert "operator/fogfleet/commandline/cli/__init__.py" in files and "pyproject.toml" in files
     assert not any(f.startswith(("tests/", "e2e/")) for f in files)
 
 

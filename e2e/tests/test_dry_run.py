@@ -19,7 +19,7 @@ import yaml
 
 from e2e.bed.kube import Kube
 from e2e.bed.operator_fixtures import EXAMPLES, example_docs, install_crds, of_kind
-from fogfleet.cli import main
+from fogfleet.commandline.cli import main
 
 pytestmark = [pytest.mark.e2e, pytest.mark.portable, pytest.mark.dryrun, pytest.mark.timeout(180)]
 

@@ -2,7 +2,7 @@
 names, and ``top`` shows a measured miss rate for every module whose status measured one.
 
 The plugin runs as users run it, a separate process with the test's kubeconfig
-(``python -m fogfleet.plugin``, what the ``kubectl-fogfleet`` console script calls).
+(``python -m fogfleet.commandline.kubectl``, what the ``kubectl-fogfleet`` console script calls).
 """
 
 from __future__ import annotations
@@ -37,7 +37,7 @@ def _plugin(kube: Kube, namespace: str, *args: str) -> Any:
         [
             sys.executable,
             "-m",
-            "fogfleet.plugin",
+            "fogfleet.commandline.kubectl",
             *args,
             "--kubeconfig",
             str(kube.kubeconfig),

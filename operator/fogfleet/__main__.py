@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import sys
 
-from fogfleet.entry import main
+from fogfleet.commandline.entry import main
 
 if __name__ == "__main__":
     sys.exit(main())

@@ -8,7 +8,7 @@
     └── DependencyUnavailable  a cluster or Prometheus call failed; retry (kopf TemporaryError)
 
 Adapters translate library exceptions into this tree with ``raise ... from exc``; the two
-commands turn it into exit codes in one place, ``fogfleet.commandline``.
+commands turn it into exit codes in one place, ``fogfleet.commandline.exits``.
 """
 
 from __future__ import annotations

@@ -7,7 +7,7 @@ Fails (exit 1, one line per problem: ``file:line: what``) when
   target Markdown file makes (GitHub's slug rules);
 * ``make TARGET`` in a code span or code block names no target of the Makefile;
 * ``fogfleet SUBCOMMAND --flag`` in a code span or block names a subcommand or a flag that the
-  real parser (``fogfleet.cli._parser()``) does not have;
+  real parser (``fogfleet.commandline.cli._parser()``) does not have;
 * ``harness.py SUBCOMMAND --flag`` (the bed's harness) does the same; its parser is built
   inside ``main()``, so its flags are read from ``harness.py SUBCOMMAND --help``;
 * a column named for ``kubectl get KIND`` of a fogfleet kind (in capitals) is not one of the
@@ -198,7 +198,7 @@ def _flags_of(parser: argparse.ArgumentParser) -> frozenset[str]:
 
 def fogfleet_commands() -> dict[str, frozenset[str]]:
     """{subcommand: its --flags} from the real parser; '' holds the top-level flags."""
-    from fogfleet.cli import _parser
+    from fogfleet.commandline.cli import _parser
 
     parser = _parser()
     out = {"": _flags_of(parser)}

@@ -23,7 +23,7 @@ from hypothesis import strategies as st
 
 from fogfleet.api.kubeyaml import safe_load
 from fogfleet.api.loader import parse_object
-from fogfleet.cli import main
+from fogfleet.commandline.cli import main
 from fogfleet.errors import InvalidSpec
 
 EXAMPLE = Path(__file__).resolve().parents[2] / "manifests" / "examples" / "single-robot"

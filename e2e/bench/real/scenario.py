@@ -30,7 +30,7 @@ import yaml
 
 from fogfleet.api.loader import Catalog, parse_object
 from fogfleet.api.v1alpha1.base import parse_cpu
-from fogfleet.cli.planning import recorded_placement
+from fogfleet.commandline.cli.planning import recorded_placement
 from fogfleet.domain.build import build_problem
 from fogfleet.domain.problem import Allocation, Problem
 

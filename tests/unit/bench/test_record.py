@@ -9,7 +9,7 @@ import pytest
 
 from fogfleet.bench.autoscaling import METRICS
 from fogfleet.bench.record import page, read_record, write_record
-from fogfleet.cli import main
+from fogfleet.commandline.cli import main
 
 
 def test_a_record_keeps_the_result_with_its_date_machine_and_command(tmp_path: Path) -> None:

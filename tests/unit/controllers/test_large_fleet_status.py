@@ -10,7 +10,7 @@ from collections import Counter
 import pytest
 
 import fogfleet.controllers.fleet.status as fleet_status
-from fogfleet.cli.planning import recorded_placement
+from fogfleet.commandline.cli.planning import recorded_placement
 from fogfleet.controllers.fleet.reconcile import reconcile
 from fogfleet.controllers.measure.usage import reconcile_usage
 from fogfleet.errors import InvalidSpec

@@ -17,7 +17,7 @@ from e2e.portable.settings import Settings, split_image
 from fogfleet.api.v1alpha1.computenode import ComputeNode
 from fogfleet.api.v1alpha1.robotfleet import RobotFleet
 from fogfleet.api.v1alpha1.softwaremodule import SoftwareModule
-from fogfleet.cli import main
+from fogfleet.commandline.cli import main
 
 
 def node(name: str, tier: str | None, hw: str = "hw", **extra: Any) -> dict[str, Any]:

@@ -14,7 +14,7 @@ import yaml
 from fogfleet.api.labels import ANNOTATION_MODULE, ANNOTATION_REPLICA, ANNOTATION_ROBOT
 from fogfleet.api.loader import parse_object
 from fogfleet.api.v1alpha1.softwaremodule import SoftwareModule
-from fogfleet.cli import main
+from fogfleet.commandline.cli import main
 from fogfleet.render.names import hpa_name
 from fogfleet.render.scaling import SLO_METRIC, module_hpas
 

@@ -14,7 +14,7 @@ import yaml
 from e2e.podsecurity.restricted import violations
 
 from fogfleet.api.labels import LABEL_COMPONENT
-from fogfleet.cli import main
+from fogfleet.commandline.cli import main
 from fogfleet.render.ros import COMPONENT_DISCOVERY
 
 EXAMPLES = Path(__file__).resolve().parents[3] / "manifests" / "examples"

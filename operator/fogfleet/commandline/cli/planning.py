@@ -13,7 +13,7 @@ import numpy as np
 
 from fogfleet.api.v1alpha1.objectives import ObjectiveName
 from fogfleet.api.v1alpha1.robotfleet import PLACEMENT_LIST_LIMIT
-from fogfleet.commandline import BAD_INPUT, OK
+from fogfleet.commandline.exits import BAD_INPUT, OK
 from fogfleet.domain.miss_rates import format_miss_rate, worst_module
 from fogfleet.errors import InvalidSpec
 from fogfleet.scheduling.explain.shortfall import unplaced_reasons

@@ -16,11 +16,11 @@ import yaml
 from fogfleet.api.loader import load_paths
 from fogfleet.api.timestamps import timestamp
 from fogfleet.api.v1alpha1.robotfleet import SchedulerSettings
+from fogfleet.commandline.kubectl.cli import main
 from fogfleet.domain.build import build_problem
-from fogfleet.plugin.cli import main
 from fogfleet.scheduling.heuristics import greedy_schedule
 
-WAREHOUSE = Path(__file__).resolve().parents[3] / "manifests" / "examples" / "warehouse"
+WAREHOUSE = Path(__file__).resolve().parents[4] / "manifests" / "examples" / "warehouse"
 Obj = dict[str, Any]
 TAKEOVER_AT = 1_795_000_000.0  # a standby's last takeover in the fixture; `top` runs 150 s later
 
@@ -263,7 +263,7 @@ class CrowdedCluster(FakeCluster):
 
 def test_the_plugin_plans_around_the_room_other_fleets_and_pods_hold() -> None:
     """One site with the operator: the fleet's problem has edge-1 less what others hold."""
-    from fogfleet.plugin.live import read_fleet
+    from fogfleet.commandline.kubectl.live import read_fleet
 
     alone = read_fleet(FakeCluster(), "warehouse", "warehouse")
     crowded = read_fleet(CrowdedCluster(), "warehouse", "warehouse")

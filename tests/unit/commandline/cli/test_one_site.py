@@ -25,10 +25,10 @@ from hypothesis import strategies as st
 from fogfleet.api.labels import LABEL_FLEET
 from fogfleet.api.names import label_value
 from fogfleet.api.v1alpha1.base import parse_cpu
-from fogfleet.cli import main
+from fogfleet.commandline.cli import main
 from fogfleet.render.deployments import identity_of
 
-WAREHOUSE = Path(__file__).resolve().parents[3] / "manifests" / "examples" / "warehouse"
+WAREHOUSE = Path(__file__).resolve().parents[4] / "manifests" / "examples" / "warehouse"
 NODES = [d for d in yaml.safe_load_all((WAREHOUSE / "nodes.yaml").read_text()) if d]
 MODULES = [d for d in yaml.safe_load_all((WAREHOUSE / "modules.yaml").read_text()) if d]
 ROBOTS = [n["metadata"]["name"] for n in NODES if n["spec"]["tier"] == "robot"]

@@ -1,9 +1,9 @@
 """The ``fogfleet`` command: validate, plan, explain, simulate and render fleets from CR YAML;
 generate CRDs; run the operator; run the benchmarks.
 
-Exit codes (``fogfleet.commandline``, the same for ``kubectl fogfleet``): 0 ok, 1 fogfleet could
-not do it (a cluster or Prometheus did not answer), 2 bad input (the message names object,
-field, reason) or an infeasible fleet.
+Exit codes (``fogfleet.commandline.exits``, the same for ``kubectl fogfleet``): 0 ok, 1
+fogfleet could not do it (a cluster or Prometheus did not answer), 2 bad input (the message
+names object, field, reason) or an infeasible fleet.
 """
 
 from __future__ import annotations
@@ -15,7 +15,7 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
-from fogfleet.commandline import positive, run_command
+from fogfleet.commandline.exits import positive, run_command
 from fogfleet.errors import InvalidSpec
 
 from .common import AUTOSCALING_FIRST_SEED, SCHEDULERS
@@ -283,7 +283,7 @@ def _parser() -> argparse.ArgumentParser:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """``fogfleet``: the exit code of the subcommand, or of the error it ended with (one rule
-    for both commands, ``fogfleet.commandline``)."""
+    for both commands, ``fogfleet.commandline.exits``)."""
     args = _parser().parse_args(argv)
     return run_command(lambda: int(args.func(args)))
 

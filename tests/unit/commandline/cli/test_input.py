@@ -11,9 +11,9 @@ from typing import Any
 import pytest
 import yaml
 
-from fogfleet.cli import main
+from fogfleet.commandline.cli import main
 
-REPO = Path(__file__).resolve().parents[3]
+REPO = Path(__file__).resolve().parents[4]
 LITE = REPO / "manifests" / "examples" / "warehouse-lite"
 
 

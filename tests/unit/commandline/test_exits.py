@@ -1,5 +1,5 @@
-"""``fogfleet.commandline``: both commands, ``fogfleet`` and ``kubectl fogfleet``, end an error
-with the one exit code decided there, and print it the same way."""
+"""``fogfleet.commandline.exits``: both commands, ``fogfleet`` and ``kubectl fogfleet``, end an
+error with the one exit code decided there, and print it the same way."""
 
 from __future__ import annotations
 
@@ -7,8 +7,9 @@ import argparse
 
 import pytest
 
-from fogfleet import cli
-from fogfleet.commandline import BAD_INPUT, FAILED, exit_code, positive
+from fogfleet.commandline import cli
+from fogfleet.commandline.exits import BAD_INPUT, FAILED, exit_code, positive
+from fogfleet.commandline.kubectl.cli import main as plugin_main
 from fogfleet.errors import (
     DanglingReference,
     DependencyUnavailable,
@@ -16,7 +17,6 @@ from fogfleet.errors import (
     Infeasible,
     InvalidSpec,
 )
-from fogfleet.plugin.cli import main as plugin_main
 
 ERRORS: list[tuple[FogfleetError, int]] = [
     (InvalidSpec("RobotFleet/f", "spec.x", "bad"), BAD_INPUT),

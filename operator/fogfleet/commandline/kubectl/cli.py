@@ -1,7 +1,7 @@
 """``kubectl fogfleet``: argument parsing and the commands, kubectl's way (``--kubeconfig``,
 ``--context``, ``-n/--namespace`` defaulting to the context's, ``-o table|json|yaml``).
 
-Exit codes (``fogfleet.commandline``, the same as ``fogfleet``'s): 0 ok, 1 the cluster could
+Exit codes (``fogfleet.commandline.exits``, the same as ``fogfleet``'s): 0 ok, 1 the cluster could
 not be read, 2 bad arguments or input (argparse's own code for bad arguments)."""
 
 from __future__ import annotations
@@ -11,7 +11,7 @@ import sys
 import time
 from collections.abc import Callable, Sequence
 
-from fogfleet.commandline import OK, positive, run_command
+from fogfleet.commandline.exits import OK, positive, run_command
 from fogfleet.snapshot import room_note
 
 from .commands import diff_doc, plan_doc, top_doc, why_doc, why_of

@@ -10,7 +10,7 @@ import argparse
 import sys
 from collections import Counter
 
-from fogfleet.commandline import BAD_INPUT, OK
+from fogfleet.commandline.exits import BAD_INPUT, OK
 from fogfleet.errors import InvalidSpec
 
 __all__ = ["cmd_validate"]

@@ -11,7 +11,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from fogfleet.commandline import BAD_INPUT, OK
+from fogfleet.commandline.exits import BAD_INPUT, OK
 from fogfleet.domain.miss_rates import format_miss_rate, worst_module
 from fogfleet.domain.rows import Learnt
 from fogfleet.scheduling.objectives import module_miss_rates

@@ -11,9 +11,9 @@ import yaml
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from fogfleet.cli import main
+from fogfleet.commandline.cli import main
 
-REPO = Path(__file__).resolve().parents[3]
+REPO = Path(__file__).resolve().parents[4]
 LITE = REPO / "manifests" / "examples" / "warehouse-lite"
 LITE_DOCS = [d for f in sorted(LITE.glob("*.yaml")) for d in yaml.safe_load_all(f.read_text()) if d]
 FUZZ = settings(

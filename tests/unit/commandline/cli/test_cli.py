@@ -9,10 +9,10 @@ import pytest
 import yaml
 
 from fogfleet.api.v1alpha1.base import parse_cpu
-from fogfleet.cli import main
+from fogfleet.commandline.cli import main
 from fogfleet.render.names import discovery_service_name
 
-ROOT = Path(__file__).resolve().parents[3]
+ROOT = Path(__file__).resolve().parents[4]
 WAREHOUSE = ROOT / "manifests" / "examples" / "warehouse"
 SOLO = ROOT / "manifests" / "examples" / "single-robot"
 
@@ -485,7 +485,7 @@ def test_render_of_a_degraded_fleet_warns_on_stderr(
 def test_plan_and_simulate_name_the_same_worst_module(capsys: pytest.CaptureFixture[str]) -> None:
     """Issue 36: one definition of the worst module (domain.miss_rates) for the same plan;
     the warehouse's short simulation sees no miss, so the prediction names it in both."""
-    from fogfleet.cli.planning import _print_plan
+    from fogfleet.commandline.cli.planning import _print_plan
 
     args = ("--seed", "1", "--population", "16", "--generations", "3")
     code, out, _ = run(capsys, "plan", str(WAREHOUSE), "--json", *args)

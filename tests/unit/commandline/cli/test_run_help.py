@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from fogfleet.cli import main
+from fogfleet.commandline.cli import main
 from fogfleet.settings import Settings, settings_help
 
 

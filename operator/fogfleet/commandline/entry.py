@@ -1,5 +1,5 @@
 """The ``fogfleet`` command's entry point: size the numeric libraries' thread pools before
-NumPy loads them, then run the CLI (``fogfleet.cli.main``).
+NumPy loads them, then run the CLI (``fogfleet.commandline.cli.main``).
 
 NumPy's OpenBLAS starts a thread per core, and its idle threads spin a while before they
 sleep. The planner's matrix products are small (moves x nodes), so a second thread buys
@@ -29,14 +29,15 @@ def pin_thread_pools() -> None:
 
 def main() -> int:
     pin_thread_pools()
-    from fogfleet.cli import main as cli_main
+    from fogfleet.commandline.cli import main as cli_main
 
     return cli_main()
 
 
 def kubectl_plugin() -> int:
-    """The ``kubectl-fogfleet`` command (``fogfleet.plugin``), with the same thread pools."""
+    """The ``kubectl-fogfleet`` command (``fogfleet.commandline.kubectl``), with the same
+    thread pools."""
     pin_thread_pools()
-    from fogfleet.plugin.cli import main as plugin_main
+    from fogfleet.commandline.kubectl.cli import main as plugin_main
 
     return plugin_main()

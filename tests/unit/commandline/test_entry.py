@@ -8,7 +8,7 @@ import sys
 
 import pytest
 
-from fogfleet.entry import THREAD_POOL_VARIABLES
+from fogfleet.commandline.entry import THREAD_POOL_VARIABLES
 
 # after a product large enough for OpenBLAS to use its pool: the process's thread count
 COUNT_THREADS = (
@@ -34,14 +34,16 @@ def _clean_env() -> dict[str, str]:
 
 def test_the_command_runs_numpy_with_one_blas_thread() -> None:
     env = _clean_env()
-    pinned = _threads("from fogfleet.entry import pin_thread_pools; pin_thread_pools(); ", env)
+    pinned = _threads(
+        "from fogfleet.commandline.entry import pin_thread_pools; pin_thread_pools(); ", env
+    )
     assert pinned == 1
     if (os.cpu_count() or 1) > 1:  # the control: unpinned, OpenBLAS starts one per core
         assert _threads("", env) > 1
 
 
 def test_a_value_the_user_set_is_kept(monkeypatch: pytest.MonkeyPatch) -> None:
-    from fogfleet.entry import pin_thread_pools
+    from fogfleet.commandline.entry import pin_thread_pools
 
     for name in THREAD_POOL_VARIABLES:
         monkeypatch.delenv(name, raising=False)

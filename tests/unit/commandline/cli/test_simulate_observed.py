@@ -13,11 +13,11 @@ from typing import Any
 import pytest
 
 from fogfleet.api.loader import load_paths
-from fogfleet.cli import main
+from fogfleet.commandline.cli import main
 from fogfleet.controllers.measure.observed import declared_rows
 from fogfleet.domain.observed import declared_row
 
-WAREHOUSE = Path(__file__).resolve().parents[3] / "manifests" / "examples" / "warehouse"
+WAREHOUSE = Path(__file__).resolve().parents[4] / "manifests" / "examples" / "warehouse"
 MODULE = "human-pose-estimation"
 SLOWER = 1.5
 COUNT = 10000.0

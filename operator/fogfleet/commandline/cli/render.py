@@ -9,7 +9,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from fogfleet.commandline import BAD_INPUT, FAILED, OK
+from fogfleet.commandline.exits import BAD_INPUT, FAILED, OK
 
 from .common import catalog_of, degradation, refusal, site_plans
 
