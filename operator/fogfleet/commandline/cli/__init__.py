@@ -229,9 +229,12 @@ def _parser() -> argparse.ArgumentParser:
     sp.set_defaults(func=cmd_render)
 
     sp = sub.add_parser(
-        "validate", help="check CR YAML as `plan` does, plan nothing; exit 0 (OK) or 2 (errors)"
+        "validate",
+        help="would `plan` accept it? its checks, then the fleets planned as one site; "
+        "exit 0 (OK) or 2 (errors, a fleet that does not fit)",
     )
     sp.add_argument("paths", nargs="+", help="CR YAML or JSON files or folders")
+    sp.add_argument("--no-plan", action="store_true", help="only the checks, no planning (fast)")
     sp.set_defaults(func=cmd_validate)
 
     sp = sub.add_parser("crds", help="write (or check) the CRD YAML generated from the models")

@@ -1,17 +1,24 @@
-"""``fogfleet validate``: every check ``fogfleet plan`` makes on its input (YAML and JSON, the
-models, the catalog, each fleet's references and rules), without planning; all errors at once:
-every bad field of every object, every bad reference and broken rule of every fleet
-(``domain.checks``). Input with no fogfleet object is an error, not "OK: 0 ..." (a wrong
-folder, or files kubectl would not read either)."""
+"""``fogfleet validate``: would ``fogfleet plan`` accept this input? Every check ``plan`` makes
+on it (YAML and JSON, the models, the catalog, each fleet's references and rules), all errors
+at once: every bad field of every object, every bad reference and broken rule of every fleet
+(``domain.checks``). Then, when those pass, the folder's fleets are planned as one site as
+``plan`` plans them (``snapshot.plan_site``, each fleet with its own ``spec.scheduler``): a
+fleet no placement fits is an error with ``plan``'s refusal, naming the room other fleets
+hold; a degraded one is a warning. ``--no-plan`` stops after the checks (fast: no planner
+runs). Input with no fogfleet object is an error, not "OK: 0 ..." (a wrong folder, or files
+kubectl would not read either)."""
 
 from __future__ import annotations
 
 import argparse
 import sys
 from collections import Counter
+from typing import Any
 
 from fogfleet.commandline.exits import BAD_INPUT, OK
 from fogfleet.errors import InvalidSpec
+
+from .common import degradation, refusal, solver
 
 __all__ = ["cmd_validate"]
 
@@ -43,6 +50,9 @@ def cmd_validate(args: argparse.Namespace) -> int:
         )
     for skipped in catalog.ignored:  # read, not checked: a misspelt group lands here
         print(f"skipped: {skipped} in {skipped.source}: {skipped.why}", file=sys.stderr)
+    planned = "; not planned (--no-plan)" if args.no_plan and catalog.fleets else ""
+    if not errors and catalog.fleets and not args.no_plan:
+        errors, planned = _plan_site(catalog)
     for error in errors:
         print(f"error: {error}", file=sys.stderr)
     if errors:
@@ -57,5 +67,25 @@ def cmd_validate(args: argparse.Namespace) -> int:
     )
     summary = ", ".join(f"{n} {kind}" for kind, n in counts.items())
     other = f"; {len(catalog.ignored)} other object(s) skipped" if catalog.ignored else ""
-    print(f"OK: {summary}{other}")
+    print(f"OK: {summary}{other}{planned}")
     return OK
+
+
+def _plan_site(catalog: Any) -> tuple[list[InvalidSpec], str]:
+    """The folder's fleets planned as one site, as ``plan`` plans them: the refusals (as
+    errors) and what the OK line says of it; a degraded fleet is warned about on stderr."""
+    from fogfleet.snapshot import plan_site
+
+    plans = plan_site(catalog, catalog.fleets, lambda f: f.spec.scheduler, solver(False))
+    errors: list[InvalidSpec] = []
+    for plan in plans:
+        if not plan.schedule.feasible:
+            errors.append(InvalidSpec(f"RobotFleet/{plan.name}", "spec", refusal(plan)))
+        elif plan.schedule.degraded:
+            print(f"warning: DEGRADED {plan.name}: {degradation(plan)}", file=sys.stderr)
+    fits = (
+        f"planned as one site: all {len(plans)} fleets fit"
+        if len(plans) > 1
+        else "planned: it fits"
+    )
+    return errors, f"; {fits}"

@@ -283,6 +283,12 @@ def test_a_fleet_refused_for_the_room_others_hold_is_told_who_holds_how_many_cor
         assert "edge-1 has 0.5 of 8.5 cores left" in err, command
     code, out, _ = run(capsys, "render", str(folder), "--fleet", "warehouse/warehouse")
     assert code == 0 and "north" not in out  # the first fleet is not held back by the second
+    # validate refuses the folder with plan's refusal, naming the fleet
+    code, out, err = run(capsys, "validate", str(folder))
+    assert code == 2 and out == ""
+    assert "error: RobotFleet/north/warehouse" in err
+    assert "RobotFleet warehouse/warehouse 8 cores" in err
+    assert "edge-1 has 0.5 of 8.5 cores left" in err
 
 
 def test_fleets_of_one_name_in_two_namespaces_are_told_apart(

@@ -1,5 +1,6 @@
-"""`fogfleet validate`: plan's checks without planning, exit 0 or 2, never a traceback (also
-for random bytes, random text and randomly broken CR files)."""
+"""`fogfleet validate`: plan's checks, then the folder planned as `plan` plans it (unless
+`--no-plan`), exit 0 or 2, never a traceback (also for random bytes, random text and randomly
+broken CR files)."""
 
 from __future__ import annotations
 
@@ -54,14 +55,23 @@ def test_every_error_is_printed_with_object_field_and_reason(
     assert "2 error(s)" in err
 
 
-def test_validate_plans_nothing(monkeypatch: pytest.MonkeyPatch) -> None:
+def test_validate_with_no_plan_plans_nothing(
+    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
     import fogfleet.scheduling.solver as solver
 
     def refuse(*_: Any, **__: Any) -> None:
-        raise AssertionError("validate must not plan")
+        raise AssertionError("validate --no-plan must not plan")
 
     monkeypatch.setattr(solver, "plan", refuse)
-    assert main(["validate", str(LITE)]) == 0
+    assert main(["validate", "--no-plan", str(LITE)]) == 0
+    assert "not planned (--no-plan)" in capsys.readouterr().out
+
+
+def test_validate_plans_the_folder_and_says_it_fits(capsys: pytest.CaptureFixture[str]) -> None:
+    code, out, err = validate(capsys, LITE)
+    assert code == 0, err
+    assert out.rstrip().endswith("planned: it fits")
 
 
 def _check(code: int, err: str) -> None:
