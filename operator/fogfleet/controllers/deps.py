@@ -12,7 +12,7 @@ from typing import Any, Protocol
 
 from fogfleet.adapters.ports import KubePort, MetricsPort, NullMetrics, Watches
 from fogfleet.adapters.prometheus import PrometheusPort
-from fogfleet.controllers.measure.monitoring import Monitoring
+from fogfleet.controllers.monitoring import Monitoring
 from fogfleet.controllers.state import FleetStore
 from fogfleet.scheduling.decision import CorePlanner, Planner
 

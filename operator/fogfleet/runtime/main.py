@@ -21,9 +21,9 @@ from fogfleet.adapters.prometheus import PrometheusClient
 from fogfleet.adapters.watched import WatchedKube
 from fogfleet.controllers.deps import Deps
 from fogfleet.controllers.measure.links import LinkDeps
-from fogfleet.controllers.measure.monitoring import MonitoredPrometheus, Monitoring
 from fogfleet.controllers.measure.observed import ObservedDeps
 from fogfleet.controllers.module.scaling import ScalingDeps
+from fogfleet.controllers.monitoring import MonitoredPrometheus, Monitoring
 from fogfleet.runtime.dispatch import Runtime
 from fogfleet.runtime.handlers import register
 from fogfleet.settings import Settings

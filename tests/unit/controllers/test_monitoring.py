@@ -8,7 +8,7 @@ import pytest
 
 from fogfleet.controllers.deps import Deps
 from fogfleet.controllers.fleet.reconcile import reconcile
-from fogfleet.controllers.measure.monitoring import MonitoredPrometheus, Monitoring
+from fogfleet.controllers.monitoring import MonitoredPrometheus, Monitoring
 from fogfleet.errors import DependencyUnavailable, InvalidSpec
 
 KEY = ("warehouse", "warehouse")

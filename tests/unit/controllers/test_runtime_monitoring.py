@@ -10,7 +10,7 @@ import pytest
 from virtualtime import run_in_virtual_time
 
 from fogfleet.controllers.deps import Deps
-from fogfleet.controllers.measure.monitoring import Monitoring
+from fogfleet.controllers.monitoring import Monitoring
 from fogfleet.controllers.state import References
 from fogfleet.errors import DependencyUnavailable
 from fogfleet.runtime.dispatch import Runtime
