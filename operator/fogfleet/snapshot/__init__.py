@@ -9,21 +9,32 @@ Pure: it imports no Kubernetes, kopf or Prometheus client code.
     catalog.py   listed objects -> the planning catalog (capacity, health, room held)
     room.py      room held by other tenants, and the note that names them in cores
     snapshot.py  FleetSnapshot, from listed objects or a folder's catalog
-    problem.py   problem_of, what-ifs, refusals
+    problem.py   problem_of and its steps (build), what-ifs, refusals
     site.py      several fleets planned as one site, in numbered steps
 """
 
 from .objects import fleet_key
-from .problem import WhatIf, built_problem, problem_of, refused, unavailable_in, with_what_if
+from .problem import (
+    Built,
+    WhatIf,
+    build,
+    built_problem,
+    problem_of,
+    refused,
+    unavailable_in,
+    with_what_if,
+)
 from .room import held_by_others, room_note
 from .site import SitePlan, plan_site
 from .snapshot import FleetSnapshot, Listed, snapshot_of, snapshot_of_catalog
 
 __all__ = [
+    "Built",
     "FleetSnapshot",
     "Listed",
     "SitePlan",
     "WhatIf",
+    "build",
     "built_problem",
     "fleet_key",
     "held_by_others",

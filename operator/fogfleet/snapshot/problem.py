@@ -1,5 +1,9 @@
 """``problem_of``: a snapshot (perhaps changed by a what-if) into the planning problem, the one
-way every entry point builds it, with its unavailable nodes masked out of the gene spaces.
+way every entry point builds it (the operator, every ``fogfleet`` command, every ``kubectl
+fogfleet`` command): built from the snapshot, the robots whose link recovered released
+(their instances planned as if they did not run yet), the unavailable nodes masked out of the
+gene spaces. ``build`` returns the steps the operator needs as well (the problem as built, the
+placement before masking, the stranded instances).
 
 A what-if (``WhatIf``) changes the snapshot before the build: a node removed (masked out as
 unavailable), a robot added (a copy of another robot's ComputeNode and Node: it needs the
@@ -19,11 +23,20 @@ from fogfleet.domain.network import Link, uplink
 from fogfleet.domain.pairs import Refusal
 from fogfleet.domain.problem import Problem
 from fogfleet.errors import InvalidSpec
-from fogfleet.scheduling.stickiness import mask_unavailable
+from fogfleet.scheduling.stickiness import mask_unavailable, release_robots
 
 from .snapshot import FleetSnapshot, Listed, snapshot_of
 
-__all__ = ["WhatIf", "built_problem", "problem_of", "refused", "unavailable_in", "with_what_if"]
+__all__ = [
+    "Built",
+    "WhatIf",
+    "build",
+    "built_problem",
+    "problem_of",
+    "refused",
+    "unavailable_in",
+    "with_what_if",
+]
 
 Obj = dict[str, Any]
 
@@ -72,13 +85,34 @@ def built_problem(snapshot: FleetSnapshot) -> Problem:
     )
 
 
-def problem_of(snapshot: FleetSnapshot, what_if: WhatIf | None = None) -> Problem:
-    """The planning problem of ``snapshot`` (changed by ``what_if``), its unavailable nodes
-    masked out (``stickiness.mask_unavailable``: an instance whose node is down keeps it)."""
+@dataclass(frozen=True)
+class Built:
+    """A snapshot's problem, step by step: ``built`` as built (every node the fleet
+    references), ``before`` where its instances run (the released robots' as not running
+    yet), ``problem`` as planned (unavailable nodes masked out) and the instances ``stranded``
+    with no node left."""
+
+    built: Problem
+    before: Any  # NDArray[int64]: node index per instance, -1 not running
+    problem: Problem
+    stranded: frozenset[int]
+
+
+def build(snapshot: FleetSnapshot, what_if: WhatIf | None = None) -> Built:
+    """``snapshot`` (changed by ``what_if``) into its planning problem: built, its released
+    robots' instances freed (``stickiness.release_robots``), its unavailable nodes masked out
+    (``stickiness.mask_unavailable``: an instance whose robot is down keeps its node)."""
     snapshot = with_what_if(snapshot, what_if)
-    problem = built_problem(snapshot)
-    masked, _ = mask_unavailable(problem, unavailable_in(snapshot, problem))
-    return masked
+    built = built_problem(snapshot)
+    released = [j for j, n in enumerate(built.nodes) if n.name in snapshot.released]
+    problem = release_robots(built, released) if released else built
+    masked, stranded = mask_unavailable(problem, unavailable_in(snapshot, problem))
+    return Built(built, problem.current, masked, frozenset(stranded))
+
+
+def problem_of(snapshot: FleetSnapshot, what_if: WhatIf | None = None) -> Problem:
+    """The planning problem of ``snapshot`` (changed by ``what_if``): ``build``'s last step."""
+    return build(snapshot, what_if).problem
 
 
 def unavailable_in(snapshot: FleetSnapshot, problem: Problem) -> dict[int, str]:

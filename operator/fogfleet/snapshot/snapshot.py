@@ -64,6 +64,9 @@ class FleetSnapshot:
     pools: Mapping[str, Mapping[str, int]] = field(default_factory=dict)  # module -> tiers
     corrections: Mapping[tuple[str, str], Learnt] = field(default_factory=dict)
     measured_links: Mapping[str, Link] = field(default_factory=dict)  # robot -> as measured
+    # robots planned with their declared link again after a spell planned as measured: their
+    # instances are planned as if they did not run yet (``stickiness.release_robots``)
+    released: frozenset[str] = frozenset()
     held: Mapping[str, Held] = field(default_factory=dict)  # Node -> held by others
     deployed: Placement = field(default_factory=dict)  # status.placement, else Deployments
     measured: Mapping[str, float] = field(default_factory=dict)  # module -> measured misses

@@ -52,13 +52,13 @@ def prom() -> FakePrometheus:
 def builds(monkeypatch: pytest.MonkeyPatch) -> list[Any]:
     """The measured links each full pass built its problem with."""
     seen: list[Any] = []
-    real = fleet_plan.built_problem
+    real = fleet_plan.build
 
     def recording(snapshot: Any) -> Any:
         seen.append(dict(snapshot.measured_links))
         return real(snapshot)
 
-    monkeypatch.setattr(fleet_plan, "built_problem", recording)
+    monkeypatch.setattr(fleet_plan, "build", recording)
     return seen
 
 

@@ -19,13 +19,13 @@ KEY = ("warehouse", "warehouse")
 def builds(monkeypatch):
     """How many times the full pass built the problem."""
     count = [0]
-    real = fleet_plan.built_problem
+    real = fleet_plan.build
 
     def counting(*args, **kwargs):
         count[0] += 1
         return real(*args, **kwargs)
 
-    monkeypatch.setattr(fleet_plan, "built_problem", counting)
+    monkeypatch.setattr(fleet_plan, "build", counting)
     return count
 
 

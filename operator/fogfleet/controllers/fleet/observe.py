@@ -190,10 +190,13 @@ def parse(inputs: FleetInputs) -> Parsed:
     return Parsed(gathered, modules, frozenset(wanted), scaling_pools(inputs.raw_modules))
 
 
-def fleet_snapshot(inputs: FleetInputs, parsed: Parsed) -> FleetSnapshot:
+def fleet_snapshot(
+    inputs: FleetInputs, parsed: Parsed, released: frozenset[str] = frozenset()
+) -> FleetSnapshot:
     """What the fleet plans from, as every entry point has it (``snapshot.FleetSnapshot``):
     the parsed catalog, unavailable nodes, current placement, pools, corrections, links
-    planned as measured and the room the other tenants hold."""
+    planned as measured, the robots whose link recovered (``released``) and the room the
+    other tenants hold."""
     return FleetSnapshot(
         key=inputs.obj.key,
         fleet=inputs.fleet,
@@ -204,6 +207,7 @@ def fleet_snapshot(inputs: FleetInputs, parsed: Parsed) -> FleetSnapshot:
         pools=parsed.pools,
         corrections=inputs.corrections,
         measured_links=inputs.measured,
+        released=released,
         held=inputs.held,
         status=inputs.obj.old_status,
     )

@@ -27,9 +27,8 @@ from fogfleet.controllers.state import FleetState, Rendered
 from fogfleet.domain.problem import Problem
 from fogfleet.domain.tenancy import Held, claims_of
 from fogfleet.errors import Infeasible
-from fogfleet.scheduling import stickiness
 from fogfleet.scheduling.decision import Decision, decide, fingerprint, with_defaults
-from fogfleet.snapshot import built_problem, room_note, unavailable_in
+from fogfleet.snapshot import build, room_note
 
 __all__ = ["Planned", "plan_fleet", "plan_step"]
 
@@ -109,19 +108,15 @@ def plan_step(
 ) -> Planned:
     """Build the fleet's planning problem, mask unavailable nodes and decide."""
     fleet = inputs.fleet
-    snapshot = fleet_snapshot(inputs, parsed)
-    problem = built_problem(snapshot)
+    built = build(fleet_snapshot(inputs, parsed, _recovered(inputs, last)))
     record_references(
         state,
         fleet,
         parsed.wanted,
-        {n.name for n in problem.nodes},
-        {n.node_name for n in problem.nodes},
+        {n.name for n in built.built.nodes},
+        {n.node_name for n in built.built.nodes},
     )
-    problem = _release_recovered(problem, inputs, last)
-    unavailable = unavailable_in(snapshot, problem)
-    before = problem.current
-    problem, stranded = stickiness.mask_unavailable(problem, unavailable)
+    problem, stranded, before = built.problem, built.stranded, built.before
     never = {i: why for i, why in problem.reasons.items() if i not in stranded}
     if never:
         why = "; ".join(never.values())
@@ -173,17 +168,14 @@ def _naming_the_others(err: Infeasible, problem: Problem, held: Mapping[str, Hel
     return Infeasible(err.obj, err.field, f"{err.message}; {room}")
 
 
-def _release_recovered(problem: Problem, inputs: FleetInputs, last: Rendered | None) -> Problem:
-    """A robot whose link is planned as declared again after a bad spell: its modules go where
-    the plan puts them, not where the bad link had them moved (linkhealth)."""
+def _recovered(inputs: FleetInputs, last: Rendered | None) -> frozenset[str]:
+    """The robots whose link is planned as declared again after a bad spell: their modules go
+    where the plan puts them, not where the bad link had them moved (linkhealth)."""
     recovered = set(last.measured) - set(inputs.measured) if last is not None else set()
-    if not recovered:
-        return problem
-    log.info(
-        "RobotFleet %s/%s: %s planned with the declared link again",
-        *inputs.obj.key,
-        ", ".join(sorted(recovered)),
-    )
-    return stickiness.release_robots(
-        problem, [j for j, n in enumerate(problem.nodes) if n.name in recovered]
-    )
+    if recovered:
+        log.info(
+            "RobotFleet %s/%s: %s planned with the declared link again",
+            *inputs.obj.key,
+            ", ".join(sorted(recovered)),
+        )
+    return frozenset(recovered)
