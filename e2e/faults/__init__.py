@@ -1,1 +1,2 @@
-"""Fault injection on the bed (issue 37): what each fault cost, recorded and rendered."""
+"""Fault injection on the bed (issue 37): the fleets the fault tests run and what they read of
+them, and what each fault cost, recorded and rendered."""

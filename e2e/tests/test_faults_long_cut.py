@@ -39,20 +39,29 @@ from typing import Any
 import pytest
 
 from e2e.bed.harness import Cluster
-from e2e.bed.images import PAUSE_REF
 from e2e.bed.kube import Kube
-from e2e.bed.operator_fixtures import all_pods, conditions, deployments, events, fleet
+from e2e.bed.operator_fixtures import conditions, deployments, events, fleet
 from e2e.faults.cutfleet import (
     CYCLE_S,
     LITE_CYCLE_MS,
     fleet_pod,
     gaps_since,
-    input_gaps,
     link_of,
     metrics_url,
     reachable,
     running_cut_fleet,
     took_over,
+)
+from e2e.faults.longcut import (
+    CONTROL,
+    containers,
+    control_pod,
+    counters,
+    delta,
+    fleet_pods,
+    ready,
+    taints,
+    unanswered,
 )
 from e2e.faults.record import FaultResult, record
 from e2e.tests.rosbed import ROBOTS, scrape, scrape_series
@@ -74,42 +83,10 @@ TOLERATION_S = 10  # the bed's --default-{unreachable,not-ready}-toleration-seco
 # the control pod is marked for deletion by then (grace + toleration + the taint manager's
 # and our polling's delays: measured 19 s on the 2-core machine)
 EVICTED_WITHIN_S = GRACE_S + TOLERATION_S + 15
-CONTROL = "control-pause"
 UNREACHABLE = "node.kubernetes.io/unreachable"
 NOT_READY = "node.kubernetes.io/not-ready"
 RECOVERY_BOUND_S = 60  # link back -> the fleet as planned again (measured 7 s)
 LOST_BOUND = 15  # messages: two takeovers' silence windows plus in-flight answers (measured 3)
-
-
-def _control_pod(ns: str, node: str) -> dict[str, Any]:
-    """A pod with the bed's default tolerations only (admission adds them): evicted 10 s after
-    its node turns unreachable. Restricted Pod Security, like everything else in the bed."""
-    return {
-        "apiVersion": "v1",
-        "kind": "Pod",
-        "metadata": {"name": CONTROL, "namespace": ns, "labels": {"app": CONTROL}},
-        "spec": {
-            "nodeName": node,
-            "automountServiceAccountToken": False,
-            "terminationGracePeriodSeconds": 1,
-            "securityContext": {
-                "runAsNonRoot": True,
-                "runAsUser": 65532,
-                "seccompProfile": {"type": "RuntimeDefault"},
-            },
-            "containers": [
-                {
-                    "name": "pause",
-                    "image": PAUSE_REF,
-                    "imagePullPolicy": "Never",
-                    "securityContext": {
-                        "allowPrivilegeEscalation": False,
-                        "capabilities": {"drop": ["ALL"]},
-                    },
-                }
-            ],
-        },
-    }
 
 
 @pytest.fixture
@@ -120,84 +97,15 @@ def long_cut_fleet(
         yield ns
 
 
-def _ready(pod: dict[str, Any]) -> bool:
-    return any(
-        c["type"] == "Ready" and c["status"] == "True"
-        for c in (pod.get("status") or {}).get("conditions") or []
-    )
-
-
-def _containers(pod: dict[str, Any]) -> dict[str, tuple[str, int]]:
-    """container name -> (container ID, restart count)."""
-    return {
-        c["name"]: (c.get("containerID", ""), c.get("restartCount", 0))
-        for c in (pod.get("status") or {}).get("containerStatuses") or []
-    }
-
-
-def _fleet_pods(kube: Kube, ns: str) -> dict[str, dict[str, Any]]:
-    """Every pod fogfleet made in ``ns`` (modules, standbys, discovery servers), by UID, the
-    terminating ones included."""
-    return {
-        p["metadata"]["uid"]: p
-        for p in all_pods(kube, ns)
-        if p["metadata"].get("labels", {}).get("app.kubernetes.io/managed-by") == "fogfleet"
-    }
-
-
-def _taints(kube: Kube, node: str) -> set[str]:
-    spec = kube.kubectl_json("get", "node", node)["spec"]
-    return {f"{t['key']}:{t['effect']}" for t in spec.get("taints") or []}
-
-
-def _counters(urls: dict[str, str]) -> dict[str, Any]:
-    """One reading of every counter the figures need, with the moment it was taken."""
-    safety, camera = urls["safety"], urls["camera"]
-    return {
-        "t": time.monotonic(),
-        "images": scrape_series(camera, "fogfleet_messages_published_total", topic="image"),
-        "camera": scrape(camera),
-        "safety": scrape(safety),
-        "objects": scrape_series(safety, "fogfleet_messages_received_total", topic="objects"),
-        "segments": scrape_series(safety, "fogfleet_messages_received_total", topic="segments"),
-        "tracks": scrape_series(safety, "fogfleet_messages_received_total", topic="tracks"),
-        "objects_gaps": input_gaps(safety, "objects"),
-        "segments_gaps": input_gaps(safety, "segments"),
-        "out_of_order": scrape_series(safety, "fogfleet_out_of_order_messages_total"),
-        "standby": scrape(urls["standby"]),
-        "variant": scrape(urls["variant"]),
-    }
-
-
-def _unanswered(a: dict[str, Any], b: dict[str, Any]) -> tuple[float, float, float]:
-    """From reading ``a`` to ``b``: camera images, images the safety module got no object
-    for, and images it got no segment for beyond the variant's half rate (each of the
-    variant's own cycles answers one image of two)."""
-    images = b["images"] - a["images"]
-    lite = (
-        b["variant"]["fogfleet_cycle_time_seconds_count"]
-        - a["variant"]["fogfleet_cycle_time_seconds_count"]
-    )
-    return (
-        images,
-        images - (b["objects"] - a["objects"]),
-        images - lite - (b["segments"] - a["segments"]),
-    )
-
-
-def _delta(a: dict[str, Any], b: dict[str, Any], who: str, metric: str) -> float:
-    return float(b[who].get(metric, 0.0) - a[who].get(metric, 0.0))
-
-
 def test_a_cut_longer_than_the_eviction_timeout_evicts_nothing_of_the_fleet(
     kube: Kube, cluster: Cluster, long_cut_fleet: str
 ) -> None:
     ns = long_cut_fleet
     robot, other = ROBOTS
-    kube.apply(_control_pod(ns, robot))
+    kube.apply(control_pod(ns, robot))
     kube.wait_for(
         "the control pod Ready on robot-1",
-        lambda: _ready(kube.kubectl_json("get", "pod", CONTROL, "-n", ns)),
+        lambda: ready(kube.kubectl_json("get", "pod", CONTROL, "-n", ns)),
         60,
         interval=1,
     )
@@ -212,7 +120,7 @@ def test_a_cut_longer_than_the_eviction_timeout_evicts_nothing_of_the_fleet(
 
     pods = {
         (p["metadata"]["labels"].get("fogfleet.io/instance", ""), p["metadata"]["uid"]): p
-        for p in _fleet_pods(kube, ns).values()
+        for p in fleet_pods(kube, ns).values()
     }
     by_instance = {i: p for (i, _), p in pods.items() if i}
     on_robot = {uid: p for (_, uid), p in pods.items() if p["spec"].get("nodeName") == robot}
@@ -227,7 +135,7 @@ def test_a_cut_longer_than_the_eviction_timeout_evicts_nothing_of_the_fleet(
         }
         assert kept == {UNREACHABLE: "forever", NOT_READY: "forever"}, (p["metadata"]["name"], kept)
     before_uids = {uid for _, uid in pods}
-    before_containers = {uid: _containers(p) for (_, uid), p in pods.items()}
+    before_containers = {uid: containers(p) for (_, uid), p in pods.items()}
     placement = {
         (e["robot"], e["module"]): e["node"] for e in fleet(kube, ns, FLEET)["status"]["placement"]
     }
@@ -251,7 +159,7 @@ def test_a_cut_longer_than_the_eviction_timeout_evicts_nothing_of_the_fleet(
             return False
 
     kube.wait_for("objects, tracks and segments at robot-1's safety module", flowing, 120, 2)
-    base = _counters(urls)  # the steady state's unanswered images, for the baseline
+    base = counters(urls)  # the steady state's unanswered images, for the baseline
     kube.wait_for(
         "both robots' links measured healthy",
         lambda: all(link_of(kube, ns, FLEET, r).get("state") == "Healthy" for r in ROBOTS),
@@ -259,7 +167,7 @@ def test_a_cut_longer_than_the_eviction_timeout_evicts_nothing_of_the_fleet(
         interval=1,
     )
     time.sleep(max(0.0, 10 - (time.monotonic() - base["t"])))
-    before = _counters(urls)
+    before = counters(urls)
     other_standby = metrics_url(fleet_pod(by_instance, other, "detector", standby=True))
     other_before = scrape(other_standby)
 
@@ -272,14 +180,14 @@ def test_a_cut_longer_than_the_eviction_timeout_evicts_nothing_of_the_fleet(
     reasons: set[str] = set()
     states: set[str] = set()  # status.links' state of the cut robot
     while (now := time.monotonic()) - cut < CUT_SECONDS:
-        seen = _fleet_pods(kube, ns)
+        seen = fleet_pods(kube, ns)
         for uid, p in seen.items():
             if uid not in before_uids:
                 new_pods[uid] = f"{p['metadata']['name']} on {p['spec'].get('nodeName')}"
             elif p["metadata"].get("deletionTimestamp"):
                 deleted.add(p["metadata"]["name"])
         deleted |= {pods[k]["metadata"]["name"] for k in pods if k[1] not in seen}
-        if tainted_at is None and f"{UNREACHABLE}:NoExecute" in _taints(kube, robot):
+        if tainted_at is None and f"{UNREACHABLE}:NoExecute" in taints(kube, robot):
             tainted_at = now - cut
         if evicted_at is None:
             ctl = kube.kubectl("get", "pod", CONTROL, "-n", ns, "-o", "json", check=False)
@@ -310,12 +218,12 @@ def test_a_cut_longer_than_the_eviction_timeout_evicts_nothing_of_the_fleet(
 
     # ---- the link is back: the fleet as planned again, the standbys handing back
     def as_planned() -> bool:
-        now_pods = _fleet_pods(kube, ns)
+        now_pods = fleet_pods(kube, ns)
         deps = deployments(kube, ns)
         conds = conditions(fleet(kube, ns, FLEET))
         return (
             set(now_pods) == before_uids
-            and all(_ready(p) for p in now_pods.values())
+            and all(ready(p) for p in now_pods.values())
             and all(
                 (d.get("status") or {}).get("availableReplicas", 0) == d["spec"]["replicas"]
                 for d in deps
@@ -348,7 +256,7 @@ def test_a_cut_longer_than_the_eviction_timeout_evicts_nothing_of_the_fleet(
         60,
         interval=1,
     )
-    after = _counters(urls)
+    after = counters(urls)
     # the kubelet, back in touch, finished the control pod's eviction
     kube.wait_for(
         "the evicted control pod gone",
@@ -358,16 +266,16 @@ def test_a_cut_longer_than_the_eviction_timeout_evicts_nothing_of_the_fleet(
     )
 
     # nothing restarted: same pods, same containers, no restarts; counters only grew
-    now_pods = _fleet_pods(kube, ns)
+    now_pods = fleet_pods(kube, ns)
     assert set(now_pods) == before_uids
     changed = {
-        now_pods[uid]["metadata"]["name"]: (before_containers[uid], _containers(now_pods[uid]))
+        now_pods[uid]["metadata"]["name"]: (before_containers[uid], containers(now_pods[uid]))
         for uid in before_uids
-        if _containers(now_pods[uid]) != before_containers[uid]
+        if containers(now_pods[uid]) != before_containers[uid]
     }
     assert not changed, f"containers restarted or replaced: {changed}"
     for who in ("camera", "safety", "standby", "variant"):
-        assert _delta(before, after, who, "fogfleet_cycle_time_seconds_count") > 0, who
+        assert delta(before, after, who, "fogfleet_cycle_time_seconds_count") > 0, who
     assert {
         (e["robot"], e["module"]): e["node"] for e in fleet(kube, ns, FLEET)["status"]["placement"]
     } == placement
@@ -388,8 +296,8 @@ def test_a_cut_longer_than_the_eviction_timeout_evicts_nothing_of_the_fleet(
     assert gaps >= 0.8 * CUT_SECONDS / CYCLE_S and sgaps >= 0.8 * CUT_SECONDS * 1e3 / LITE_CYCLE_MS
     assert after["out_of_order"] - before["out_of_order"] == 0  # no input answered twice
     # messages lost: unanswered images beyond the steady state's (in-flight answers)
-    base_images, base_objects, base_segments = _unanswered(base, before)
-    images, no_object, no_segment = _unanswered(before, after)
+    base_images, base_objects, base_segments = unanswered(base, before)
+    images, no_object, no_segment = unanswered(before, after)
     tracks_lost = images - (after["tracks"] - before["tracks"])
     print(f"tracks (no fallback) lost over the cut: {tracks_lost:.0f} of {images:.0f}")
     assert tracks_lost >= 0.8 * CUT_SECONDS / CYCLE_S  # the control of the figures
@@ -408,8 +316,8 @@ def test_a_cut_longer_than_the_eviction_timeout_evicts_nothing_of_the_fleet(
     elapsed = after["t"] - before["t"]
     missed = 0.0
     for who in ("camera", "safety"):
-        ran = _delta(before, after, who, "fogfleet_cycle_time_seconds_count")
-        late = _delta(before, after, who, "fogfleet_missed_cycles_total")
+        ran = delta(before, after, who, "fogfleet_cycle_time_seconds_count")
+        late = delta(before, after, who, "fogfleet_missed_cycles_total")
         print(f"{who} over {elapsed:.0f} s: {ran:.0f} cycles, {late:.0f} missed")
         assert ran >= 0.9 * elapsed / CYCLE_S and late <= 0.01 * ran, who
         missed += late

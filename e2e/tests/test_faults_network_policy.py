@@ -21,32 +21,31 @@ metrics port and one more: only the first two are reachable, and its egress stay
 from __future__ import annotations
 
 import json
-import socket
-import subprocess
-import threading
 import time
-from collections.abc import Iterable, Iterator
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
 import pytest
-import yaml
 
-from e2e.bed.base import HERE
 from e2e.bed.harness import Cluster
 from e2e.bed.kube import Kube
-from e2e.bed.operator_fixtures import fleet, helm, pods_by_instance
-from e2e.faults.record import FaultResult, record
-from e2e.tests.rosbed import (
-    EDGE,
-    IMAGE,
-    ROBOTS,
-    bed_objects,
-    operated_fleet,
-    ros_module,
-    scrape,
-    scrape_series,
+from e2e.bed.operator_fixtures import fleet, pods_by_instance
+from e2e.faults.isolation import (
+    FLEET,
+    METRICS,
+    PORT,
+    Listener,
+    iso_fleet_objects,
+    pod_of,
+    received,
+    send,
+    send_from_host,
+    shipped,
+    standin,
 )
+from e2e.faults.record import FaultResult, record
+from e2e.tests.rosbed import EDGE, ROBOTS, operated_fleet, scrape
 from fogfleet.render.names import (
     metrics_network_policy_name,
     network_policy_name,
@@ -62,164 +61,14 @@ pytestmark = [
     pytest.mark.timeout(600),
 ]
 
-FLEET = "isofleet"
-PORT = 17000  # a port the probe listeners open and no policy of the fleet allows
-METRICS = 9100
-REPO = HERE.parents[1]
-
-# Listens on TCP and UDP ``PORT`` (and any TCP ports given) for a while; prints what came.
-LISTENER = r"""
-import select, socket, sys, time
-ports = [int(p) for p in sys.argv[2:]]
-socks = []
-for p in ports:
-    t = socket.socket(); t.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
-    t.bind(("0.0.0.0", p)); t.listen(16); socks.append(t)
-u = socket.socket(socket.AF_INET, socket.SOCK_DGRAM); u.bind(("0.0.0.0", ports[0])); socks.append(u)
-print("ready", flush=True)
-end = time.time() + float(sys.argv[1])
-while time.time() < end:
-    for s in select.select(socks, [], [], 0.5)[0]:
-        if s is u:
-            print("udp", s.recvfrom(256)[0].decode(), flush=True)
-        else:
-            c, _ = s.accept(); c.settimeout(2)
-            try:
-                print("tcp", c.recv(256).decode(), flush=True)
-            except OSError:
-                pass
-            c.close()
-"""
-
-# Sends each tag over TCP, then UDP (five datagrams 50 ms apart: the first ones to an address
-# not yet resolved may wait on ARP, and UDP does not retry); prints "tcp TAG ok|fail".
-SENDER = r"""
-import json, socket, sys, time
-for ip, port, tag in json.loads(sys.argv[1]):
-    try:
-        socket.create_connection((ip, port), timeout=3).sendall(tag.encode())
-        print("tcp", tag, "ok", flush=True)
-    except OSError as exc:
-        print("tcp", tag, "fail", exc, flush=True)
-    u = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-    for _ in range(5):
-        u.sendto(tag.encode(), (ip, port))
-        time.sleep(0.05)
-"""
-
-
-def _objects(ns: str) -> list[dict[str, Any]]:
-    modules = [
-        ros_module("lidar", ns, cycle_ms=100, taxonomy=("periodic", "hard", "critical"),
-                   subscribes=[], publishes=[("scan", 1024, 10)],
-                   profile=[("bed-robot", "50m", 4, 0.5)]),
-        # offloaded: its robot's scan crosses the robot's link
-        ros_module("planner", ns, cycle_ms=500, taxonomy=("periodic", "soft", "relevant"),
-                   subscribes=[("scan", 1024, 10), ("map", 512, 2)],
-                   publishes=[("plan", 512, 2)],
-                   profile=[("bed-robot", "100m", 40, 4), ("bed-edge", "100m", 20, 2)],
-                   tiers=["edge"]),
-        # one for the fleet: hears every robot, every robot hears it
-        ros_module("fleet-map", ns, cycle_ms=500, taxonomy=("periodic", "soft", "relevant"),
-                   subscribes=[("scan", 1024, 10)], publishes=[("map", 512, 2)],
-                   profile=[("bed-edge", "100m", 20, 2)], tiers=["edge"],
-                   scope="shared", replicas=1),
-    ]  # fmt: skip
-    return bed_objects(ns, FLEET, modules)
-
 
 @pytest.fixture
 def iso_fleet(
     kube: Kube, cluster: Cluster, namespace: str, tmp_path: Path, diagnostics: list[Any]
 ) -> Iterator[str]:
-    with operated_fleet(kube, cluster, namespace, tmp_path, diagnostics, _objects(namespace),
-                        FLEET) as ns:  # fmt: skip
+    with operated_fleet(kube, cluster, namespace, tmp_path, diagnostics,
+                        iso_fleet_objects(namespace), FLEET) as ns:  # fmt: skip
         yield ns
-
-
-class Listener:
-    """A probe listener inside a pod's container (``kubectl exec``), for ``seconds``."""
-
-    def __init__(self, kube: Kube, ns: str, pod: str, container: str, seconds: int,
-                 tcp_ports: tuple[int, ...] = (PORT,)) -> None:  # fmt: skip
-        argv = [kube.kubectl_bin, f"--kubeconfig={kube.kubeconfig}", "exec", pod, "-n", ns,
-                "-c", container, "--", "python3", "-u", "-c", LISTENER, str(seconds),
-                *map(str, tcp_ports)]  # fmt: skip
-        self.proc = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
-                                     text=True)  # fmt: skip
-        assert self.proc.stdout is not None
-        first = self.proc.stdout.readline().strip()
-        assert first == "ready", f"listener in {pod}: {first!r}"
-        self.lines: list[str] = []
-        self._reader = threading.Thread(target=self._read, daemon=True)
-        self._reader.start()
-
-    def _read(self) -> None:
-        assert self.proc.stdout is not None
-        for line in self.proc.stdout:
-            self.lines.append(line.strip())
-
-    def _tags(self, kind: str) -> set[str]:
-        return {ln.split()[1] for ln in list(self.lines) if ln.startswith(f"{kind} ")}
-
-    def heard(self, expect_tcp: Iterable[str] = ()) -> tuple[set[str], set[str]]:
-        """(UDP tags, TCP tags) it has received (its process in the pod runs on until its
-        time is up; the test's namespace goes with it). ``expect_tcp``: the tags whose TCP
-        connection the sender saw accepted here; they are waited for (kubectl relays them
-        later on a loaded machine; 30 s only guards a hang), then one more second is a
-        window for the datagrams sent beside them."""
-        want = set(expect_tcp)
-        deadline = time.monotonic() + 30
-        while not want <= self._tags("tcp") and time.monotonic() < deadline:
-            time.sleep(0.1)
-        time.sleep(1)  # an observation window for the last datagrams, not a wait
-        self.proc.terminate()
-        self.proc.wait(timeout=30)
-        self._reader.join(timeout=30)
-        return self._tags("udp"), self._tags("tcp")
-
-
-def _send(
-    kube: Kube, ns: str, pod: dict[str, Any], probes: list[tuple[str, int, str]]
-) -> dict[str, bool]:
-    container = pod["spec"]["containers"][0]["name"]
-    argv = ["exec", pod["metadata"]["name"], "-n", ns, "-c", container, "--",
-            "python3", "-u", "-c", SENDER, json.dumps(probes)]  # fmt: skip
-    out = kube.kubectl(*argv, timeout=120).stdout
-    result = {
-        ln.split()[1]: ln.split()[2] == "ok" for ln in out.splitlines() if ln.startswith("tcp ")
-    }
-    assert set(result) == {tag for _, _, tag in probes}, out
-    return result
-
-
-def _send_from_host(probes: list[tuple[str, int, str]]) -> dict[str, bool]:
-    """The host's own view (Prometheus scrapes from here, through the bed's bridge)."""
-    result = {}
-    for ip, port, tag in probes:
-        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as u:
-            for _ in range(3):
-                u.sendto(tag.encode(), (ip, port))
-        try:
-            with socket.create_connection((ip, port), timeout=3) as c:
-                c.sendall(tag.encode())
-            result[tag] = True
-        except OSError:
-            result[tag] = False
-    return result
-
-
-def _pod_of(pods: dict[str, Any], robot: str, module: str) -> dict[str, Any]:
-    for pod in pods.values():
-        labels = pod["metadata"]["labels"]
-        if labels.get("fogfleet.io/robot") == robot and labels.get("fogfleet.io/module") == module:
-            return pod
-    raise AssertionError(f"no {module} pod of robot {robot!r}")
-
-
-def _received(pod: dict[str, Any], topic: str) -> float:
-    url = f"http://{pod['status']['podIP']}:{METRICS}/metrics"
-    return scrape_series(url, "fogfleet_messages_received_total", topic=topic)
 
 
 def test_a_robots_pods_reach_their_own_robot_and_the_shared_services_only(
@@ -238,17 +87,17 @@ def test_a_robots_pods_reach_their_own_robot_and_the_shared_services_only(
         assert where[(robot, "lidar")] == robot and where[(robot, "planner")] == EDGE, where
     assert where[("", "fleet-map")] == EDGE, where
     pods = pods_by_instance(kube, ns)
-    r1_lidar, r1_planner = _pod_of(pods, ROBOTS[0], "lidar"), _pod_of(pods, ROBOTS[0], "planner")
-    r2_lidar, r2_planner = _pod_of(pods, ROBOTS[1], "lidar"), _pod_of(pods, ROBOTS[1], "planner")
-    shared = _pod_of(pods, "", "fleet-map")
+    r1_lidar, r1_planner = pod_of(pods, ROBOTS[0], "lidar"), pod_of(pods, ROBOTS[0], "planner")
+    r2_lidar, r2_planner = pod_of(pods, ROBOTS[1], "lidar"), pod_of(pods, ROBOTS[1], "planner")
+    shared = pod_of(pods, "", "fleet-map")
 
     # the planned flows work under enforcement: planners hear their robot's lidar (across the
     # link) and the shared map; the map hears the robots (Prometheus scrapes the pod IPs)
     def flowing() -> bool:
         return (
-            all(_received(p, "scan") > 20 and _received(p, "map") > 3
+            all(received(p, "scan") > 20 and received(p, "map") > 3
                 for p in (r1_planner, r2_planner))
-            and _received(shared, "scan") > 40
+            and received(shared, "scan") > 40
         )  # fmt: skip
 
     kube.wait_for("messages at both planners and the shared map", flowing, 240, interval=3)
@@ -274,10 +123,10 @@ def test_a_robots_pods_reach_their_own_robot_and_the_shared_services_only(
         # robot-1 to robot-2's metrics port: open to Prometheus, closed by robot-1's egress
         if src.startswith("r1"):
             probes.append((r2_lidar["status"]["podIP"], METRICS, f"{src}>r2lidar:metrics"))
-        tcp.update(_send(kube, ns, pod, probes))
+        tcp.update(send(kube, ns, pod, probes))
     host = [(p["status"]["podIP"], PORT, f"host>{dst}") for dst, p in targets.items()]
     host += [(p["status"]["podIP"], METRICS, f"host>{dst}:metrics") for dst, p in targets.items()]
-    tcp.update(_send_from_host(host))
+    tcp.update(send_from_host(host))
     udp_heard: set[str] = set()
     tcp_heard: set[str] = set()
     for key, listener in listeners.items():
@@ -313,56 +162,17 @@ def test_a_robots_pods_reach_their_own_robot_and_the_shared_services_only(
 # the shipped operator NetworkPolicy
 
 
-def _shipped(source: str) -> tuple[dict[str, Any], dict[str, str], tuple[int, int]]:
-    """(NetworkPolicy, the operator pod's labels, (probe port, metrics port)) as shipped."""
-    if source == "manifests":
-        install = REPO / "manifests" / "install"
-        docs = [d for f in sorted(install.glob("*.yaml"))
-                for d in yaml.safe_load_all(f.read_text()) if d]  # fmt: skip
-    else:
-        out = helm("template", "fogfleet", str(REPO / "charts" / "fogfleet"),
-                   "--namespace", "fogfleet-system")  # fmt: skip
-        docs = [d for d in yaml.safe_load_all(out) if d]
-    (policy,) = [d for d in docs if d["kind"] == "NetworkPolicy"]
-    (dep,) = [d for d in docs if d["kind"] == "Deployment"]
-    labels = dep["spec"]["template"]["metadata"]["labels"]
-    (container,) = dep["spec"]["template"]["spec"]["containers"]
-    ports = {p["name"]: p["containerPort"] for p in container["ports"]}
-    probe = next(v for k, v in ports.items() if k != "metrics")
-    return policy, labels, (probe, ports["metrics"])
-
-
-def _standin(name: str, node: str, labels: dict[str, str], command: list[str]) -> dict[str, Any]:
-    return {
-        "apiVersion": "v1",
-        "kind": "Pod",
-        "metadata": {"name": name, "labels": labels},
-        "spec": {
-            "nodeSelector": {"kubernetes.io/hostname": node},
-            "automountServiceAccountToken": False,
-            "terminationGracePeriodSeconds": 1,
-            "tolerations": [{"key": "fogfleet.io/dedicated", "operator": "Exists"}],
-            "containers": [{
-                "name": "main", "image": IMAGE, "imagePullPolicy": "Never", "command": command,
-                "resources": {"requests": {"cpu": "10m", "memory": "32Mi"}},
-                "securityContext": {"allowPrivilegeEscalation": False, "runAsNonRoot": True,
-                                    "runAsUser": 65532, "capabilities": {"drop": ["ALL"]}},
-            }],
-        },
-    }  # fmt: skip
-
-
 @pytest.mark.parametrize("source", ["manifests", "chart"])
 def test_the_shipped_operator_policy_admits_only_probes_and_metrics(
     kube: Kube, namespace: str, source: str
 ) -> None:
-    policy, labels, (probe, metrics) = _shipped(source)
+    policy, labels, (probe, metrics) = shipped(source)
     policy["metadata"]["namespace"] = namespace
     kube.apply(policy, namespace)
     # the operator's stand-in (its labels, its ports) on the edge, a client on a robot
     sleep = ["python3", "-c", "import time; time.sleep(3600)"]
-    kube.apply(_standin("operator", EDGE, labels, sleep), namespace)
-    kube.apply(_standin("client", ROBOTS[0], {"app": "client"}, sleep), namespace)
+    kube.apply(standin("operator", EDGE, labels, sleep), namespace)
+    kube.apply(standin("client", ROBOTS[0], {"app": "client"}, sleep), namespace)
     ip = {}
     for name in ("operator", "client"):
         kube.wait_for(f"pod {name} Running", lambda n=name: kube.kubectl_json(
@@ -373,9 +183,9 @@ def test_the_shipped_operator_policy_admits_only_probes_and_metrics(
     cl = Listener(kube, namespace, "client", "main", 300)
     probes = [(ip["operator"], PORT, "client>op"), (ip["operator"], probe, "client>op:probe"),
               (ip["operator"], metrics, "client>op:metrics")]  # fmt: skip
-    tcp = _send(kube, namespace, pods["client"], probes)
-    tcp.update(_send(kube, namespace, pods["operator"], [(ip["client"], PORT, "op>client")]))
-    tcp.update(_send_from_host([(ip["operator"], PORT, "host>op"),
+    tcp = send(kube, namespace, pods["client"], probes)
+    tcp.update(send(kube, namespace, pods["operator"], [(ip["client"], PORT, "op>client")]))
+    tcp.update(send_from_host([(ip["operator"], PORT, "host>op"),
                                 (ip["operator"], metrics, "host>op:metrics")]))  # fmt: skip
     udp_op, tcp_op = op.heard(
         {tag for tag, ok in tcp.items() if ok and tag.split(">")[1] != "client"}

@@ -35,10 +35,25 @@ import pytest
 from e2e.bed import nodefaults, realnodes
 from e2e.bed.harness import Cluster
 from e2e.bed.kube import Kube
-from e2e.bed.operator_fixtures import all_pods, conditions, events, fleet
-from e2e.faults.cost import Poller
+from e2e.bed.operator_fixtures import conditions, events, fleet
+from e2e.faults.nodefleet import (
+    FLEET,
+    RATE_HZ,
+    ReadyWatch,
+    all_flowing,
+    all_where_planned,
+    baseline,
+    counter,
+    discovery_servers,
+    identity,
+    lost_objects,
+    missed_cycles,
+    module_pods,
+    node_fleet_objects,
+    read,
+)
 from e2e.faults.record import record_measured
-from e2e.tests.rosbed import EDGE, ROBOTS, bed_objects, operated_fleet, ros_module, scrape_series
+from e2e.tests.rosbed import EDGE, ROBOTS, operated_fleet
 
 pytestmark = [
     pytest.mark.e2e,
@@ -48,27 +63,8 @@ pytestmark = [
     pytest.mark.timeout(600),
 ]
 
-FLEET = "nodefleet"
-RATE_HZ = 10
 DOWN_SECONDS = 20  # > the bed's node-monitor grace period (10 s): the node is seen NotReady
 SETTLE_SECONDS = 10  # after a fault, before the counters are read again
-
-
-def _objects(ns: str) -> list[dict[str, Any]]:
-    image, objects = [("image", 4096, RATE_HZ)], [("objects", 512, RATE_HZ)]
-    modules = [
-        ros_module("camera", ns, cycle_ms=100, taxonomy=("periodic", "hard", "critical"),
-                   subscribes=[], publishes=image, profile=[("bed-robot", "50m", 3, 0.3)]),
-        ros_module("detector", ns, cycle_ms=100, taxonomy=("continuous", "soft", "relevant"),
-                   subscribes=image, publishes=objects,
-                   profile=[("bed-edge", "100m", 10, 1)], tiers=["edge"]),
-        ros_module("safety", ns, cycle_ms=100, taxonomy=("periodic", "hard", "critical"),
-                   subscribes=objects, publishes=[("stop", 64, RATE_HZ)],
-                   profile=[("bed-robot", "50m", 3, 0.3)]),
-    ]  # fmt: skip
-    for m in modules:
-        m["spec"]["resources"]["memory"] = "192Mi"
-    return bed_objects(ns, FLEET, modules)
 
 
 @pytest.fixture
@@ -78,154 +74,9 @@ def node_fleet(
     edge = realnodes.declared(EDGE)
     diagnostics.append(lambda: ("edge node logs", realnodes.diagnose(edge)))
     with operated_fleet(
-        kube, cluster, namespace, tmp_path, diagnostics, _objects(namespace), FLEET
+        kube, cluster, namespace, tmp_path, diagnostics, node_fleet_objects(namespace), FLEET
     ) as ns:
         yield ns
-
-
-# --------------------------------------------------------------------------------------------
-# what the test reads
-
-
-def _module_pods(kube: Kube, ns: str) -> dict[tuple[str, str], dict[str, Any]]:
-    """(robot, module) -> its pod (not terminating), the robots' discovery servers apart."""
-    out = {}
-    for pod in all_pods(kube, ns):
-        labels = pod["metadata"].get("labels") or {}
-        if pod["metadata"].get("deletionTimestamp") or "fogfleet.io/module" not in labels:
-            continue
-        out[(labels["fogfleet.io/robot"], labels["fogfleet.io/module"])] = pod
-    return out
-
-
-def _identity(pod: dict[str, Any]) -> dict[str, Any]:
-    """What a restart or a re-creation changes: the pod's UID, its containers and restarts."""
-    statuses = (pod.get("status") or {}).get("containerStatuses") or []
-    return {
-        "uid": pod["metadata"]["uid"],
-        "node": pod["spec"].get("nodeName"),
-        "containers": sorted(str(c.get("containerID")) for c in statuses),
-        "restarts": sum(int(c.get("restartCount", 0)) for c in statuses),
-    }
-
-
-def _url(pod: dict[str, Any]) -> str:
-    return f"http://{pod['status']['podIP']}:9100/metrics"
-
-
-def _counter(pod: dict[str, Any], name: str, **labels: str) -> float:
-    return scrape_series(_url(pod), name, **labels)
-
-
-def _all_where_planned(kube: Kube, ns: str) -> bool:
-    """Every planned instance has a Ready pod on its planned node, and the fleet is Ready."""
-    obj = fleet(kube, ns, FLEET)
-    if conditions(obj).get("Ready", {}).get("status") != "True":
-        return False
-    planned = {(p["robot"], p["module"]): p["node"] for p in obj["status"]["placement"]}
-    pods = _module_pods(kube, ns)
-    for key, node in planned.items():
-        pod = pods.get(key)
-        if pod is None or pod["spec"].get("nodeName") != node:
-            return False
-        conds = {c["type"]: c["status"] for c in (pod.get("status") or {}).get("conditions") or []}
-        if conds.get("Ready") != "True":
-            return False
-    return True
-
-
-def _flowing(kube: Kube, ns: str) -> bool:
-    """Objects arrive at every robot's safety module (its metrics endpoint answering)."""
-    pods = _module_pods(kube, ns)
-    try:
-        return all(
-            _counter(pods[(r, "safety")], "fogfleet_messages_received_total", topic="objects") > 30
-            for r in ROBOTS
-        )
-    except (OSError, KeyError):
-        return False
-
-
-class ReadyWatch(Poller):
-    """The fleet's Ready condition, polled every ``interval`` s in a thread: how long it was
-    not Ready (first to last such sample) and what its messages said meanwhile."""
-
-    def __init__(self, kube: Kube, ns: str, nodes: tuple[str, ...] = (), interval: float = 1.0):
-        super().__init__(interval)
-        self.kube, self.ns, self.nodes = kube, ns, nodes
-        self.samples: list[tuple[float, str, str, str]] = []  # (t, status, reason, message)
-        self.node_samples: list[tuple[float, str, str]] = []  # (t, node, its Ready status)
-
-    def poll(self) -> None:
-        try:
-            c = conditions(fleet(self.kube, self.ns, FLEET)).get("Ready", {})
-            sample = (time.monotonic() - self.t0, c.get("status", "?"), c.get("reason", ""),
-                      c.get("message", ""))  # fmt: skip
-            self.samples.append(sample)
-            for node in self.nodes:
-                obj = self.kube.kubectl_json("get", "node", node)
-                ready = conditions(obj).get("Ready", {}).get("status", "?")
-                self.node_samples.append((time.monotonic() - self.t0, node, ready))
-        except Exception as exc:  # an unanswered poll is a sample too
-            self.samples.append((time.monotonic() - self.t0, "?", "Unreadable", str(exc)))
-
-    def not_ready_seconds(self) -> float:
-        bad = [t for t, status, _, _ in self.samples if status != "True"]
-        return (bad[-1] - bad[0] + self.interval) if bad else 0.0
-
-    def node_not_ready(self) -> list[tuple[float, str, str]]:
-        return [sample for sample in self.node_samples if sample[2] != "True"]
-
-    def messages(self) -> list[str]:
-        return sorted({f"{r}: {m}" for _, s, r, m in self.samples if s != "True"})
-
-
-def _baseline(kube: Kube, ns: str, seconds: float = 10) -> dict[str, Any]:
-    """The counters now, and each safety module's objects rate over ``seconds``."""
-    pods = _module_pods(kube, ns)
-    safety = {r: pods[(r, "safety")] for r in ROBOTS}
-    first = {r: _counter(p, "fogfleet_messages_received_total", topic="objects")
-             for r, p in safety.items()}  # fmt: skip
-    t0 = time.monotonic()
-    time.sleep(seconds)
-    return {"rate": {r: (_counter(p, "fogfleet_messages_received_total", topic="objects")
-                         - first[r]) / (time.monotonic() - t0) for r, p in safety.items()},
-            **_read(pods)}  # fmt: skip
-
-
-def _read(pods: dict[tuple[str, str], dict[str, Any]]) -> dict[str, Any]:
-    """Per robot: objects received at its safety module, images sent by its camera and
-    received by its detector, and every module's missed cycles (None: not answering)."""
-
-    def get(pod: dict[str, Any], name: str, **labels: str) -> float | None:
-        try:
-            return _counter(pod, name, **labels)
-        except OSError:
-            return None
-
-    out: dict[str, Any] = {"t": time.monotonic(), "missed": {}}
-    for r in ROBOTS:
-        out[f"objects_at_{r}"] = get(pods[(r, "safety")], "fogfleet_messages_received_total",
-                                     topic="objects")  # fmt: skip
-        out[f"images_from_{r}"] = get(pods[(r, "camera")], "fogfleet_messages_published_total",
-                                      topic="image")  # fmt: skip
-        out[f"images_at_{r}"] = get(pods[(r, "detector")], "fogfleet_messages_received_total",
-                                    topic="image")  # fmt: skip
-        for m in ("camera", "detector", "safety"):
-            out["missed"][f"{r}/{m}"] = get(pods[(r, m)], "fogfleet_missed_cycles_total")
-    return out
-
-
-def _missed(before: dict[str, Any], after: dict[str, Any], modules: set[str]) -> int:
-    return int(sum(after["missed"][k] - before["missed"][k] for k in before["missed"]
-                   if k.split("/")[1] in modules))  # fmt: skip
-
-
-def _objects_lost(before: dict[str, Any], after: dict[str, Any], rate: dict[str, float]) -> int:
-    """Objects the safety modules did not get over the window, at their baseline rate."""
-    dt = after["t"] - before["t"]
-    return int(sum(max(0.0, rate[r] * dt - (after[f"objects_at_{r}"] - before[f"objects_at_{r}"]))
-                   for r in ROBOTS))  # fmt: skip
 
 
 # --------------------------------------------------------------------------------------------
@@ -238,14 +89,14 @@ def test_a_restarted_kubelet_and_containerd_leave_every_pod_running(
     """The edge node's (both robots' detectors), then robot-1's (its camera, safety module
     and discovery server): kubelet first, then containerd, each settled before the next."""
     ns = node_fleet
-    kube.wait_for("objects flowing to both safety modules", lambda: _flowing(kube, ns), 120, 2)
+    kube.wait_for("objects flowing to both safety modules", lambda: all_flowing(kube, ns), 120, 2)
     where = {(p["robot"], p["module"]): p["node"]
              for p in fleet(kube, ns, FLEET)["status"]["placement"]}  # fmt: skip
     assert all(where[(r, "detector")] == EDGE for r in ROBOTS), where
     assert all(where[(r, m)] == r for r in ROBOTS for m in ("camera", "safety")), where
-    ids = {k: _identity(p) for k, p in _module_pods(kube, ns).items()}
-    servers = _discovery_servers(kube, ns)
-    before = _baseline(kube, ns)
+    ids = {k: identity(p) for k, p in module_pods(kube, ns).items()}
+    servers = discovery_servers(kube, ns)
+    before = baseline(kube, ns)
     took: dict[str, float] = {}
     back: dict[str, float] = {}  # until the node and every module were as planned again
     nodes = (EDGE, ROBOTS[0])
@@ -256,16 +107,16 @@ def test_a_restarted_kubelet_and_containerd_leave_every_pod_running(
                 done = nodefaults.restart(realnodes.declared(name), component)
                 took[f"{name}/{component}"] = round(done.seconds, 1)
                 realnodes.wait_ready(kube.kubectl, [name], timeout=60)
-                kube.wait_for("all where planned", lambda: _all_where_planned(kube, ns), 120, 1)
+                kube.wait_for("all where planned", lambda: all_where_planned(kube, ns), 120, 1)
                 back[f"{name}/{component}"] = round(time.monotonic() - t0, 1)
                 time.sleep(SETTLE_SECONDS)  # the kubelet re-syncs its pods with the runtime
-    after = _read(_module_pods(kube, ns))
-    now = {k: _identity(p) for k, p in _module_pods(kube, ns).items()}
+    after = read(module_pods(kube, ns))
+    now = {k: identity(p) for k, p in module_pods(kube, ns).items()}
     print(f"restarted in {took}; as planned again after {back}; fleet not Ready: "
           f"{watch.messages()}; nodes not Ready: {watch.node_not_ready()}")  # fmt: skip
     # nothing was re-created or restarted: same pods, same containers, no restart counted
     assert now == ids, json.dumps({"before": ids, "after": now}, default=str)[:3000]
-    assert _discovery_servers(kube, ns) == servers
+    assert discovery_servers(kube, ns) == servers
     # messages kept flowing: every image a camera sent over the window reached its detector
     # (scraped a moment apart: a message or two in flight), objects at the baseline rate
     in_flight = 2 * len(ROBOTS)
@@ -274,9 +125,9 @@ def test_a_restarted_kubelet_and_containerd_leave_every_pod_running(
         - (after[f"images_at_{r}"] - before[f"images_at_{r}"])
         for r in ROBOTS
     )
-    objects_lost = _objects_lost(before, after, before["rate"])
+    objects_lost = lost_objects(before, after, before["rate"])
     window = after["t"] - before["t"]
-    missed = _missed(before, after, {"camera", "detector", "safety"})
+    missed = missed_cycles(before, after, {"camera", "detector", "safety"})
     cycles = 3 * len(ROBOTS) * RATE_HZ * window
     lost = max(0, int(images_lost)) + objects_lost
     print(f"over {window:.0f} s: images lost {images_lost:.0f}, objects short {objects_lost}, "
@@ -300,37 +151,27 @@ def test_a_restarted_kubelet_and_containerd_leave_every_pod_running(
     })  # fmt: skip
 
 
-def _discovery_servers(kube: Kube, ns: str) -> dict[str, dict[str, Any]]:
-    """The robots' discovery server pods (pod name -> identity)."""
-    return {
-        p["metadata"]["name"]: _identity(p)
-        for p in all_pods(kube, ns)
-        if "fogfleet.io/module" not in (p["metadata"].get("labels") or {})
-        and not p["metadata"].get("deletionTimestamp")
-    }
-
-
 @pytest.mark.long
 def test_a_rebooted_edge_node_gets_its_modules_back_and_the_fleet_says_so(
     kube: Kube, node_fleet: str
 ) -> None:
     ns = node_fleet
     edge = realnodes.declared(EDGE)
-    kube.wait_for("objects flowing to both safety modules", lambda: _flowing(kube, ns), 120, 2)
-    ids = {k: _identity(p) for k, p in _module_pods(kube, ns).items()}
-    before = _baseline(kube, ns)
+    kube.wait_for("objects flowing to both safety modules", lambda: all_flowing(kube, ns), 120, 2)
+    ids = {k: identity(p) for k, p in module_pods(kube, ns).items()}
+    before = baseline(kube, ns)
     with ReadyWatch(kube, ns, (EDGE,)) as watch:
         t0 = time.monotonic()
         rebooted = nodefaults.reboot(edge, down_seconds=DOWN_SECONDS)
         realnodes.wait_ready(kube.kubectl, [EDGE], timeout=120)
         node_ready = time.monotonic() - t0
-        kube.wait_for("everything where planned", lambda: _all_where_planned(kube, ns), 240, 1)
+        kube.wait_for("everything where planned", lambda: all_where_planned(kube, ns), 240, 1)
         recovery = time.monotonic() - t0
-        kube.wait_for("objects flowing again", lambda: _flowing(kube, ns), 60, 1)
+        kube.wait_for("objects flowing again", lambda: all_flowing(kube, ns), 60, 1)
         time.sleep(SETTLE_SECONDS)
-    pods = _module_pods(kube, ns)
-    after = _read(pods)
-    now = {k: _identity(p) for k, p in pods.items()}
+    pods = module_pods(kube, ns)
+    after = read(pods)
+    now = {k: identity(p) for k, p in pods.items()}
     print(f"{rebooted}; node Ready after {node_ready:.0f} s, all as planned after "
           f"{recovery:.0f} s; Ready samples not True: {watch.messages()}")  # fmt: skip
     # the on-board modules never stopped; each detector runs on the edge again, restarted in
@@ -342,8 +183,8 @@ def test_a_rebooted_edge_node_gets_its_modules_back_and_the_fleet_says_so(
         assert new["node"] == EDGE
         assert new["uid"] != old["uid"] or new["restarts"] > old["restarts"], (new, old)
     recreated = sum(now[(r, "detector")]["uid"] != ids[(r, "detector")]["uid"] for r in ROBOTS)
-    objects_lost = _objects_lost(before, after, before["rate"])
-    missed = _missed(before, after, {"camera", "safety"})
+    objects_lost = lost_objects(before, after, before["rate"])
+    missed = missed_cycles(before, after, {"camera", "safety"})
     outage = rebooted.down_seconds + rebooted.boot_seconds
     print(f"objects short at the safety modules: {objects_lost} "
           f"(~{outage * RATE_HZ * len(ROBOTS):.0f} while the node was down); "
@@ -388,33 +229,33 @@ def test_a_rebooted_robot_restores_its_modules_in_their_pods(kube: Kube, node_fl
     ns = node_fleet
     robot, other = ROBOTS
     node = realnodes.declared(robot)
-    kube.wait_for("objects flowing to both safety modules", lambda: _flowing(kube, ns), 120, 2)
-    pods = _module_pods(kube, ns)
-    ids = {k: _identity(p) for k, p in pods.items()}
-    servers = _discovery_servers(kube, ns)
+    kube.wait_for("objects flowing to both safety modules", lambda: all_flowing(kube, ns), 120, 2)
+    pods = module_pods(kube, ns)
+    ids = {k: identity(p) for k, p in pods.items()}
+    servers = discovery_servers(kube, ns)
     detector = pods[(robot, "detector")]  # on the edge: it keeps running and counting
 
     def images() -> float:
-        return _counter(detector, "fogfleet_messages_received_total", topic="image")
+        return counter(detector, "fogfleet_messages_received_total", topic="image")
 
     first, t_first = images(), time.monotonic()
     time.sleep(10)
     rate = (images() - first) / (time.monotonic() - t_first)
-    before = _read(pods)
+    before = read(pods)
     with ReadyWatch(kube, ns, (robot,)) as watch:
         t0 = time.monotonic()
         rebooted = nodefaults.reboot(node, down_seconds=DOWN_SECONDS)
         realnodes.wait_ready(kube.kubectl, [robot], timeout=120)
         node_ready = time.monotonic() - t0
-        kube.wait_for("everything where planned", lambda: _all_where_planned(kube, ns), 240, 1)
+        kube.wait_for("everything where planned", lambda: all_where_planned(kube, ns), 240, 1)
         recovery = time.monotonic() - t0
         seen = images()
         kube.wait_for("images at the detector again", lambda: images() > seen + 20, 120, 1)
         flowing = time.monotonic() - t0
         time.sleep(SETTLE_SECONDS)
-    pods = _module_pods(kube, ns)
-    after = _read(pods)
-    now = {k: _identity(p) for k, p in pods.items()}
+    pods = module_pods(kube, ns)
+    after = read(pods)
+    now = {k: identity(p) for k, p in pods.items()}
     print(f"{rebooted}; node Ready after {node_ready:.0f} s, all as planned after "
           f"{recovery:.0f} s, images at the detector again after {flowing:.0f} s; fleet not "
           f"Ready: {watch.messages()}")  # fmt: skip
@@ -422,7 +263,7 @@ def test_a_rebooted_robot_restores_its_modules_in_their_pods(kube: Kube, node_fl
     for m in ("camera", "safety"):
         new, old = now[(robot, m)], ids[(robot, m)]
         assert new["uid"] == old["uid"] and new["restarts"] > old["restarts"], (m, new, old)
-    restored = _discovery_servers(kube, ns)
+    restored = discovery_servers(kube, ns)
     assert restored.keys() == servers.keys(), (restored, servers)
     # nothing else restarted
     for key in [(other, "camera"), (other, "safety"), (robot, "detector"), (other, "detector")]:
@@ -431,7 +272,7 @@ def test_a_rebooted_robot_restores_its_modules_in_their_pods(kube: Kube, node_fl
     window = after["t"] - before["t"]
     heard = after[f"images_at_{robot}"] - before[f"images_at_{robot}"]
     lost = int(max(0.0, rate * window - heard))
-    missed = _missed(before, after, {"detector"}) + int(
+    missed = missed_cycles(before, after, {"detector"}) + int(
         sum(after["missed"][f"{other}/{m}"] - before["missed"][f"{other}/{m}"]
             for m in ("camera", "safety"))
     )  # fmt: skip

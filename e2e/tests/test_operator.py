@@ -7,13 +7,11 @@ Each test runs its own `fogfleet run` process scoped to the test's namespace.
 
 from __future__ import annotations
 
-import copy
 import time
 from pathlib import Path
 from typing import Any
 
 import pytest
-import yaml
 
 from e2e.bed.harness import Cluster
 from e2e.bed.kube import Kube
@@ -21,24 +19,17 @@ from e2e.bed.operator_fixtures import (
     N_INSTANCES,
     ROOT,
     Operator,
-    add_module_to_fleet,
     apply_warehouse,
     assert_pods_where_planned,
-    bound_node,
     condition_is,
     conditions,
-    deployment_versions,
     deployments,
     dump,
     events,
-    example_docs,
     fleet,
-    of_kind,
-    pods_by_instance,
     wait_ready,
 )
 from e2e.portable.metrics import parse as parse_metrics
-from fogfleet.api.v1alpha1.base import parse_cpu
 from fogfleet.render.wiring import is_ros_object
 
 pytestmark = [
@@ -46,10 +37,6 @@ pytestmark = [
     pytest.mark.bed("the bed's kwok warehouse nodes and the operator run as a host process"),
     pytest.mark.timeout(420),
 ]
-
-FULL_TEMPLATE: dict[str, Any] = yaml.safe_load(
-    (ROOT / "manifests" / "examples" / "pod-template" / "module.yaml").read_text()
-)["spec"]["template"]
 
 
 def test_warehouse_runs_where_planned_replans_once_and_cleans_up(
@@ -190,104 +177,6 @@ def test_a_not_ready_edge_node_is_left_and_the_fleet_recovers(
         cluster.set_node_not_ready(node, False)
 
 
-def test_invalid_objects_are_rejected_or_reported_without_touching_what_runs(
-    kube: Kube, namespace: str, operator: Operator
-) -> None:
-    docs = example_docs("warehouse", namespace)
-    bad_tier = {**of_kind(docs, "ComputeNode")[0], "metadata": {"name": "e2e-bad-tier"}}
-    bad_tier["spec"] = {**bad_tier["spec"], "tier": "moon"}
-    proc = kube.kubectl("apply", "-f", "-", input=dump(bad_tier), check=False)
-    assert proc.returncode != 0 and "tier" in proc.stderr, proc.stderr
-    module = dict(of_kind(docs, "SoftwareModule")[0])
-    module["spec"] = {**module["spec"], "cycleTimeMillis": -5}
-    proc = kube.kubectl("apply", "-f", "-", input=dump(module), check=False)
-    assert proc.returncode != 0 and "cycleTimeMillis" in proc.stderr, proc.stderr
-    # no profile at all is refused, unless the operator is to profile the module itself
-    unprofiled = dict(of_kind(docs, "SoftwareModule")[0])
-    unprofiled["spec"] = {**unprofiled["spec"], "profile": []}
-    proc = kube.kubectl("apply", "-f", "-", input=dump(unprofiled), check=False)
-    assert proc.returncode != 0, proc.stdout
-    assert "profile: at least one row, unless profiling.mode is auto" in proc.stderr, proc.stderr
-    # a pod-template field fogfleet owns: refused by the API server with the reason
-    owned = dict(of_kind(docs, "SoftwareModule")[0])
-    owned["spec"] = {**owned["spec"], "template": {**owned["spec"]["template"], "affinity": {}}}
-    proc = kube.kubectl("apply", "-f", "-", input=dump(owned), check=False)
-    assert proc.returncode != 0, proc.stdout
-    assert "affinity: set by fogfleet (the pod's placement is the plan's" in proc.stderr, (
-        proc.stderr
-    )
-    # the pod-template subset users set is accepted as it is written in a Deployment
-    full = dict(of_kind(docs, "SoftwareModule")[0])
-    full["metadata"] = {"name": "e2e-full-template", "namespace": namespace}
-    full["spec"] = {**full["spec"], "template": FULL_TEMPLATE}
-    kube.apply(full)
-    stored = kube.kubectl_json("get", "softwaremodule", "e2e-full-template", "-n", namespace)
-    assert stored["spec"]["template"] == FULL_TEMPLATE  # nothing pruned by the schema
-    bad_volume = {**full, "metadata": {"name": "e2e-bad-volume", "namespace": namespace}}
-    bad_volume["spec"] = {
-        **full["spec"],
-        "template": {**FULL_TEMPLATE, "readinessProbe": {"tcpSocket": {"port": 70000}}},
-    }
-    proc = kube.kubectl("apply", "-f", "-", input=dump(bad_volume), check=False)
-    assert proc.returncode != 0 and "readinessProbe" in proc.stderr, proc.stderr
-    kube.kubectl("delete", "softwaremodule", "e2e-full-template", "-n", namespace)
-    # a robot listed twice would double every module of it: the API server refuses it
-    twice = dict(of_kind(docs, "RobotFleet")[0])
-    twice["metadata"] = {"name": "e2e-twice", "namespace": namespace}
-    twice["spec"] = {**twice["spec"], "robots": ["robot-1", "robot-1"]}
-    proc = kube.kubectl("apply", "-f", "-", input=dump(twice), check=False)
-    assert proc.returncode != 0 and "spec.robots[1]: Duplicate value" in proc.stderr, proc.stderr
-
-    apply_warehouse(kube, namespace)
-    wait_ready(kube, namespace)
-    before = deployment_versions(kube, namespace)
-
-    # a dangling reference: Ready=False naming the field, an Event, nothing touched
-    add_module_to_fleet(kube, namespace, "no-such-module")
-    kube.wait_for(
-        "DanglingReference",
-        lambda: condition_is(kube, namespace, "Ready", "False", reason="DanglingReference"),
-        60,
-    )
-    msg = conditions(fleet(kube, namespace))["Ready"]["message"]
-    assert "spec.modules[8].name" in msg and "no-such-module" in msg, msg
-    assert events(kube, namespace, "DanglingReference")
-    after = deployment_versions(kube, namespace)
-    assert after == before
-
-    # the module appears: the fleet re-plans by itself
-    extra = dict(of_kind(docs, "SoftwareModule")[3])
-    extra["metadata"] = {"name": "no-such-module", "namespace": namespace}
-    kube.apply(extra)
-    kube.wait_for(
-        "Ready again with 45 modules",
-        lambda: (
-            condition_is(kube, namespace, "Ready", "True")
-            and fleet(kube, namespace)["status"]["modulesTotal"] == 45
-        ),
-        120,
-        interval=1,
-    )
-
-    # a fleet that cannot fit: every robot module asks for 64 GiB
-    greedy = of_kind(docs, "SoftwareModule")[2]  # nav-controller: stays on board
-    greedy = {**greedy, "metadata": {"name": "memory-hog", "namespace": namespace}}
-    greedy["spec"] = {**greedy["spec"], "resources": {"cpu": "500m", "memory": "64Gi"}}
-    kube.apply(greedy)
-    before = deployment_versions(kube, namespace)
-    add_module_to_fleet(kube, namespace, "memory-hog")
-    kube.wait_for(
-        "Infeasible",
-        lambda: condition_is(kube, namespace, "Ready", "False", reason="Infeasible"),
-        120,
-    )
-    assert events(kube, namespace, "PlanFailed")
-    msg = conditions(fleet(kube, namespace))["Ready"]["message"]
-    assert "memory" in msg, msg
-    after = deployment_versions(kube, namespace)
-    assert after == before
-
-
 def test_an_operator_killed_mid_reconcile_converges_after_restart(
     kube: Kube, namespace: str, operator: Operator
 ) -> None:
@@ -308,109 +197,6 @@ def test_an_operator_killed_mid_reconcile_converges_after_restart(
     live = [r for r in replicasets if r["spec"]["replicas"] > 0 and not is_ros_object(r)]
     assert len(live) == N_INSTANCES
     print(f"\nkilled after {partial} of {N_INSTANCES} Deployments; converged after restart")
-
-
-def _room_for_pods(kube: Kube, deployment: dict[str, Any]) -> float:
-    """Cores the ComputeNode a Deployment is pinned to has for pods (capacity - reserved)."""
-    affinity = deployment["spec"]["template"]["spec"]["affinity"]["nodeAffinity"]
-    term = affinity["requiredDuringSchedulingIgnoredDuringExecution"]["nodeSelectorTerms"][0]
-    spec = kube.kubectl_json("get", "computenode", term["matchExpressions"][0]["values"][0])
-    reserved = (spec["spec"].get("reserved") or {}).get("cpu", 0)
-    return parse_cpu(spec["spec"]["capacity"]["cpu"]) - parse_cpu(reserved)
-
-
-def test_a_fleet_short_of_cpu_runs_degraded_on_its_least_important_module(
-    kube: Kube, namespace: str, operator: Operator
-) -> None:
-    """A low-priority edge module whose deadline needs 6 cores per robot cannot get them all
-    (5 x 6 cores beyond what the warehouse uses): the operator runs it degraded, says so, and
-    kube-scheduler binds every pod; the module's limit stays what its deadline needs."""
-    docs = example_docs("warehouse", namespace)
-    apply_warehouse(kube, namespace)
-    wait_ready(kube, namespace)
-    hog = copy.deepcopy(of_kind(docs, "SoftwareModule")[7])  # object-pose-estimation's shape
-    hog["metadata"] = {"name": "bulk-mapper", "namespace": namespace}
-    hog["spec"].update(
-        {
-            "taxonomy": {"executionPattern": "event", "realtime": "none", "safety": "irrelevant"},
-            "cycleTimeMillis": 100,
-            "priority": 5,
-            "requirements": {"tiers": ["edge"]},
-            "resources": {"cpu": "1", "memory": "256Mi"},
-            "profile": [
-                {"hardwareType": "default", "cpu": 6, "meanMillis": 50, "stdMillis": 2},
-                {"hardwareType": "default", "cpu": 1, "meanMillis": 400, "stdMillis": 10.5},
-            ],
-        }
-    )
-    kube.apply(hog)
-    add_module_to_fleet(kube, namespace, "bulk-mapper")
-    kube.wait_for(
-        "Degraded ShortOfCapacity",
-        lambda: condition_is(kube, namespace, "Degraded", "True", reason="ShortOfCapacity"),
-        180,
-        interval=1,
-    )
-    msg = conditions(fleet(kube, namespace))["Degraded"]["message"]
-    assert "bulk-mapper" in msg and "priority 5" in msg and "predicted miss" in msg, msg
-    assert events(kube, namespace, "ShortOfCapacity")
-    gauge = parse_metrics(operator.metrics()).total(
-        "fogfleet_degraded_instances", fleet="warehouse"
-    )
-    assert gauge >= 1, gauge
-    wait_ready(kube, namespace)  # every module, degraded ones included, runs where planned
-    assert_pods_where_planned(kube, namespace, instances=N_INSTANCES + 5)
-    burst = 0
-    for dep in deployments(kube, namespace):
-        res = dep["spec"]["template"]["spec"]["containers"][0]["resources"]
-        limit, request = parse_cpu(res["limits"]["cpu"]), parse_cpu(res["requests"]["cpu"])
-        room = _room_for_pods(kube, dep)  # a limit never exceeds what its node has for pods
-        if dep["metadata"]["annotations"]["fogfleet.io/module"] == "bulk-mapper":
-            burst += res["requests"]["cpu"] != res["limits"]["cpu"]
-            assert limit == pytest.approx(min(12.0, room)), res  # deadline's 6 cores x 200 %
-        else:  # the others keep what their deadline needs, x 200 % (cpuLimitPercent)
-            assert limit == pytest.approx(min(2 * request, room)), res
-    assert burst >= 1
-
-
-def test_the_k8s_default_fleet_records_kube_schedulers_real_placement(
-    kube: Kube, namespace: str, operator: Operator
-) -> None:
-    apply_warehouse(kube, namespace, scheduler={"algorithm": "k8s-default"})
-    wait_ready(kube, namespace)
-    status = fleet(kube, namespace)["status"]
-    assert status["scheduler"] == "k8s-default" and len(status["placement"]) == N_INSTANCES
-    pods = pods_by_instance(kube, namespace)
-    deps = {d["metadata"]["name"]: d for d in deployments(kube, namespace)}
-    recorded = {(p["robot"], p["module"]): p["node"] for p in status["placement"]}
-    for name, dep in deps.items():
-        ann = dep["metadata"]["annotations"]
-        assert (
-            pods[name]["spec"]["nodeName"]
-            == recorded[(ann["fogfleet.io/robot"], ann["fogfleet.io/module"])]
-        )
-        assert "limits" not in dep["spec"]["template"]["spec"]["containers"][0]["resources"]
-        assert len(bound_node(dep)) >= 1
-    assert conditions(fleet(kube, namespace))["Scheduled"]["reason"] == "KubeScheduler"
-
-    # side by side in the same simulator, every module active (the paper's IV-B setting; with
-    # Table II's activation rates both plans often miss nothing, and 0 < 0 fails): nsga2's plan
-    # misses fewer cycles than kube-scheduler's real placement
-    import numpy as np
-
-    from fogfleet.api.loader import load_paths
-    from fogfleet.domain.build import build_problem
-    from fogfleet.scheduling.solver import plan
-    from fogfleet.sim.simulator import simulate
-
-    catalog = load_paths([ROOT / "manifests" / "examples" / "warehouse"])
-    problem = build_problem(catalog.fleets[0], catalog)
-    real = np.array([problem.node_index(recorded[(i.robot, i.module)]) for i in problem.instances])
-    ours = plan(problem, catalog.fleets[0].spec.scheduler)
-    k8s = simulate(problem, real, problem.nominal, 60.0, 1, all_active=True)
-    nsga = simulate(problem, np.asarray(ours.placement), problem.limits, 60.0, 1, all_active=True)
-    print(f"\nmiss rate: kube-scheduler {k8s.miss_rate:.4f}, nsga2 {nsga.miss_rate:.4f}")
-    assert nsga.miss_rate < k8s.miss_rate
 
 
 def test_the_operator_works_under_the_charts_least_privilege_rbac(
