@@ -152,35 +152,43 @@ def _settings_epilog() -> str:
 def _parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="fogfleet", description=__doc__.split("\n\n")[0])
     sub = p.add_subparsers(dest="command", required=True)
+    _add_file_commands(sub)
+    _add_other_commands(sub)
+    return p
 
-    def fleet_args(sp: argparse.ArgumentParser, scheduler_choices: Sequence[str]) -> None:
-        sp.add_argument("paths", nargs="+", help="CR YAML or JSON files or folders")
-        sp.add_argument(
-            "--fleet",
-            metavar="NAMESPACE/NAME",
-            help="only this RobotFleet (NAME alone: every fleet of that name); the files' "
-            "fleets before it are planned too, as one site",
-        )
-        sp.add_argument(
-            "--scheduler", choices=scheduler_choices, help="override spec.scheduler.algorithm"
-        )
-        sp.add_argument("--seed", type=int, help="override spec.scheduler.seed")
-        sp.add_argument("--population", type=int, help="override spec.scheduler.population")
-        sp.add_argument("--generations", type=int, help="override spec.scheduler.generations")
-        sp.add_argument(
-            "--time-budget",
-            type=positive(float),
-            help="seconds; override spec.scheduler.timeBudgetMillis",
-        )
 
+def _fleet_args(sp: argparse.ArgumentParser, scheduler_choices: Sequence[str]) -> None:
+    """The options of every command that plans the fleets of CR files."""
+    sp.add_argument("paths", nargs="+", help="CR YAML or JSON files or folders")
+    sp.add_argument(
+        "--fleet",
+        metavar="NAMESPACE/NAME",
+        help="only this RobotFleet (NAME alone: every fleet of that name); the files' "
+        "fleets before it are planned too, as one site",
+    )
+    sp.add_argument(
+        "--scheduler", choices=scheduler_choices, help="override spec.scheduler.algorithm"
+    )
+    sp.add_argument("--seed", type=int, help="override spec.scheduler.seed")
+    sp.add_argument("--population", type=int, help="override spec.scheduler.population")
+    sp.add_argument("--generations", type=int, help="override spec.scheduler.generations")
+    sp.add_argument(
+        "--time-budget",
+        type=positive(float),
+        help="seconds; override spec.scheduler.timeBudgetMillis",
+    )
+
+
+def _add_file_commands(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+    """plan, simulate, explain, render and validate: the commands on CR files."""
     sp = sub.add_parser("plan", help="print the placement table and objectives")
-    fleet_args(sp, SCHEDULERS)
+    _fleet_args(sp, SCHEDULERS)
     sp.add_argument("--json", action="store_true")
     sp.add_argument("--plot", metavar="FILE.png", help="draw the Pareto front and node utilisation")
     sp.set_defaults(func=cmd_plan)
 
     sp = sub.add_parser("simulate", help="simulate plans and print missed-cycle rates")
-    fleet_args(sp, (*SCHEDULERS, "all"))
+    _fleet_args(sp, (*SCHEDULERS, "all"))
     sp.add_argument(
         "--duration", type=positive(float), default=120.0, help="simulated seconds (default 120)"
     )
@@ -210,7 +218,7 @@ def _parser() -> argparse.ArgumentParser:
     sp.set_defaults(func=cmd_simulate)
 
     sp = sub.add_parser("explain", help="why each instance of a module runs where the plan puts it")
-    fleet_args(sp, SCHEDULERS)
+    _fleet_args(sp, SCHEDULERS)
     sp.add_argument("--module", required=True, help="the SoftwareModule to explain")
     sp.add_argument("--robot", help="only this robot's instance")
     sp.add_argument(
@@ -220,7 +228,7 @@ def _parser() -> argparse.ArgumentParser:
     sp.set_defaults(func=cmd_explain)
 
     sp = sub.add_parser("render", help="print the Deployments the operator would apply")
-    fleet_args(sp, SCHEDULERS)
+    _fleet_args(sp, SCHEDULERS)
     sp.add_argument(
         "--allow-unplaced",
         action="store_true",
@@ -237,6 +245,9 @@ def _parser() -> argparse.ArgumentParser:
     sp.add_argument("--no-plan", action="store_true", help="only the checks, no planning (fast)")
     sp.set_defaults(func=cmd_validate)
 
+
+def _add_other_commands(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+    """crds, run, twin and bench."""
     sp = sub.add_parser("crds", help="write (or check) the CRD YAML generated from the models")
     g = sp.add_mutually_exclusive_group(required=True)
     g.add_argument("--out", help="folder to write")
@@ -281,7 +292,6 @@ def _parser() -> argparse.ArgumentParser:
     sp.add_argument("--records", help="page: record files, comma-separated")
     sp.add_argument("--out", metavar="FILE", help="page: write the page here (default: stdout)")
     sp.set_defaults(func=cmd_bench)
-    return p
 
 
 def main(argv: Sequence[str] | None = None) -> int:
