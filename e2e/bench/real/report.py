@@ -241,13 +241,22 @@ def _parts(doc: Doc) -> list[str]:
     if not parts:
         return []
     said = "; ".join(
-        f"runs {p['runs'][0]}-{p['runs'][1]} on {p.get('date', '?')} "
+        f"runs {p['runs'][0]}-{p['runs'][1]} on {p.get('date', '?')}, "
+        f"{p.get('machine') or 'machine not recorded'} "
         f"(`{p.get('command', '?')}`, {p.get('totalSeconds', '?')} s)"
         for p in parts
     )
+    machines = {p.get("machine") for p in parts}
+    other = (
+        f" The parts ran on {len(machines)} different machines: each block holds every "
+        "six-run arm, so each arm has runs on each of them, but the figures mix them."
+        if len(machines) > 1
+        else ""
+    )
     return [
         f"Ran in {len(parts)} parts: {said}. A resumed run keeps the protocol and the "
-        "schedule; it runs the scheduled runs the stopped one never started, in their places."
+        "schedule; it runs the scheduled runs the stopped one never started, in their "
+        f"places.{other}"
     ]
 
 

@@ -5,7 +5,9 @@ running the scheduled runs it never started, in their places, and keeping the ru
 they were recorded. Nothing else may differ: the protocol (arms, runs, blocks, warm-up,
 windows, k8s-requests' requests) must be the one the stopped run recorded, and its runs must
 be the schedule's first ones, in order; otherwise it is refused with the reason. The document
-says which runs ran in which part (``parts``), and the report prints it.
+says which runs ran in which part, when and on which machine (``parts``), and the report prints
+it: blocks keep every arm balanced over the parts, but a part on another machine is a
+difference every reader must see.
 """
 
 from __future__ import annotations
@@ -47,10 +49,12 @@ def runs_left(
 
 
 def part(doc: Mapping[str, Any], first: int, last: int) -> dict[str, Any]:
-    """One part of a resumed run as the document records it: which runs, when, how long."""
+    """One part of a resumed run as the document records it: which runs, when, on which
+    machine, how long (a resumed run may run on another machine: the page says so)."""
     return {
         "runs": [first, last],
         "date": doc.get("date"),
+        "machine": doc.get("machine"),
         "command": doc.get("command"),
         "totalSeconds": doc.get("totalSeconds"),
     }

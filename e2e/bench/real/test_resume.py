@@ -26,6 +26,7 @@ def _stopped(n: int, **changes: Any) -> dict[str, Any]:
         "protocol": PROTOCOL.as_json(),
         "runs": [_record(i) for i in range(n)],
         "date": "2026-11-29",
+        "machine": "Intel(R) Xeon(R) Processor, 2 cores",
         "command": "python -m e2e.bench.real",
         "totalSeconds": 3500,
     }
@@ -64,5 +65,10 @@ def test_a_resumed_run_names_its_parts() -> None:
         "parts": [part(stopped, 1, 13), part(stopped | {"totalSeconds": 3000}, 14, 25)],
     }
     text = table(whole)
-    assert "Ran in 2 parts: runs 1-13 on 2026-11-29" in text
+    assert "Ran in 2 parts: runs 1-13 on 2026-11-29, Intel(R) Xeon(R) Processor" in text
     assert "runs 14-25" in text and "3000 s" in text
+    assert "different machines" not in text
+    other = part(stopped | {"machine": "AMD EPYC, 2 cores"}, 14, 25)
+    text = table({**whole, "parts": [whole["parts"][0], other]})
+    assert "runs 14-25 on 2026-11-29, AMD EPYC, 2 cores" in text
+    assert "The parts ran on 2 different machines" in text
