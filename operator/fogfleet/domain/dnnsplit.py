@@ -191,7 +191,7 @@ def choose(model: DnnSplit, candidates: Sequence[Action]) -> Choice:
     left = [a for a in candidates if a.index not in gone]
     local = candidates[-1]
     if not left:  # Algorithm 1: "it will take the action n+1"
-        why = "nothing meets the bounds" if any(a.offloaded for a in dropped) else "no action"
+        why = "nothing meets the bounds"
         if all(math.isinf(a.time_s) for a in candidates if a.offloaded):
             why = "the link is cut"
         rest = tuple(d for d in dropped if d[0].index != local.index)
