@@ -19,16 +19,22 @@ from e2e.bed.kube import Kube
 from e2e.faults.record import FaultResult, record_measured
 from e2e.portable.metrics import read
 from fogfleet.api.labels import ANNOTATION_PLAN
+from fogfleet.contract.env import METRICS_PORT
 
 __all__ = [
-    "FLOWS", "NodeHistory", "Poller", "Snapshot", "fault_result", "scraped", "skew_messages",
-    "snapshot",
+    "FLOWS", "NodeHistory", "Poller", "Snapshot", "fault_result", "metrics_url", "scraped",
+    "skew_messages", "snapshot",
 ]  # fmt: skip
 
 T = TypeVar("T")
 
 # (producer, topic, consumer) of rosbed.split_fleet, per robot
 FLOWS = (("lidar", "scan", "localizer"), ("localizer", "pose", "planner"))
+
+
+def metrics_url(pod: Any) -> str:
+    """A module pod's metrics endpoint (the workload contract's port)."""
+    return f"http://{pod['status']['podIP']}:{METRICS_PORT}/metrics"
 
 
 @dataclass(frozen=True)
@@ -131,8 +137,7 @@ def snapshot(kube: Kube, namespace: str, fleet: str) -> Snapshot:
         key = (meta["labels"]["fogfleet.io/robot"], meta["labels"]["fogfleet.io/module"])
         restarts = sum(c.get("restartCount", 0) for c in status.get("containerStatuses") or [])
         pods[key] = (meta["uid"], restarts)
-        url = f"http://{status['podIP']}:9100/metrics"
-        counters[key], at[key] = scraped(partial(_counters, url))
+        counters[key], at[key] = scraped(partial(_counters, metrics_url(pod)))
     return Snapshot(counters, pods, at)
 
 

@@ -32,7 +32,6 @@ __all__ = [
     "gaps_since",
     "input_gaps",
     "link_of",
-    "metrics_url",
     "reachable",
     "running_cut_fleet",
     "since",
@@ -124,10 +123,6 @@ def fleet_pod(pods: dict[str, Any], robot: str, module: str, standby: bool = Fal
         ):
             return pod
     raise AssertionError(f"no {'standby ' if standby else ''}{module} pod of {robot}")
-
-
-def metrics_url(pod: Any) -> str:
-    return f"http://{pod['status']['podIP']}:9100/metrics"
 
 
 def input_gaps(url: str, topic: str) -> dict[float, float]:

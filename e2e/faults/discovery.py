@@ -25,7 +25,7 @@ from typing import Any
 from e2e.bed import realnodes
 from e2e.bed.kube import Kube
 from e2e.bed.operator_fixtures import pods_by_instance
-from e2e.faults.cost import scraped, skew_messages
+from e2e.faults.cost import metrics_url, scraped, skew_messages
 from e2e.tests.rosbed import ROBOTS, bed_objects, ros_module
 from fogfleet.render.names import discovery_service_name
 
@@ -41,7 +41,6 @@ __all__ = [
     "flowing",
     "kill",
     "kill_and_rejoin",
-    "metrics_url",
     "missed_cycles",
     "module_pods",
     "ready",
@@ -121,10 +120,6 @@ def module_pods(kube: Kube, ns: str) -> dict[tuple[str, str], Any]:
         labels = pod["metadata"]["labels"]
         out[(labels["fogfleet.io/robot"], labels["fogfleet.io/module"])] = pod
     return out
-
-
-def metrics_url(pod: Any) -> str:
-    return f"http://{pod['status']['podIP']}:9100/metrics"
 
 
 def snapshot(urls: dict[tuple[str, str], str]) -> dict[tuple[str, str], dict[Any, float]]:

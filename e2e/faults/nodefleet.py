@@ -15,7 +15,7 @@ from typing import Any
 
 from e2e.bed.kube import Kube
 from e2e.bed.operator_fixtures import all_pods, conditions, fleet
-from e2e.faults.cost import Poller
+from e2e.faults.cost import Poller, metrics_url
 from e2e.tests.rosbed import ROBOTS, bed_objects, ros_module, scrape_series
 
 __all__ = [
@@ -82,12 +82,8 @@ def identity(pod: dict[str, Any]) -> dict[str, Any]:
     }
 
 
-def _url(pod: dict[str, Any]) -> str:
-    return f"http://{pod['status']['podIP']}:9100/metrics"
-
-
 def counter(pod: dict[str, Any], name: str, **labels: str) -> float:
-    return scrape_series(_url(pod), name, **labels)
+    return scrape_series(metrics_url(pod), name, **labels)
 
 
 def all_where_planned(kube: Kube, ns: str) -> bool:

@@ -27,6 +27,7 @@ import pytest
 from e2e.bed.harness import Cluster
 from e2e.bed.kube import Kube
 from e2e.bed.operator_fixtures import all_pods, conditions, events, fleet, pods_by_instance
+from e2e.faults.cost import metrics_url
 from e2e.faults.cutfleet import (
     CYCLE_S,
     LINK_STABLE_S,
@@ -36,7 +37,6 @@ from e2e.faults.cutfleet import (
     gaps_since,
     input_gaps,
     link_of,
-    metrics_url,
     reachable,
     running_cut_fleet,
     since,

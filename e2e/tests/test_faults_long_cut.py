@@ -41,13 +41,13 @@ import pytest
 from e2e.bed.harness import Cluster
 from e2e.bed.kube import Kube
 from e2e.bed.operator_fixtures import conditions, deployments, events, fleet
+from e2e.faults.cost import metrics_url
 from e2e.faults.cutfleet import (
     CYCLE_S,
     LITE_CYCLE_MS,
     fleet_pod,
     gaps_since,
     link_of,
-    metrics_url,
     reachable,
     running_cut_fleet,
     took_over,
