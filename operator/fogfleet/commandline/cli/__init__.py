@@ -243,7 +243,7 @@ def _add_file_commands(sub: argparse._SubParsersAction[argparse.ArgumentParser])
     )
     sp.add_argument("paths", nargs="+", help="CR YAML or JSON files or folders")
     sp.add_argument("--no-plan", action="store_true", help="only the checks, no planning (fast)")
-    sp.set_defaults(func=cmd_validate)
+    sp.set_defaults(func=cmd_validate, fleet=None, seed=None)  # every fleet, its own settings
 
 
 def _add_other_commands(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:

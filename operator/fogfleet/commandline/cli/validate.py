@@ -18,7 +18,7 @@ from typing import Any
 from fogfleet.commandline.exits import BAD_INPUT, OK
 from fogfleet.errors import InvalidSpec
 
-from .common import degradation, refusal, solver
+from .common import degradation, refusal, site_plans
 
 __all__ = ["cmd_validate"]
 
@@ -52,7 +52,7 @@ def cmd_validate(args: argparse.Namespace) -> int:
         print(f"skipped: {skipped} in {skipped.source}: {skipped.why}", file=sys.stderr)
     planned = "; not planned (--no-plan)" if args.no_plan and catalog.fleets else ""
     if not errors and catalog.fleets and not args.no_plan:
-        errors, planned = _plan_site(catalog)
+        errors, planned = _plan_site(catalog, args)
     for error in errors:
         print(f"error: {error}", file=sys.stderr)
     if errors:
@@ -71,12 +71,11 @@ def cmd_validate(args: argparse.Namespace) -> int:
     return OK
 
 
-def _plan_site(catalog: Any) -> tuple[list[InvalidSpec], str]:
-    """The folder's fleets planned as one site, as ``plan`` plans them: the refusals (as
-    errors) and what the OK line says of it; a degraded fleet is warned about on stderr."""
-    from fogfleet.snapshot import plan_site
-
-    plans = plan_site(catalog, catalog.fleets, lambda f: f.spec.scheduler, solver(False))
+def _plan_site(catalog: Any, args: argparse.Namespace) -> tuple[list[InvalidSpec], str]:
+    """The folder's fleets planned as one site, as ``plan`` plans them (``site_plans``, each
+    fleet with its own ``spec.scheduler``): the refusals (as errors) and what the OK line
+    says of it; a degraded fleet is warned about on stderr."""
+    _, plans = site_plans(catalog, args, None)
     errors: list[InvalidSpec] = []
     for plan in plans:
         if not plan.schedule.feasible:
