@@ -18,6 +18,9 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
+import numpy as np
+from numpy.typing import NDArray
+
 from fogfleet.domain.build import build_problem, refusals
 from fogfleet.domain.network import Link, uplink
 from fogfleet.domain.pairs import Refusal
@@ -93,7 +96,7 @@ class Built:
     with no node left."""
 
     built: Problem
-    before: Any  # NDArray[int64]: node index per instance, -1 not running
+    before: NDArray[np.int64]  # node index per instance, -1: not running
     problem: Problem
     stranded: frozenset[int]
 
