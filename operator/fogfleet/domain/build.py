@@ -245,9 +245,18 @@ def refusals(
         inst = _expand_instances([resolved], robots, nodes, current, pools)
         tier = inst.pool_tier[instance.replica] if instance.replica < len(inst.pool_tier) else None
     link = links[home] if home >= 0 else _mean_link(links[: len(robots)])
+    speed = table.robot_factor(home) if home >= 0 else 1.0
+
+    def pair(j: int, alone: bool = False) -> Pair | Refusal | None:
+        return table.pair(resolved.module, resolved.cycle, tier, j, home, link, speed, alone)
+
+    # a split network's local model answers alone at home when no edge or cloud node is left
+    alone = resolved.module.spec.dnn is not None and not any(
+        isinstance(pair(j), Pair) for j in range(len(robots), len(nodes))
+    )
     out: dict[int, Refusal | None] = {}
     for j in range(len(nodes)):
-        got = table.pair(resolved.module, resolved.cycle, tier, j, home, link)
+        got = pair(j, alone)
         if not isinstance(got, Pair):
             out[j] = got
     return out
@@ -342,14 +351,15 @@ def _fill_grid(inst: _Instances, table: PairTable, links: list[Link], n_robots: 
         mod, cycle, tier = resolved.module, resolved.cycle, inst.pool_tier[i]
         why: list[str] = []
         at_home = False
+        speed = table.robot_factor(h) if h >= 0 else 1.0
+        blk = table.block(mod, cycle, tier, remote, links[h] if h >= 0 else mean_robot, speed)
         if h >= 0:
-            own = table.pair(mod, cycle, tier, h, h, links[h])
+            own = table.pair(mod, cycle, tier, h, h, links[h], speed, not blk.any_allowed)
             if isinstance(own, Pair):
                 _set_home_pair(grid, i, h, own, parse_cpu(mod.spec.resources.cpu))
                 at_home = True
             elif own is not None:
                 why.append(own)
-        blk = table.block(mod, cycle, tier, remote, links[h] if h >= 0 else mean_robot)
         grid.blocks.append(blk)
         sharing.setdefault(id(blk), (blk, []))[1].append(i)
         why += blk.why

@@ -38,8 +38,9 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
-from enum import StrEnum
 
+from fogfleet.api.v1alpha1.base import parse_quantity
+from fogfleet.api.v1alpha1.dnn import Dnn, Spotlight
 from fogfleet.domain.network import Link
 
 __all__ = [
@@ -50,17 +51,10 @@ __all__ = [
     "Spotlight",
     "actions",
     "choose",
+    "model_of",
 ]
 
 BITS_PER_BYTE = 8
-
-
-class Spotlight(StrEnum):
-    """The metric a module cares most about (RoboEC2's "spotlight" parameter)."""
-
-    TIME = "time"
-    COST = "cost"
-    ACCURACY = "accuracy"
 
 
 @dataclass(frozen=True)
@@ -118,6 +112,34 @@ class Choice:
     action: Action
     reason: str
     dropped: tuple[tuple[Action, str], ...]
+
+
+def model_of(dnn: Dnn, cycle_s: float) -> DnnSplit:
+    """``SoftwareModule.spec.dnn`` in seconds (alpha defaults to the module's cycle)."""
+    alpha = cycle_s if dnn.max_latency_millis is None else dnn.max_latency_millis / 1e3
+    gamma = None if dnn.max_robot_millis is None else dnn.max_robot_millis / 1e3
+    return DnnSplit(
+        spotlight=dnn.spotlight,
+        max_latency_s=alpha,
+        min_accuracy=dnn.min_accuracy,
+        max_robot_s=gamma,
+        input_bytes=int(parse_quantity(dnn.input_bytes)),
+        output_bytes=int(parse_quantity(dnn.output_bytes)),
+        accuracy=dnn.accuracy,
+        full_s=dnn.full_millis / 1e3,
+        split_points=tuple(
+            SplitPoint(
+                p.name,
+                p.head_millis / 1e3,
+                p.tail_millis / 1e3,
+                int(parse_quantity(p.tensor_bytes)),
+            )
+            for p in dnn.split_points
+        ),
+        local_name=dnn.local_model.name,
+        local_s=dnn.local_model.robot_millis / 1e3,
+        local_accuracy=dnn.local_model.accuracy,
+    )
 
 
 def _transfer_s(n_bytes: int, link: Link) -> float:

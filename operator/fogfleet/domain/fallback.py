@@ -29,6 +29,8 @@ from fogfleet.api.v1alpha1.softwaremodule import (
 )
 from fogfleet.errors import DanglingReference, InvalidSpec
 
+from .checks import node_capacity
+from .dnnpairs import robot_row
 from .pairs import profile_rows
 from .problem import F64, Instance, freeze
 from .rows import ProfileRow
@@ -118,6 +120,14 @@ def variant_of(module: SoftwareModule, fallback: Fallback, catalog: Catalog) -> 
     return variant
 
 
+def node_capacity_cores(node: ComputeNode) -> float:
+    """The CPU cores ``node`` offers its modules."""
+    got = node_capacity(node)
+    if isinstance(got, InvalidSpec):
+        raise got
+    return got[0]
+
+
 @dataclass(frozen=True)
 class Standbys:
     """What the robots hold for their modules' standbys (``Problem.fallback*``)."""
@@ -145,7 +155,8 @@ def standbys(
     limits pick when no cpu is given. A module's own standby runs only where its robot may
     run the module; a variant's where the robot has a profile of the variant."""
     chosen = {m.metadata.name: (m, effective_fallback(m.spec, fleet.spec)) for m, *_ in modules}
-    if not any(fb for _, fb in chosen.values()):
+    split = {m.metadata.name: (m, c) for m, c, *_ in modules if m.spec.dnn is not None}
+    if not any(fb for _, fb in chosen.values()) and not split:
         return Standbys(None, None)
     variants = {
         name: variant_of(m, fb, catalog)
@@ -162,6 +173,16 @@ def standbys(
     for i, inst in enumerate(instances):
         mod, fb = chosen.get(inst.module, (None, None))
         h = home[i]
+        if inst.module in split and h >= 0:
+            # a split network's head and local model stay on its robot (DNNSPLIT.md 3.2): held
+            # there like a variant standby, whatever the plan
+            net, net_cycle = split[inst.module]
+            held = robot_row(net, net_cycle, robots[h], node_capacity_cores(robots[h]))
+            if held is not None:
+                keep[i] = is_variant[i] = True
+                row[i] = (held.cpu, held.mean, held.std)
+                need[i] = (parse_memory(net.spec.resources.memory), float(net.spec.resources.gpu))
+            continue
         if mod is None or fb is None or h < 0:
             continue
         variant = variants.get(inst.module)

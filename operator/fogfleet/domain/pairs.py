@@ -24,6 +24,7 @@ from fogfleet.api.v1alpha1.common import Tier
 from fogfleet.api.v1alpha1.computenode import ComputeNode
 from fogfleet.api.v1alpha1.softwaremodule import SoftwareModule, auto_profiled
 
+from . import dnnpairs
 from .network import LOCAL, Link, path
 from .problem import EXEC_SHARE_OF_CYCLE
 from .rows import Learnt, ProfileRow, carry_noise
@@ -90,7 +91,12 @@ def rows_for(module: SoftwareModule, hardware_type: str, speed_factor: float) ->
 
     The one place that decides which row a module runs with on a node: the planner's pairs and
     the rendered pod (``render.ros``) both ask here, so a pod plays the rows it was planned
-    with."""
+    with. A split network (``spec.dnn``) has no rows of its own: its pod plays the whole
+    network's time at each CPU step (``dnnpairs.dnn_rows``) until the workload runs the real
+    network's head and tail (issue 48)."""
+    if module.spec.dnn is not None:
+        full = module.spec.dnn.full_millis / 1e3 / max(speed_factor, 1e-6)
+        return dnnpairs.dnn_rows(full, math.inf)
     own = [r for r in module.spec.profile if r.hardware_type == hardware_type]
     scale = 1.0
     if not own:
@@ -162,10 +168,14 @@ class PairTable:
         j: int,
         home: int,
         home_link: Link,
+        home_factor: float = 1.0,
+        alone: bool = False,
     ) -> Pair | Refusal | None:
         """Module ``mod`` (instance of robot ``home``, -1 for a shared replica) on node ``j``:
         a Pair, or why it may not run there (None: not worth saying, such as another robot's
-        computer or a node of another pool's tier)."""
+        computer or a node of another pool's tier). ``home_factor`` is the robot's time per
+        reference second (a split network's head runs there); ``alone``: no edge or cloud node
+        is left to the instance (a split network's local model then answers at home)."""
         nd = self.nodes[j]
         ns = nd.spec
         spec = mod.spec
@@ -194,6 +204,8 @@ class PairTable:
             return Refusal(
                 f"{name}: privacy level {ns.privacy} < required {req.min_privacy}", "privacy"
             )
+        if spec.dnn is not None:
+            return self._dnn_pair(mod, cycle, j, home, home_link, home_factor, alone)
         key = (id(mod), ns.hardware_type, ns.speed_factor)
         if key not in self._profiles:
             rows = profile_rows(mod, nd)
@@ -224,6 +236,48 @@ class PairTable:
         # nominal: request as declared, no limit, uses the largest profiled parallelism
         return Pair(t, s, bits, pick, rows[-1], rungs)
 
+    def _dnn_pair(
+        self,
+        mod: SoftwareModule,
+        cycle: float,
+        j: int,
+        home: int,
+        home_link: Link,
+        home_factor: float,
+        alone: bool,
+    ) -> Pair | Refusal:
+        """A split network on node ``j`` (``domain.dnnpairs``): its local model at home, its
+        tail elsewhere, with the CPU step whose frame fits alpha's share (as ``pair`` does)."""
+        nd = self.nodes[j]
+        name = nd.metadata.name
+        assert mod.spec.dnn is not None
+        alpha = dnnpairs.model_of(mod.spec.dnn, cycle).max_latency_s
+        if j == home:
+            got = dnnpairs.local_pair_rows(mod, cycle, nd, self.caps[j, 0], alone)
+            if isinstance(got, str):
+                return Refusal(f"{name}: {got}", "dnn")
+            rows, outside, std, bits = got, 0.0, 0.0, 0.0
+        else:
+            link = path(home_link, self.links[j])
+            tail = dnnpairs.off_board(mod, cycle, home_factor, nd, link)
+            if isinstance(tail, str):
+                return Refusal(f"{name}: {tail}", "dnn")
+            choice, outside, std, bits = tail
+            model = dnnpairs.model_of(mod.spec.dnn, cycle)
+            rows = dnnpairs.tail_rows(model, choice.action, nd, self.caps[j, 0])
+        if not rows:
+            return Refusal(f"{name}: has less than {dnnpairs.CPU_STEPS[0]:g} core", "profile")
+        fit = [r for r in rows if r.mean <= EXEC_SHARE_OF_CYCLE * alpha - outside]
+        pick = fit[0] if fit else rows[-1]
+        rungs: tuple[ProfileRow, ...] = ()
+        if may_degrade(mod.spec.taxonomy):
+            rungs = (pick, *sorted((r for r in rows if r.cpu < pick.cpu), key=lambda r: -r.cpu))
+        return Pair(outside, std, bits, pick, rows[-1], rungs)
+
+    def robot_factor(self, j: int) -> float:
+        """Node ``j``'s time per second on the reference core (1 / speedFactor)."""
+        return 1.0 / max(parse_quantity(self.nodes[j].spec.speed_factor), 1e-6)
+
     def block(
         self,
         mod: SoftwareModule,
@@ -231,15 +285,18 @@ class PairTable:
         pool_tier: Tier | None,
         cols: range,
         home_link: Link,
+        home_factor: float = 1.0,
     ) -> Block:
         """``pair`` over the nodes ``cols`` (none of them the instance's own robot), memoised
-        per (module, cycle, pool tier, nodes, the robot's uplink)."""
-        key = (id(mod), cycle, pool_tier, cols.start, cols.stop, home_link)
+        per (module, cycle, pool tier, nodes, the robot's uplink and, for a split network, the
+        robot's speed)."""
+        speed = home_factor if mod.spec.dnn is not None else 1.0
+        key = (id(mod), cycle, pool_tier, cols.start, cols.stop, home_link, speed)
         hit = self._blocks.get(key)
         if hit is not None:
             return hit
         m = len(cols)
-        pairs = [self.pair(mod, cycle, pool_tier, j, -2, home_link) for j in cols]
+        pairs = [self.pair(mod, cycle, pool_tier, j, -2, home_link, speed) for j in cols]
         ok = [isinstance(p, Pair) for p in pairs]
         got = [p for p in pairs if isinstance(p, Pair)]
         k = max((len(p.rungs) for p in got), default=1) or 1

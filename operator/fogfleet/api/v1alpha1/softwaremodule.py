@@ -25,6 +25,7 @@ from .base import (
 )
 from .common import Condition, ObjectMeta, Tier
 from .computenode import DeviceType
+from .dnn import Dnn
 from .fallback import STANDING_BY, Fallback
 from .observed import ObservedRow, ProfileCorrection
 from .profiling import Profiling, ProfilingMode, ProfilingStatus
@@ -198,6 +199,52 @@ def _onboard(spec: SoftwareModuleSpec) -> bool:
     return spec.fallback is not None and spec.fallback.mode in STANDING_BY
 
 
+# A dnn module (RoboEC2's split network): a per-robot module that may leave its robot, whose
+# times and fallback (its local model) are stated in dnn alone.
+DNN_RULES = (
+    CrossFieldRule(
+        "!has(self.dnn) || !has(self.scope) || self.scope == 'perRobot'",
+        "dnn: a split network runs its head on a robot, so the module must be perRobot",
+        lambda s: s.dnn is None or s.scope is Scope.PER_ROBOT,
+    ),
+    CrossFieldRule(
+        "!has(self.dnn) || (self.taxonomy.realtime != 'hard' && self.taxonomy.safety != "
+        "'critical')",
+        "dnn: a hard real-time or safety-critical module stays whole on its robot, so its "
+        "network cannot be split",
+        lambda s: s.dnn is None or not must_run_on_board(s.taxonomy),
+    ),
+    CrossFieldRule(
+        "!has(self.dnn) || !has(self.profile) || size(self.profile) == 0",
+        "profile: a dnn module's times are dnn's (fullMillis, the split points, the local "
+        "model); leave profile empty",
+        lambda s: s.dnn is None or not s.profile,
+    ),
+    CrossFieldRule(
+        "!has(self.dnn) || !has(self.profiling)",
+        "profiling: a dnn module's times are declared in dnn (profiling split networks is "
+        "not built yet)",
+        lambda s: s.dnn is None or s.profiling is None,
+    ),
+    CrossFieldRule(
+        "!has(self.dnn) || !has(self.fallback)",
+        "fallback: a dnn module falls back to dnn.localModel on its robot; leave fallback unset",
+        lambda s: s.dnn is None or s.fallback is None,
+    ),
+    CrossFieldRule(
+        "!has(self.dnn) || !has(self.dnn.maxLatencyMillis) || "
+        "self.dnn.maxLatencyMillis <= self.cycleTimeMillis",
+        "dnn.maxLatencyMillis: at most cycleTimeMillis (a frame's answer comes before the next "
+        "frame)",
+        lambda s: (
+            s.dnn is None
+            or s.dnn.max_latency_millis is None
+            or s.dnn.max_latency_millis <= parse_quantity(s.cycle_time_millis)
+        ),
+    ),
+)
+
+
 def auto_profiled(spec: SoftwareModuleSpec) -> bool:
     """The operator profiles the module where it has no rows (profiling.mode auto)."""
     return spec.profiling is not None and spec.profiling.mode is ProfilingMode.AUTO
@@ -235,11 +282,12 @@ class SoftwareModuleSpec(FogModel):
         ),
         CrossFieldRule(
             "(has(self.profile) && size(self.profile) > 0) || (has(self.profiling) && "
-            "has(self.profiling.mode) && self.profiling.mode == 'auto')",
+            "has(self.profiling.mode) && self.profiling.mode == 'auto') || has(self.dnn)",
             "profile: at least one row, unless profiling.mode is auto (the operator then "
-            "profiles the module on each hardware type it needs)",
-            lambda s: bool(s.profile) or auto_profiled(s),
+            "profiles the module on each hardware type it needs) or dnn gives the times",
+            lambda s: bool(s.profile) or auto_profiled(s) or s.dnn is not None,
         ),
+        *DNN_RULES,
         CrossFieldRule(
             f"!{_ONBOARD} || (has(self.topics) && has(self.topics.publishes) && "
             "size(self.topics.publishes) > 0)",
@@ -286,6 +334,11 @@ class SoftwareModuleSpec(FogModel):
     reports their predicted misses (a Degraded plan) instead of refusing the fleet. Hard
     real-time and safety-critical modules are never degraded. Default from the taxonomy:
     700 for safety-relevant modules, 400 for soft real-time ones, 100 for the rest."""
+    dnn: Dnn | None = None
+    """The module's network can be cut between its robot and an off-board node (RoboEC2): its
+    split points, its robot's local model and the bounds a frame must meet. The planner places
+    the network's tail and picks the split from each candidate node's link; the head and the
+    local model stay on the robot. Unset: the module runs whole where it is placed."""
     fallback: Fallback | None = None
     """What runs when the module is offloaded and its robot's link fails: onboard keeps a
     standby on the robot (its on-board share reserved) that takes over on its own; variant

@@ -1,0 +1,125 @@
+"""``SoftwareModule.spec.dnn``: a module whose neural network can be cut between its robot and
+an off-board node, as RoboEC2 does (roboec2-dnn-offloading, Section IV; DNNSPLIT.md 3.2).
+
+The network's *head* (the layers up to a split point) runs on the robot, its *tail* (the rest)
+on the edge or cloud node the planner picks, and the tensor at the split point crosses the
+link. The robot also keeps a *local model*, a lightweight network that answers alone when the
+link is gone (eq. 2's action n+1). For each candidate node the split is chosen from that node's
+link by RoboEC2's Spotlight Criteria (eq. 8, Algorithm 1; ``domain.dnnsplit``).
+
+Every time is declared in milliseconds on a *reference core*, a node whose ``speedFactor`` is 1
+(the time on a node is the reference time divided by its ``speedFactor``), for one frame with
+one thread. One frame arrives every ``cycleTimeMillis``.
+"""
+
+from __future__ import annotations
+
+from enum import StrEnum
+from typing import Annotated
+
+from pydantic import Field, model_validator
+
+from .base import FogModel, Number, Quantity, parse_quantity, refuse_duplicates
+
+__all__ = ["Dnn", "DnnLocalModel", "DnnSplitPoint", "Spotlight"]
+
+Fraction = Annotated[float, Field(ge=0, le=1)]
+SplitName = Annotated[
+    str, Field(min_length=1, max_length=63, pattern=r"^[a-z0-9]([-a-z0-9_.]*[a-z0-9])?$")
+]
+
+
+class Spotlight(StrEnum):
+    """What the module cares most about (RoboEC2's spotlight, eq. 8): time picks the fastest
+    action, cost the one that computes least on the robot, accuracy the big model."""
+
+    TIME = "time"
+    COST = "cost"
+    ACCURACY = "accuracy"
+
+
+class DnnSplitPoint(FogModel):
+    """One place the network can be cut (eq. 2's actions 1..n), in order from input to output."""
+
+    name: SplitName
+    """The split point's name (the layer it cuts after, e.g. bneck)."""
+    head_millis: Number
+    """The head's time per frame on the reference core: the layers up to this point, run on
+    the robot."""
+    tail_millis: Number
+    """The tail's time per frame on the reference core: the rest, run off board."""
+    tensor_bytes: Quantity
+    """Bytes of the tensor that crosses the link at this point, per frame (eq. 4's Data^a)."""
+
+
+class DnnLocalModel(FogModel):
+    """The lightweight network the robot keeps (eq. 2's action n+1): it answers while the link
+    is down, or when no off-board action meets the bounds."""
+
+    name: SplitName
+    """The local model's name (shown in status)."""
+    robot_millis: Number
+    """Its time per frame on the reference core (it runs on the robot)."""
+    accuracy: Fraction
+    """Its accuracy, 0-1, as its authors report it (eq. 6): below minAccuracy, it answers only
+    when nothing else can."""
+
+
+class Dnn(FogModel):
+    """The network and the bounds every frame must meet (eq. 8: maxLatencyMillis is alpha,
+    minAccuracy theta, maxRobotMillis gamma)."""
+
+    spotlight: Spotlight = Spotlight.TIME
+    """time (the fastest action), cost (the least computation on the robot that still meets
+    maxLatencyMillis) or accuracy (the big model off board). Default time."""
+    max_latency_millis: Number | None = None
+    """Alpha: a frame's answer must come within this many milliseconds (robot computation,
+    transfer both ways and off-board computation). Unset: cycleTimeMillis. At most
+    cycleTimeMillis."""
+    min_accuracy: Fraction = 0.0
+    """Theta, 0-1: the local model runs only when its accuracy is at least this, unless no
+    off-board action meets the bounds."""
+    max_robot_millis: Number | None = None
+    """Gamma: the most the robot may compute per frame, in milliseconds on the reference core.
+    Unset: no bound."""
+    input_bytes: Quantity
+    """Bytes of one input frame: what crosses the link when the whole network runs off board
+    (action 0)."""
+    output_bytes: Quantity
+    """Bytes of the network's answer, which comes back over the link."""
+    accuracy: Fraction
+    """The big network's accuracy, 0-1 (every action that runs it, whole or split)."""
+    full_millis: Number
+    """The whole network's time per frame on the reference core (action 0, off board)."""
+    split_points: list[DnnSplitPoint] = Field(default_factory=list)
+    """Where the network can be cut, from input to output. Empty: the module runs whole off
+    board or falls back to the local model."""
+    local_model: DnnLocalModel
+    """The robot's lightweight network."""
+
+    @model_validator(mode="after")
+    def _check(self) -> Dnn:
+        names = [p.name for p in self.split_points]
+        refuse_duplicates(names, "splitPoints")
+        if self.local_model.name in names:
+            raise ValueError(
+                f"localModel.name: {self.local_model.name!r} is also a split point's name"
+            )
+        for k, point in enumerate(self.split_points):
+            if parse_quantity(point.tensor_bytes) <= 0:
+                raise ValueError(f"splitPoints[{k}].tensorBytes: must be greater than zero")
+            if point.head_millis <= 0:
+                raise ValueError(f"splitPoints[{k}].headMillis: must be greater than zero")
+        for field, value in (
+            ("inputBytes", self.input_bytes),
+            ("outputBytes", self.output_bytes),
+        ):
+            if parse_quantity(value) <= 0:
+                raise ValueError(f"{field}: must be greater than zero")
+        if self.full_millis <= 0:
+            raise ValueError("fullMillis: must be greater than zero")
+        if self.local_model.robot_millis <= 0:
+            raise ValueError("localModel.robotMillis: must be greater than zero")
+        if self.max_latency_millis is not None and self.max_latency_millis <= 0:
+            raise ValueError("maxLatencyMillis: must be greater than zero")
+        return self
