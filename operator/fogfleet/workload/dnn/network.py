@@ -165,13 +165,13 @@ def build_network(spec: NetSpec) -> onnx.ModelProto:
         helper.make_node("Cast", [INPUT], ["pre.f"], name="pre.cast", to=TensorProto.FLOAT),
         helper.make_node(
             "Mul",
-            ["pre.f", g.constant("pre.scale", np.float32([1 / 127.5]))],
+            ["pre.f", g.constant("pre.scale", np.array([1 / 127.5], np.float32))],
             ["pre.s"],
             name="pre.scale",
         ),
         helper.make_node(
             "Add",
-            ["pre.s", g.constant("pre.shift", np.float32([-1.0]))],
+            ["pre.s", g.constant("pre.shift", np.array([-1.0], np.float32))],
             ["pre.n"],
             name="pre.shift",
         ),
@@ -189,12 +189,12 @@ def build_network(spec: NetSpec) -> onnx.ModelProto:
             x = g.conv_relu(x, f"{BOTTLENECK_NAME}.expand", spec.bottleneck, c, 1)
     fc_w = g.rng.normal(0.0, np.sqrt(1.0 / c), (spec.classes, c)).astype(np.float32)
     g.nodes += [
-        helper.make_node("GlobalAveragePool", [x], ["head.pool"], name="head.pool"),
-        helper.make_node("Flatten", ["head.pool"], ["head.flat"], name="head.flat", axis=1),
+        helper.make_node("GlobalAveragePool", [x], ["cls.pool"], name="cls.pool"),
+        helper.make_node("Flatten", ["cls.pool"], ["cls.flat"], name="cls.flat", axis=1),
         helper.make_node(
             "Gemm",
             [
-                "head.flat",
+                "cls.flat",
                 g.constant("fc.w", fc_w),
                 g.constant("fc.b", np.zeros(spec.classes, np.float32)),
             ],
