@@ -63,17 +63,17 @@ class DnnProfile:
         return {
             "inputBytes": self.input_bytes,
             "outputBytes": self.output_bytes,
-            "fullMs": self.full_ms,
+            "fullMillis": self.full_ms,
             "splitPoints": [
                 {
                     "name": s.name,
-                    "headMs": s.head_ms,
-                    "tailMs": s.tail_ms,
+                    "headMillis": s.head_ms,
+                    "tailMillis": s.tail_ms,
                     "tensorBytes": s.tensor_bytes,
                 }
                 for s in self.split_points
             ],
-            "localVariant": {"name": self.local_name, "robotMs": self.local_ms},
+            "localModel": {"name": self.local_name, "robotMillis": self.local_ms},
         }
 
 
@@ -143,8 +143,9 @@ def to_yaml(profile: DnnProfile, spec: NetSpec, runs: int, warmup: int, clock: s
         f"{local_variant(spec).width:g}\n"
         f"# onnxruntime {ort.__version__}, 1 thread, {clock} time, median of {runs} runs "
         f"after {warmup} warm-up, on {_processor()}\n"
-        "# declare spotlight, maxLatencyMs, minAccuracy, maxRobotMs, rateHz, accuracy and\n"
-        "# localVariant.accuracy yourself: the weights are random (no accuracy)\n" + body
+        "# declare accuracy and localModel.accuracy (the weights are random: they have none)\n"
+        "# and, if you want them, spotlight, maxLatencyMillis, minAccuracy and maxRobotMillis\n"
+        + body
     )
 
 

@@ -12,14 +12,15 @@ import pytest
 import yaml
 from smallnet import SMALL
 
+from fogfleet.api.v1alpha1.dnn import Dnn
 from fogfleet.workload.dnn.__main__ import main
 from fogfleet.workload.dnn.network import split_point_names
 from fogfleet.workload.dnn.profile import DnnProfile, measure, median_ms, to_yaml
 from fogfleet.workload.dnn.runner import Stage
 from fogfleet.workload.dnn.split import Split
 
-FIELD = {"inputBytes", "outputBytes", "fullMs", "splitPoints", "localVariant"}
-POINT = {"name", "headMs", "tailMs", "tensorBytes"}
+FIELD = {"inputBytes", "outputBytes", "fullMillis", "splitPoints", "localModel"}
+POINT = {"name", "headMillis", "tailMillis", "tensorBytes"}
 
 
 @pytest.fixture(scope="module")
@@ -50,7 +51,11 @@ def test_the_yaml_is_the_dnn_field_with_every_split_point_in_order(
     assert [p["tensorBytes"] for p in dnn["splitPoints"]] == [
         s.tensor_bytes for s in small_splits.values()
     ]
-    assert set(dnn["localVariant"]) == {"name", "robotMs"}
+    assert set(dnn["localModel"]) == {"name", "robotMillis"}
+    # with the accuracies a user declares, it is a valid SoftwareModule field
+    declared = {**dnn, "accuracy": 0.9, "localModel": {**dnn["localModel"], "accuracy": 0.6}}
+    field = Dnn.model_validate(declared)
+    assert [p.name for p in field.split_points] == [p["name"] for p in dnn["splitPoints"]]
 
 
 def test_the_input_is_the_frame_and_the_output_the_logits(
