@@ -3,10 +3,11 @@ for its tail off board and for its local model at home (DNNSPLIT.md 3.2), and wh
 holds whatever the plan (the head and the local model).
 
 The instance's gene is where its tail runs. On each edge or cloud node the split is resolved
-from that node's link with RoboEC2's rule (``dnnsplit.choose``; roboec2-dnn-offloading eq. 8,
-Algorithm 1): the chosen action fixes the tail's time there, the bytes that cross, and the
-frame's time outside the tail (the head on the robot and the transfer both ways), which the
-pair carries as its transfer time so that eq. 4's ``exe + net`` is the action's ``Time(a)``.
+from that node's link with RoboEC2's rule (``contract.dnnsplit.choose``;
+roboec2-dnn-offloading eq. 8, Algorithm 1): the chosen action fixes the tail's time there, the
+bytes that cross, and the frame's time outside the tail (the head on the robot and the
+transfer both ways), which the pair carries as its transfer time so that eq. 4's
+``exe + net`` is the action's ``Time(a)``.
 A node over whose link no off-board action meets the bounds is refused with the rule's reason.
 On its own robot the instance runs the local model alone (action n+1): allowed when the local
 model meets the bounds, or when no off-board node is left (Algorithm 1: "take the action n+1").
@@ -22,9 +23,10 @@ import math
 
 from fogfleet.api.v1alpha1.base import parse_quantity
 from fogfleet.api.v1alpha1.computenode import ComputeNode
+from fogfleet.api.v1alpha1.dnn import Dnn
 from fogfleet.api.v1alpha1.softwaremodule import SoftwareModule
+from fogfleet.contract.dnnsplit import Action, Choice, DnnSplit, SplitPoint, actions, choose
 
-from .dnnsplit import Action, Choice, DnnSplit, actions, choose, model_of
 from .network import Link
 from .problem import EXEC_SHARE_OF_CYCLE
 from .rows import ProfileRow
@@ -42,6 +44,34 @@ __all__ = [
 
 CPU_STEPS = (0.1, 0.2, 0.25, 0.5, 0.75, 1.0)  # cores a network's pod may be given
 BITS_PER_BYTE = 8
+
+
+def model_of(dnn: Dnn, cycle_s: float) -> DnnSplit:
+    """``SoftwareModule.spec.dnn`` in seconds (alpha defaults to the module's cycle)."""
+    alpha = cycle_s if dnn.max_latency_millis is None else dnn.max_latency_millis / 1e3
+    gamma = None if dnn.max_robot_millis is None else dnn.max_robot_millis / 1e3
+    return DnnSplit(
+        spotlight=dnn.spotlight,
+        max_latency_s=alpha,
+        min_accuracy=dnn.min_accuracy,
+        max_robot_s=gamma,
+        input_bytes=int(parse_quantity(dnn.input_bytes)),
+        output_bytes=int(parse_quantity(dnn.output_bytes)),
+        accuracy=dnn.accuracy,
+        full_s=dnn.full_millis / 1e3,
+        split_points=tuple(
+            SplitPoint(
+                p.name,
+                p.head_millis / 1e3,
+                p.tail_millis / 1e3,
+                int(parse_quantity(p.tensor_bytes)),
+            )
+            for p in dnn.split_points
+        ),
+        local_name=dnn.local_model.name,
+        local_s=dnn.local_model.robot_millis / 1e3,
+        local_accuracy=dnn.local_model.accuracy,
+    )
 
 
 def dnn_rows(time_s: float, cap_cores: float) -> list[ProfileRow]:

@@ -14,7 +14,7 @@ import yaml
 from fogfleet.api.loader import parse_object
 from fogfleet.api.v1alpha1.dnn import Spotlight
 from fogfleet.api.v1alpha1.softwaremodule import SoftwareModule
-from fogfleet.domain.dnnsplit import model_of
+from fogfleet.domain.dnnpairs import model_of
 from fogfleet.errors import InvalidSpec
 
 MODULES = (

@@ -5,7 +5,7 @@ The network's *head* (the layers up to a split point) runs on the robot, its *ta
 on the edge or cloud node the planner picks, and the tensor at the split point crosses the
 link. The robot also keeps a *local model*, a lightweight network that answers alone when the
 link is gone (eq. 2's action n+1). For each candidate node the split is chosen from that node's
-link by RoboEC2's Spotlight Criteria (eq. 8, Algorithm 1; ``domain.dnnsplit``).
+link by RoboEC2's Spotlight Criteria (eq. 8, Algorithm 1; ``contract.dnnsplit``).
 
 Every time is declared in milliseconds on a *reference core*, a node whose ``speedFactor`` is 1
 (the time on a node is the reference time divided by its ``speedFactor``), for one frame with
@@ -14,10 +14,11 @@ one thread. One frame arrives every ``cycleTimeMillis``.
 
 from __future__ import annotations
 
-from enum import StrEnum
 from typing import Annotated
 
 from pydantic import Field, model_validator
+
+from fogfleet.contract.dnnsplit import Spotlight
 
 from .base import FogModel, Number, Quantity, parse_quantity, refuse_duplicates
 
@@ -27,15 +28,6 @@ Fraction = Annotated[float, Field(ge=0, le=1)]
 SplitName = Annotated[
     str, Field(min_length=1, max_length=63, pattern=r"^[a-z0-9]([-a-z0-9_.]*[a-z0-9])?$")
 ]
-
-
-class Spotlight(StrEnum):
-    """What the module cares most about (RoboEC2's spotlight, eq. 8): time picks the fastest
-    action, cost the one that computes least on the robot, accuracy the big model."""
-
-    TIME = "time"
-    COST = "cost"
-    ACCURACY = "accuracy"
 
 
 class DnnSplitPoint(FogModel):
@@ -70,8 +62,9 @@ class Dnn(FogModel):
     minAccuracy theta, maxRobotMillis gamma)."""
 
     spotlight: Spotlight = Spotlight.TIME
-    """time (the fastest action), cost (the least computation on the robot that still meets
-    maxLatencyMillis) or accuracy (the big model off board). Default time."""
+    """What the module cares most about (RoboEC2's spotlight, eq. 8): time (the fastest
+    action), cost (the least computation on the robot that still meets maxLatencyMillis) or
+    accuracy (the big model off board). Default time."""
     max_latency_millis: Number | None = None
     """Alpha: a frame's answer must come within this many milliseconds (robot computation,
     transfer both ways and off-board computation). Unset: cycleTimeMillis. At most

@@ -1,5 +1,7 @@
 """Where to cut a DNN between a robot and an off-board node: RoboEC2's Spotlight Criteria
-Algorithm (roboec2-dnn-offloading, Section IV-C, eq. 8 and Algorithm 1), pure.
+Algorithm (roboec2-dnn-offloading, Section IV-C, eq. 8 and Algorithm 1), in the standard
+library: the planner resolves a split module's split per candidate node with it
+(``domain.dnnpairs``) and the robot's side of the workload per frame (DNNSPLIT.md 3.2).
 
 A module whose network can be cut has three kinds of *action* (eq. 2): ``a = 0`` runs the whole
 network off-board (the raw input crosses the link); ``a = 1..n`` runs the layers up to split
@@ -9,7 +11,7 @@ answer when the link is gone). Each action has (eqs. 5-7):
 
 * ``Time(a)``: robot computation + transfer of what crosses + off-board computation + the
   answer back, per frame. Transfer is bytes x 8 / bandwidth + the one-way latency
-  (``domain.network.Link``), each way; a cut link makes every off-board action's time
+  (``Link``), each way; a cut link makes every off-board action's time
   infinite;
 * ``Accu(a)``: the big model's accuracy for ``a <= n``, the local model's for ``n+1`` (eq. 6:
   "binary");
@@ -38,10 +40,8 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
-
-from fogfleet.api.v1alpha1.base import parse_quantity
-from fogfleet.api.v1alpha1.dnn import Dnn, Spotlight
-from fogfleet.domain.network import Link
+from enum import StrEnum
+from typing import Protocol
 
 __all__ = [
     "Action",
@@ -51,10 +51,28 @@ __all__ = [
     "Spotlight",
     "actions",
     "choose",
-    "model_of",
 ]
 
 BITS_PER_BYTE = 8
+
+
+class Spotlight(StrEnum):
+    """The metric a module cares most about (RoboEC2's "spotlight" parameter, eq. 8)."""
+
+    TIME = "time"
+    COST = "cost"
+    ACCURACY = "accuracy"
+
+
+class Link(Protocol):
+    """A path between the robot and the off-board node, as the planner declares or measures it
+    (``domain.network.Link``) or as the robot estimates it per frame."""
+
+    @property
+    def latency(self) -> float: ...  # seconds, one way
+
+    @property
+    def bandwidth(self) -> float: ...  # bit/s
 
 
 @dataclass(frozen=True)
@@ -112,34 +130,6 @@ class Choice:
     action: Action
     reason: str
     dropped: tuple[tuple[Action, str], ...]
-
-
-def model_of(dnn: Dnn, cycle_s: float) -> DnnSplit:
-    """``SoftwareModule.spec.dnn`` in seconds (alpha defaults to the module's cycle)."""
-    alpha = cycle_s if dnn.max_latency_millis is None else dnn.max_latency_millis / 1e3
-    gamma = None if dnn.max_robot_millis is None else dnn.max_robot_millis / 1e3
-    return DnnSplit(
-        spotlight=dnn.spotlight,
-        max_latency_s=alpha,
-        min_accuracy=dnn.min_accuracy,
-        max_robot_s=gamma,
-        input_bytes=int(parse_quantity(dnn.input_bytes)),
-        output_bytes=int(parse_quantity(dnn.output_bytes)),
-        accuracy=dnn.accuracy,
-        full_s=dnn.full_millis / 1e3,
-        split_points=tuple(
-            SplitPoint(
-                p.name,
-                p.head_millis / 1e3,
-                p.tail_millis / 1e3,
-                int(parse_quantity(p.tensor_bytes)),
-            )
-            for p in dnn.split_points
-        ),
-        local_name=dnn.local_model.name,
-        local_s=dnn.local_model.robot_millis / 1e3,
-        local_accuracy=dnn.local_model.accuracy,
-    )
 
 
 def _transfer_s(n_bytes: int, link: Link) -> float:

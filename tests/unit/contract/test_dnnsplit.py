@@ -9,7 +9,7 @@ import math
 
 import pytest
 
-from fogfleet.domain.dnnsplit import DnnSplit, SplitPoint, Spotlight, actions, choose
+from fogfleet.contract.dnnsplit import DnnSplit, SplitPoint, Spotlight, actions, choose
 from fogfleet.domain.network import Link
 
 MS = 1e-3
