@@ -44,16 +44,19 @@ from enum import StrEnum
 from typing import Protocol
 
 __all__ = [
+    "FULL_OFFLOAD",
     "Action",
     "Choice",
     "DnnSplit",
     "SplitPoint",
     "Spotlight",
+    "action_name",
     "actions",
     "choose",
 ]
 
 BITS_PER_BYTE = 8
+FULL_OFFLOAD = "full offload"  # action 0's name
 
 
 class Spotlight(StrEnum):
@@ -132,6 +135,15 @@ class Choice:
     dropped: tuple[tuple[Action, str], ...]
 
 
+def action_name(model: DnnSplit, index: int) -> str:
+    """Action ``index``'s name: ``FULL_OFFLOAD``, a split point's, or the local model's."""
+    if index == 0:
+        return FULL_OFFLOAD
+    if index <= len(model.split_points):
+        return model.split_points[index - 1].name
+    return model.local_name
+
+
 def _transfer_s(n_bytes: int, link: Link) -> float:
     """One way: serialisation at the link's bandwidth plus its latency."""
     return n_bytes * BITS_PER_BYTE / link.bandwidth + link.latency
@@ -154,7 +166,7 @@ def actions(
     out = [
         Action(
             0,
-            "full offload",
+            FULL_OFFLOAD,
             crossing(0.0, model.input_bytes, model.full_s),
             0.0,
             model.accuracy,

@@ -119,6 +119,13 @@ class _Grid:
     reasons: dict[int, str] = field(default_factory=dict)
     blocks: list[Block] = field(default_factory=list)
     home_rungs: dict[int, tuple[ProfileRow, ...]] = field(default_factory=dict)
+    dnn_action: NDArray[np.int64] | None = None  # (I, N) a split network's action, -1: none
+
+    def split_actions(self) -> NDArray[np.int64]:
+        """``dnn_action``, made on first use (a fleet without split networks has none)."""
+        if self.dnn_action is None:
+            self.dnn_action = np.full(self.allowed.shape, -1, dtype=np.int64)
+        return self.dnn_action
 
     @classmethod
     def empty(cls, i_count: int, n: int) -> _Grid:
@@ -215,6 +222,7 @@ def build_problem(
         ),
         current=freeze(_current_nodes(nodes, inst.instances, current, grid.allowed)),
         reasons=grid.reasons,
+        dnn_action=None if grid.dnn_action is None else freeze(grid.dnn_action),
     )
 
 
@@ -383,6 +391,8 @@ def _set_home_pair(grid: _Grid, i: int, h: int, own: Pair, nominal_request: floa
         arr[i, h] = v
     if own.rungs:
         grid.home_rungs[i] = own.rungs
+    if own.action >= 0:
+        grid.split_actions()[i, h] = own.action
 
 
 def _set_block(grid: _Grid, rows: NDArray[np.int64], start: int, blk: Block) -> None:
@@ -395,6 +405,8 @@ def _set_block(grid: _Grid, rows: NDArray[np.int64], start: int, blk: Block) -> 
         arr[rows, start:] = row
     if blk.any_allowed:
         grid.traffic[rows] = blk.bits
+    if blk.action is not None:
+        grid.split_actions()[rows, start:] = blk.action
 
 
 def _current_nodes(

@@ -45,6 +45,7 @@ class Pair:
     pick: ProfileRow  # the limits allocation's CPU and execution time
     top: ProfileRow  # the nominal allocation's (the largest profiled parallelism)
     rungs: tuple[ProfileRow, ...]  # pick, then the smaller profiled CPUs (may degrade), or ()
+    action: int = -1  # a split network's action here (contract.dnnsplit); -1: not one
 
 
 class Refusal(str):
@@ -73,6 +74,7 @@ class Block:
     depth: NDArray[np.int64]  # (m,) rungs below the pick
     why: tuple[str, ...]
     bits: float
+    action: NDArray[np.int64] | None = None  # (m,) a split network's action per node (-1: none)
 
     @property
     def any_allowed(self) -> bool:
@@ -257,6 +259,7 @@ class PairTable:
             if isinstance(got, str):
                 return Refusal(f"{name}: {got}", "dnn")
             rows, outside, std, bits = got, 0.0, 0.0, 0.0
+            action = len(mod.spec.dnn.split_points) + 1  # the local model (eq. 2's n+1)
         else:
             link = path(home_link, self.links[j])
             tail = dnnpairs.off_board(mod, cycle, home_factor, nd, link)
@@ -265,6 +268,7 @@ class PairTable:
             choice, outside, std, bits = tail
             model = dnnpairs.model_of(mod.spec.dnn, cycle)
             rows = dnnpairs.tail_rows(model, choice.action, nd, self.caps[j, 0])
+            action = choice.action.index
         if not rows:
             return Refusal(f"{name}: has less than {dnnpairs.CPU_STEPS[0]:g} core", "profile")
         fit = [r for r in rows if r.mean <= EXEC_SHARE_OF_CYCLE * alpha - outside]
@@ -272,7 +276,7 @@ class PairTable:
         rungs: tuple[ProfileRow, ...] = ()
         if may_degrade(mod.spec.taxonomy):
             rungs = (pick, *sorted((r for r in rows if r.cpu < pick.cpu), key=lambda r: -r.cpu))
-        return Pair(outside, std, bits, pick, rows[-1], rungs)
+        return Pair(outside, std, bits, pick, rows[-1], rungs, action)
 
     def robot_factor(self, j: int) -> float:
         """Node ``j``'s time per second on the reference core (1 / speedFactor)."""
@@ -327,6 +331,9 @@ class PairTable:
             depth=depth,
             why=tuple(p for p in pairs if isinstance(p, str)),
             bits=got[0].bits if got else 0.0,
+            action=np.array([p.action if isinstance(p, Pair) else -1 for p in pairs])
+            if mod.spec.dnn is not None
+            else None,
         )
         self._blocks[key] = blk
         return blk

@@ -172,6 +172,10 @@ class Problem:
     fallback_variant: NDArray[np.bool_] | None = None  # (I,)
     fallback_cycle: F64 | None = None  # (I,) the standby's cycle time, seconds
     fallback_need: F64 | None = None  # (I, 2) memory bytes, gpus the standby holds
+    # split networks (SoftwareModule.spec.dnn): the action RoboEC2's rule takes with the tail on
+    # each node (contract.dnnsplit: 0 whole off board, k split point k, n+1 the local model at
+    # home); -1 where the instance is not a split network's or may not run; None: none is
+    dnn_action: NDArray[np.int64] | None = None  # (I, N)
 
     @property
     def n_instances(self) -> int:

@@ -48,6 +48,7 @@ from fogfleet.api.v1alpha1.fallback import Fallback
 from fogfleet.api.v1alpha1.robotfleet import DEFAULT_CPU_LIMIT_PERCENT
 from fogfleet.api.v1alpha1.softwaremodule import ProfileEntry, SoftwareModule
 from fogfleet.domain.problem import Instance, Problem
+from fogfleet.render.dnn import ROLE_HEAD, ROLE_TAIL, split_body
 from fogfleet.render.names import container_name, deployment_name
 from fogfleet.render.podtemplate import module_pod_spec, scrape_port
 from fogfleet.render.ros import RosWiring, module_env, stay_on_robot
@@ -196,6 +197,7 @@ def render_instance(
     wiring: RosWiring | None = None,
     role: str = "",
     fallback: Fallback | None = None,
+    tail: int | None = None,
 ) -> dict[str, Any]:
     """The Deployment of instance ``i`` allowed on ``nodes`` (one node unless ``baseline``).
 
@@ -203,9 +205,13 @@ def render_instance(
     ``onboard``) it requests the module's nominal CPU, has no limit and runs its node's nominal
     row, as the simulator models such a plan. ``role`` with ``fallback``: the instance
     offloaded with an on-board fallback (``remote``) or its standby on the robot (``standby``,
-    requesting the share its robot holds for it: ``Problem.fallback_reserve``).
+    requesting the share its robot holds for it: ``Problem.fallback_reserve``). A split
+    network's (``spec.dnn``) pods: ``tail`` is the node its plan runs the tail on (its robot:
+    none, the head pod answers alone); the pod on ``tail`` is its tail, the one on the robot
+    its head (``render.dnn``).
     """
     inst = problem.instances[i]
+    home = int(problem.home[i])
     name = deployment_name(problem.fleet, inst, role)
     with_limits = with_limits and not baseline
     j = nodes[0]
@@ -235,9 +241,11 @@ def render_instance(
         else {problem.nodes[k].node_name: _nominal_row(problem, i, k) for k in nodes},
         role=role,
         fallback=fallback if role else None,
-        stands_in_for=inst.module if amounts.variant else "",
+        stands_in_for=inst.module if module.metadata.name != inst.module else "",
         remote_cycle_millis=float(problem.cycle[i]) * 1e3 if amounts.variant else None,
         speed_factor=node.speed_factor,
+        split=None if tail is None else split_body(problem, module, i, tail),
+        workload_role="" if tail is None else (ROLE_TAIL if j == tail != home else ROLE_HEAD),
     )
     pod_spec = module_pod_spec(
         module,
@@ -269,7 +277,12 @@ def _amounts(
     alloc = problem.limits if with_limits else problem.nominal
     request, use = float(alloc.cpu_request[i, j]), float(alloc.cpu_use[i, j])
     mem, gpu = float(problem.memory[i]), float(problem.gpu[i])
-    variant = role == ROLE_STANDBY and fallback is not None and fallback.variant is not None
+    # a standby with its own row: a variant module's, or a split network's head and local model
+    variant = (
+        role == ROLE_STANDBY
+        and problem.fallback_variant is not None
+        and bool(problem.fallback_variant[i])
+    )
     if role == ROLE_STANDBY and problem.fallback_row is not None:
         # its share of the robot's reserve (Problem.fallback_share): the row it runs with
         request = use = min(request, float(problem.fallback_row[i, 0]))
@@ -430,7 +443,11 @@ def render_fleet(
     out: list[dict[str, Any]] = []
 
     def one(
-        i: int, nodes: list[int], role: str = "", fallback: Fallback | None = None
+        i: int,
+        nodes: list[int],
+        role: str = "",
+        fallback: Fallback | None = None,
+        tail: int | None = None,
     ) -> dict[str, Any]:
         name = problem.instances[i].module
         if role == ROLE_STANDBY and fallback is not None and fallback.variant is not None:
@@ -448,6 +465,7 @@ def render_fleet(
             wiring=wiring,
             role=role,
             fallback=fallback,
+            tail=tail,
         )
 
     for i, inst in enumerate(problem.instances):
@@ -459,6 +477,11 @@ def render_fleet(
         if placement is None or int(placement[i]) < 0:
             continue
         j, home = int(placement[i]), int(problem.home[i])
+        if modules[inst.module].spec.dnn is not None:  # a split network (render.dnn)
+            out.append(one(i, [j], ROLE_REMOTE if j != home else "", tail=j))
+            if j != home:
+                out.append(one(i, [home], ROLE_STANDBY, tail=j))
+            continue
         fallback = (fallbacks or {}).get(inst.module)
         if fallback is None or not problem.standing_by[i] or j == home:
             out.append(one(i, [j]))

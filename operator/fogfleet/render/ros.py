@@ -152,6 +152,7 @@ def module_spec_json(
     fallback: Fallback | None = None,
     remote_cycle_millis: float | None = None,
     speed_factor: float = 1.0,
+    split: Mapping[str, Any] | None = None,
 ) -> str:
     """What the workload needs of the module: cycle, activation, topics, its node's profile.
 
@@ -159,7 +160,8 @@ def module_spec_json(
     kube-scheduler places (the k8s-default baseline): it learns its node only when it runs, so
     it gets the row of every node it may land on (``profileByNode``). ``remote_cycle_millis``
     is, for a variant's standby, the cycle time of the module it stands in for: the remote's
-    silence is counted in the remote's cycles.
+    silence is counted in the remote's cycles. ``split``: a split network's ``dnn``
+    (``render.dnn.split_body``).
     """
     spec = module.spec
     body: dict[str, Any] = {
@@ -170,6 +172,8 @@ def module_spec_json(
     }
     if node_rows:
         body["profileByNode"] = {n: [row.wire()] for n, row in sorted(node_rows.items())}
+    if split is not None:
+        body["dnn"] = dict(split)
     if fallback is not None:
         body["fallback"] = {
             "silentCycles": fallback.silent_cycles,
@@ -196,6 +200,8 @@ def module_env(
     stands_in_for: str = "",
     remote_cycle_millis: float | None = None,
     speed_factor: float = 1.0,
+    split: Mapping[str, Any] | None = None,
+    workload_role: str = "",
 ) -> list[dict[str, Any]]:
     """The environment fogfleet owns in a module container (ROS wiring + FOGFLEET_*).
 
@@ -204,7 +210,9 @@ def module_env(
     ``role`` (``remote`` or ``standby``, with the module's ``fallback``) is an instance with an
     on-board fallback (``workload.fallback``); unset for every other instance.
     ``stands_in_for``: a variant's standby runs ``module`` for that module (its name in
-    FOGFLEET_MODULE and the metrics, the variant's in FOGFLEET_VARIANT).
+    FOGFLEET_MODULE and the metrics, the variant's in FOGFLEET_VARIANT). A split network's
+    pods have ``split`` (its ``dnn``) and ``workload_role`` (``head`` or ``tail``, which
+    FOGFLEET_ROLE then says instead of ``role``).
     """
     env = {
         ENV_FLEET: fleet,
@@ -215,11 +223,11 @@ def module_env(
         ENV_HARDWARE_TYPE: hardware_type,
         ENV_CPU: cpu,
         ENV_MODULE_SPEC: module_spec_json(
-            module, hardware_type, node_rows, fallback, remote_cycle_millis, speed_factor
+            module, hardware_type, node_rows, fallback, remote_cycle_millis, speed_factor, split
         ),
     }
-    if role:
-        env[ENV_ROLE] = role
+    if workload_role or role:
+        env[ENV_ROLE] = workload_role or role
     if stands_in_for:
         env[ENV_VARIANT] = module.metadata.name
     if node_rows:

@@ -5,55 +5,17 @@ its robot holds whatever the plan (DNNSPLIT.md 3.2)."""
 from __future__ import annotations
 
 import copy
-import json
-from pathlib import Path
-from typing import Any
 
 import numpy as np
 import pytest
+from tests.unit.splitfleet import DNN, HPE, ROBOT_SPEED, split_catalog
 
-from fogfleet.api.loader import Catalog, load_paths, parse_object
+from fogfleet.api.loader import Catalog
 from fogfleet.domain.build import build_problem, refusals
 from fogfleet.domain.problem import Problem
 
-WAREHOUSE = Path(__file__).resolve().parents[3] / "manifests" / "examples" / "warehouse"
-HPE = "human-pose-estimation"
-ROBOT_SPEED = 0.04  # a robot core 25 times slower than the reference core
-
-# DNNSPLIT.md 3.3's network: a MobileNet-like CNN with a bottleneck after block 6
-DNN: dict[str, Any] = {
-    "spotlight": "time",
-    "minAccuracy": 0.8,
-    "inputBytes": 602112,
-    "outputBytes": 4000,
-    "accuracy": 0.92,
-    "fullMillis": 3.8,
-    "splitPoints": [
-        {"name": "b6", "headMillis": 2.0, "tailMillis": 1.2, "tensorBytes": 401408},
-        {"name": "bneck", "headMillis": 2.0, "tailMillis": 1.2, "tensorBytes": 6272},
-    ],
-    "localModel": {"name": "tiny", "robotMillis": 0.4, "accuracy": 0.61},
-}
-
-
-def _catalog(dnn: dict[str, Any], wifi: dict[str, float] | None = None) -> Catalog:
-    """The warehouse with human-pose-estimation as a split network and robots 25x slower."""
-    catalog = load_paths([WAREHOUSE])
-    for key, node in list(catalog.nodes.items()):
-        if node.spec.tier.value != "robot":
-            continue
-        raw = json.loads(node.model_dump_json(by_alias=True, exclude_none=True))
-        raw["spec"]["speedFactor"] = ROBOT_SPEED
-        if wifi is not None:
-            raw["spec"]["network"] = [{"type": "wifi", **wifi}]
-        catalog.nodes[key] = parse_object(raw)  # type: ignore[assignment]
-    key = next(k for k in catalog.modules if k[1] == HPE)
-    raw = json.loads(catalog.modules[key].model_dump_json(by_alias=True, exclude_none=True))
-    raw["spec"].pop("profile")
-    raw["spec"].pop("fallback", None)
-    raw["spec"]["dnn"] = copy.deepcopy(dnn)
-    catalog.modules[key] = parse_object(raw)  # type: ignore[assignment]
-    return catalog
+SLOW = {"latencyMillis": 30, "jitterMillis": 3, "bandwidthMbps": 5}  # every offload too slow
+MEDIUM = {"latencyMillis": 4, "jitterMillis": 3, "bandwidthMbps": 20}
 
 
 def _problem(catalog: Catalog) -> Problem:
@@ -66,7 +28,7 @@ def _first(p: Problem) -> int:
 
 
 def test_the_tail_is_planned_with_the_rules_action_and_the_robot_holds_head_and_local() -> None:
-    p = _problem(_catalog(DNN))
+    p = _problem(split_catalog(DNN))
     i = _first(p)
     h = int(p.home[i])
     edge = int(np.flatnonzero(p.allowed[i] & (p.tier == 1))[0])
@@ -87,7 +49,9 @@ def test_the_tail_is_planned_with_the_rules_action_and_the_robot_holds_head_and_
 
 
 def test_a_link_too_slow_for_every_offboard_action_leaves_the_local_model_at_home() -> None:
-    p = _problem(_catalog(DNN, wifi={"latencyMillis": 30, "jitterMillis": 3, "bandwidthMbps": 5}))
+    p = _problem(
+        split_catalog(DNN, wifi={"latencyMillis": 30, "jitterMillis": 3, "bandwidthMbps": 5})
+    )
     i = _first(p)
     h = int(p.home[i])
     assert not p.allowed[i, p.tier > 0].any()
@@ -95,7 +59,7 @@ def test_a_link_too_slow_for_every_offboard_action_leaves_the_local_model_at_hom
     assert p.limits.exe_mean[i, h] == pytest.approx(
         0.4e-3 / ROBOT_SPEED / p.limits.cpu_request[i, h]
     )
-    catalog = _catalog(DNN, wifi={"latencyMillis": 30, "jitterMillis": 3, "bandwidthMbps": 5})
+    catalog = split_catalog(DNN, wifi=SLOW)
     (fleet,) = catalog.fleets
     why = refusals(fleet, catalog, p.instances[i])
     said = [str(w) for j, w in why.items() if w is not None and p.tier[j] == 1]
@@ -106,7 +70,9 @@ def test_a_link_too_slow_for_every_offboard_action_leaves_the_local_model_at_hom
 
 def test_a_slow_link_moves_the_choice_to_the_bottleneck_split() -> None:
     # 20 Mbit/s: the raw frame takes 241 ms, bneck's 6 KB 2.5 ms beside its 50 ms head
-    p = _problem(_catalog(DNN, wifi={"latencyMillis": 4, "jitterMillis": 3, "bandwidthMbps": 20}))
+    p = _problem(
+        split_catalog(DNN, wifi={"latencyMillis": 4, "jitterMillis": 3, "bandwidthMbps": 20})
+    )
     i = _first(p)
     edge = int(np.flatnonzero(p.allowed[i] & (p.tier == 1))[0])
     outside = 2.0e-3 / ROBOT_SPEED + (6272 + 4000) * 8 / 20e6 + 2 * 4.3e-3
@@ -121,7 +87,7 @@ def test_an_accurate_enough_local_model_runs_at_home_and_wins_on_time(
     # the local model (10 ms on the robot) is faster than any off-board action (52 ms): the
     # time spotlight takes it over every link; the cost spotlight offloads (0 robot ms)
     dnn = {**copy.deepcopy(DNN), "minAccuracy": 0.5, "spotlight": spotlight}
-    p = _problem(_catalog(dnn))
+    p = _problem(split_catalog(dnn))
     i = _first(p)
     assert p.allowed[i, int(p.home[i])]
     assert bool(p.allowed[i, p.tier == 1].any()) is offboard
