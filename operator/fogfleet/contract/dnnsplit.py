@@ -208,28 +208,47 @@ def _key(spotlight: Spotlight, action: Action) -> tuple[float, ...]:
     return (-action.accuracy, action.robot_s, action.time_s, action.index)
 
 
-def choose(model: DnnSplit, candidates: Sequence[Action]) -> Choice:
-    """Algorithm 1 over ``candidates`` (``actions``): the module docstring's rule."""
+def choose(model: DnnSplit, candidates: Sequence[Action], over: str = "") -> Choice:
+    """Algorithm 1 over ``candidates`` (``actions``): the module docstring's rule. ``over``
+    names the link in the reason ("20 Mbit/s, 8 ms")."""
     dropped = [(a, why) for a in candidates if (why := _why_dropped(model, a)) is not None]
     gone = {a.index for a, _ in dropped}
     left = [a for a in candidates if a.index not in gone]
     local = candidates[-1]
     if not left:  # Algorithm 1: "it will take the action n+1"
-        why = "nothing meets the bounds"
+        why = "nothing meets the bounds" + (f" over {over}" if over else "")
         if all(math.isinf(a.time_s) for a in candidates if a.offloaded):
             why = "the link is cut"
         rest = tuple(d for d in dropped if d[0].index != local.index)
         return Choice(local, f"{local.name}: {why}, so the local model answers", rest)
     best = min(left, key=lambda a: _key(model.spotlight, a))
-    others = [(a, f"{model.spotlight.value}: {best.name} is better") for a in left if a != best]
+    others = [
+        (
+            a,
+            f"{model.spotlight.value}: {best.name} is better ({_measure(model, a)} against "
+            f"{_measure(model, best)})",
+        )
+        for a in left
+        if a != best
+    ]
     reason = f"{best.name}: {_ms(best.time_s)} <= {_ms(model.max_latency_s)}"
     if best.offloaded:
-        reason += f", {best.crossing_bytes} B crossing"
+        reason += f", {best.crossing_bytes} B crossing" + (f" over {over}" if over else "")
     reason += f" ({model.spotlight.value} spotlight)"
     local_out = next((why for a, why in dropped if a.index == local.index), None)
     if local_out is not None and best.index != local.index:
         reason += f"; the local model is out: {local_out}"
     return Choice(best, reason, (*dropped, *others))
+
+
+def _measure(model: DnnSplit, action: Action) -> str:
+    """What the spotlight compares of ``action``: its time, its robot time, or its accuracy
+    with its robot time."""
+    if model.spotlight is Spotlight.TIME:
+        return _ms(action.time_s)
+    if model.spotlight is Spotlight.COST:
+        return f"robot {_ms(action.robot_s)}"
+    return f"accuracy {action.accuracy:g}, robot {_ms(action.robot_s)}"
 
 
 def _ms(seconds: float) -> str:

@@ -18,9 +18,11 @@ from fogfleet.api.v1alpha1.common import Tier
 from fogfleet.api.v1alpha1.computenode import ComputeNode
 from fogfleet.api.v1alpha1.robotfleet import RobotFleet
 from fogfleet.api.v1alpha1.softwaremodule import Scope, SoftwareModule
+from fogfleet.contract.dnnsplit import DnnSplit
 from fogfleet.errors import InvalidSpec
 
 from .checks import module_cycle, node_capacity
+from .dnnpairs import model_of
 from .fallback import standbys
 from .network import Link, uplink
 from .pairs import Block, Pair, PairTable, Refusal, pad_rungs
@@ -223,7 +225,19 @@ def build_problem(
         current=freeze(_current_nodes(nodes, inst.instances, current, grid.allowed)),
         reasons=grid.reasons,
         dnn_action=None if grid.dnn_action is None else freeze(grid.dnn_action),
+        split_models=_split_models(modules),
+        uplink_latency=freeze(np.array([lk.latency for lk in links])),
     )
+
+
+def _split_models(modules: list[_Resolved]) -> dict[str, DnnSplit] | None:
+    """The split networks among the fleet's modules (``domain.dnnpairs.model_of``)."""
+    out = {
+        m.module.metadata.name: model_of(m.module.spec.dnn, m.cycle)
+        for m in modules
+        if m.module.spec.dnn is not None
+    }
+    return out or None
 
 
 def refusals(

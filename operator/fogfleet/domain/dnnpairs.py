@@ -28,7 +28,7 @@ from fogfleet.api.v1alpha1.softwaremodule import SoftwareModule
 from fogfleet.contract.dnnsplit import Action, Choice, DnnSplit, SplitPoint, actions, choose
 
 from .network import Link
-from .problem import EXEC_SHARE_OF_CYCLE
+from .problem import EXEC_SHARE_OF_CYCLE, Problem
 from .rows import ProfileRow
 
 __all__ = [
@@ -37,6 +37,7 @@ __all__ = [
     "local_pair_rows",
     "model_of",
     "off_board",
+    "planned_choice",
     "resolve",
     "robot_row",
     "tail_rows",
@@ -161,3 +162,31 @@ def robot_row(
         return None
     fit = [r for r in rows if r.mean <= EXEC_SHARE_OF_CYCLE * model.max_latency_s]
     return fit[0] if fit else rows[-1]
+
+
+def planned_choice(problem: Problem, i: int, j: int) -> Choice | None:
+    """The rule's choice for instance ``i`` with its tail on node ``j``, as the plan's build
+    resolved it, its reason naming the link (None: ``i`` is not a split network's, or may not
+    run on ``j``). On its own robot the local model answers alone."""
+    inst = problem.instances[i]
+    model = (problem.split_models or {}).get(inst.module)
+    index = -1 if problem.dnn_action is None else int(problem.dnn_action[i, j])
+    if model is None or index < 0 or problem.uplink_latency is None:
+        return None
+    home = int(problem.home[i])
+    rf = 1.0 / max(problem.nodes[home].speed_factor, 1e-6)
+    if j == home:
+        acts = actions(model, None, rf, 1.0)
+        local = acts[-1]
+        why = "the plan keeps the network on its robot"
+        if local.accuracy < model.min_accuracy:
+            why = "no edge or cloud node meets the bounds, so the local model answers"
+        return Choice(local, f"{local.name}: {why}", ())
+    link = Link(
+        latency=float(problem.uplink_latency[home] + problem.uplink_latency[j]),
+        jitter=0.0,
+        bandwidth=float(min(problem.uplink_bandwidth[home], problem.uplink_bandwidth[j])),
+    )
+    tf = 1.0 / max(problem.nodes[j].speed_factor, 1e-6)
+    over = f"{link.bandwidth / 1e6:.3g} Mbit/s, {link.latency * 1e3:.3g} ms"
+    return choose(model, actions(model, link, rf, tf), over)

@@ -22,7 +22,7 @@ first (``with_levels``).
 from __future__ import annotations
 
 import threading
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field, replace
 from functools import cached_property
 from typing import Any, TypeVar
@@ -31,6 +31,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from fogfleet.api.v1alpha1.common import Tier
+from fogfleet.contract.dnnsplit import DnnSplit
 
 __all__ = [
     "TIER_CODE",
@@ -176,6 +177,8 @@ class Problem:
     # each node (contract.dnnsplit: 0 whole off board, k split point k, n+1 the local model at
     # home); -1 where the instance is not a split network's or may not run; None: none is
     dnn_action: NDArray[np.int64] | None = None  # (I, N)
+    split_models: Mapping[str, DnnSplit] | None = None  # module -> its network (seconds)
+    uplink_latency: F64 | None = None  # (N,) one-way latency of each node's uplink, seconds
 
     @property
     def n_instances(self) -> int:

@@ -72,3 +72,21 @@ def test_a_plan_that_keeps_the_network_at_home_runs_the_head_alone_with_the_loca
     assert node == "robot-1" and env["FOGFLEET_ROLE"] == "head"
     dnn = json.loads(env["FOGFLEET_MODULE_SPEC"])["dnn"]
     assert dnn["plannedAction"] == "tiny" and "tailFactor" not in dnn
+
+
+def test_the_fleet_status_names_each_split_instances_action_and_why() -> None:
+    from types import SimpleNamespace
+
+    from fogfleet.api.v1alpha1.robotfleet import PlacementEntry
+    from fogfleet.controllers.fleet.status import placement_entries
+
+    p, deps = _render()
+    placement = np.where(p.allowed, np.where(p.tier[None, :] == 1, 0, 1), 9).argmin(axis=1)
+    decision = SimpleNamespace(placement=placement)
+    entries = placement_entries(p, deps, SimpleNamespace(bound={}), decision, False)  # type: ignore[arg-type]
+    split = [e for e in entries if e["module"] == HPE]
+    assert len(split) == 5  # one per robot: the head Deployments stand behind their tails
+    for e in split:
+        assert e["split"]["action"] == "full offload"
+        assert PlacementEntry.model_validate(e).split is not None
+    assert all("split" not in e for e in entries if e["module"] != HPE)

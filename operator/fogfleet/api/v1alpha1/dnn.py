@@ -22,7 +22,7 @@ from fogfleet.contract.dnnsplit import Spotlight
 
 from .base import FogModel, Number, Quantity, parse_quantity, refuse_duplicates
 
-__all__ = ["Dnn", "DnnLocalModel", "DnnSplitPoint", "Spotlight"]
+__all__ = ["Dnn", "DnnChoice", "DnnLocalModel", "DnnSplitPoint", "Spotlight"]
 
 Fraction = Annotated[float, Field(ge=0, le=1)]
 SplitName = Annotated[
@@ -116,3 +116,16 @@ class Dnn(FogModel):
         if self.max_latency_millis is not None and self.max_latency_millis <= 0:
             raise ValueError("maxLatencyMillis: must be greater than zero")
         return self
+
+
+class DnnChoice(FogModel):
+    """The action RoboEC2's rule takes for a split network's instance where the plan runs its
+    tail (status): the split point, full offload, or the local model."""
+
+    action: str
+    """full offload, a split point's name, or the local model's name."""
+    reason: str
+    """Why: its time against maxLatencyMillis, the bytes crossing the link and the link, the
+    spotlight, and why the local model is out (e.g. "bneck: 63 ms <= 100 ms, 6272 B crossing
+    over 20 Mbit/s, 8 ms (time spotlight); the local model is out: accuracy 0.61 <
+    minAccuracy 0.8")."""

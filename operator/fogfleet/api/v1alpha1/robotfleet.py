@@ -9,6 +9,7 @@ from pydantic import Field, model_validator
 
 from .base import FogModel, Number, PosInt, parse_millis, refuse_duplicates
 from .common import Condition, LabelSelector, Name, ObjectMeta, Tier
+from .dnn import DnnChoice
 from .fallback import Fallback, FallbackMode
 from .linkhealth import LinkHealth, RobotLinkStatus
 from .objectives import DEFAULT_OBJECTIVES, ObjectiveName
@@ -316,6 +317,9 @@ class PlacementEntry(FogModel):
     """CPU request = limit given to the instance, in cores."""
     replica: int | None = None
     """Replica index of a shared module."""
+    split: DnnChoice | None = None
+    """A split network's (SoftwareModule spec.dnn): the action taken with its tail on this
+    node, and why."""
 
 
 class ModulePlacement(FogModel):

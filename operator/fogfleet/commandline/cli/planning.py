@@ -14,6 +14,7 @@ import numpy as np
 from fogfleet.api.v1alpha1.objectives import ObjectiveName
 from fogfleet.api.v1alpha1.robotfleet import PLACEMENT_LIST_LIMIT
 from fogfleet.commandline.exits import BAD_INPUT, OK
+from fogfleet.domain.dnnpairs import planned_choice
 from fogfleet.domain.miss_rates import format_miss_rate, worst_module
 from fogfleet.errors import InvalidSpec
 from fogfleet.scheduling.explain.shortfall import unplaced_reasons
@@ -48,6 +49,9 @@ def placement_rows(problem: Any, schedule: Any) -> list[dict[str, Any]]:
         )
         if schedule.levels is not None and schedule.levels[i] > 0 and problem.ladder is not None:
             rows[-1]["cpuForDeadline"] = float(problem.ladder.cpu[i, j, 0])
+        choice = planned_choice(problem, i, j) if j >= 0 else None
+        if choice is not None:
+            rows[-1]["split"] = {"action": choice.action.name, "reason": choice.reason}
     return rows
 
 
@@ -119,6 +123,11 @@ def _print_plan(doc: dict[str, Any]) -> None:
         for r in doc["placement"]
     ]
     print(table(rows, ["ROBOT", "MODULE", "NODE", "TIER", "CPU"]))
+    splits = [r for r in doc["placement"] if "split" in r]
+    if splits:
+        print("\nSplit networks (RoboEC2's rule over each tail's link):")
+        for r in splits:
+            print(f"  {r['robot']}/{r['module']}: {r['split']['reason']}")
     print()
     print(
         "Objectives: "

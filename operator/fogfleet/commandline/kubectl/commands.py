@@ -76,6 +76,17 @@ def why_doc(w: ModuleWhy) -> Doc:
                     }
                     for a in i.alternatives
                 ],
+                **(
+                    {
+                        "split": {
+                            "action": i.split[0],
+                            "reason": i.split[1],
+                            "alternatives": [{"action": n, "reason": r} for n, r in i.split[2]],
+                        }
+                    }
+                    if i.split is not None
+                    else {}
+                ),
             }
             for i in w.instances
         ],

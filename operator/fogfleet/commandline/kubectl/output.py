@@ -66,6 +66,15 @@ def why_table(doc: Doc) -> str:
             lines += _columns(
                 [["  NOT ON", "TIER", "RULE", "WHY"], *[["  " + a[0], *a[1:]] for a in alts]]
             )
+        split = inst.get("split")
+        if split:  # a split network: the action on this node, then the others and why not
+            lines.append(f"  split: {split['reason']}")
+            lines += _columns(
+                [
+                    ["  NOT", "WHY"],
+                    *[["  " + a["action"], a["reason"]] for a in split["alternatives"]],
+                ]
+            )
     if doc.get("omittedInstances"):
         lines.append(f"\n({doc['omittedInstances']} more instances: pass --robot to see one)")
     return "\n".join(lines)

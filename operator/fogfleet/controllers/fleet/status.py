@@ -29,6 +29,7 @@ from fogfleet.controllers.status import (
     wire,
     wire_keys,
 )
+from fogfleet.domain.dnnpairs import planned_choice
 from fogfleet.domain.miss_rates import format_miss_rate
 from fogfleet.domain.problem import Problem
 from fogfleet.render.deployments import format_cpu, identity_of
@@ -56,7 +57,9 @@ def placement_entries(
     problem: Problem, desired: list[Obj], roll: Rollout, cached: Decision | None, baseline: bool
 ) -> list[Obj]:
     """Where each rendered instance runs: the plan's node, or (k8s-default) the node
-    kube-scheduler bound its pod to; an instance not placed yet is left out."""
+    kube-scheduler bound its pod to, and a split network's action there and why; an instance
+    not placed yet is left out. (A split network's head Deployment has no identity: its tail's
+    entry stands for it.)"""
     placement: list[Obj] = []
     index = _instance_index(problem)
     alloc = problem.nominal if baseline else problem.limits
@@ -85,6 +88,9 @@ def placement_entries(
         }
         if ident and not ident[0]:
             entry["replica"] = ident[2]
+        choice = None if baseline or i < 0 else planned_choice(problem, i, j)
+        if choice is not None:
+            entry["split"] = {"action": choice.action.name, "reason": choice.reason}
         placement.append(entry)
     return placement
 

@@ -25,6 +25,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from fogfleet.api.v1alpha1.base import format_cores
+from fogfleet.domain.dnnpairs import planned_choice
 from fogfleet.domain.problem import Problem
 from fogfleet.domain.tenancy import Held
 from fogfleet.errors import InvalidSpec
@@ -69,6 +70,9 @@ class InstanceWhy:
     cpu: float | None  # its CPU request there, cores
     predicted_miss: float
     alternatives: tuple[Alternative, ...]
+    # a split network's: the action taken with its tail here and why, then each other action
+    # and why not (contract.dnnsplit.choose); None: not a split network
+    split: tuple[str, str, tuple[tuple[str, str], ...]] | None = None
 
 
 @dataclass(frozen=True)
@@ -178,6 +182,7 @@ def explain_module(
                 cpu=float(alloc.cpu_request[i, here]) if here >= 0 else None,
                 predicted_miss=float(miss[i]),
                 alternatives=tuple(alts),
+                split=_split(problem, i, here),
             )
         )
     return ModuleWhy(
@@ -189,6 +194,16 @@ def explain_module(
         instances=tuple(out),
         omitted=len(chosen) - len(shown),
     )
+
+
+def _split(
+    problem: Problem, i: int, here: int
+) -> tuple[str, str, tuple[tuple[str, str], ...]] | None:
+    """A split network's action on its node, why, and why not each other action."""
+    got = planned_choice(problem, i, here) if here >= 0 else None
+    if got is None:
+        return None
+    return got.action.name, got.reason, tuple((a.name, why) for a, why in got.dropped)
 
 
 def _refusals(
