@@ -153,7 +153,8 @@ def robot_row(
     split point or the local model, whichever takes longer (both stay on the robot; the local
     model answers the moment the link fails), at the smallest ``CPU_STEPS`` that keeps a frame
     within ``EXEC_SHARE_OF_CYCLE`` of alpha. It counts every split point's head, not only the
-    chosen ones': it never holds less than the robot needs. None: no step fits the robot."""
+    planned one's: the robot applies the rule per frame from the link it measures (RoboEC2
+    decides per frame), so a link that slows may move it to any split. None: no step fits."""
     assert module.spec.dnn is not None
     model = model_of(module.spec.dnn, cycle_s)
     slowest = max([model.local_s, *(p.head_s for p in model.split_points)])
