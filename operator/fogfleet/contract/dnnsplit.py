@@ -43,6 +43,8 @@ from dataclasses import dataclass
 from enum import StrEnum
 from typing import Protocol
 
+from .dnn import FULL_OFFLOAD
+
 __all__ = [
     "Action",
     "Choice",
@@ -154,7 +156,7 @@ def actions(
     out = [
         Action(
             0,
-            "full offload",
+            FULL_OFFLOAD,
             crossing(0.0, model.input_bytes, model.full_s),
             0.0,
             model.accuracy,
