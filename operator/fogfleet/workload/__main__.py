@@ -62,6 +62,14 @@ def main(argv: list[str] | None = None) -> int:
     n.add_argument("--host", default=os.environ.get(ENV_METRICS_HOST, "0.0.0.0"))
     n.add_argument("--port", type=int, default=int(os.environ.get(ENV_METRICS_PORT, METRICS_PORT)))
     n.add_argument("--log-interval", type=_log_seconds, default=None, metavar="SECONDS")
+    n.add_argument(
+        "--link-mbit",
+        type=_link_mbit,
+        default=None,
+        metavar="MBIT",
+        help="experiments (the head): hold each tensor back as an uplink of MBIT Mbit/s would "
+        "(a slow link on one host)",
+    )
     p = sub.add_parser(
         "probe", help="measure the cycle times of the module in $FOGFLEET_MODULE_SPEC (sidecar)"
     )
@@ -83,7 +91,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"fogfleet-workload: {exc}", file=sys.stderr)
         return 2
     if ns.cmd == "dnn":
-        return _dnn(spec, ns.host, ns.port, ns.log_interval)
+        return _dnn(spec, ns.host, ns.port, ns.log_interval, ns.link_mbit)
     if ns.cmd == "probe":
         from .probe import run_probe
 
@@ -128,7 +136,9 @@ def main(argv: list[str] | None = None) -> int:
     return 0
 
 
-def _dnn(spec: WorkloadSpec, host: str, port: int, every: float | None) -> int:
+def _dnn(
+    spec: WorkloadSpec, host: str, port: int, every: float | None, link_mbit: float | None
+) -> int:
     """A split DNN module's side: its spec must carry ``dnn`` and its role be head or tail."""
     if spec.dnn is None:
         print(f'fogfleet-workload: dnn: {ENV_MODULE_SPEC} has no "dnn" key', file=sys.stderr)
@@ -148,7 +158,7 @@ def _dnn(spec: WorkloadSpec, host: str, port: int, every: float | None) -> int:
         return 2
     from .dnn.ros import models_folder, run_dnn
 
-    run_dnn(spec, spec.role.value, models_folder(os.environ), host, port, seconds)
+    run_dnn(spec, spec.role.value, models_folder(os.environ), host, port, seconds, None, link_mbit)
     return 0
 
 
@@ -191,6 +201,11 @@ def _bounded(text: str, most: float, what: str, given: str = "") -> float:
 def _cpu_work(text: str) -> float:
     """``MILLIS``: above 0, at most 10000."""
     return _bounded(text, 10000, "milliseconds of CPU per cycle,")
+
+
+def _link_mbit(text: str) -> float:
+    """``MBIT``: above 0, at most 100000."""
+    return _bounded(text, 100000, "Mbit/s,")
 
 
 def _log_seconds(text: str) -> float:

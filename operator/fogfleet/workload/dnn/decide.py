@@ -7,8 +7,9 @@ runs changes only when another action has been proposed for ``HYSTERESIS_FRAMES`
 row, except after a cut, when an off-board action has no answer to wait for and the local model
 takes over at once (Algorithm 1: disconnected => action n+1).
 
-Before the first probe's echo nothing is known of the link: the head runs the plan's action
-(the planner chose it with the declared table and the node's declared link).
+Before a probe's echo and a frame's answer have both come back, the link's bandwidth is
+unknown: the head runs the plan's action (the planner chose it with the declared table and the
+node's declared link), and returns to it after a cut at the start.
 """
 
 from __future__ import annotations
@@ -80,15 +81,16 @@ class Decider:
         return actions(model, None if self.cut else self.link.link(), robot, tail)
 
     def decide(self) -> Decision:
-        known = self.cut or self.link.link() is not None
+        """This frame's action. Cut: the rule (the local model, at once if an off-board
+        action ran). Up but not yet measured (probes echoed, no answer yet): back to the
+        plan's action, with the hysteresis. Measured: the rule, with the hysteresis."""
         cands = self.candidates()
-        if not known:
-            planned = cands[self.run.planned_index]
-            return Decision(planned, None, math.inf if planned.offloaded else planned.time_s)
+        if not self.cut and self.link.link() is None:
+            proposed = self.run.planned_index if self.link.echoed else self.hysteresis.current
+            action = cands[self.hysteresis.step(proposed)]
+            return Decision(action, None, math.inf if action.offloaded else action.time_s)
         model, _, _ = self.parts.model_now()
         choice = choose(model, cands)
-        current = cands[self.hysteresis.current]
-        at_once = self.cut and current.offloaded
-        index = self.hysteresis.step(choice.action.index, at_once)
-        action = cands[index]
+        at_once = self.cut and cands[self.hysteresis.current].offloaded
+        action = cands[self.hysteresis.step(choice.action.index, at_once)]
         return Decision(action, choice, action.time_s)

@@ -98,6 +98,7 @@ class DnnMetrics:
         ).labels(**ids)  # fmt: skip
         self.module = module
         self.current = ""
+        self.reason = ""  # the rule's last word (contract.dnnsplit.Choice.reason)
         self.tally = DnnTally()
 
     def frame(self, result: FrameResult, cycle_s: float) -> None:
@@ -118,6 +119,7 @@ class DnnMetrics:
         self.base.execution.observe(result.real_s)
         self.base.cycle_done(result.real_s, cycle_s)
         self.tally.add(result)
+        self.reason = result.reason or self.reason
 
     def link(self, estimate: LinkEstimate | None) -> None:
         if estimate is not None:
@@ -132,9 +134,10 @@ def dnn_line(
     seconds: float,
     current: str,
     link: LinkEstimate | None,
+    reason: str = "",
 ) -> str:
     """``robot-1/detector: bneck now; 100 frames (bneck 100), 0 late, 0 by the local model
-    after a timeout in the last 10 s; link 0.21 ms one way, 850 Mbit/s``."""
+    after a timeout in the last 10 s; link 0.21 ms one way, 850 Mbit/s; the rule: ...``."""
     frames, late, timeouts = tally.snapshot()
     then, late0, timeouts0 = before
     d = {a: n - then.get(a, 0) for a, n in frames.items() if n - then.get(a, 0)}
@@ -147,4 +150,5 @@ def dnn_line(
         f"fogfleet-workload: {who}: {current or 'no action yet'} now; {sum(d.values())} frames"
         f" ({by or 'none'}), {late - late0} late, {timeouts - timeouts0} by the local model "
         f"after a timeout in the last {seconds:g} s; {net}"
+        + (f"; the rule: {reason}" if reason else "")
     )

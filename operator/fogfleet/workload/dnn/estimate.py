@@ -79,14 +79,18 @@ class LinkEstimator:
         self.moved_bytes.add(float(moved_bytes))
         self.moving_s.add(max(MIN_TRANSFER_S, both_ways - base))
 
+    @property
+    def echoed(self) -> bool:
+        """A probe came back: the link is up, if not yet measured."""
+        return self.round_trip.value is not None
+
     def link(self) -> LinkEstimate | None:
-        """The estimate, or None while no probe has come back."""
+        """The estimate, or None until a probe and a frame's answer have come back (the
+        bandwidth is unknown before: ``decide.Decider`` then holds the plan's action)."""
         if self.round_trip.value is None:
             return None
         if self.moved_bytes.value is None or self.moving_s.value is None:
-            # a probe, no frame yet: latency known, bandwidth not; take it as unbounded, the
-            # first answer corrects it (the plan's action holds until then: head.Head)
-            return LinkEstimate(self.round_trip.value / 2, float("inf"))
+            return None
         bandwidth = self.moved_bytes.value * 8 / self.moving_s.value
         return LinkEstimate(self.round_trip.value / 2, bandwidth)
 

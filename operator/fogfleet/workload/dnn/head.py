@@ -24,7 +24,9 @@ from .decide import Decider
 from .runspec import DnnRunSpec
 from .wire import Kind, Packet
 
-__all__ = ["By", "FrameResult", "Head", "Mailbox", "RobotParts"]
+__all__ = ["MAX_IN_FLIGHT", "By", "FrameResult", "Head", "Mailbox", "RobotParts"]
+
+MAX_IN_FLIGHT = 50  # frames whose late answer still measures the link (5 s at 10 Hz)
 
 
 class By(StrEnum):
@@ -109,9 +111,11 @@ class Head:
         self.count = 0
         self.probes: dict[int, float] = {}  # frame -> when its probe left (until echoed)
         self.echoed_in_time: dict[int, bool] = {}
+        self.tensors: dict[int, int] = {}  # frame -> bytes sent (until answered)
 
     def receive(self, packet: Packet) -> None:
-        """A reply from the tail (an echo or an answer), as it arrives."""
+        """A reply from the tail (an echo or an answer), as it arrives. Every reply measures
+        the link, a late one too (a slow link is not a cut: its answers say how slow)."""
         now = self.clock()
         if packet.kind is Kind.ECHO:
             with self.lock:
@@ -122,6 +126,13 @@ class Head:
                 self.decider.link.echo(rtt)
                 self.echoed_in_time[packet.frame] = rtt <= self.decider.alpha
         elif packet.kind is Kind.ANSWER:
+            with self.lock:
+                sent_bytes = self.tensors.pop(packet.frame, None)
+                if sent_bytes is not None:
+                    tail_s = packet.tail_us / 1e6
+                    rtt = now - packet.sent_ns / 1e9
+                    self.decider.link.answer(rtt, tail_s, sent_bytes + len(packet.payload))
+                    self.decider.parts.ran_tail(packet.action, tail_s)
             self.mailbox.put(packet, now)
 
     def _link_state(self) -> None:
@@ -153,21 +164,19 @@ class Head:
             t0 = self.clock()
             data = self.parts.head(action.index, image)
             t1 = self.clock()
-            self.send(Packet(Kind.TENSOR, action.index, n, int(t1 * 1e9), payload=data))
-            got = self.mailbox.wait(n, start + self.decider.alpha)
             with self.lock:
                 if action.index > 0:
                     self.decider.parts.ran_head(action.index, t1 - t0)
-                if got is not None:
-                    packet, at = got
-                    tail_s = packet.tail_us / 1e6
-                    moved = len(data) + len(packet.payload)
-                    self.decider.link.answer(at - t1, tail_s, moved)
-                    self.decider.parts.ran_tail(action.index, tail_s)
-                    by, answer = By.TAIL, packet.payload
-                else:
+                self.tensors = {f: b for f, b in self.tensors.items() if f > n - MAX_IN_FLIGHT}
+                self.tensors[n] = len(data)
+            self.send(Packet(Kind.TENSOR, action.index, n, int(t1 * 1e9), payload=data))
+            got = self.mailbox.wait(n, start + self.decider.alpha)
+            if got is not None:
+                by, answer = By.TAIL, got[0].payload
+            else:
+                with self.lock:
                     self.decider.cut = True
-                    by = By.TIMEOUT
+                by = By.TIMEOUT
         if by is not By.TAIL:
             t0 = self.clock()
             answer = self.parts.local(image)

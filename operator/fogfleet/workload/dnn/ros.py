@@ -51,8 +51,11 @@ def run_dnn(
     port: int,
     log_interval: float,
     duration: float | None = None,
+    link_mbit: float | None = None,
 ) -> None:
-    """Run the head or the tail until SIGTERM (or ``duration`` seconds)."""
+    """Run the head or the tail until SIGTERM (or ``duration`` seconds). ``link_mbit``
+    (experiments, the head only): each tensor is held back as long as an uplink of that many
+    Mbit/s would take to carry it, so a test on one host sees a slow link's choice."""
     import rclpy
     from rclpy.experimental.events_executor import EventsExecutor
     from rclpy.qos import QoSProfile, ReliabilityPolicy
@@ -63,15 +66,15 @@ def run_dnn(
     names = [p.name for p in run.model.split_points]
     base = WorkloadMetrics(spec.module, spec.robot, spec.tier, spec.hardware_type, spec.cpu_label)
     stop = threading.Event()
-    if threading.current_thread() is threading.main_thread():
-        for sig in (signal.SIGTERM, signal.SIGINT):
-            signal.signal(sig, lambda *_: stop.set())
     qos = QoSProfile(depth=QOS_DEPTH, reliability=ReliabilityPolicy.RELIABLE)
     # the networks load before ROS starts: a tail that answers at all answers at full speed
     is_head = role == ROLE_HEAD
     robot = RobotNets(folder, names) if is_head else None
     tail_nets = None if is_head else TailNets(folder, names)
     rclpy.init()
+    if threading.current_thread() is threading.main_thread():  # after rclpy's own handlers
+        for sig in (signal.SIGTERM, signal.SIGINT):
+            signal.signal(sig, lambda *_: stop.set())
     node = rclpy.create_node(f"{spec.module.replace('-', '_')}_dnn_{role}")
     out, into = (
         (tensor_topic(spec.module), answer_topic(spec.module))
@@ -81,6 +84,8 @@ def run_dnn(
     publisher = node.create_publisher(UInt8MultiArray, out, qos)
 
     def send(packet: Packet) -> None:
+        if link_mbit and packet.payload and is_head:
+            time.sleep(len(packet.payload) * 8 / (link_mbit * 1e6))
         publisher.publish(UInt8MultiArray(data=array.array("B", encode_packet(packet))))
 
     who = f"{spec.robot or 'shared'}/{spec.module} ({role})"
@@ -175,6 +180,11 @@ class _HeadLoop:
         while not self.stop.wait(seconds):
             with self.head.lock:
                 link = None if self.head.decider.cut else self.head.decider.link.link()
-            print(dnn_line(who, self.dnn.tally, before, seconds, self.dnn.current, link),
-                  flush=True)  # fmt: skip
+                times = ", ".join(
+                    f"{a.name} {a.time_s * 1e3:.3g}" for a in self.head.decider.candidates()
+                )
+            line = dnn_line(
+                who, self.dnn.tally, before, seconds, self.dnn.current, link, self.dnn.reason
+            )
+            print(f"{line}; predicted ms: {times}", flush=True)
             before = self.dnn.tally.snapshot()

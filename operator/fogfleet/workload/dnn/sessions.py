@@ -50,7 +50,9 @@ class Net:
         )
         inp = s.get_inputs()[0]
         dtype = np.dtype(np.uint8 if inp.type == "tensor(uint8)" else np.float32)
-        return cls(s, inp.name, tuple(int(d) for d in inp.shape), dtype)
+        net = cls(s, inp.name, tuple(int(d) for d in inp.shape), dtype)
+        net(np.zeros(net.input_shape, dtype))  # the first run allocates: not a frame's time
+        return net
 
     def __call__(self, x: np.ndarray) -> np.ndarray:
         return np.asarray(self.session.run(None, {self.input_name: x})[0])
