@@ -43,6 +43,8 @@ from dataclasses import dataclass
 from enum import StrEnum
 from typing import Protocol
 
+from .dnn import FULL_OFFLOAD
+
 __all__ = [
     "FULL_OFFLOAD",
     "Action",

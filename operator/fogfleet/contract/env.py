@@ -20,11 +20,14 @@ FOGFLEET_NODE                  the node (the downward API's spec.nodeName for a 
 FOGFLEET_HARDWARE_TYPE         the node's hardware type (absent for a plain Deployment)
 FOGFLEET_CPU                   the CPU limit as a quantity (absent: no limit)
 FOGFLEET_ROLE                  ``primary`` (default), ``remote`` or ``standby`` (on-board
-                               fallback)
+                               fallback); a split DNN module's ``head`` or ``tail``
+                               (``contract.dnn``)
 FOGFLEET_PROFILE_CYCLES        a profiling Job: run this many cycles alone, then exit
 FOGFLEET_PROFILE_OUTPUT        where the profiling run writes its rows (default /tmp)
 FOGFLEET_METRICS_HOST          the workload's own: its metrics address (default 0.0.0.0)
 FOGFLEET_METRICS_PORT          the workload's own: its metrics port (default ``METRICS_PORT``)
+FOGFLEET_DNN_MODELS            the workload's own: a split DNN module's model folder (default:
+                               where the image's build stage wrote them)
 FOGFLEET_LOG_INTERVAL_SECONDS  the workload's own: seconds between its log lines of cycles,
                                misses and messages (default ``LOG_INTERVAL_SECONDS``; 0: none)
 =============================  ===============================================================
@@ -34,6 +37,7 @@ from __future__ import annotations
 
 __all__ = [
     "ENV_CPU",
+    "ENV_DNN_MODELS",
     "ENV_FLEET",
     "ENV_HARDWARE_TYPE",
     "ENV_LOG_INTERVAL",
@@ -67,6 +71,7 @@ ENV_PROFILE_OUTPUT = "FOGFLEET_PROFILE_OUTPUT"
 ENV_METRICS_HOST = "FOGFLEET_METRICS_HOST"
 ENV_METRICS_PORT = "FOGFLEET_METRICS_PORT"
 ENV_LOG_INTERVAL = "FOGFLEET_LOG_INTERVAL_SECONDS"
+ENV_DNN_MODELS = "FOGFLEET_DNN_MODELS"
 
 METRICS_PORT = 9100  # the metrics contract and /healthz, in every module container
 LOG_INTERVAL_SECONDS = 10.0  # a module's sign of life in `kubectl logs`

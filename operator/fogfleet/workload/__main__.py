@@ -1,5 +1,5 @@
-"""``python -m fogfleet.workload module | probe | discovery-server`` (the ROS 2 workload image's
-entry points)."""
+"""``python -m fogfleet.workload module | dnn | probe | discovery-server`` (the ROS 2 workload
+image's entry points)."""
 
 from __future__ import annotations
 
@@ -12,9 +12,12 @@ from fogfleet.contract.env import (
     ENV_LOG_INTERVAL,
     ENV_METRICS_HOST,
     ENV_METRICS_PORT,
+    ENV_MODULE_SPEC,
+    ENV_ROLE,
     METRICS_PORT,
 )
 
+from .fallback import Role
 from .heartbeat import log_interval
 from .profile import DEFAULT_OUTPUT, ENV_PROFILE_OUTPUT, profile_cycles, run_profile
 from .spec import WorkloadSpec
@@ -52,6 +55,21 @@ def main(argv: list[str] | None = None) -> int:
         help="seconds between the log lines of cycles, misses and messages (default: "
         "$FOGFLEET_LOG_INTERVAL_SECONDS, else 10; 0: none)",
     )
+    n = sub.add_parser(
+        "dnn",
+        help="a split DNN module's head or tail ($FOGFLEET_ROLE) from $FOGFLEET_MODULE_SPEC",
+    )
+    n.add_argument("--host", default=os.environ.get(ENV_METRICS_HOST, "0.0.0.0"))
+    n.add_argument("--port", type=int, default=int(os.environ.get(ENV_METRICS_PORT, METRICS_PORT)))
+    n.add_argument("--log-interval", type=_log_seconds, default=None, metavar="SECONDS")
+    n.add_argument(
+        "--link-mbit",
+        type=_link_mbit,
+        default=None,
+        metavar="MBIT",
+        help="experiments (the head): hold each tensor back as an uplink of MBIT Mbit/s would "
+        "(a slow link on one host)",
+    )
     p = sub.add_parser(
         "probe", help="measure the cycle times of the module in $FOGFLEET_MODULE_SPEC (sidecar)"
     )
@@ -72,6 +90,8 @@ def main(argv: list[str] | None = None) -> int:
     except ValueError as exc:
         print(f"fogfleet-workload: {exc}", file=sys.stderr)
         return 2
+    if ns.cmd == "dnn":
+        return _dnn(spec, ns.host, ns.port, ns.log_interval, ns.link_mbit)
     if ns.cmd == "probe":
         from .probe import run_probe
 
@@ -116,6 +136,32 @@ def main(argv: list[str] | None = None) -> int:
     return 0
 
 
+def _dnn(
+    spec: WorkloadSpec, host: str, port: int, every: float | None, link_mbit: float | None
+) -> int:
+    """A split DNN module's side: its spec must carry ``dnn`` and its role be head or tail."""
+    if spec.dnn is None:
+        print(f'fogfleet-workload: dnn: {ENV_MODULE_SPEC} has no "dnn" key', file=sys.stderr)
+        return 2
+    if spec.role not in (Role.HEAD, Role.TAIL):
+        print(f"fogfleet-workload: dnn: {ENV_ROLE}={spec.role.value!r}: head or tail",
+              file=sys.stderr)  # fmt: skip
+        return 2
+    if spec.role is Role.HEAD and not spec.publishes:
+        print("fogfleet-workload: dnn: the head publishes its answers on the module's first "
+              "output topic, and it has none", file=sys.stderr)  # fmt: skip
+        return 2
+    try:
+        seconds = every if every is not None else log_interval(os.environ)
+    except ValueError as exc:
+        print(f"fogfleet-workload: {exc}", file=sys.stderr)
+        return 2
+    from .dnn.ros import models_folder, run_dnn
+
+    run_dnn(spec, spec.role.value, models_folder(os.environ), host, port, seconds, None, link_mbit)
+    return 0
+
+
 def _profile(spec: WorkloadSpec, cycles: int, what: str) -> int:
     """A profiling Job's run (``workload.profile``): no ROS, one result line."""
     import random
@@ -155,6 +201,11 @@ def _bounded(text: str, most: float, what: str, given: str = "") -> float:
 def _cpu_work(text: str) -> float:
     """``MILLIS``: above 0, at most 10000."""
     return _bounded(text, 10000, "milliseconds of CPU per cycle,")
+
+
+def _link_mbit(text: str) -> float:
+    """``MBIT``: above 0, at most 100000."""
+    return _bounded(text, 100000, "Mbit/s,")
 
 
 def _log_seconds(text: str) -> float:

@@ -22,6 +22,8 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from enum import StrEnum
 
+from fogfleet.contract.dnn import ROLE_HEAD, ROLE_TAIL
+
 __all__ = ["FirstResponse", "Role", "Source", "Takeover", "remote_topic"]
 
 REMOTE_SUFFIX = "remote"
@@ -31,6 +33,10 @@ class Role(StrEnum):
     PRIMARY = "primary"  # no fallback: publishes its outputs itself
     REMOTE = "remote"  # offloaded, with a standby on its robot: publishes on T/remote
     STANDBY = "standby"  # on the robot: relays T/remote to T, or computes T when it is silent
+    # a split DNN module (``python -m fogfleet.workload dnn``; workload.dnn.ros): no fallback of
+    # this kind, its head holds the local model itself
+    HEAD = ROLE_HEAD  # on the robot: frames, the head of the split, the rule, the local model
+    TAIL = ROLE_TAIL  # off board: the tail of whatever split a frame names
 
 
 class Source(StrEnum):

@@ -8,6 +8,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
+from fogfleet.contract.dnn import SPEC_KEY
 from fogfleet.contract.env import (
     ENV_CPU,
     ENV_FLEET,
@@ -21,6 +22,7 @@ from fogfleet.contract.env import (
 from fogfleet.contract.env import ENV_MODULE_SPEC as ENV_SPEC
 from fogfleet.contract.quantity import parse_quantity as _quantity
 
+from .dnn.runspec import DnnRunSpec
 from .fallback import Role
 
 __all__ = [
@@ -103,6 +105,8 @@ class WorkloadSpec:
     # the module's own work (``module --cpu-work MILLIS``): seconds of CPU a cycle, burnt as
     # fast as the CPU limit allows; None: it plays its profile row
     cpu_work_s: float | None = None
+    # a split DNN module (the spec's "dnn" key, contract.dnn): its network, bounds and plan
+    dnn: DnnRunSpec | None = None
 
     @property
     def cpu_label(self) -> str:
@@ -168,6 +172,7 @@ class WorkloadSpec:
                     if "remoteCycleTimeMillis" in fallback
                     else None
                 ),
+                dnn=DnnRunSpec.from_raw(raw) if SPEC_KEY in raw else None,
             )
         except (KeyError, TypeError, ValueError) as exc:
             raise ValueError(f"{ENV_SPEC}: {exc!r}") from exc

@@ -92,6 +92,6 @@ def test_the_models_command_writes_every_half_loadable(tmp_path: Path) -> None:
     assert main(["models", "--out", str(tmp_path), *args]) == 0
     halves = [f"{n}.{half}.onnx" for n in split_point_names(SMALL) for half in ("head", "tail")]
     assert sorted(p.name for p in tmp_path.iterdir()) == sorted(
-        [*halves, "full.onnx", "local.onnx"]
+        [*halves, "full.onnx", "local.onnx", "weights.bin"]
     )
     onnx.checker.check_model(onnx.load(tmp_path / "bneck.tail.onnx"))

@@ -1,0 +1,198 @@
+"""The robot's side of a split module, one frame at a time (no ROS, no onnxruntime here).
+
+Per frame (one every ``cycleTimeMillis``): decide (``decide.Decider``), send a probe, run the
+head of the chosen split (or nothing, for full offload) and send what crosses, then wait for
+the tail's answer until ``alpha`` after the frame began. No answer by then: the link is taken
+as cut and the resident local model answers (RoboEC2: "to deal with extreme conditions such as
+disconnection, RoboEC2 deploys two models", Section IV-A), so the frame is still answered
+within alpha + the local model's time; it is counted (``FrameResult.by``). When the local model
+is the action, it answers at once and the probe alone watches the link come back.
+
+The clock, the networks, the sender and the mailbox of replies are injected: the unit tests
+drive a frame with a clock they move; ``ros.py`` wires rclpy, onnxruntime and the metrics.
+"""
+
+from __future__ import annotations
+
+import threading
+from collections.abc import Callable
+from dataclasses import dataclass
+from enum import StrEnum
+from typing import Any, Protocol
+
+from .decide import Decider
+from .runspec import DnnRunSpec
+from .wire import Kind, Packet
+
+__all__ = ["MAX_IN_FLIGHT", "By", "FrameResult", "Head", "Mailbox", "RobotParts"]
+
+MAX_IN_FLIGHT = 50  # frames whose late answer still measures the link (5 s at 10 Hz)
+
+
+class By(StrEnum):
+    """Who answered a frame."""
+
+    TAIL = "tail"  # the off-board action's answer came within alpha
+    LOCAL = "local"  # the local model was the action
+    TIMEOUT = "local after timeout"  # the tail's answer did not come within alpha
+
+
+class RobotParts(Protocol):
+    """The robot's networks (``sessions.RobotNets``)."""
+
+    def capture(self, frame: int) -> Any: ...
+
+    def head(self, index: int, frame: Any) -> bytes: ...
+
+    def local(self, frame: Any) -> bytes: ...
+
+
+@dataclass(frozen=True)
+class FrameResult:
+    frame: int
+    action: str  # the action run (a timed-out frame: the off-board one it tried)
+    by: By
+    answer: bytes
+    started: float  # the clock's seconds
+    predicted_s: float
+    real_s: float
+    proposed: str  # the rule's proposal this frame ("" before the link is known)
+    reason: str
+
+    @property
+    def late(self) -> bool:
+        """Longer than alpha (set by ``Head``)."""
+        return self.real_s > self.alpha_s
+
+    alpha_s: float = float("inf")
+
+
+class Mailbox:
+    """The tail's answers by frame, handed from the receiving thread to the frame's."""
+
+    def __init__(self, clock: Callable[[], float]) -> None:
+        self.clock = clock
+        self._cond = threading.Condition()
+        self._box: dict[int, tuple[Packet, float]] = {}
+
+    def put(self, packet: Packet, at: float) -> None:
+        with self._cond:
+            self._box[packet.frame] = (packet, at)
+            self._cond.notify_all()
+
+    def wait(self, frame: int, until: float) -> tuple[Packet, float] | None:
+        """Frame ``frame``'s answer and its arrival, or None when ``until`` passes first; every
+        older answer is forgotten (a late answer is of no use: its frame was answered)."""
+        with self._cond:
+            while True:
+                got = self._box.pop(frame, None)
+                if got is not None or self.clock() >= until:
+                    for old in [f for f in self._box if f < frame]:
+                        del self._box[old]
+                    return got
+                self._cond.wait(until - self.clock())
+
+
+class Head:
+    """One split module's robot side: ``frame()`` per cycle, ``receive()`` per reply."""
+
+    def __init__(
+        self,
+        run: DnnRunSpec,
+        parts: RobotParts,
+        send: Callable[[Packet], None],
+        clock: Callable[[], float],
+        mailbox: Mailbox | None = None,
+    ) -> None:
+        self.run, self.parts, self.send, self.clock = run, parts, send, clock
+        self.decider = Decider(run)
+        self.mailbox = mailbox if mailbox is not None else Mailbox(clock)
+        self.lock = threading.Lock()  # the decider: the frame's thread and the receiver's
+        self.count = 0
+        self.probes: dict[int, float] = {}  # frame -> when its probe left (until echoed)
+        self.echoed_in_time: dict[int, bool] = {}
+        self.tensors: dict[int, int] = {}  # frame -> bytes sent (until answered)
+
+    def receive(self, packet: Packet) -> None:
+        """A reply from the tail (an echo or an answer), as it arrives. Every reply measures
+        the link, a late one too (a slow link is not a cut: its answers say how slow)."""
+        now = self.clock()
+        if packet.kind is Kind.ECHO:
+            with self.lock:
+                sent = self.probes.pop(packet.frame, None)
+                if sent is None:
+                    return
+                rtt = now - packet.sent_ns / 1e9
+                self.decider.link.echo(rtt)
+                self.echoed_in_time[packet.frame] = rtt <= self.decider.alpha
+        elif packet.kind is Kind.ANSWER:
+            with self.lock:
+                sent_bytes = self.tensors.pop(packet.frame, None)
+                if sent_bytes is not None:
+                    tail_s = packet.tail_us / 1e6
+                    rtt = now - packet.sent_ns / 1e9
+                    self.decider.link.answer(rtt, tail_s, sent_bytes + len(packet.payload))
+                    self.decider.parts.ran_tail(packet.action, tail_s)
+            self.mailbox.put(packet, now)
+
+    def _link_state(self) -> None:
+        """The previous frames' probes: one echoed within alpha clears a cut; one whose alpha
+        passed without an echo makes one (RoboEC2: a link is disconnected or not, per step)."""
+        now, alpha = self.clock(), self.decider.alpha
+        for f, sent in list(self.probes.items()):
+            if now - sent > alpha:
+                del self.probes[f]
+                self.echoed_in_time[f] = False
+        for f in sorted(self.echoed_in_time):
+            self.decider.cut = not self.echoed_in_time.pop(f)
+
+    def frame(self) -> FrameResult:
+        """Run one frame; its answer, who gave it and how long it took."""
+        start = self.clock()
+        self.count += 1
+        n = self.count
+        with self.lock:
+            self._link_state()
+            decision = self.decider.decide()
+            self.probes[n] = start
+        action = decision.action
+        stamp = int(start * 1e9)
+        self.send(Packet(Kind.PROBE, action.index, n, stamp))
+        image = self.parts.capture(n)
+        by, answer = By.LOCAL, b""
+        if action.offloaded:
+            t0 = self.clock()
+            data = self.parts.head(action.index, image)
+            t1 = self.clock()
+            with self.lock:
+                if action.index > 0:
+                    self.decider.parts.ran_head(action.index, t1 - t0)
+                self.tensors = {f: b for f, b in self.tensors.items() if f > n - MAX_IN_FLIGHT}
+                self.tensors[n] = len(data)
+            self.send(Packet(Kind.TENSOR, action.index, n, int(t1 * 1e9), payload=data))
+            got = self.mailbox.wait(n, start + self.decider.alpha)
+            if got is not None:
+                by, answer = By.TAIL, got[0].payload
+            else:
+                with self.lock:
+                    self.decider.cut = True
+                by = By.TIMEOUT
+        if by is not By.TAIL:
+            t0 = self.clock()
+            answer = self.parts.local(image)
+            with self.lock:
+                self.decider.parts.ran_local(self.clock() - t0)
+        end = self.clock()
+        proposed = decision.proposed
+        return FrameResult(
+            frame=n,
+            action=action.name,
+            by=by,
+            answer=answer,
+            started=start,
+            predicted_s=decision.predicted_s,
+            real_s=end - start,
+            proposed="" if proposed is None else proposed.action.name,
+            reason="" if proposed is None else proposed.reason,
+            alpha_s=self.decider.alpha,
+        )

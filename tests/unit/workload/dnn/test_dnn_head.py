@@ -1,0 +1,186 @@
+"""A frame of the head and the tail's replies, on a clock the test moves (no ROS, no ONNX)."""
+
+from __future__ import annotations
+
+from runspecs import SPEC
+
+from fogfleet.workload.dnn.decide import HYSTERESIS_FRAMES
+from fogfleet.workload.dnn.head import By, FrameResult, Head, Mailbox
+from fogfleet.workload.dnn.runspec import DnnRunSpec
+from fogfleet.workload.dnn.tail import Tail
+from fogfleet.workload.dnn.wire import Kind, Packet
+
+CYCLE = 0.1
+ALPHA = 0.05
+HEAD_S, LOCAL_S, TAIL_S, ONE_WAY = 0.002, 0.0004, 0.0012, 0.001
+
+
+class Clock:
+    def __init__(self) -> None:
+        self.t = 100.0
+
+    def __call__(self) -> float:
+        return self.t
+
+
+class Parts:
+    """The robot's networks: each takes its declared time on the test's clock."""
+
+    def __init__(self, clock: Clock) -> None:
+        self.clock = clock
+
+    def capture(self, frame: int) -> int:
+        return frame
+
+    def head(self, index: int, frame: object) -> bytes:
+        self.clock.t += HEAD_S
+        return b"t" * (6272 if index == 2 else 401408 if index == 1 else 150528)
+
+    def local(self, frame: object) -> bytes:
+        self.clock.t += LOCAL_S
+        return b"local"
+
+
+class TailParts:
+    def tail(self, index: int, data: bytes) -> bytes:
+        if index > 2:
+            raise KeyError(index)
+        return b"tail"
+
+
+class Link:
+    """The link and the tail node: what the head sends comes back one way later, plus the
+    tail's time for a tensor; nothing while ``up`` is False."""
+
+    def __init__(self, clock: Clock) -> None:
+        self.clock, self.up = clock, True
+        self.queue: list[tuple[float, Packet]] = []
+        self.sent: list[Packet] = []
+        self.tail = Tail(TailParts(), self._reply, clock)
+        self.head: Head | None = None
+
+    def send(self, packet: Packet) -> None:
+        self.sent.append(packet)
+        if self.up:
+            self.tail.receive(packet)
+
+    def _reply(self, packet: Packet) -> None:
+        work = TAIL_S if packet.kind is Kind.ANSWER else 0.0
+        self.queue.append((self.clock.t + 2 * ONE_WAY + work, packet))
+
+    def deliver(self, until: float) -> None:
+        assert self.head is not None
+        self.queue.sort(key=lambda tp: tp[0])
+        while self.queue and self.queue[0][0] <= until:
+            at, packet = self.queue.pop(0)
+            self.clock.t = max(self.clock.t, at)
+            if packet.kind is Kind.ANSWER:
+                packet = Packet(packet.kind, packet.action, packet.frame, packet.sent_ns,
+                                round(TAIL_S * 1e6), packet.payload)  # fmt: skip
+            self.head.receive(packet)
+
+
+class FakeMailbox(Mailbox):
+    """Replies are delivered up to ``until``; then the clock stands at ``until`` if the
+    frame's answer did not come (the real mailbox would have waited that long)."""
+
+    def __init__(self, clock: Clock, link: Link) -> None:
+        super().__init__(clock)
+        self.link, self.test_clock = link, clock
+
+    def wait(self, frame: int, until: float) -> tuple[Packet, float] | None:
+        self.link.deliver(until)
+        if frame not in self._box:
+            self.test_clock.t = max(self.test_clock.t, until)
+        return super().wait(frame, until)
+
+
+def _setup() -> tuple[Head, Link, Clock]:
+    clock = Clock()
+    link = Link(clock)
+    head = Head(DnnRunSpec.from_raw(SPEC), Parts(clock), link.send, clock,
+                FakeMailbox(clock, link))  # fmt: skip
+    link.head = head
+    return head, link, clock
+
+
+def _frames(head: Head, link: Link, clock: Clock, n: int) -> list[FrameResult]:
+    out = []
+    for _ in range(n):
+        start = clock.t
+        out.append(head.frame())
+        link.deliver(start + CYCLE)
+        clock.t = start + CYCLE
+    return out
+
+
+def test_the_tail_answers_the_planned_split_within_alpha() -> None:
+    head, link, clock = _setup()
+    results = _frames(head, link, clock, 10)
+    assert {(r.action, r.by) for r in results} == {("bneck", By.TAIL)}
+    expected = HEAD_S + 2 * ONE_WAY + TAIL_S
+    assert all(abs(r.real_s - expected) < 1e-9 and not r.late for r in results)
+    kinds = [p.kind for p in link.sent[:2]]
+    assert kinds == [Kind.PROBE, Kind.TENSOR]  # the probe leaves first
+    estimate = head.decider.link.link()
+    assert estimate is not None and abs(estimate.latency - ONE_WAY) < 1e-9
+    assert results[-1].proposed == "bneck"
+
+
+def test_a_silent_tail_makes_the_local_model_answer_after_alpha_then_at_once() -> None:
+    head, link, clock = _setup()
+    _frames(head, link, clock, 5)
+    link.up = False
+    results = _frames(head, link, clock, 5)
+    first, rest = results[0], results[1:]
+    assert (first.action, first.by) == ("bneck", By.TIMEOUT) and first.answer == b"local"
+    # answered within alpha + the local model's time, and counted as late
+    assert abs(first.real_s - (ALPHA + LOCAL_S)) < 1e-9 and first.late
+    assert all(r.by is By.LOCAL and r.action == "tiny" for r in rest)
+    assert all(r.real_s < ALPHA for r in rest)
+    # probes go on while the link is down: they will see it come back
+    assert sum(p.kind is Kind.PROBE for p in link.sent[-4:]) == 4
+
+
+def test_the_split_returns_after_the_hysteresis_when_the_tail_is_back() -> None:
+    head, link, clock = _setup()
+    _frames(head, link, clock, 5)
+    link.up = False
+    _frames(head, link, clock, 5)
+    link.up = True
+    results = _frames(head, link, clock, HYSTERESIS_FRAMES + 3)
+    actions = [r.action for r in results]
+    # the first frame still decides on the cut; its probe's echo shows the link is back, and
+    # the split returns once the rule has proposed it HYSTERESIS_FRAMES frames in a row
+    assert actions[:HYSTERESIS_FRAMES] == ["tiny"] * HYSTERESIS_FRAMES
+    assert actions[HYSTERESIS_FRAMES:] == ["bneck"] * 3
+    assert results[-1].by is By.TAIL
+
+
+def test_a_late_answer_still_measures_the_link() -> None:
+    head, link, clock = _setup()
+    _frames(head, link, clock, 3)
+    before = head.decider.link.moving_s.value
+    sent = clock.t + HEAD_S  # when this frame's tensor leaves
+    link.up = False
+    r = head.frame()
+    assert r.by is By.TIMEOUT
+    # its answer comes 80 ms late: after alpha (the frame was answered), before the next
+    clock.t = sent + 0.080
+    head.receive(Packet(Kind.ANSWER, 2, r.frame, int(sent * 1e9), 1200, b"tail"))
+    after = head.decider.link.moving_s.value
+    assert before is not None and after is not None and after > before
+
+
+def test_the_tail_echoes_probes_and_answers_tensors_with_its_compute_time() -> None:
+    clock = Clock()
+    out: list[Packet] = []
+    refused: list[str] = []
+    tail = Tail(TailParts(), out.append, clock, refused.append)
+    tail.receive(Packet(Kind.PROBE, 2, 7, 123))
+    tail.receive(Packet(Kind.TENSOR, 2, 7, 456, payload=b"x"))
+    tail.receive(Packet(Kind.TENSOR, 9, 8, 789, payload=b"x"))
+    assert [(p.kind, p.frame, p.sent_ns) for p in out] == [(Kind.ECHO, 7, 123),
+                                                           (Kind.ANSWER, 7, 456)]  # fmt: skip
+    assert out[1].payload == b"tail" and tail.answered == 1
+    assert refused and "action 9" in refused[0]
