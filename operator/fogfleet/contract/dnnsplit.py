@@ -58,7 +58,6 @@ __all__ = [
 ]
 
 BITS_PER_BYTE = 8
-FULL_OFFLOAD = "full offload"  # action 0's name
 
 
 class Spotlight(StrEnum):

@@ -25,6 +25,7 @@ from fogfleet.api.names import label_value
 from fogfleet.api.v1alpha1.fallback import Fallback
 from fogfleet.api.v1alpha1.robotfleet import RosSettings
 from fogfleet.api.v1alpha1.softwaremodule import ProfileEntry, SoftwareModule
+from fogfleet.contract.dnn import SPEC_KEY
 from fogfleet.contract.env import (
     ENV_CPU,
     ENV_FLEET,
@@ -173,7 +174,7 @@ def module_spec_json(
     if node_rows:
         body["profileByNode"] = {n: [row.wire()] for n, row in sorted(node_rows.items())}
     if split is not None:
-        body["dnn"] = dict(split)
+        body[SPEC_KEY] = dict(split)
     if fallback is not None:
         body["fallback"] = {
             "silentCycles": fallback.silent_cycles,

@@ -90,8 +90,9 @@ def main(argv: list[str] | None = None) -> int:
     except ValueError as exc:
         print(f"fogfleet-workload: {exc}", file=sys.stderr)
         return 2
-    if ns.cmd == "dnn":
-        return _dnn(spec, ns.host, ns.port, ns.log_interval, ns.link_mbit)
+    if ns.cmd == "dnn" or (ns.cmd == "module" and spec.dnn is not None):
+        # a split module's pods run the image's default command (module): its spec says it
+        return _dnn(spec, ns.host, ns.port, ns.log_interval, getattr(ns, "link_mbit", None))
     if ns.cmd == "probe":
         from .probe import run_probe
 
