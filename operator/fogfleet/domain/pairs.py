@@ -93,9 +93,9 @@ def rows_for(module: SoftwareModule, hardware_type: str, speed_factor: float) ->
 
     The one place that decides which row a module runs with on a node: the planner's pairs and
     the rendered pod (``render.ros``) both ask here, so a pod plays the rows it was planned
-    with. A split network (``spec.dnn``) has no rows of its own: its pod plays the whole
-    network's time at each CPU step (``dnnpairs.dnn_rows``) until the workload runs the real
-    network's head and tail (issue 48)."""
+    with. A split network (``spec.dnn``) has no rows of its own: its pods run the real network
+    (``workload.dnn``, which ignores rows); these are the whole network's time at each CPU step
+    (``dnnpairs.dnn_rows``), what its status reports as declared."""
     if module.spec.dnn is not None:
         full = module.spec.dnn.full_millis / 1e3 / max(speed_factor, 1e-6)
         return dnnpairs.dnn_rows(full, math.inf)
