@@ -106,6 +106,9 @@ def test_the_tail_runs_on_the_edge_with_the_split_the_rule_takes(
         assert "minAccuracy 0.8" in entries[robot]["split"]["reason"]
     kube.wait_for("the tail answering robot-1's frames", lambda: _frames(head, "tail") > 50, 120, 2)
     # what the head measures may favour the whole network on a fast link; never the others
+    print(
+        f"robot-1's head at 100 Mbit/s: {_action(head)}, frames by the tail {_frames(head, 'tail')}"
+    )
     assert _action(head) in {"bneck", "full offload"}
     assert scrape_series(head, "fogfleet_dnn_timeouts_total") <= 2  # start-up only
 
@@ -121,6 +124,8 @@ def test_a_slow_link_leaves_only_the_bottleneck_split(
     late = scrape_series(head, "fogfleet_dnn_late_frames_total")
     time.sleep(20)
     served = _frames(head, "tail") - before
+    over = scrape_series(head, "fogfleet_dnn_late_frames_total") - late
+    print(f"at 5 Mbit/s, 15 ms: {_action(head)}, {served} frames by the tail in 20 s, {over} late")
     assert served >= 150, served  # 10 frames/s, answered by the tail across the slow link
     assert _action(head) == "bneck"
     # the 6 KB tensor crosses in 10 ms: a frame takes ~60 ms against alpha's 100
@@ -140,6 +145,10 @@ def test_a_cut_link_hands_every_frame_to_the_local_model_and_the_split_returns(
     cluster.reset_link(ROBOTS[0])
     kube.wait_for("robot-1 reachable again", lambda: reachable(head), 60, 1)
     answered = _frames(head, "local after timeout") + _frames(head, "local") - local
+    waited = scrape_series(head, "fogfleet_dnn_timeouts_total") - timeouts
+    over = scrape_series(head, "fogfleet_dnn_late_frames_total") - late
+    print(f"a {CUT_SECONDS} s cut: {answered} frames by the local model, {waited} after a "
+          f"timeout, {over} late")  # fmt: skip
     # every frame of the cut is the local model's (10 a second)
     assert answered >= 0.8 * CUT_SECONDS * 1000 / ALPHA_MS, answered
     # the first frame waits alpha for the tail, then the local model answers at once: only the
