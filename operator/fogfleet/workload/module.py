@@ -23,6 +23,7 @@ from .heartbeat import run_heartbeat
 from .messages import Header, decode, encode
 from .metrics import WorkloadMetrics
 from .spec import WorkloadSpec, mean_episode_s
+from .spin import spin_until_stopped
 from .work import Work, work_for
 
 __all__ = ["run_module"]
@@ -236,7 +237,6 @@ def run_module(
     rng = random.Random(seed)
     work = work_for(spec, rng)  # forks a row's workers: before ROS starts
     import rclpy
-    from rclpy.experimental.events_executor import EventsExecutor
 
     metrics = WorkloadMetrics(
         spec.module, spec.robot, spec.tier, spec.hardware_type, spec.cpu_label
@@ -256,21 +256,9 @@ def run_module(
             target=run_heartbeat, args=(metrics.tally, who, log_interval, stop), daemon=True
         )
     )
-    for w in workers:
-        w.start()
-    executor = EventsExecutor()
-    executor.add_node(node)
-    deadline = None if duration is None else time.monotonic() + duration
     try:
-        while not stop.is_set() and (deadline is None or time.monotonic() < deadline):
-            executor.spin_once(timeout_sec=0.1)
+        spin_until_stopped(node, stop, workers, duration)
     finally:
-        stop.set()
-        for w in workers:
-            w.join(timeout=5)
-        executor.shutdown()
-        node.destroy_node()
-        rclpy.try_shutdown()
         work.close()
         server.shutdown()
         server.server_close()

@@ -9,12 +9,12 @@ cycle, and counted. A new tail brings the split back after the hysteresis.
 
 from __future__ import annotations
 
+import copy
 import itertools
 import json
 import os
 import re
 import signal
-import socket
 import subprocess
 import sys
 import time
@@ -27,6 +27,9 @@ import pytest
 pytest.importorskip("rclpy", reason="the [ros] extra is part of `make venv`")
 pytest.importorskip("onnxruntime", reason="the [dnn] extra is part of `make venv`")
 
+from tests.integration.workload.ports import free_port
+from tests.unit.workload.dnn.runspecs import SPEC
+
 from fogfleet.workload.discovery import discovery_command
 from fogfleet.workload.dnn.network import NetSpec
 from fogfleet.workload.dnn.store import write_models
@@ -34,28 +37,7 @@ from fogfleet.workload.dnn.store import write_models
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(240)]
 
 CYCLE_S, ALPHA_S = 0.1, 0.05
-DETECTOR = {
-    "cycleTimeMillis": 100,
-    "activationPercent": 100,
-    "topics": {"publishes": [{"name": "objects", "sizeBytes": 256, "rateHz": 10}]},
-    "dnn": {
-        "spotlight": "time",
-        "maxLatencyMillis": 50,
-        "minAccuracy": 0.8,
-        "inputBytes": 150528,
-        "outputBytes": 4000,
-        "accuracy": 0.92,
-        "fullMillis": 3.8,
-        "splitPoints": [
-            {"name": "b6", "headMillis": 2.0, "tailMillis": 1.2, "tensorBytes": 401408},
-            {"name": "bneck", "headMillis": 2.0, "tailMillis": 1.2, "tensorBytes": 6272},
-        ],
-        "localModel": {"name": "tiny", "robotMillis": 0.4, "accuracy": 0.61},
-        "robotFactor": 1,
-        "tailFactor": 1,
-        "plannedAction": "bneck",
-    },
-}
+DETECTOR = {**copy.deepcopy(SPEC), "activationPercent": 100}  # the renderer's spec (contract.dnn)
 RECORDER = """
 import time, rclpy
 from rclpy.qos import QoSProfile, ReliabilityPolicy
@@ -72,24 +54,17 @@ rclpy.spin(node)
 """
 
 
-def _port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        port: int = s.getsockname()[1]
-        return port
-
-
 class Pair:
     """The discovery server, the head, the tail and a recorder of the head's answers."""
 
     def __init__(self, tmp: Path, models: Path) -> None:
         self.tmp, self.models = tmp, models
         self.procs: list[subprocess.Popen[bytes]] = []
-        port = _port()
+        port = free_port()
         argv, env = discovery_command("127.0.0.1", port)
         self._start(argv, env, "server")
         self.server = f"127.0.0.1:{port}"
-        self.head_port = _port()
+        self.head_port = free_port()
         self.record = tmp / "answers.txt"
 
     def env(self, role: str) -> dict[str, str]:
@@ -117,7 +92,7 @@ class Pair:
 
     def tail(self, name: str) -> subprocess.Popen[bytes]:
         argv = [sys.executable, "-m", "fogfleet.workload", "dnn", "--host", "127.0.0.1",
-                "--port", str(_port())]  # fmt: skip
+                "--port", str(free_port())]  # fmt: skip
         return self._start(argv, self.env("tail"), name)
 
     def recorder(self) -> None:

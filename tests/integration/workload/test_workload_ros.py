@@ -11,7 +11,6 @@ import json
 import os
 import re
 import signal
-import socket
 import subprocess
 import sys
 import time
@@ -22,6 +21,8 @@ from pathlib import Path
 import pytest
 
 pytest.importorskip("rclpy", reason="the [ros] extra is part of `make venv`")
+
+from tests.integration.workload.ports import free_port
 
 from fogfleet.workload.discovery import discovery_command
 
@@ -68,13 +69,6 @@ rclpy.spin(node)
 """
 
 
-def _port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        port: int = s.getsockname()[1]
-        return port
-
-
 def _env(
     robot: str, module: str, spec: dict[str, object], server: str | None, role: str = "primary"
 ) -> dict[str, str]:
@@ -104,7 +98,7 @@ class Fleet:
         self.ports: dict[tuple[str, str], int] = {}
 
     def server(self) -> str:
-        port = _port()
+        port = free_port()
         argv, env = discovery_command("127.0.0.1", port)
         self._start(argv, env, "server")
         return f"127.0.0.1:{port}"
@@ -121,7 +115,7 @@ class Fleet:
     ) -> subprocess.Popen[bytes]:
         """Start an instance, served under (robot, name or module); its output goes to
         ``log(robot, name or module)``."""
-        port = _port()
+        port = free_port()
         self.ports[(robot, name or module)] = port
         argv = [sys.executable, "-m", "fogfleet.workload", "module", "--host", "127.0.0.1",
                 "--port", str(port)]  # fmt: skip
@@ -140,7 +134,7 @@ class Fleet:
 
     def probe(self, robot: str, module: str, spec: dict[str, object], server: str | None) -> None:
         """The cycle-time sidecar beside (robot, module), served under (robot, module-probe)."""
-        port = _port()
+        port = free_port()
         self.ports[(robot, f"{module}-probe")] = port
         argv = [sys.executable, "-m", "fogfleet.workload", "probe", "--host", "127.0.0.1",
                 "--port", str(port)]  # fmt: skip

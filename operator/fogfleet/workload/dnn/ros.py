@@ -25,6 +25,7 @@ from fogfleet.contract.env import ENV_DNN_MODELS
 from ..messages import Header, encode
 from ..metrics import WorkloadMetrics
 from ..spec import WorkloadSpec
+from ..spin import spin_until_stopped
 from .dnnmetrics import DnnMetrics, dnn_line
 from .head import FrameResult, Head
 from .runspec import DnnRunSpec, action_names
@@ -57,7 +58,6 @@ def run_dnn(
     (experiments, the head only): each tensor is held back as long as an uplink of that many
     Mbit/s would take to carry it, so a test on one host sees a slow link's choice."""
     import rclpy
-    from rclpy.experimental.events_executor import EventsExecutor
     from rclpy.qos import QoSProfile, ReliabilityPolicy
     from std_msgs.msg import String, UInt8MultiArray
 
@@ -116,23 +116,11 @@ def run_dnn(
 
     node.create_subscription(UInt8MultiArray, into, on_message, qos)
     server = base.serve(host, port)
-    for w in workers:
-        w.start()
     print(f"fogfleet-workload: {who}: {len(names)} split points from {folder}, plan "
           f"{run.planned_action!r}; {out} out, {into} in", flush=True)  # fmt: skip
-    executor = EventsExecutor()
-    executor.add_node(node)
-    deadline = None if duration is None else time.monotonic() + duration
     try:
-        while not stop.is_set() and (deadline is None or time.monotonic() < deadline):
-            executor.spin_once(timeout_sec=0.1)
+        spin_until_stopped(node, stop, workers, duration)
     finally:
-        stop.set()
-        for w in workers:
-            w.join(timeout=5)
-        executor.shutdown()
-        node.destroy_node()
-        rclpy.try_shutdown()
         server.shutdown()
         server.server_close()
 
