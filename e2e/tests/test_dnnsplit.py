@@ -110,7 +110,12 @@ def test_the_tail_runs_on_the_edge_with_the_split_the_rule_takes(
         f"robot-1's head at 100 Mbit/s: {_action(head)}, frames by the tail {_frames(head, 'tail')}"
     )
     assert _action(head) in {"bneck", "full offload"}
-    assert scrape_series(head, "fogfleet_dnn_timeouts_total") <= 2  # start-up only
+    # once the tail answers (the head's first frames may wait for a tail still starting),
+    # it answers in time: the local model steps in for at most one frame in twenty
+    frames, timeouts = _frames(head, "tail"), scrape_series(head, "fogfleet_dnn_timeouts_total")
+    time.sleep(10)
+    waited = scrape_series(head, "fogfleet_dnn_timeouts_total") - timeouts
+    assert waited <= 0.05 * (_frames(head, "tail") - frames), waited
 
 
 def test_a_slow_link_leaves_only_the_bottleneck_split(

@@ -5,7 +5,8 @@ Algorithm 1: "each time step is independent") is applied to the link the head es
 to the parts' measured times (``estimate``). Its answer is a *proposal*: the action the head
 runs changes only when another action has been proposed for ``HYSTERESIS_FRAMES`` frames in a
 row, except after a cut, when an off-board action has no answer to wait for and the local model
-takes over at once (Algorithm 1: disconnected => action n+1).
+takes over at once (Algorithm 1: disconnected => action n+1), and when the action run now is
+estimated to miss alpha (eq. 8's bound: the rule has dropped it, there is nothing to wait for).
 
 Before a probe's echo and a frame's answer have both come back, the link's bandwidth is
 unknown: the head runs the plan's action (the planner chose it with the declared table and the
@@ -91,6 +92,8 @@ class Decider:
             return Decision(action, None, math.inf if action.offloaded else action.time_s)
         model, _, _ = self.parts.model_now()
         choice = choose(model, cands)
-        at_once = self.cut and cands[self.hysteresis.current].offloaded
+        current = cands[self.hysteresis.current]
+        # no waiting when what runs now has no answer to wait for (cut) or would miss alpha
+        at_once = (self.cut and current.offloaded) or current.time_s > self.alpha
         action = cands[self.hysteresis.step(choice.action.index, at_once)]
         return Decision(action, choice, action.time_s)

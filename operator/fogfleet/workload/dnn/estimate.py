@@ -79,6 +79,17 @@ class LinkEstimator:
         self.moved_bytes.add(float(moved_bytes))
         self.moving_s.add(max(MIN_TRANSFER_S, both_ways - base))
 
+    def too_slow(self, waited_s: float, moved_bytes: int) -> None:
+        """``moved_bytes`` did not come back in ``waited_s`` although the link answers probes:
+        the bandwidth is below ``moved_bytes x 8 / waited_s``. A bound, not a sample (its
+        answer may never come): the estimate is capped there, never raised."""
+        waited = max(MIN_TRANSFER_S, waited_s)
+        if self.moved_bytes.value is None or self.moving_s.value is None:
+            self.moved_bytes.value, self.moving_s.value = float(moved_bytes), waited
+            return
+        at_cap = self.moved_bytes.value * waited / max(moved_bytes, 1)
+        self.moving_s.value = max(self.moving_s.value, at_cap)
+
     @property
     def echoed(self) -> bool:
         """A probe came back: the link is up, if not yet measured."""

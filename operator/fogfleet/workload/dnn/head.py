@@ -135,6 +135,16 @@ class Head:
                     self.decider.parts.ran_tail(packet.action, tail_s)
             self.mailbox.put(packet, now)
 
+    def _took_longer(self, sent_bytes: int, sent_at: float) -> None:
+        """A frame's answer did not come within alpha although its probe came back: the link is
+        up but too slow for what crossed. Its answer may never come (a slow link's queue drops
+        a large tensor), so the time waited bounds the bandwidth (``LinkEstimator.too_slow``):
+        without it a head whose action no answer comes back for would keep the fast link's
+        estimate and try that action again after every cut (RoboEC2 learns the transfer time
+        from what the robot measures, Section IV-B)."""
+        output = self.run.model.output_bytes
+        self.decider.link.too_slow(self.clock() - sent_at, sent_bytes + output)
+
     def _link_state(self) -> None:
         """The previous frames' probes: one echoed within alpha clears a cut; one whose alpha
         passed without an echo makes one (RoboEC2: a link is disconnected or not, per step)."""
@@ -176,6 +186,8 @@ class Head:
             else:
                 with self.lock:
                     self.decider.cut = True
+                    if self.echoed_in_time.get(n):
+                        self._took_longer(len(data), t1)
                 by = By.TIMEOUT
         if by is not By.TAIL:
             t0 = self.clock()

@@ -184,3 +184,53 @@ def test_the_tail_echoes_probes_and_answers_tensors_with_its_compute_time() -> N
                                                            (Kind.ANSWER, 7, 456)]  # fmt: skip
     assert out[1].payload == b"tail" and tail.answered == 1
     assert refused and "action 9" in refused[0]
+
+
+class SlowLink(Link):
+    """A link of ``RATE`` bit/s whose queue drops a tensor over ``QUEUE_BYTES`` (a token
+    bucket's limit): a tensor's answer comes its serialisation later; probes pass."""
+
+    RATE, QUEUE_BYTES = 5e6, 100_000
+
+    def __init__(self, clock: Clock) -> None:
+        super().__init__(clock)
+        self.slow = False
+        self.size: dict[int, int] = {}
+
+    def send(self, packet: Packet) -> None:
+        if self.slow and packet.kind is Kind.TENSOR:
+            if len(packet.payload) > self.QUEUE_BYTES:
+                self.sent.append(packet)  # sent, lost in the queue
+                return
+            self.size[packet.frame] = len(packet.payload)
+        super().send(packet)
+
+    def _reply(self, packet: Packet) -> None:
+        super()._reply(packet)
+        if packet.kind is Kind.ANSWER and self.slow:
+            at, p = self.queue[-1]
+            self.queue[-1] = (at + self.size.pop(packet.frame, 0) * 8 / self.RATE, p)
+
+
+def test_a_link_too_slow_for_the_raw_frame_moves_the_head_to_the_bottleneck_split() -> None:
+    # the cost spotlight offloads the whole network while the link is fast; then the link
+    # slows to 5 Mbit/s and its queue drops the raw frame (150 kB) but passes probes and
+    # bneck's 6 kB: the raw frame's answer never comes, yet its probe does
+    spec = {**SPEC, "dnn": {**SPEC["dnn"], "spotlight": "cost", "plannedAction": "full offload"}}
+    clock = Clock()
+    link = SlowLink(clock)
+    head = Head(DnnRunSpec.from_raw(spec), Parts(clock), link.send, clock,
+                FakeMailbox(clock, link))  # fmt: skip
+    link.head = head
+    fast = _frames(head, link, clock, 5)
+    assert {(r.action, r.by) for r in fast} == {("full offload", By.TAIL)}
+    link.slow = True
+    slow = _frames(head, link, clock, HYSTERESIS_FRAMES + 10)
+    # one raw frame waits alpha; the time it waited bounds the bandwidth, so full offload
+    # misses alpha and the head leaves it; bneck's answers then measure the 5 Mbit/s, and the
+    # head never goes back to the raw frame
+    timeouts = [r.frame for r in slow if r.by is By.TIMEOUT]
+    assert len(timeouts) == 1, [(r.action, r.by) for r in slow]
+    assert all(r.action == "bneck" and r.by is By.TAIL for r in slow[-HYSTERESIS_FRAMES:])
+    estimate = head.decider.link.link()
+    assert estimate is not None and estimate.bandwidth < 2 * SlowLink.RATE
