@@ -50,7 +50,7 @@ class Pair:
 
 class Refusal(str):
     """Why a module may not run on a node, in words, and the rule that says so (``rule``:
-    taxonomy, tier, device, gpu, realtimeKernel, privacy, profile). A ``str``, so the build
+    taxonomy, tier, device, gpu, realtimeKernel, privacy, profile, dnn). A ``str``, so the build
     joins refusals into its messages as before; ``fogfleet explain`` reads ``rule``."""
 
     rule: str
