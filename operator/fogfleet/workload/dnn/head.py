@@ -112,6 +112,8 @@ class Head:
         self.probes: dict[int, float] = {}  # frame -> when its probe left (until echoed)
         self.echoed_in_time: dict[int, bool] = {}
         self.tensors: dict[int, int] = {}  # frame -> bytes sent (until answered)
+        # a frame whose answer missed alpha while its probe came back: (frame, bytes, waited)
+        self.slow_evidence: tuple[int, int, float] | None = None
 
     def receive(self, packet: Packet) -> None:
         """A reply from the tail (an echo or an answer), as it arrives. Every reply measures
@@ -125,6 +127,8 @@ class Head:
                 rtt = now - packet.sent_ns / 1e9
                 self.decider.link.echo(rtt)
                 self.echoed_in_time[packet.frame] = rtt <= self.decider.alpha
+                if rtt <= self.decider.alpha:
+                    self._still_up(packet.frame)
         elif packet.kind is Kind.ANSWER:
             with self.lock:
                 sent_bytes = self.tensors.pop(packet.frame, None)
@@ -135,15 +139,18 @@ class Head:
                     self.decider.parts.ran_tail(packet.action, tail_s)
             self.mailbox.put(packet, now)
 
-    def _took_longer(self, sent_bytes: int, sent_at: float) -> None:
-        """A frame's answer did not come within alpha although its probe came back: the link is
-        up but too slow for what crossed. Its answer may never come (a slow link's queue drops
-        a large tensor), so the time waited bounds the bandwidth (``LinkEstimator.too_slow``):
-        without it a head whose action no answer comes back for would keep the fast link's
-        estimate and try that action again after every cut (RoboEC2 learns the transfer time
-        from what the robot measures, Section IV-B)."""
-        output = self.run.model.output_bytes
-        self.decider.link.too_slow(self.clock() - sent_at, sent_bytes + output)
+    def _still_up(self, frame: int) -> None:
+        """A later frame's probe came back in time after ``slow_evidence``'s frame timed out:
+        the link stayed up, so it was too slow for what crossed. That answer may never come (a
+        slow link's queue drops a large tensor), so the time waited bounds the bandwidth
+        (``LinkEstimator.too_slow``): without it a head whose action no answer comes back for
+        keeps the fast link's estimate and tries that action again after every cut (RoboEC2
+        learns the transfer time from what the robot measures, Section IV-B). A probe lost
+        instead (the link or the tail gone) drops the evidence: a cut says nothing of speed."""
+        if self.slow_evidence is not None and frame > self.slow_evidence[0]:
+            _, sent_bytes, waited = self.slow_evidence
+            self.decider.link.too_slow(waited, sent_bytes + self.run.model.output_bytes)
+            self.slow_evidence = None
 
     def _link_state(self) -> None:
         """The previous frames' probes: one echoed within alpha clears a cut; one whose alpha
@@ -153,6 +160,7 @@ class Head:
             if now - sent > alpha:
                 del self.probes[f]
                 self.echoed_in_time[f] = False
+                self.slow_evidence = None  # a cut: nothing learnt of the link's speed
         for f in sorted(self.echoed_in_time):
             self.decider.cut = not self.echoed_in_time.pop(f)
 
@@ -186,8 +194,10 @@ class Head:
             else:
                 with self.lock:
                     self.decider.cut = True
-                    if self.echoed_in_time.get(n):
-                        self._took_longer(len(data), t1)
+                    # its probe's echo tells of the link before the tensor, not after: it
+                    # must not clear this cut; a later probe's will (``_still_up``)
+                    if self.echoed_in_time.pop(n, False):  # up when it left: slow, or gone?
+                        self.slow_evidence = (n, len(data), self.clock() - t1)
                 by = By.TIMEOUT
         if by is not By.TAIL:
             t0 = self.clock()
