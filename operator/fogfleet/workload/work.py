@@ -57,7 +57,10 @@ class CpuWork(Work):
     def run(self) -> float:
         """Spin until this thread has used the work's CPU (the module's other threads, its
         middleware's, are not counted: they are not its work); returns the wall time."""
-        t0, wall0 = time.thread_time(), time.monotonic()
+        # the wall clock is read first and last, so the wall interval holds the CPU interval
+        # (the other order lost the time of one clock read: 4.9994 ms of wall for 5 ms of CPU)
+        wall0 = time.monotonic()
+        t0 = time.thread_time()
         x = 0
         while time.thread_time() - t0 < self.seconds:
             for _ in range(500):
