@@ -24,9 +24,13 @@ from .decide import Decider
 from .runspec import DnnRunSpec
 from .wire import Kind, Packet
 
-__all__ = ["MAX_IN_FLIGHT", "By", "FrameResult", "Head", "Mailbox", "RobotParts"]
+__all__ = ["EXPLORE_FRAMES", "MAX_IN_FLIGHT", "By", "FrameResult", "Head", "Mailbox", "RobotParts"]
 
 MAX_IN_FLIGHT = 50  # frames whose late answer still measures the link (5 s at 10 Hz)
+# While the local model runs over a link that is up, every this many frames the smallest split's
+# tensor is sent as a trial (the frame is still answered by the local model): its answer
+# re-measures the link, which nothing else would while no tensor crosses (1 s at 10 Hz)
+EXPLORE_FRAMES = 10
 
 
 class By(StrEnum):
@@ -139,6 +143,21 @@ class Head:
                     self.decider.parts.ran_tail(packet.action, tail_s)
             self.mailbox.put(packet, now)
 
+    def _trial(self, n: int, image: Any) -> None:
+        """Send frame ``n``'s tensor at the split that sends the fewest bytes, without waiting
+        for its answer, when the link is up: the answer measures the link (``receive``), so a
+        bound learnt from a slow spell or a busy tail is revised once the link is better."""
+        with self.lock:
+            if self.decider.cut or not self.run.model.split_points:
+                return
+        points = self.run.model.split_points
+        k = min(range(len(points)), key=lambda i: points[i].tensor_bytes) + 1
+        data = self.parts.head(k, image)
+        with self.lock:
+            self.tensors = {f: b for f, b in self.tensors.items() if f > n - MAX_IN_FLIGHT}
+            self.tensors[n] = len(data)
+        self.send(Packet(Kind.TENSOR, k, n, int(self.clock() * 1e9), payload=data))
+
     def _still_up(self, frame: int) -> None:
         """A later frame's probe came back in time after ``slow_evidence``'s frame timed out:
         the link stayed up, so it was too slow for what crossed. That answer may never come (a
@@ -178,6 +197,8 @@ class Head:
         self.send(Packet(Kind.PROBE, action.index, n, stamp))
         image = self.parts.capture(n)
         by, answer = By.LOCAL, b""
+        if not action.offloaded and n % EXPLORE_FRAMES == 0:
+            self._trial(n, image)
         if action.offloaded:
             t0 = self.clock()
             data = self.parts.head(action.index, image)

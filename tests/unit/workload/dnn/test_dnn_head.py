@@ -5,7 +5,7 @@ from __future__ import annotations
 from runspecs import SPEC
 
 from fogfleet.workload.dnn.decide import HYSTERESIS_FRAMES
-from fogfleet.workload.dnn.head import By, FrameResult, Head, Mailbox
+from fogfleet.workload.dnn.head import EXPLORE_FRAMES, By, FrameResult, Head, Mailbox
 from fogfleet.workload.dnn.runspec import DnnRunSpec
 from fogfleet.workload.dnn.tail import Tail
 from fogfleet.workload.dnn.wire import Kind, Packet
@@ -258,3 +258,17 @@ def test_a_tail_that_dies_mid_frame_teaches_nothing_of_the_links_speed() -> None
     after = head.decider.link.link()
     assert before is not None and after is not None
     assert after.bandwidth > 0.5 * before.bandwidth
+
+
+def test_a_bound_from_a_slow_spell_is_revised_by_the_trials_of_the_local_model() -> None:
+    # a bound says even bneck's 10 kB cannot cross in alpha: nothing off board is left, the
+    # local model answers; its trial tensors (one frame in EXPLORE_FRAMES) measure the link,
+    # which is fast again, and the split returns
+    head, link, clock = _setup()
+    _frames(head, link, clock, 5)
+    head.decider.link.too_slow(ALPHA, 6272 + 4000)
+    stuck = _frames(head, link, clock, 3)
+    assert {r.action for r in stuck} == {"tiny"}
+    results = _frames(head, link, clock, EXPLORE_FRAMES + HYSTERESIS_FRAMES + 5)
+    assert all(r.by is not By.TIMEOUT for r in results)  # a trial never holds a frame up
+    assert [r.action for r in results[-3:]] == ["bneck"] * 3
