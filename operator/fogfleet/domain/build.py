@@ -21,7 +21,7 @@ from fogfleet.api.v1alpha1.softwaremodule import Scope, SoftwareModule
 from fogfleet.contract.dnnsplit import DnnSplit
 from fogfleet.errors import InvalidSpec
 
-from .checks import module_cycle, node_capacity
+from .checks import capacity_of, module_cycle
 from .dnnpairs import model_of
 from .fallback import standbys
 from .network import Link, uplink
@@ -43,13 +43,6 @@ from .taxonomy import module_priority
 __all__ = ["build_problem", "refusals"]
 
 F64 = NDArray[np.float64]
-
-
-def _capacity(node: ComputeNode) -> tuple[float, float, float]:
-    got = node_capacity(node)
-    if isinstance(got, InvalidSpec):
-        raise got
-    return got
 
 
 def _pool_tiers(
@@ -169,7 +162,7 @@ def build_problem(
     namespace = fleet.metadata.namespace or "default"
     robots, others = resolve_nodes(fleet, catalog)
     nodes = robots + others
-    caps = np.array([_capacity(nd) for nd in nodes], dtype=np.float64)
+    caps = np.array([capacity_of(nd) for nd in nodes], dtype=np.float64)
     measured = measured_links or {}
     links = [measured.get(nd.metadata.name) or uplink(nd.spec) for nd in nodes]
     modules, wants = _resolve_modules(fleet, catalog, namespace)
@@ -257,7 +250,7 @@ def refusals(
     nodes = robots + others
     modules, _ = _resolve_modules(fleet, catalog, namespace)
     resolved = next(m for m in modules if m.module.metadata.name == instance.module)
-    caps = np.array([_capacity(nd) for nd in nodes], dtype=np.float64)
+    caps = np.array([capacity_of(nd) for nd in nodes], dtype=np.float64)
     links = [uplink(nd.spec) for nd in nodes]  # the refusals come before the transfer time
     table = PairTable(nodes, caps, links, corrections)
     names = [nd.metadata.name for nd in robots]

@@ -14,7 +14,7 @@ from fogfleet.errors import InvalidSpec
 
 from .references import reference_errors, resolve_nodes
 
-__all__ = ["fleet_errors", "module_cycle", "node_capacity"]
+__all__ = ["capacity_of", "fleet_errors", "module_cycle", "node_capacity"]
 
 
 def node_capacity(node: ComputeNode) -> tuple[float, float, float] | InvalidSpec:
@@ -36,6 +36,14 @@ def node_capacity(node: ComputeNode) -> tuple[float, float, float] | InvalidSpec
             "reserves all of the node's CPU",
         )
     return cpu, max(mem, 0.0), float(cap.gpu)
+
+
+def capacity_of(node: ComputeNode) -> tuple[float, float, float]:
+    """``node_capacity``, raising its InvalidSpec (the problem build's: the checks ran first)."""
+    got = node_capacity(node)
+    if isinstance(got, InvalidSpec):
+        raise got
+    return got
 
 
 def module_cycle(

@@ -29,7 +29,7 @@ from fogfleet.api.v1alpha1.softwaremodule import (
 )
 from fogfleet.errors import DanglingReference, InvalidSpec
 
-from .checks import node_capacity
+from .checks import capacity_of
 from .dnnpairs import robot_row
 from .pairs import profile_rows
 from .problem import F64, Instance, freeze
@@ -120,14 +120,6 @@ def variant_of(module: SoftwareModule, fallback: Fallback, catalog: Catalog) -> 
     return variant
 
 
-def node_capacity_cores(node: ComputeNode) -> float:
-    """The CPU cores ``node`` offers its modules."""
-    got = node_capacity(node)
-    if isinstance(got, InvalidSpec):
-        raise got
-    return got[0]
-
-
 @dataclass(frozen=True)
 class Standbys:
     """What the robots hold for their modules' standbys (``Problem.fallback*``)."""
@@ -177,7 +169,7 @@ def standbys(
             # a split network's head and local model stay on its robot (DNNSPLIT.md 3.2): held
             # there like a variant standby, whatever the plan
             net, net_cycle = split[inst.module]
-            held = robot_row(net, net_cycle, robots[h], node_capacity_cores(robots[h]))
+            held = robot_row(net, net_cycle, robots[h], capacity_of(robots[h])[0])
             if held is not None:
                 keep[i] = is_variant[i] = True
                 row[i] = (held.cpu, held.mean, held.std)
