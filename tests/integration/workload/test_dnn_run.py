@@ -18,7 +18,6 @@ import signal
 import subprocess
 import sys
 import time
-import urllib.request
 from collections.abc import Callable, Iterator
 from pathlib import Path
 
@@ -27,7 +26,7 @@ import pytest
 pytest.importorskip("rclpy", reason="the [ros] extra is part of `make venv`")
 pytest.importorskip("onnxruntime", reason="the [dnn] extra is part of `make venv`")
 
-from tests.integration.workload.ports import free_port
+from tests.integration.workload.ports import fogfleet_metrics, free_port
 from tests.unit.workload.dnn.runspecs import SPEC
 
 from fogfleet.workload.discovery import discovery_command
@@ -115,14 +114,7 @@ class Pair:
         return rows
 
     def metrics(self) -> dict[str, float]:
-        url = f"http://127.0.0.1:{self.head_port}/metrics"
-        text = urllib.request.urlopen(url, timeout=5).read().decode()
-        out: dict[str, float] = {}
-        for line in text.splitlines():
-            m = re.match(r"^(fogfleet_dnn_\w+)(\{[^}]*\})?\s+([0-9.eE+-]+)$", line)
-            if m:
-                out[m[1] + (m[2] or "")] = float(m[3])
-        return out
+        return fogfleet_metrics(self.head_port)
 
     def stop(self) -> None:
         for p in self.procs:

@@ -14,7 +14,6 @@ import signal
 import subprocess
 import sys
 import time
-import urllib.request
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -22,7 +21,7 @@ import pytest
 
 pytest.importorskip("rclpy", reason="the [ros] extra is part of `make venv`")
 
-from tests.integration.workload.ports import free_port
+from tests.integration.workload.ports import fogfleet_metrics, free_port
 
 from fogfleet.workload.discovery import discovery_command
 
@@ -147,15 +146,7 @@ class Fleet:
         return proc
 
     def metrics(self, robot: str, module: str) -> dict[str, float]:
-        url = f"http://127.0.0.1:{self.ports[(robot, module)]}/metrics"
-        text = urllib.request.urlopen(url, timeout=5).read().decode()
-        out: dict[str, float] = {}
-        for line in text.splitlines():
-            m = re.match(r"^(fogfleet_\w+)(\{[^}]*\})?\s+([0-9.eE+-]+)$", line)
-            if m:
-                key = m.group(1) + (m.group(2) or "")
-                out[key] = out.get(key, 0.0) + float(m.group(3))
-        return out
+        return fogfleet_metrics(self.ports[(robot, module)])
 
     def stop(self) -> None:
         for p in self.procs:
