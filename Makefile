@@ -149,6 +149,9 @@ bench-scale: venv cluster-tools ## The operator at 100, 300 and 1000 robots x 8 
 bench-real: venv cluster-tools images ## The paper's real experiment on the paper bed (started if not running): nsga2, nsga2-static, kube-scheduler (k8s-default) and kube-scheduler with honest requests (k8s-requests) x6 each + on-board x1, 90 s warm-up + 60 s windows; writes bench-real.json (~80 min); RESUME=FILE finishes a stopped run's schedule
 	$(BIN)/python -m e2e.bench.real $(if $(RESUME),--resume $(RESUME))
 
+bench-split: venv cluster-tools images ## A split network vs the whole network on the edge and on the robot, on the default bed's real nodes at a fast and a slow link (3 blocks x 3 arms, 20 s settle + 30 s windows; ~20 min); writes bench-split.json and docs/benchmarks/split.md
+	$(BIN)/python -m e2e.bench.split --docs docs/benchmarks/split.md
+
 bench-real-report: venv ## Tables, docs/benchmarks/real-nodes.md and its plot from bench-real.json
 	$(BIN)/python -m e2e.bench.real.report --json bench-real.json --docs docs/benchmarks/real-nodes.md --plot docs/benchmarks/real-nodes-perception.svg
 
@@ -168,4 +171,4 @@ clean: ## Remove the virtualenv and caches in the repo
 	rm -rf $(VENV) .pytest_cache .mypy_cache .ruff_cache
 
 
-.PHONY: bed-builds test-faults dashboard-check kubectl help venv lint unit integration docs-check test checkov images crds crds-check demo-offline bench-replan bench-scale-plan bench-cluster bench-scale bench-real bench-real-report cluster-tools cluster-up cluster-down cluster-status e2e e2e-kind e2e-k3d chart-lint bench demo clean
+.PHONY: bed-builds test-faults dashboard-check kubectl help venv lint unit integration docs-check test checkov images crds crds-check demo-offline bench-replan bench-scale-plan bench-cluster bench-scale bench-real bench-real-report bench-split cluster-tools cluster-up cluster-down cluster-status e2e e2e-kind e2e-k3d chart-lint bench demo clean

@@ -22,7 +22,8 @@ from e2e.bed.kube import Kube
 from e2e.bed.operator_fixtures import fleet, pods_by_instance
 from e2e.faults.cost import metrics_url
 from e2e.faults.cutfleet import fleet_pod, reachable
-from e2e.tests.rosbed import EDGE, ROBOTS, bed_objects, operated_fleet, ros_module, scrape_series
+from e2e.tests.dnnbed import ALPHA_MS, FLEET, MODULE, SLOW, head_action, split_objects
+from e2e.tests.rosbed import EDGE, ROBOTS, operated_fleet, scrape_series
 
 pytestmark = [
     pytest.mark.e2e,
@@ -32,35 +33,7 @@ pytestmark = [
     pytest.mark.timeout(600),
 ]
 
-FLEET = "splitfleet"
-MODULE = "pose"
-ALPHA_MS = 100  # the frame's bound, = the cycle
-SLOW = {"rate_mbit": 5.0, "delay_ms": 15.0}  # the raw frame alone takes 241 ms: only bneck fits
 CUT_SECONDS = 20
-# the image's network on this machine's core (DNNSPLIT.md 3.3; the accuracies are declared)
-DNN: dict[str, Any] = {
-    "spotlight": "time",
-    "minAccuracy": 0.8,
-    "inputBytes": 150528,
-    "outputBytes": 4000,
-    "accuracy": 0.92,
-    "fullMillis": 7.9,
-    "splitPoints": [
-        {"name": "b6", "headMillis": 4.7, "tailMillis": 3.0, "tensorBytes": 401408},
-        {"name": "bneck", "headMillis": 4.6, "tailMillis": 2.9, "tensorBytes": 6272},
-    ],
-    "localModel": {"name": "mobilenet-w0.25", "robotMillis": 0.9, "accuracy": 0.61},
-}
-
-
-def split_objects(ns: str) -> list[dict[str, Any]]:
-    """The bed's nodes and a fleet of one split pose estimator per robot."""
-    pose = ros_module(MODULE, ns, cycle_ms=ALPHA_MS, taxonomy=("continuous", "soft", "relevant"),
-                      subscribes=[], publishes=[("poses", 4000, 10)], profile=[])  # fmt: skip
-    del pose["spec"]["profile"]
-    pose["spec"]["dnn"] = DNN
-    pose["spec"]["resources"]["memory"] = "384Mi"  # onnxruntime, the heads and ROS 2
-    return bed_objects(ns, FLEET, [pose])
 
 
 @pytest.fixture
@@ -76,17 +49,6 @@ def split_fleet(
             yield ns, metrics_url(fleet_pod(pods, ROBOTS[0], MODULE, standby=True))
     finally:
         cluster.reset_link(ROBOTS[0])
-
-
-def _action(url: str) -> str:
-    """The action the head runs now ("" while it cannot be read)."""
-    for name in ("full offload", "b6", "bneck", "mobilenet-w0.25"):
-        try:
-            if scrape_series(url, "fogfleet_dnn_action", action=name) == 1.0:
-                return name
-        except OSError:
-            return ""
-    return ""
 
 
 def _frames(url: str, by: str) -> float:
@@ -106,10 +68,9 @@ def test_the_tail_runs_on_the_edge_with_the_split_the_rule_takes(
         assert "minAccuracy 0.8" in entries[robot]["split"]["reason"]
     kube.wait_for("the tail answering robot-1's frames", lambda: _frames(head, "tail") > 50, 120, 2)
     # what the head measures may favour the whole network on a fast link; never the others
-    print(
-        f"robot-1's head at 100 Mbit/s: {_action(head)}, frames by the tail {_frames(head, 'tail')}"
-    )
-    assert _action(head) in {"bneck", "full offload"}
+    now = head_action(head)
+    print(f"robot-1's head at 100 Mbit/s: {now}, frames by the tail {_frames(head, 'tail')}")
+    assert head_action(head) in {"bneck", "full offload"}
     # once the tail answers (the head's first frames may wait for a tail still starting),
     # it answers in time: the local model steps in for at most one frame in twenty
     frames, timeouts = _frames(head, "tail"), scrape_series(head, "fogfleet_dnn_timeouts_total")
@@ -124,15 +85,19 @@ def test_a_slow_link_leaves_only_the_bottleneck_split(
     _, head = split_fleet
     kube.wait_for("the tail answering", lambda: _frames(head, "tail") > 50, 120, 2)
     cluster.set_link(ROBOTS[0], **SLOW)
-    kube.wait_for("the head on bneck over the slow link", lambda: _action(head) == "bneck", 60, 1)
+    kube.wait_for(
+        "the head on bneck over the slow link", lambda: head_action(head) == "bneck", 60, 1
+    )
     before = _frames(head, "tail")
     late = scrape_series(head, "fogfleet_dnn_late_frames_total")
     time.sleep(20)
     served = _frames(head, "tail") - before
     over = scrape_series(head, "fogfleet_dnn_late_frames_total") - late
-    print(f"at 5 Mbit/s, 15 ms: {_action(head)}, {served} frames by the tail in 20 s, {over} late")
+    print(
+        f"at 5 Mbit/s, 15 ms: {head_action(head)}, {served} frames by the tail in 20 s, {over} late"
+    )
     assert served >= 150, served  # 10 frames/s, answered by the tail across the slow link
-    assert _action(head) == "bneck"
+    assert head_action(head) == "bneck"
     # the 6 KB tensor crosses in 10 ms: a frame takes ~60 ms against alpha's 100
     assert scrape_series(head, "fogfleet_dnn_late_frames_total") - late <= 0.05 * served
 
@@ -161,8 +126,8 @@ def test_a_cut_link_hands_every_frame_to_the_local_model_and_the_split_returns(
     assert scrape_series(head, "fogfleet_dnn_timeouts_total") - timeouts <= 3
     assert scrape_series(head, "fogfleet_dnn_late_frames_total") - late <= 3
     kube.wait_for(
-        "the split back after the hysteresis", lambda: _action(head) in {"bneck", "full offload"},
-        60, 1,
+        "the split back after the hysteresis",
+        lambda: head_action(head) in {"bneck", "full offload"}, 60, 1,
     )  # fmt: skip
     tail = _frames(head, "tail")
     kube.wait_for("the tail answering again", lambda: _frames(head, "tail") > tail + 20, 30, 1)

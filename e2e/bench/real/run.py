@@ -274,9 +274,10 @@ def _wait_gone(kube: Kube, namespace: str) -> None:
     kube.wait_for(f"namespace {namespace} gone", gone, 180, interval=1)
 
 
-def connect() -> tuple[Kube, harness.Cluster]:
-    """The ``paper`` bed: the running one, or started (a bed of another profile restarts)."""
-    cluster = harness.ensure_up(profile=PROFILE)
+def connect(profile: str = PROFILE) -> tuple[Kube, harness.Cluster]:
+    """The bed of ``profile`` (the paper's by default): the running one, or started (a bed of
+    another profile restarts)."""
+    cluster = harness.ensure_up(profile=profile)
     server = guard_kubeconfig(cluster.kubeconfig, expected_server=cluster.api_server)
     kube = Kube(
         kubeconfig=cluster.kubeconfig,

@@ -17,11 +17,18 @@ from fogfleet.contract.env import (
     METRICS_PORT,
 )
 
+from .dnn.whole import Whole
 from .fallback import Role
 from .heartbeat import log_interval
 from .profile import DEFAULT_OUTPUT, ENV_PROFILE_OUTPUT, profile_cycles, run_profile
 from .spec import WorkloadSpec
 from .work import describe, work_for
+
+WHOLE_HELP = (
+    "experiments (a split module's head): run the network whole, as a module that cannot be "
+    "split: on the edge (every frame's input crosses, no local model) or on the robot; the "
+    "baselines of make bench-split"
+)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -47,6 +54,7 @@ def main(argv: list[str] | None = None) -> int:
         "fast as its CPU limit lets it (the kernel's CFS quota decides how long it takes); "
         "without it the workload plays its profile row",
     )
+    m.add_argument("--whole", type=Whole, choices=list(Whole), default=None, help=WHOLE_HELP)
     m.add_argument(
         "--log-interval",
         type=_log_seconds,
@@ -62,6 +70,7 @@ def main(argv: list[str] | None = None) -> int:
     n.add_argument("--host", default=os.environ.get(ENV_METRICS_HOST, "0.0.0.0"))
     n.add_argument("--port", type=int, default=int(os.environ.get(ENV_METRICS_PORT, METRICS_PORT)))
     n.add_argument("--log-interval", type=_log_seconds, default=None, metavar="SECONDS")
+    n.add_argument("--whole", type=Whole, choices=list(Whole), default=None, help=WHOLE_HELP)
     n.add_argument(
         "--link-mbit",
         type=_link_mbit,
@@ -92,7 +101,12 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     if ns.cmd == "dnn" or (ns.cmd == "module" and spec.dnn is not None):
         # a split module's pods run the image's default command (module): its spec says it
-        return _dnn(spec, ns.host, ns.port, ns.log_interval, getattr(ns, "link_mbit", None))
+        return _dnn(spec, ns.host, ns.port, ns.log_interval, getattr(ns, "link_mbit", None),
+                    ns.whole)  # fmt: skip
+    if getattr(ns, "whole", None) is not None:
+        print(f"fogfleet-workload: --whole: only a split module (spec.dnn) runs whole; "
+              f"{spec.module}'s spec has no dnn", file=sys.stderr)  # fmt: skip
+        return 2
     if ns.cmd == "probe":
         from .probe import run_probe
 
@@ -138,7 +152,12 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def _dnn(
-    spec: WorkloadSpec, host: str, port: int, every: float | None, link_mbit: float | None
+    spec: WorkloadSpec,
+    host: str,
+    port: int,
+    every: float | None,
+    link_mbit: float | None,
+    whole: Whole | None = None,
 ) -> int:
     """A split DNN module's side: its spec must carry ``dnn`` and its role be head or tail."""
     if spec.dnn is None:
@@ -159,7 +178,8 @@ def _dnn(
         return 2
     from .dnn.ros import models_folder, run_dnn
 
-    run_dnn(spec, spec.role.value, models_folder(os.environ), host, port, seconds, None, link_mbit)
+    folder = models_folder(os.environ)
+    run_dnn(spec, spec.role.value, folder, host, port, seconds, None, link_mbit, whole)
     return 0
 
 

@@ -161,3 +161,15 @@ def test_cpu_work_out_of_range_is_refused(bad: str, capsys: pytest.CaptureFixtur
     with pytest.raises(SystemExit):
         main(["module", "--cpu-work", bad])
     assert "milliseconds of CPU per cycle" in capsys.readouterr().err
+
+
+def test_only_a_split_module_runs_whole(
+    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    monkeypatch.setenv("FOGFLEET_MODULE_SPEC", json.dumps({"cycleTimeMillis": 20, "profile": []}))
+    monkeypatch.setenv("FOGFLEET_MODULE", "mapper")
+    assert main(["module", "--whole", "edge"]) == 2
+    assert "--whole: only a split module (spec.dnn)" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        main(["module", "--whole", "cloud"])
+    assert "--whole: invalid Whole value: 'cloud'" in capsys.readouterr().err

@@ -14,6 +14,8 @@ metric                                         type       meaning
 ``fogfleet_dnn_late_frames_total{module}``     counter    frames answered after alpha
 ``fogfleet_dnn_timeouts_total{module}``        counter    frames the local model answered after
                                                           the tail's answer did not come
+``fogfleet_dnn_robot_seconds_total{module}``   counter    the robot's compute for the frames
+                                                          (heads, the local model)
 ``fogfleet_dnn_predicted_seconds{module}``     histogram  the action's Time(a) when chosen
 ``fogfleet_dnn_frame_seconds{module}``         histogram  the frame's real time
 ``fogfleet_dnn_link_latency_seconds{module}``  gauge      the estimated one-way latency
@@ -80,6 +82,10 @@ class DnnMetrics:
             "Frames the local model answered because the tail's answer did not come in alpha",
             ["module"], registry=reg,
         ).labels(**ids)  # fmt: skip
+        self._robot = Counter(
+            "fogfleet_dnn_robot_seconds", "The robot's compute for the frames (heads, the "
+            "local model; the whole network when run whole on it)", ["module"], registry=reg,
+        ).labels(**ids)  # fmt: skip
         self._predicted = Histogram(
             "fogfleet_dnn_predicted", "The chosen action's predicted Time(a)", ["module"],
             unit="seconds", buckets=HISTOGRAM_BUCKETS_SECONDS, registry=reg,
@@ -113,6 +119,7 @@ class DnnMetrics:
             self._late.inc()
         if result.by is By.TIMEOUT:
             self._timeouts.inc()
+        self._robot.inc(result.robot_s)
         if math.isfinite(result.predicted_s):
             self._predicted.observe(result.predicted_s)
         self._real.observe(result.real_s)

@@ -39,6 +39,8 @@ class By(StrEnum):
     TAIL = "tail"  # the off-board action's answer came within alpha
     LOCAL = "local"  # the local model was the action
     TIMEOUT = "local after timeout"  # the tail's answer did not come within alpha
+    ROBOT = "robot"  # the whole network on the robot (``whole.WholeHead``)
+    UNANSWERED = "unanswered"  # no answer, and no local model to give one (``whole``)
 
 
 class RobotParts(Protocol):
@@ -69,6 +71,7 @@ class FrameResult:
         return self.real_s > self.alpha_s
 
     alpha_s: float = float("inf")
+    robot_s: float = 0.0  # the robot's compute for this frame (heads, the local model)
 
 
 class Mailbox:
@@ -196,13 +199,16 @@ class Head:
         stamp = int(start * 1e9)
         self.send(Packet(Kind.PROBE, action.index, n, stamp))
         image = self.parts.capture(n)
-        by, answer = By.LOCAL, b""
+        by, answer, robot_s = By.LOCAL, b"", 0.0
         if not action.offloaded and n % EXPLORE_FRAMES == 0:
+            t0 = self.clock()
             self._trial(n, image)
+            robot_s += self.clock() - t0
         if action.offloaded:
             t0 = self.clock()
             data = self.parts.head(action.index, image)
             t1 = self.clock()
+            robot_s += t1 - t0
             with self.lock:
                 if action.index > 0:
                     self.decider.parts.ran_head(action.index, t1 - t0)
@@ -223,6 +229,7 @@ class Head:
         if by is not By.TAIL:
             t0 = self.clock()
             answer = self.parts.local(image)
+            robot_s += self.clock() - t0
             with self.lock:
                 self.decider.parts.ran_local(self.clock() - t0)
         end = self.clock()
@@ -238,4 +245,5 @@ class Head:
             proposed="" if proposed is None else proposed.action.name,
             reason="" if proposed is None else proposed.reason,
             alpha_s=self.decider.alpha,
+            robot_s=robot_s,
         )

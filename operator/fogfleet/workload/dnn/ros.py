@@ -31,6 +31,7 @@ from .head import FrameResult, Head
 from .runspec import DnnRunSpec, action_names
 from .sessions import DEFAULT_MODELS, RobotNets, TailNets
 from .tail import Tail
+from .whole import Whole, WholeHead
 from .wire import Packet, decode
 from .wire import encode as encode_packet
 
@@ -53,10 +54,13 @@ def run_dnn(
     log_interval: float,
     duration: float | None = None,
     link_mbit: float | None = None,
+    whole: Whole | None = None,
 ) -> None:
     """Run the head or the tail until SIGTERM (or ``duration`` seconds). ``link_mbit``
     (experiments, the head only): each tensor is held back as long as an uplink of that many
-    Mbit/s would take to carry it, so a test on one host sees a slow link's choice."""
+    Mbit/s would take to carry it, so a test on one host sees a slow link's choice. ``whole``
+    (experiments, the head only): the network run whole there, the rule not consulted
+    (``whole.WholeHead``)."""
     import rclpy
     from rclpy.qos import QoSProfile, ReliabilityPolicy
     from std_msgs.msg import String, UInt8MultiArray
@@ -69,7 +73,7 @@ def run_dnn(
     qos = QoSProfile(depth=QOS_DEPTH, reliability=ReliabilityPolicy.RELIABLE)
     # the networks load before ROS starts: a tail that answers at all answers at full speed
     is_head = role == ROLE_HEAD
-    robot = RobotNets(folder, names) if is_head else None
+    robot = RobotNets(folder, names, whole=whole is Whole.ROBOT) if is_head else None
     tail_nets = None if is_head else TailNets(folder, names)
     rclpy.init()
     if threading.current_thread() is threading.main_thread():  # after rclpy's own handlers
@@ -91,7 +95,11 @@ def run_dnn(
     who = f"{spec.robot or 'shared'}/{spec.module} ({role})"
     workers: list[threading.Thread] = []
     if robot is not None:
-        head = Head(run, robot, send, time.monotonic)
+        head = (
+            Head(run, robot, send, time.monotonic)
+            if whole is None
+            else WholeHead(whole, run, robot, send, time.monotonic)
+        )
         receiver: Any = head.receive
         dnn = DnnMetrics(base, spec.module, action_names(run.model))
         answers = node.create_publisher(String, spec.publishes[0].name, qos)
@@ -117,7 +125,9 @@ def run_dnn(
     node.create_subscription(UInt8MultiArray, into, on_message, qos)
     server = base.serve(host, port)
     print(f"fogfleet-workload: {who}: {len(names)} split points from {folder}, plan "
-          f"{run.planned_action!r}; {out} out, {into} in", flush=True)  # fmt: skip
+          f"{run.planned_action!r}; {out} out, {into} in"
+          + (f"; run whole on the {whole.value} (--whole)" if whole and is_head else ""),
+          flush=True)  # fmt: skip
     try:
         spin_until_stopped(node, stop, workers, duration)
     finally:

@@ -70,9 +70,13 @@ class RobotNets:
     """The robot's side: every split point's head and the local model (both resident: the
     local model answers the moment the link fails, RoboEC2 Section IV-A)."""
 
-    def __init__(self, folder: Path, splits: Sequence[str], seed: int = 0) -> None:
+    def __init__(
+        self, folder: Path, splits: Sequence[str], seed: int = 0, whole: bool = False
+    ) -> None:
         self.heads = {k: Net.load(folder / head_file(n)) for k, n in enumerate(splits, start=1)}
         self.local_net = Net.load(folder / LOCAL_FILE)
+        # the whole network, for a module run whole on its robot (``whole.Whole.ROBOT``)
+        self.whole_net = Net.load(folder / FULL_FILE) if whole else None
         self.rng = np.random.default_rng(seed)
 
     def capture(self, frame: int) -> np.ndarray:
@@ -89,6 +93,12 @@ class RobotNets:
 
     def local(self, frame: np.ndarray) -> bytes:
         return self.local_net(frame).tobytes()
+
+    def whole(self, frame: np.ndarray) -> bytes:
+        """The whole network's answer, on the robot (loaded only when asked: ``whole``)."""
+        if self.whole_net is None:
+            raise RuntimeError("the whole network was not loaded (RobotNets(whole=True))")
+        return self.whole_net(frame).tobytes()
 
 
 class TailNets:

@@ -2,121 +2,32 @@
 
 from __future__ import annotations
 
+from headbed import (
+    ALPHA,
+    HEAD_S,
+    LOCAL_S,
+    ONE_WAY,
+    TAIL_S,
+    Clock,
+    FakeMailbox,
+    Link,
+    Parts,
+    TailParts,
+    run_frames,
+    setup_head,
+)
 from runspecs import SPEC
 
 from fogfleet.workload.dnn.decide import HYSTERESIS_FRAMES
-from fogfleet.workload.dnn.head import EXPLORE_FRAMES, By, FrameResult, Head, Mailbox
+from fogfleet.workload.dnn.head import EXPLORE_FRAMES, By, Head
 from fogfleet.workload.dnn.runspec import DnnRunSpec
 from fogfleet.workload.dnn.tail import Tail
 from fogfleet.workload.dnn.wire import Kind, Packet
 
-CYCLE = 0.1
-ALPHA = 0.05
-HEAD_S, LOCAL_S, TAIL_S, ONE_WAY = 0.002, 0.0004, 0.0012, 0.001
-
-
-class Clock:
-    def __init__(self) -> None:
-        self.t = 100.0
-
-    def __call__(self) -> float:
-        return self.t
-
-
-class Parts:
-    """The robot's networks: each takes its declared time on the test's clock."""
-
-    def __init__(self, clock: Clock) -> None:
-        self.clock = clock
-
-    def capture(self, frame: int) -> int:
-        return frame
-
-    def head(self, index: int, frame: object) -> bytes:
-        self.clock.t += HEAD_S
-        return b"t" * (6272 if index == 2 else 401408 if index == 1 else 150528)
-
-    def local(self, frame: object) -> bytes:
-        self.clock.t += LOCAL_S
-        return b"local"
-
-
-class TailParts:
-    def tail(self, index: int, data: bytes) -> bytes:
-        if index > 2:
-            raise KeyError(index)
-        return b"tail"
-
-
-class Link:
-    """The link and the tail node: what the head sends comes back one way later, plus the
-    tail's time for a tensor; nothing while ``up`` is False."""
-
-    def __init__(self, clock: Clock) -> None:
-        self.clock, self.up = clock, True
-        self.queue: list[tuple[float, Packet]] = []
-        self.sent: list[Packet] = []
-        self.tail = Tail(TailParts(), self._reply, clock)
-        self.head: Head | None = None
-
-    def send(self, packet: Packet) -> None:
-        self.sent.append(packet)
-        if self.up:
-            self.tail.receive(packet)
-
-    def _reply(self, packet: Packet) -> None:
-        work = TAIL_S if packet.kind is Kind.ANSWER else 0.0
-        self.queue.append((self.clock.t + 2 * ONE_WAY + work, packet))
-
-    def deliver(self, until: float) -> None:
-        assert self.head is not None
-        self.queue.sort(key=lambda tp: tp[0])
-        while self.queue and self.queue[0][0] <= until:
-            at, packet = self.queue.pop(0)
-            self.clock.t = max(self.clock.t, at)
-            if packet.kind is Kind.ANSWER:
-                packet = Packet(packet.kind, packet.action, packet.frame, packet.sent_ns,
-                                round(TAIL_S * 1e6), packet.payload)  # fmt: skip
-            self.head.receive(packet)
-
-
-class FakeMailbox(Mailbox):
-    """Replies are delivered up to ``until``; then the clock stands at ``until`` if the
-    frame's answer did not come (the real mailbox would have waited that long)."""
-
-    def __init__(self, clock: Clock, link: Link) -> None:
-        super().__init__(clock)
-        self.link, self.test_clock = link, clock
-
-    def wait(self, frame: int, until: float) -> tuple[Packet, float] | None:
-        self.link.deliver(until)
-        if frame not in self._box:
-            self.test_clock.t = max(self.test_clock.t, until)
-        return super().wait(frame, until)
-
-
-def _setup() -> tuple[Head, Link, Clock]:
-    clock = Clock()
-    link = Link(clock)
-    head = Head(DnnRunSpec.from_raw(SPEC), Parts(clock), link.send, clock,
-                FakeMailbox(clock, link))  # fmt: skip
-    link.head = head
-    return head, link, clock
-
-
-def _frames(head: Head, link: Link, clock: Clock, n: int) -> list[FrameResult]:
-    out = []
-    for _ in range(n):
-        start = clock.t
-        out.append(head.frame())
-        link.deliver(start + CYCLE)
-        clock.t = start + CYCLE
-    return out
-
 
 def test_the_tail_answers_the_planned_split_within_alpha() -> None:
-    head, link, clock = _setup()
-    results = _frames(head, link, clock, 10)
+    head, link, clock = setup_head()
+    results = run_frames(head, link, clock, 10)
     assert {(r.action, r.by) for r in results} == {("bneck", By.TAIL)}
     expected = HEAD_S + 2 * ONE_WAY + TAIL_S
     assert all(abs(r.real_s - expected) < 1e-9 and not r.late for r in results)
@@ -128,10 +39,10 @@ def test_the_tail_answers_the_planned_split_within_alpha() -> None:
 
 
 def test_a_silent_tail_makes_the_local_model_answer_after_alpha_then_at_once() -> None:
-    head, link, clock = _setup()
-    _frames(head, link, clock, 5)
+    head, link, clock = setup_head()
+    run_frames(head, link, clock, 5)
     link.up = False
-    results = _frames(head, link, clock, 5)
+    results = run_frames(head, link, clock, 5)
     first, rest = results[0], results[1:]
     assert (first.action, first.by) == ("bneck", By.TIMEOUT) and first.answer == b"local"
     # answered within alpha + the local model's time, and counted as late
@@ -143,12 +54,12 @@ def test_a_silent_tail_makes_the_local_model_answer_after_alpha_then_at_once() -
 
 
 def test_the_split_returns_after_the_hysteresis_when_the_tail_is_back() -> None:
-    head, link, clock = _setup()
-    _frames(head, link, clock, 5)
+    head, link, clock = setup_head()
+    run_frames(head, link, clock, 5)
     link.up = False
-    _frames(head, link, clock, 5)
+    run_frames(head, link, clock, 5)
     link.up = True
-    results = _frames(head, link, clock, HYSTERESIS_FRAMES + 3)
+    results = run_frames(head, link, clock, HYSTERESIS_FRAMES + 3)
     actions = [r.action for r in results]
     # the first frame still decides on the cut; its probe's echo shows the link is back, and
     # the split returns once the rule has proposed it HYSTERESIS_FRAMES frames in a row
@@ -158,8 +69,8 @@ def test_the_split_returns_after_the_hysteresis_when_the_tail_is_back() -> None:
 
 
 def test_a_late_answer_still_measures_the_link() -> None:
-    head, link, clock = _setup()
-    _frames(head, link, clock, 3)
+    head, link, clock = setup_head()
+    run_frames(head, link, clock, 3)
     before = head.decider.link.moving_s.value
     sent = clock.t + HEAD_S  # when this frame's tensor leaves
     link.up = False
@@ -222,10 +133,10 @@ def test_a_link_too_slow_for_the_raw_frame_moves_the_head_to_the_bottleneck_spli
     head = Head(DnnRunSpec.from_raw(spec), Parts(clock), link.send, clock,
                 FakeMailbox(clock, link))  # fmt: skip
     link.head = head
-    fast = _frames(head, link, clock, 5)
+    fast = run_frames(head, link, clock, 5)
     assert {(r.action, r.by) for r in fast} == {("full offload", By.TAIL)}
     link.slow = True
-    slow = _frames(head, link, clock, HYSTERESIS_FRAMES + 10)
+    slow = run_frames(head, link, clock, HYSTERESIS_FRAMES + 10)
     # one raw frame waits alpha; the time it waited bounds the bandwidth, so full offload
     # misses alpha and the head leaves it; bneck's answers then measure the 5 Mbit/s, and the
     # head never goes back to the raw frame
@@ -241,19 +152,19 @@ def test_a_tail_that_dies_mid_frame_teaches_nothing_of_the_links_speed() -> None
     # frame 6's probe comes back but its tensor is never answered (the tail stops between
     # the two); every later probe is lost: a cut, not a slow link. When a tail is back the
     # split returns after the hysteresis, its bandwidth estimate untouched
-    head, link, clock = _setup()
-    _frames(head, link, clock, 5)
+    head, link, clock = setup_head()
+    run_frames(head, link, clock, 5)
     before = head.decider.link.link()
     deliver = link.send
     link.send = lambda p: None if p.kind is Kind.TENSOR else deliver(p)  # type: ignore[method-assign]
     head.send = link.send
-    (r,) = _frames(head, link, clock, 1)
+    (r,) = run_frames(head, link, clock, 1)
     assert r.by is By.TIMEOUT
     link.send = head.send = deliver  # type: ignore[method-assign]
     link.up = False
-    _frames(head, link, clock, 5)
+    run_frames(head, link, clock, 5)
     link.up = True
-    results = _frames(head, link, clock, HYSTERESIS_FRAMES + 3)
+    results = run_frames(head, link, clock, HYSTERESIS_FRAMES + 3)
     assert [x.action for x in results[-3:]] == ["bneck"] * 3
     after = head.decider.link.link()
     assert before is not None and after is not None
@@ -264,11 +175,11 @@ def test_a_bound_from_a_slow_spell_is_revised_by_the_trials_of_the_local_model()
     # a bound says even bneck's 10 kB cannot cross in alpha: nothing off board is left, the
     # local model answers; its trial tensors (one frame in EXPLORE_FRAMES) measure the link,
     # which is fast again, and the split returns
-    head, link, clock = _setup()
-    _frames(head, link, clock, 5)
+    head, link, clock = setup_head()
+    run_frames(head, link, clock, 5)
     head.decider.link.too_slow(ALPHA, 6272 + 4000)
-    stuck = _frames(head, link, clock, 3)
+    stuck = run_frames(head, link, clock, 3)
     assert {r.action for r in stuck} == {"tiny"}
-    results = _frames(head, link, clock, EXPLORE_FRAMES + HYSTERESIS_FRAMES + 5)
+    results = run_frames(head, link, clock, EXPLORE_FRAMES + HYSTERESIS_FRAMES + 5)
     assert all(r.by is not By.TIMEOUT for r in results)  # a trial never holds a frame up
     assert [r.action for r in results[-3:]] == ["bneck"] * 3

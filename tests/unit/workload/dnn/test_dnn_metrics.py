@@ -10,8 +10,10 @@ from fogfleet.workload.dnn.head import By, FrameResult
 from fogfleet.workload.metrics import WorkloadMetrics
 
 
-def _result(action: str, by: By, real: float) -> FrameResult:
-    return FrameResult(1, action, by, b"", 0.0, 0.01, real, action, "why", alpha_s=0.05)
+def _result(action: str, by: By, real: float, robot: float = 0.004) -> FrameResult:
+    return FrameResult(
+        1, action, by, b"", 0.0, 0.01, real, action, "why", alpha_s=0.05, robot_s=robot
+    )
 
 
 def _samples(m: WorkloadMetrics) -> dict[str, float]:
@@ -36,6 +38,7 @@ def test_frames_are_counted_by_action_and_by_who_answered() -> None:
     assert s["fogfleet_dnn_frames_total,action=bneck,by=local after timeout,module=detector"] == 1
     assert s["fogfleet_dnn_late_frames_total,module=detector"] == 1
     assert s["fogfleet_dnn_timeouts_total,module=detector"] == 1
+    assert abs(s["fogfleet_dnn_robot_seconds_total,module=detector"] - 0.012) < 1e-12
     assert s["fogfleet_dnn_frame_seconds_count,module=detector"] == 3
     assert s["fogfleet_dnn_link_bandwidth_bits_per_second,module=detector"] == 20e6
     # a frame is the module's cycle: the contract's metrics count it too
