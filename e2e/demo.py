@@ -49,7 +49,14 @@ from e2e.bed.operator_fixtures import conditions, helm  # noqa: E402
 from fogfleet.render.wiring import is_ros_object  # noqa: E402
 
 RELEASE, SYSTEM = "fogfleet", "fogfleet-system"
-DEMO_NAMESPACES = ("warehouse", "warehouse-lite", "single-robot", "shared-detector", "pod-template")
+DEMO_NAMESPACES = (
+    "warehouse",
+    "warehouse-lite",
+    "single-robot",
+    "shared-detector",
+    "pod-template",
+    "split-network",
+)
 READY_TIMEOUT_SECONDS = 300
 MEASURED_TIMEOUT_SECONDS = 180  # issue 44: measured rates within 3 minutes of Ready
 PROGRESS_SECONDS = 10

@@ -10,7 +10,8 @@ from __future__ import annotations
 
 from typing import Any
 
-from e2e.tests.rosbed import bed_objects, ros_module, scrape_series
+from e2e.portable.metrics import read
+from e2e.tests.rosbed import bed_objects, ros_module
 
 __all__ = ["ALPHA_MS", "DNN", "FLEET", "MODULE", "SLOW", "head_action", "split_objects"]
 
@@ -46,10 +47,8 @@ def split_objects(ns: str, **dnn: Any) -> list[dict[str, Any]]:
 
 def head_action(url: str) -> str:
     """The action the head runs now ("" while it cannot be read)."""
-    for name in ("full offload", "b6", "bneck", "mobilenet-w0.25"):
-        try:
-            if scrape_series(url, "fogfleet_dnn_action", action=name) == 1.0:
-                return name
-        except OSError:
-            return ""
-    return ""
+    try:
+        series = read(url).series
+    except OSError:
+        return ""
+    return next((lb["action"] for n, lb, v in series if n == "fogfleet_dnn_action" and v == 1), "")

@@ -47,7 +47,7 @@ Obj = dict[str, Any]
 
 
 def _folders() -> list[Any]:
-    real = {"warehouse-lite"}  # its ComputeNodes are the bed's real nodes
+    real = {"warehouse-lite", "split-network"}  # their ComputeNodes are the bed's real nodes
     return [
         pytest.param(p.name, marks=[pytest.mark.real] if p.name in real else [], id=p.name)
         for p in sorted(EXAMPLES.iterdir())

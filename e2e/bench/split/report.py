@@ -45,9 +45,9 @@ def table(result: Mapping[str, Any]) -> str:
             s = summ.get(link, {}).get(arm)
             if s is None:
                 continue
-            runs = ", ".join(_num(v, "{:g}") for v in s["overAlphaRuns"])
+            runs = ", ".join(_num(v, "{:.1f}") for v in s["overAlphaRuns"])
             rows.append([
-                link, arm, _num(s["overAlpha"], "{:g}"), f"[{runs}]", _num(s["frames"], "{:g}"),
+                link, arm, _num(s["overAlpha"], "{:.1f}"), f"[{runs}]", _num(s["frames"], "{:g}"),
                 _num(s["localShare"] * 100 if s["localShare"] == s["localShare"] else None,
                      "{:.0f} %"),
                 _num(s["frameMillis"]), _num(s["robotMillis"]), ", ".join(s["actions"]),
@@ -70,17 +70,19 @@ def _verdict_lines(result: Mapping[str, Any]) -> Sequence[str]:
         best = arms[v["best"]]
         red = v["reduction"]
         said = "-" if red is None else f"{red:.1%} fewer"
+        split = arms["split"]
         out.append(
             f"{link}: best whole-module placement within maxRobotMillis {GAMMA_MS:g} ms: "
-            f"{v['best']}, {best['overAlpha']:g} frames over alpha; split "
-            f"{arms['split']['overAlpha']:g}: {said} (target: at least "
+            f"{v['best']}, {best['overAlpha']:.1f} frames over alpha; split "
+            f"{split['overAlpha']:.1f} ({_num(split['localShare'] * 100, '{:.0f}')} % of its "
+            f"frames by the local model): {said} (target: at least "
             f"{TARGET_REDUCTION:.0%}): {'met' if v['met'] else 'NOT met'}"
         )
     robot = arms.get(WHOLE_ROBOT)
     if robot is not None:
         over = robot["robotMillis"] > GAMMA_MS
         out.append(
-            f"{link}: {WHOLE_ROBOT}: {robot['overAlpha']:g} frames over alpha, "
+            f"{link}: {WHOLE_ROBOT}: {robot['overAlpha']:.1f} frames over alpha, "
             f"{_num(robot['robotMillis'])} ms of robot compute a frame"
             + (f" (over maxRobotMillis {GAMMA_MS:g})" if over else "")
         )

@@ -68,5 +68,6 @@ def test_the_table_gives_each_arm_and_the_verdict() -> None:
         "summary": summ, "verdict": verdict(summ),
     })  # fmt: skip
     assert "over alpha of 300" in text
-    assert "whole-edge, 300 frames over alpha; split 1: 99.7% fewer" in text
+    assert "whole-edge, 300.0 frames over alpha; split 1.0 (0 % of its frames by the local " in text
+    assert "99.7% fewer" in text
     assert "met" in text and "over maxRobotMillis 6" in text

@@ -18,7 +18,7 @@ from fogfleet.commandline.cli import main
 from fogfleet.render.ros import COMPONENT_DISCOVERY
 
 EXAMPLES = Path(__file__).resolve().parents[3] / "manifests" / "examples"
-RENDERED = ["single-robot", "warehouse-lite", "shared-detector"]
+RENDERED = ["single-robot", "warehouse-lite", "shared-detector", "split-network"]
 ENFORCE = "pod-security.kubernetes.io/enforce"
 STANDBY_MODULE = "object-pose-estimation"  # offloaded in this plan (seed 1), so it gets a standby
 

@@ -27,9 +27,11 @@ from .wire import Kind, Packet
 __all__ = ["EXPLORE_FRAMES", "MAX_IN_FLIGHT", "By", "FrameResult", "Head", "Mailbox", "RobotParts"]
 
 MAX_IN_FLIGHT = 50  # frames whose late answer still measures the link (5 s at 10 Hz)
-# While the local model runs over a link that is up, every this many frames the smallest split's
-# tensor is sent as a trial (the frame is still answered by the local model): its answer
-# re-measures the link, which nothing else would while no tensor crosses (1 s at 10 Hz)
+# Every this many frames, over a link that is up, the smallest split's tensor is also sent as a
+# trial unless that split is the action (the frame is answered by its own action): the trial's
+# head and tail times and its answer's round trip re-measure a split the rule no longer picks,
+# which nothing else would. Without it one slow first frame (a tail still starting, a throttled
+# head) or a slow spell keeps that split's estimate, and the head off it, for good (1 s at 10 Hz)
 EXPLORE_FRAMES = 10
 
 
@@ -75,26 +77,28 @@ class FrameResult:
 
 
 class Mailbox:
-    """The tail's answers by frame, handed from the receiving thread to the frame's."""
+    """The tail's answers by (frame, action), handed from the receiving thread to the frame's
+    (a frame may have two tensors in flight: its action's and a trial's)."""
 
     def __init__(self, clock: Callable[[], float]) -> None:
         self.clock = clock
         self._cond = threading.Condition()
-        self._box: dict[int, tuple[Packet, float]] = {}
+        self._box: dict[tuple[int, int], tuple[Packet, float]] = {}
 
     def put(self, packet: Packet, at: float) -> None:
         with self._cond:
-            self._box[packet.frame] = (packet, at)
+            self._box[packet.frame, packet.action] = (packet, at)
             self._cond.notify_all()
 
-    def wait(self, frame: int, until: float) -> tuple[Packet, float] | None:
-        """Frame ``frame``'s answer and its arrival, or None when ``until`` passes first; every
-        older answer is forgotten (a late answer is of no use: its frame was answered)."""
+    def wait(self, frame: int, action: int, until: float) -> tuple[Packet, float] | None:
+        """Frame ``frame``'s answer for ``action`` and its arrival, or None when ``until``
+        passes first; every older answer is forgotten (a late answer is of no use: its frame
+        was answered)."""
         with self._cond:
             while True:
-                got = self._box.pop(frame, None)
+                got = self._box.pop((frame, action), None)
                 if got is not None or self.clock() >= until:
-                    for old in [f for f in self._box if f < frame]:
+                    for old in [k for k in self._box if k[0] < frame]:
                         del self._box[old]
                     return got
                 self._cond.wait(until - self.clock())
@@ -118,7 +122,7 @@ class Head:
         self.count = 0
         self.probes: dict[int, float] = {}  # frame -> when its probe left (until echoed)
         self.echoed_in_time: dict[int, bool] = {}
-        self.tensors: dict[int, int] = {}  # frame -> bytes sent (until answered)
+        self.tensors: dict[tuple[int, int], int] = {}  # (frame, action) -> bytes sent
         # a frame whose answer missed alpha while its probe came back: (frame, bytes, waited)
         self.slow_evidence: tuple[int, int, float] | None = None
 
@@ -138,7 +142,7 @@ class Head:
                     self._still_up(packet.frame)
         elif packet.kind is Kind.ANSWER:
             with self.lock:
-                sent_bytes = self.tensors.pop(packet.frame, None)
+                sent_bytes = self.tensors.pop((packet.frame, packet.action), None)
                 if sent_bytes is not None:
                     tail_s = packet.tail_us / 1e6
                     rtt = now - packet.sent_ns / 1e9
@@ -146,20 +150,33 @@ class Head:
                     self.decider.parts.ran_tail(packet.action, tail_s)
             self.mailbox.put(packet, now)
 
-    def _trial(self, n: int, image: Any) -> None:
-        """Send frame ``n``'s tensor at the split that sends the fewest bytes, without waiting
-        for its answer, when the link is up: the answer measures the link (``receive``), so a
-        bound learnt from a slow spell or a busy tail is revised once the link is better."""
-        with self.lock:
-            if self.decider.cut or not self.run.model.split_points:
-                return
+    def trial_index(self) -> int | None:
+        """The split whose tensor is the fewest bytes: the one a trial sends (None: none)."""
         points = self.run.model.split_points
-        k = min(range(len(points)), key=lambda i: points[i].tensor_bytes) + 1
-        data = self.parts.head(k, image)
+        if not points:
+            return None
+        return min(range(len(points)), key=lambda i: points[i].tensor_bytes) + 1
+
+    def _track(self, n: int, action: int, sent_bytes: int) -> None:
+        """A tensor in flight, until its answer measures the link (the lock is held)."""
+        self.tensors = {k: b for k, b in self.tensors.items() if k[0] > n - MAX_IN_FLIGHT}
+        self.tensors[n, action] = sent_bytes
+
+    def _trial(self, n: int, image: Any, k: int) -> float:
+        """Send frame ``n``'s tensor at split ``k`` without waiting for its answer, when the
+        link is up; its head time counts, its answer measures the link and the tail
+        (``receive``). Returns the robot's seconds spent on it."""
         with self.lock:
-            self.tensors = {f: b for f, b in self.tensors.items() if f > n - MAX_IN_FLIGHT}
-            self.tensors[n] = len(data)
-        self.send(Packet(Kind.TENSOR, k, n, int(self.clock() * 1e9), payload=data))
+            if self.decider.cut:
+                return 0.0
+        t0 = self.clock()
+        data = self.parts.head(k, image)
+        t1 = self.clock()
+        with self.lock:
+            self.decider.parts.ran_head(k, t1 - t0)
+            self._track(n, k, len(data))
+        self.send(Packet(Kind.TENSOR, k, n, int(t1 * 1e9), payload=data))
+        return t1 - t0
 
     def _still_up(self, frame: int) -> None:
         """A later frame's probe came back in time after ``slow_evidence``'s frame timed out:
@@ -200,10 +217,6 @@ class Head:
         self.send(Packet(Kind.PROBE, action.index, n, stamp))
         image = self.parts.capture(n)
         by, answer, robot_s = By.LOCAL, b"", 0.0
-        if not action.offloaded and n % EXPLORE_FRAMES == 0:
-            t0 = self.clock()
-            self._trial(n, image)
-            robot_s += self.clock() - t0
         if action.offloaded:
             t0 = self.clock()
             data = self.parts.head(action.index, image)
@@ -212,10 +225,9 @@ class Head:
             with self.lock:
                 if action.index > 0:
                     self.decider.parts.ran_head(action.index, t1 - t0)
-                self.tensors = {f: b for f, b in self.tensors.items() if f > n - MAX_IN_FLIGHT}
-                self.tensors[n] = len(data)
+                self._track(n, action.index, len(data))
             self.send(Packet(Kind.TENSOR, action.index, n, int(t1 * 1e9), payload=data))
-            got = self.mailbox.wait(n, start + self.decider.alpha)
+            got = self.mailbox.wait(n, action.index, start + self.decider.alpha)
             if got is not None:
                 by, answer = By.TAIL, got[0].payload
             else:
@@ -233,6 +245,9 @@ class Head:
             with self.lock:
                 self.decider.parts.ran_local(self.clock() - t0)
         end = self.clock()
+        k = self.trial_index()
+        if n % EXPLORE_FRAMES == 0 and k is not None and k != action.index:
+            robot_s += self._trial(n, image, k)  # after the frame's answer: it waits for none
         proposed = decision.proposed
         return FrameResult(
             frame=n,

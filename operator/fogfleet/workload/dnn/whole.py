@@ -20,7 +20,7 @@ from typing import Any, Protocol
 
 from fogfleet.contract.dnn import FULL_OFFLOAD
 
-from .head import MAX_IN_FLIGHT, By, FrameResult, Head, Mailbox, RobotParts
+from .head import By, FrameResult, Head, Mailbox, RobotParts
 from .runspec import DnnRunSpec
 from .wire import Kind, Packet
 
@@ -71,10 +71,9 @@ class WholeHead(Head):
             sent = self.clock()
             robot_s = 0.0
             with self.lock:
-                self.tensors = {f: b for f, b in self.tensors.items() if f > n - MAX_IN_FLIGHT}
-                self.tensors[n] = len(data)
+                self._track(n, 0, len(data))
             self.send(Packet(Kind.TENSOR, 0, n, int(sent * 1e9), payload=data))
-            got = self.mailbox.wait(n, start + UNANSWERED_AFTER * self.decider.alpha)
+            got = self.mailbox.wait(n, 0, start + UNANSWERED_AFTER * self.decider.alpha)
             answer, by = (b"", By.UNANSWERED) if got is None else (got[0].payload, By.TAIL)
             action = FULL_OFFLOAD
         return FrameResult(

@@ -95,11 +95,11 @@ class FakeMailbox(Mailbox):
         super().__init__(clock)
         self.link, self.test_clock = link, clock
 
-    def wait(self, frame: int, until: float) -> tuple[Packet, float] | None:
+    def wait(self, frame: int, action: int, until: float) -> tuple[Packet, float] | None:
         self.link.deliver(until)
-        if frame not in self._box:
+        if (frame, action) not in self._box:
             self.test_clock.t = max(self.test_clock.t, until)
-        return super().wait(frame, until)
+        return super().wait(frame, action, until)
 
 
 def setup_head(make: Callable[..., Head] = Head) -> tuple[Head, Link, Clock]:

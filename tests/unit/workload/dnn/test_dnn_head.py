@@ -106,21 +106,24 @@ class SlowLink(Link):
     def __init__(self, clock: Clock) -> None:
         super().__init__(clock)
         self.slow = False
-        self.size: dict[int, int] = {}
+        self.size: dict[tuple[int, int], int] = {}
 
     def send(self, packet: Packet) -> None:
         if self.slow and packet.kind is Kind.TENSOR:
             if len(packet.payload) > self.QUEUE_BYTES:
                 self.sent.append(packet)  # sent, lost in the queue
                 return
-            self.size[packet.frame] = len(packet.payload)
+            self.size[packet.frame, packet.action] = len(packet.payload)
         super().send(packet)
 
     def _reply(self, packet: Packet) -> None:
         super()._reply(packet)
         if packet.kind is Kind.ANSWER and self.slow:
             at, p = self.queue[-1]
-            self.queue[-1] = (at + self.size.pop(packet.frame, 0) * 8 / self.RATE, p)
+            self.queue[-1] = (
+                at + self.size.pop((packet.frame, packet.action), 0) * 8 / self.RATE,
+                p,
+            )
 
 
 def test_a_link_too_slow_for_the_raw_frame_moves_the_head_to_the_bottleneck_split() -> None:
@@ -183,3 +186,19 @@ def test_a_bound_from_a_slow_spell_is_revised_by_the_trials_of_the_local_model()
     results = run_frames(head, link, clock, EXPLORE_FRAMES + HYSTERESIS_FRAMES + 5)
     assert all(r.by is not By.TIMEOUT for r in results)  # a trial never holds a frame up
     assert [r.action for r in results[-3:]] == ["bneck"] * 3
+
+
+def test_a_split_the_rule_left_is_re_measured_by_trials_while_another_action_runs() -> None:
+    # one slow first run of bneck's head (a pod still starting, a throttled CPU) would keep its
+    # estimate, and the head off bneck, for good: trials re-measure it while full offload runs
+    head, link, clock = setup_head()
+    head.decider.parts.ran_head(2, 0.2)  # 200 ms: bneck now predicted over alpha
+    results = run_frames(head, link, clock, 4 * EXPLORE_FRAMES)
+    # the first frame runs the plan's bneck (the link is not known yet), then the rule leaves it
+    assert {r.action for r in results[1:EXPLORE_FRAMES]} == {"full offload"}
+    trials = [p for p in link.sent if p.kind is Kind.TENSOR and p.action == 2]
+    assert len(trials) >= 3  # one frame in EXPLORE_FRAMES, beside the frame's own tensor
+    estimate = head.decider.parts.head[2].value
+    assert estimate is not None and estimate < 0.2 * 0.8**3 + HEAD_S
+    # every frame was answered by its own action's tensor, never by a trial's answer
+    assert all(r.by is By.TAIL and r.action in {"full offload", "bneck"} for r in results)
