@@ -24,7 +24,16 @@ from .decide import Decider
 from .runspec import DnnRunSpec
 from .wire import Kind, Packet
 
-__all__ = ["EXPLORE_FRAMES", "MAX_IN_FLIGHT", "By", "FrameResult", "Head", "Mailbox", "RobotParts"]
+__all__ = [
+    "EXPLORE_FRAMES",
+    "LOST_AFTER_FRAMES",
+    "MAX_IN_FLIGHT",
+    "By",
+    "FrameResult",
+    "Head",
+    "Mailbox",
+    "RobotParts",
+]
 
 MAX_IN_FLIGHT = 50  # frames whose late answer still measures the link (5 s at 10 Hz)
 # Every this many frames, over a link that is up, the smallest split's tensor is also sent as a
@@ -33,6 +42,11 @@ MAX_IN_FLIGHT = 50  # frames whose late answer still measures the link (5 s at 1
 # which nothing else would. Without it one slow first frame (a tail still starting, a throttled
 # head) or a slow spell keeps that split's estimate, and the head off it, for good (1 s at 10 Hz)
 EXPLORE_FRAMES = 10
+# A timed-out frame's answer still missing when the probe of the frame this many later echoes in
+# time is taken as lost (its bytes bound the bandwidth, ``Head._still_up``); one that arrives
+# before is a late sample like any other (a frame just over alpha on a jittery link, not a link
+# too slow for what crossed: one such frame once capped the estimate and left no split in alpha)
+LOST_AFTER_FRAMES = 2
 
 
 class By(StrEnum):
@@ -148,6 +162,8 @@ class Head:
                     rtt = now - packet.sent_ns / 1e9
                     self.decider.link.answer(rtt, tail_s, sent_bytes + len(packet.payload))
                     self.decider.parts.ran_tail(packet.action, tail_s)
+                    if self.slow_evidence is not None and self.slow_evidence[0] == packet.frame:
+                        self.slow_evidence = None  # late, not lost: its round trip is measured
             self.mailbox.put(packet, now)
 
     def trial_index(self) -> int | None:
@@ -179,14 +195,15 @@ class Head:
         return t1 - t0
 
     def _still_up(self, frame: int) -> None:
-        """A later frame's probe came back in time after ``slow_evidence``'s frame timed out:
-        the link stayed up, so it was too slow for what crossed. That answer may never come (a
-        slow link's queue drops a large tensor), so the time waited bounds the bandwidth
+        """A later frame's probe came back in time after ``slow_evidence``'s frame timed out
+        and its answer did not (``LOST_AFTER_FRAMES``): the link stayed up, so it was too slow
+        for what crossed. That answer may never come (a slow link's queue drops a large
+        tensor), so the time waited bounds the bandwidth
         (``LinkEstimator.too_slow``): without it a head whose action no answer comes back for
         keeps the fast link's estimate and tries that action again after every cut (RoboEC2
         learns the transfer time from what the robot measures, Section IV-B). A probe lost
         instead (the link or the tail gone) drops the evidence: a cut says nothing of speed."""
-        if self.slow_evidence is not None and frame > self.slow_evidence[0]:
+        if self.slow_evidence is not None and frame >= self.slow_evidence[0] + LOST_AFTER_FRAMES:
             _, sent_bytes, waited = self.slow_evidence
             self.decider.link.too_slow(waited, sent_bytes + self.run.model.output_bytes)
             self.slow_evidence = None

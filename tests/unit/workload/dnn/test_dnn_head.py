@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from headbed import (
     ALPHA,
+    CYCLE,
     HEAD_S,
     LOCAL_S,
     ONE_WAY,
@@ -202,3 +203,34 @@ def test_a_split_the_rule_left_is_re_measured_by_trials_while_another_action_run
     assert estimate is not None and estimate < 0.2 * 0.8**3 + HEAD_S
     # every frame was answered by its own action's tensor, never by a trial's answer
     assert all(r.by is By.TAIL and r.action in {"full offload", "bneck"} for r in results)
+
+
+class JitterLink(Link):
+    """One frame's answer comes ``delay`` late (queued behind something else), then none."""
+
+    def __init__(self, clock: Clock, late_frame: int, delay: float) -> None:
+        super().__init__(clock)
+        self.late_frame, self.delay = late_frame, delay
+
+    def _reply(self, packet: Packet) -> None:
+        super()._reply(packet)
+        if packet.kind is Kind.ANSWER and packet.frame == self.late_frame:
+            at, p = self.queue[-1]
+            self.queue[-1] = (at + self.delay, p)
+
+
+def test_one_answer_just_over_alpha_is_a_late_sample_not_a_bound_on_the_link() -> None:
+    # frame 6's answer comes a cycle late, after frame 7's probe echoed: a jittery frame,
+    # not a link too slow for bneck's tensor. Its round trip is measured; the bandwidth is
+    # not capped, so bneck stays within alpha and returns after the hysteresis
+    clock = Clock()
+    link = JitterLink(clock, late_frame=6, delay=CYCLE)
+    head = Head(DnnRunSpec.from_raw(SPEC), Parts(clock), link.send, clock,
+                FakeMailbox(clock, link))  # fmt: skip
+    link.head = head
+    bounds: list[tuple[float, int]] = []
+    head.decider.link.too_slow = lambda s, b: bounds.append((s, b))  # type: ignore[method-assign]
+    results = run_frames(head, link, clock, 5 + HYSTERESIS_FRAMES + 5)
+    assert [r.by for r in results].count(By.TIMEOUT) == 1
+    assert bounds == []  # the late answer was measured as a sample, not taken as lost
+    assert [r.action for r in results[-3:]] == ["bneck"] * 3
