@@ -115,16 +115,17 @@ $(CHECKOV_VENV)/bin/checkov:
 	$(PY) -m venv $(CHECKOV_VENV)
 	$(CHECKOV_VENV)/bin/pip install -q checkov==$(CHECKOV_VERSION)
 
-checkov: venv $(CHECKOV_VENV)/bin/checkov ## checkov (offline) over manifests/install, the rendered chart and the rendered warehouse Deployments
+checkov: venv $(CHECKOV_VENV)/bin/checkov ## checkov (offline) over manifests/install, the rendered chart and the rendered warehouse and split-network Deployments
 	@d=$$(mktemp -d); trap 'rm -rf "$$d"' EXIT; set -e; \
 	$(BIN)/python e2e/bed/harness.py helm template fogfleet charts/fogfleet -n fogfleet-system > "$$d/chart.yaml"; \
-	mkdir "$$d/warehouse"; $(BIN)/fogfleet render manifests/examples/warehouse > "$$d/warehouse/deployments.yaml"; \
+	mkdir "$$d/rendered"; $(BIN)/fogfleet render manifests/examples/warehouse > "$$d/rendered/warehouse.yaml"; \
+	$(BIN)/fogfleet render manifests/examples/split-network > "$$d/rendered/split-network.yaml"; \
 	for target in manifests/install "$$d/chart.yaml"; do \
 	  echo "checkov: $$target"; \
 	  if [ -d "$$target" ]; then $(CHECKOV) -d "$$target"; else $(CHECKOV) -f "$$target"; fi; \
 	done; \
-	echo "checkov: fogfleet render manifests/examples/warehouse (the user's images: digest and pull policy are theirs)"; \
-	$(CHECKOV) -d "$$d/warehouse" --skip-check CKV_K8S_43,CKV_K8S_15
+	echo "checkov: fogfleet render manifests/examples/warehouse and split-network (the user's images: digest and pull policy are theirs)"; \
+	$(CHECKOV) -d "$$d/rendered" --skip-check CKV_K8S_43,CKV_K8S_15
 
 bench: venv ## Benchmarks of the pure core: scheduling (misses, MILP gap, decision time) and autoscaling (tinyKube); prints tables, writes bench-*.json and docs/benchmarks/core.md
 	$(BIN)/fogfleet bench scheduling --record bench-scheduling.json

@@ -79,7 +79,8 @@ class Decider:
     def candidates(self) -> list[Action]:
         """Every action with this moment's estimates (the link None while cut)."""
         model, robot, tail = self.parts.model_now()
-        return actions(model, None if self.cut else self.link.link(), robot, tail)
+        cands = actions(model, None if self.cut else self.link.link(), robot, tail)
+        return self.parts.with_robot_cpu(cands)
 
     def decide(self) -> Decision:
         """This frame's action. Cut: the rule (the local model, at once if an off-board

@@ -14,7 +14,7 @@ metric                                         type       meaning
 ``fogfleet_dnn_late_frames_total{module}``     counter    frames answered after alpha
 ``fogfleet_dnn_timeouts_total{module}``        counter    frames the local model answered after
                                                           the tail's answer did not come
-``fogfleet_dnn_robot_seconds_total{module}``   counter    the robot's compute for the frames
+``fogfleet_dnn_robot_seconds_total{module}``   counter    the robot's CPU time for the frames
                                                           (heads, the local model)
 ``fogfleet_dnn_predicted_seconds{module}``     histogram  the action's Time(a) when chosen
 ``fogfleet_dnn_frame_seconds{module}``         histogram  the frame's real time
@@ -83,7 +83,7 @@ class DnnMetrics:
             ["module"], registry=reg,
         ).labels(**ids)  # fmt: skip
         self._robot = Counter(
-            "fogfleet_dnn_robot_seconds", "The robot's compute for the frames (heads, the "
+            "fogfleet_dnn_robot_seconds", "The robot's CPU time for the frames (heads, the "
             "local model; the whole network when run whole on it)", ["module"], registry=reg,
         ).labels(**ids)  # fmt: skip
         self._predicted = Histogram(

@@ -26,7 +26,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
 
-from fogfleet.contract.dnnsplit import DnnSplit
+from fogfleet.contract.dnnsplit import Action, DnnSplit
 
 __all__ = ["EWMA_WEIGHT", "Ewma", "LinkEstimate", "LinkEstimator", "PartTimes"]
 
@@ -117,15 +117,30 @@ class PartTimes:
     head: dict[int, Ewma] = field(default_factory=dict)
     tail: dict[int, Ewma] = field(default_factory=dict)
     local: Ewma = field(default_factory=Ewma)
+    # the robot's CPU for a part (its thread's CPU time), by action index: what maxRobotMillis
+    # bounds. The wall times above also hold the waits for a CPU (a throttled pod, a busy core),
+    # which belong in the frame's time but are not computation
+    robot_cpu: dict[int, Ewma] = field(default_factory=dict)
 
-    def ran_head(self, index: int, seconds: float) -> None:
+    def ran_head(self, index: int, seconds: float, cpu_s: float | None = None) -> None:
         self.head.setdefault(index, Ewma()).add(seconds)
+        self.robot_cpu.setdefault(index, Ewma()).add(seconds if cpu_s is None else cpu_s)
 
     def ran_tail(self, index: int, seconds: float) -> None:
         self.tail.setdefault(index, Ewma()).add(seconds)
 
-    def ran_local(self, seconds: float) -> None:
+    def ran_local(self, seconds: float, cpu_s: float | None = None) -> None:
         self.local.add(seconds)
+        index = len(self.model.split_points) + 1
+        self.robot_cpu.setdefault(index, Ewma()).add(seconds if cpu_s is None else cpu_s)
+
+    def with_robot_cpu(self, cands: list[Action]) -> list[Action]:
+        """``cands`` with each measured part's robot cost its CPU time, not its wall time."""
+        out = []
+        for a in cands:
+            cpu = self.robot_cpu.get(a.index)
+            out.append(a if cpu is None or cpu.value is None else replace(a, robot_s=cpu.value))
+        return out
 
     def _declared_head(self, index: int) -> float:
         return self.model.split_points[index - 1].head_s

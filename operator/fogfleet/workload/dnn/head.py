@@ -87,7 +87,7 @@ class FrameResult:
         return self.real_s > self.alpha_s
 
     alpha_s: float = float("inf")
-    robot_s: float = 0.0  # the robot's compute for this frame (heads, the local model)
+    robot_s: float = 0.0  # the robot's CPU for this frame (heads, the local model)
 
 
 class Mailbox:
@@ -128,8 +128,11 @@ class Head:
         send: Callable[[Packet], None],
         clock: Callable[[], float],
         mailbox: Mailbox | None = None,
+        cpu_clock: Callable[[], float] | None = None,
     ) -> None:
         self.run, self.parts, self.send, self.clock = run, parts, send, clock
+        # the frame thread's CPU time (the robot's computation; the wall clock if not given)
+        self.cpu_clock = clock if cpu_clock is None else cpu_clock
         self.decider = Decider(run)
         self.mailbox = mailbox if mailbox is not None else Mailbox(clock)
         self.lock = threading.Lock()  # the decider: the frame's thread and the receiver's
@@ -185,14 +188,14 @@ class Head:
         with self.lock:
             if self.decider.cut:
                 return 0.0
-        t0 = self.clock()
+        t0, c0 = self.clock(), self.cpu_clock()
         data = self.parts.head(k, image)
-        t1 = self.clock()
+        t1, cpu = self.clock(), self.cpu_clock() - c0
         with self.lock:
-            self.decider.parts.ran_head(k, t1 - t0)
+            self.decider.parts.ran_head(k, t1 - t0, cpu)
             self._track(n, k, len(data))
         self.send(Packet(Kind.TENSOR, k, n, int(t1 * 1e9), payload=data))
-        return t1 - t0
+        return cpu
 
     def _still_up(self, frame: int) -> None:
         """A later frame's probe came back in time after ``slow_evidence``'s frame timed out
@@ -235,13 +238,13 @@ class Head:
         image = self.parts.capture(n)
         by, answer, robot_s = By.LOCAL, b"", 0.0
         if action.offloaded:
-            t0 = self.clock()
+            t0, c0 = self.clock(), self.cpu_clock()
             data = self.parts.head(action.index, image)
-            t1 = self.clock()
-            robot_s += t1 - t0
+            t1, cpu = self.clock(), self.cpu_clock() - c0
+            robot_s += cpu
             with self.lock:
                 if action.index > 0:
-                    self.decider.parts.ran_head(action.index, t1 - t0)
+                    self.decider.parts.ran_head(action.index, t1 - t0, cpu)
                 self._track(n, action.index, len(data))
             self.send(Packet(Kind.TENSOR, action.index, n, int(t1 * 1e9), payload=data))
             got = self.mailbox.wait(n, action.index, start + self.decider.alpha)
@@ -256,11 +259,12 @@ class Head:
                         self.slow_evidence = (n, len(data), self.clock() - t1)
                 by = By.TIMEOUT
         if by is not By.TAIL:
-            t0 = self.clock()
+            t0, c0 = self.clock(), self.cpu_clock()
             answer = self.parts.local(image)
-            robot_s += self.clock() - t0
+            wall, cpu = self.clock() - t0, self.cpu_clock() - c0
+            robot_s += cpu
             with self.lock:
-                self.decider.parts.ran_local(self.clock() - t0)
+                self.decider.parts.ran_local(wall, cpu)
         end = self.clock()
         k = self.trial_index()
         if n % EXPLORE_FRAMES == 0 and k is not None and k != action.index:

@@ -96,9 +96,9 @@ def run_dnn(
     workers: list[threading.Thread] = []
     if robot is not None:
         head = (
-            Head(run, robot, send, time.monotonic)
+            Head(run, robot, send, time.monotonic, cpu_clock=time.thread_time)
             if whole is None
-            else WholeHead(whole, run, robot, send, time.monotonic)
+            else WholeHead(whole, run, robot, send, time.monotonic, cpu_clock=time.thread_time)
         )
         receiver: Any = head.receive
         dnn = DnnMetrics(base, spec.module, action_names(run.model))

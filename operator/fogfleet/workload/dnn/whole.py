@@ -54,8 +54,9 @@ class WholeHead(Head):
         send: Callable[[Packet], None],
         clock: Callable[[], float],
         mailbox: Mailbox | None = None,
+        cpu_clock: Callable[[], float] | None = None,
     ) -> None:
-        super().__init__(run, parts, send, clock, mailbox)
+        super().__init__(run, parts, send, clock, mailbox, cpu_clock)
         self.where, self.whole_parts = where, parts
 
     def frame(self) -> FrameResult:
@@ -64,8 +65,9 @@ class WholeHead(Head):
         n = self.count
         image = self.parts.capture(n)
         if self.where is Whole.ROBOT:
+            c0 = self.cpu_clock()
             answer, by, action = self.whole_parts.whole(image), By.ROBOT, WHOLE_ON_ROBOT
-            robot_s = self.clock() - start
+            robot_s = self.cpu_clock() - c0
         else:
             data = self.parts.head(0, image)  # the raw frame: no robot compute
             sent = self.clock()

@@ -65,3 +65,20 @@ def test_a_slow_link_leaves_the_bottleneck_split_as_the_rule_says() -> None:
     got = d.decide()
     assert got.proposed is not None and got.proposed.action.name == "bneck"
     assert 0.0 < got.predicted_s < 0.05
+
+
+def test_the_robots_budget_bounds_its_cpu_not_the_waits_for_a_cpu() -> None:
+    # bneck's head took 4 ms on the wall clock but 2 ms of CPU (a throttled pod waited the
+    # rest): the frame's time counts the 4 ms, maxRobotMillis 3 the 2 ms, so bneck stays
+    d = _decider(maxRobotMillis=3)
+    d.link.echo(0.002)
+    d.link.answer(0.004, 0.0012, 10_000)
+    d.parts.ran_head(2, 0.004, cpu_s=0.002)
+    bneck = next(a for a in d.candidates() if a.name == "bneck")
+    assert bneck.robot_s == 0.002 and bneck.time_s > 0.004
+    assert d.decide().proposed is not None and d.decide().proposed.action.name == "bneck"
+    # without its CPU time the wall time is what the budget sees, and bneck is out
+    d.parts.robot_cpu.clear()
+    d.parts.ran_head(2, 0.004)
+    assert next(a for a in d.candidates() if a.name == "bneck").robot_s == 0.004
+    assert d.decide().proposed.action.name != "bneck"  # type: ignore[union-attr]
