@@ -99,6 +99,18 @@ class Kube:
     def kubectl_json(self, *args: str) -> Any:
         return json.loads(self.kubectl(*args, "-o", "json").stdout)
 
+    def create_namespace(self, name: str, labels: dict[str, str] | None = None) -> None:
+        """Namespace ``name`` (with ``labels``), once its ``default`` ServiceAccount exists:
+        pods created before it are refused."""
+        meta: dict[str, Any] = {"name": name} | ({"labels": labels} if labels else {})
+        self.apply({"apiVersion": "v1", "kind": "Namespace", "metadata": meta})
+        self.wait_for(
+            f"ServiceAccount default in {name}",
+            lambda: self.kubectl("get", "sa", "default", "-n", name, check=False).returncode == 0,
+            timeout=60,
+            interval=0.3,
+        )
+
     def apply(
         self, manifest: str | dict[str, Any] | list[dict[str, Any]], namespace: str | None = None
     ) -> str:

@@ -223,18 +223,7 @@ def _namespace_name(nodeid: str) -> str:
 def namespace(kube: Kube, request: pytest.FixtureRequest) -> Iterator[str]:
     """A fresh namespace whose `default` ServiceAccount exists; deleted after the test."""
     name = _namespace_name(request.node.nodeid)
-    kube.apply(
-        {
-            "apiVersion": "v1",
-            "kind": "Namespace",
-            "metadata": {"name": name, "labels": {"fogfleet.io/e2e": "true"}},
-        }
-    )
-    kube.wait_for(
-        f"ServiceAccount default in {name}",
-        lambda: kube.kubectl("get", "sa", "default", "-n", name, check=False).returncode == 0,
-        timeout=60,
-    )
+    kube.create_namespace(name, {"fogfleet.io/e2e": "true"})
     yield name
     if os.environ.get(ENV_KEEP_NAMESPACES):
         return

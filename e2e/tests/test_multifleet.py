@@ -48,15 +48,7 @@ def namespaces(kube: Kube, namespace: str) -> Iterator[dict[str, str]]:
     """Three namespaces: the test's own (fleet a) and two more (fleets b and c)."""
     names = {"a": namespace, "b": f"{namespace}-b", "c": f"{namespace}-c"}
     for key in ("b", "c"):
-        kube.apply({"apiVersion": "v1", "kind": "Namespace", "metadata": {"name": names[key]}})
-    for name in names.values():
-        kube.wait_for(
-            f"ServiceAccount default in {name}",
-            lambda n=name: (
-                kube.kubectl("get", "sa", "default", "-n", n, check=False).returncode == 0
-            ),
-            timeout=60,
-        )
+        kube.create_namespace(names[key])
     yield names
     for key in ("b", "c"):
         kube.kubectl("delete", "namespace", names[key], "--wait=false", check=False)

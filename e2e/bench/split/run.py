@@ -145,9 +145,7 @@ def run_bench(
     if not {*ROBOTS, EDGE} <= set(cluster.real_nodes):
         raise SystemExit(f"the split fleet needs the default bed's real nodes {(*ROBOTS, EDGE)}")
     ns = f"bench-split-{secrets.token_hex(2)}"
-    kube.apply({"apiVersion": "v1", "kind": "Namespace", "metadata": {"name": ns}})
-    kube.wait_for("ServiceAccount default", lambda: kube.kubectl(
-        "get", "sa", "default", "-n", ns, check=False).returncode == 0, 60)  # fmt: skip
+    kube.create_namespace(ns)
     workdir = Path(tempfile.mkdtemp(prefix="bench-split-"))
     log(f"namespace {ns}; operator log {workdir / 'operator.log'}")
     windows: list[Window] = []
