@@ -181,6 +181,20 @@ class Head:
         self.tensors = {k: b for k, b in self.tensors.items() if k[0] > n - MAX_IN_FLIGHT}
         self.tensors[n, action] = sent_bytes
 
+    def _send_tensor(self, n: int, k: int, image: Any) -> tuple[int, float, float]:
+        """Run action ``k``'s head on frame ``n``'s image (the raw frame for full offload),
+        count its time and send what crosses; (bytes sent, when they left, the robot's CPU
+        seconds)."""
+        t0, c0 = self.clock(), self.cpu_clock()
+        data = self.parts.head(k, image)
+        t1, cpu = self.clock(), self.cpu_clock() - c0
+        with self.lock:
+            if k > 0:
+                self.decider.parts.ran_head(k, t1 - t0, cpu)
+            self._track(n, k, len(data))
+        self.send(Packet(Kind.TENSOR, k, n, int(t1 * 1e9), payload=data))
+        return len(data), t1, cpu
+
     def _trial(self, n: int, image: Any, k: int) -> float:
         """Send frame ``n``'s tensor at split ``k`` without waiting for its answer, when the
         link is up; its head time counts, its answer measures the link and the tail
@@ -188,14 +202,7 @@ class Head:
         with self.lock:
             if self.decider.cut:
                 return 0.0
-        t0, c0 = self.clock(), self.cpu_clock()
-        data = self.parts.head(k, image)
-        t1, cpu = self.clock(), self.cpu_clock() - c0
-        with self.lock:
-            self.decider.parts.ran_head(k, t1 - t0, cpu)
-            self._track(n, k, len(data))
-        self.send(Packet(Kind.TENSOR, k, n, int(t1 * 1e9), payload=data))
-        return cpu
+        return self._send_tensor(n, k, image)[2]
 
     def _still_up(self, frame: int) -> None:
         """A later frame's probe came back in time after ``slow_evidence``'s frame timed out
@@ -238,15 +245,8 @@ class Head:
         image = self.parts.capture(n)
         by, answer, robot_s = By.LOCAL, b"", 0.0
         if action.offloaded:
-            t0, c0 = self.clock(), self.cpu_clock()
-            data = self.parts.head(action.index, image)
-            t1, cpu = self.clock(), self.cpu_clock() - c0
+            sent_bytes, t1, cpu = self._send_tensor(n, action.index, image)
             robot_s += cpu
-            with self.lock:
-                if action.index > 0:
-                    self.decider.parts.ran_head(action.index, t1 - t0, cpu)
-                self._track(n, action.index, len(data))
-            self.send(Packet(Kind.TENSOR, action.index, n, int(t1 * 1e9), payload=data))
             got = self.mailbox.wait(n, action.index, start + self.decider.alpha)
             if got is not None:
                 by, answer = By.TAIL, got[0].payload
@@ -256,7 +256,7 @@ class Head:
                     # its probe's echo tells of the link before the tensor, not after: it
                     # must not clear this cut; a later probe's will (``_still_up``)
                     if self.echoed_in_time.pop(n, False):  # up when it left: slow, or gone?
-                        self.slow_evidence = (n, len(data), self.clock() - t1)
+                        self.slow_evidence = (n, sent_bytes, self.clock() - t1)
                 by = By.TIMEOUT
         if by is not By.TAIL:
             t0, c0 = self.clock(), self.cpu_clock()

@@ -22,7 +22,7 @@ from fogfleet.contract.dnn import FULL_OFFLOAD
 
 from .head import By, FrameResult, Head, Mailbox, RobotParts
 from .runspec import DnnRunSpec
-from .wire import Kind, Packet
+from .wire import Packet
 
 __all__ = ["UNANSWERED_AFTER", "WHOLE_ON_ROBOT", "Whole", "WholeHead", "WholeParts"]
 
@@ -69,12 +69,8 @@ class WholeHead(Head):
             answer, by, action = self.whole_parts.whole(image), By.ROBOT, WHOLE_ON_ROBOT
             robot_s = self.cpu_clock() - c0
         else:
-            data = self.parts.head(0, image)  # the raw frame: no robot compute
-            sent = self.clock()
-            robot_s = 0.0
-            with self.lock:
-                self._track(n, 0, len(data))
-            self.send(Packet(Kind.TENSOR, 0, n, int(sent * 1e9), payload=data))
+            self._send_tensor(n, 0, image)
+            robot_s = 0.0  # the raw frame: no network runs on the robot
             got = self.mailbox.wait(n, 0, start + UNANSWERED_AFTER * self.decider.alpha)
             answer, by = (b"", By.UNANSWERED) if got is None else (got[0].payload, By.TAIL)
             action = FULL_OFFLOAD
