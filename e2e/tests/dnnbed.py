@@ -13,7 +13,16 @@ from typing import Any
 from e2e.portable.metrics import read
 from e2e.tests.rosbed import bed_objects, ros_module
 
-__all__ = ["ALPHA_MS", "DNN", "FLEET", "MODULE", "SLOW", "head_action", "split_objects"]
+__all__ = [
+    "ALPHA_MS",
+    "DNN",
+    "FLEET",
+    "MODULE",
+    "SLOW",
+    "head_action",
+    "profiled_objects",
+    "split_objects",
+]
 
 FLEET = "splitfleet"
 MODULE = "pose"
@@ -43,6 +52,20 @@ def split_objects(ns: str, **dnn: Any) -> list[dict[str, Any]]:
     pose["spec"]["dnn"] = DNN | dnn
     pose["spec"]["resources"]["memory"] = "384Mi"  # onnxruntime, the heads and ROS 2
     return bed_objects(ns, FLEET, [pose])
+
+
+def profiled_objects(ns: str, frames: int) -> list[dict[str, Any]]:
+    """The same fleet with no time or byte count declared: ``profiling.mode: auto`` (one Job
+    per hardware type timing ``frames`` frames of every part) measures them."""
+    objects = split_objects(ns)
+    pose = next(o for o in objects if o["kind"] == "SoftwareModule")
+    dnn = pose["spec"]["dnn"]
+    for key in ("inputBytes", "outputBytes", "fullMillis"):
+        del dnn[key]
+    dnn["localModel"] = {k: v for k, v in dnn["localModel"].items() if k != "robotMillis"}
+    dnn["splitPoints"] = [{"name": p["name"]} for p in dnn["splitPoints"]]
+    pose["spec"]["profiling"] = {"mode": "auto", "cycles": frames, "timeoutSeconds": 180}
+    return objects
 
 
 def head_action(url: str) -> str:

@@ -31,8 +31,13 @@ DNN: dict[str, Any] = {
 }
 
 
-def split_catalog(dnn: dict[str, Any], wifi: dict[str, float] | None = None) -> Catalog:
-    """The warehouse with human-pose-estimation as a split network and robots 25x slower."""
+def split_catalog(
+    dnn: dict[str, Any],
+    wifi: dict[str, float] | None = None,
+    profiling: dict[str, Any] | None = None,
+) -> Catalog:
+    """The warehouse with human-pose-estimation as a split network and robots 25x slower
+    (``profiling``: its spec.profiling)."""
     catalog = load_paths([WAREHOUSE])
     for key, node in list(catalog.nodes.items()):
         if node.spec.tier.value != "robot":
@@ -47,5 +52,7 @@ def split_catalog(dnn: dict[str, Any], wifi: dict[str, float] | None = None) -> 
     raw["spec"].pop("profile")
     raw["spec"].pop("fallback", None)
     raw["spec"]["dnn"] = copy.deepcopy(dnn)
+    if profiling is not None:
+        raw["spec"]["profiling"] = profiling
     catalog.modules[key] = parse_object(raw)  # type: ignore[assignment]
     return catalog

@@ -18,6 +18,17 @@ cycle) and three keys of the plan: ``KEY_ROBOT_FACTOR`` (the robot's time per re
 second, 1 / speedFactor), ``KEY_TAIL_FACTOR`` (the planned tail node's) and
 ``KEY_PLANNED_ACTION`` (the action the planner chose: ``FULL_OFFLOAD``, a split point's name
 or the local model's name).
+
+**Profiling** (``SoftwareModule.spec.profiling.mode: auto`` beside ``spec.dnn``): the operator's
+profiling Job runs the same image with ``FOGFLEET_PROFILE_CYCLES=N`` (``contract.env``) and, in
+``FOGFLEET_MODULE_SPEC``, ``PROFILE_KEY`` instead of ``SPEC_KEY``: ``{"splitPoints": [names, in
+order]}``. The workload then times every part of the image's network on its node (the whole
+network, the local model, every split point's head and tail; one thread, the thread's CPU time,
+the median of N frames after ``PROFILE_WARMUP`` untimed ones) and writes one JSON line to its
+termination message: ``cycles`` (N), ``meanMillis`` / ``stdMillis`` (the whole network's, as
+every profiling Job reports), ``cpuSeconds``, ``wallSeconds`` and, under ``RESULT_KEY``,
+``{"inputBytes", "outputBytes", "fullMillis", "localMillis", "splitPoints": [{"name",
+"headMillis", "tailMillis", "tensorBytes"}, ...]}`` (milliseconds, bytes per frame).
 """
 
 from __future__ import annotations
@@ -27,6 +38,9 @@ __all__ = [
     "KEY_PLANNED_ACTION",
     "KEY_ROBOT_FACTOR",
     "KEY_TAIL_FACTOR",
+    "PROFILE_KEY",
+    "PROFILE_WARMUP",
+    "RESULT_KEY",
     "ROLE_HEAD",
     "ROLE_TAIL",
     "SPEC_KEY",
@@ -41,6 +55,9 @@ KEY_ROBOT_FACTOR = "robotFactor"
 KEY_TAIL_FACTOR = "tailFactor"
 KEY_PLANNED_ACTION = "plannedAction"
 FULL_OFFLOAD = "full offload"  # contract.dnnsplit's name of action 0
+PROFILE_KEY = "dnnProfile"  # a profiling Job's module spec: what to time (see above)
+RESULT_KEY = "dnn"  # its result line: what it timed
+PROFILE_WARMUP = 3  # untimed frames per part before the timed ones
 
 
 def _base(module: str) -> str:

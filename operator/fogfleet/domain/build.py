@@ -16,13 +16,13 @@ from fogfleet.api.loader import Catalog
 from fogfleet.api.v1alpha1.base import parse_cpu, parse_memory, parse_quantity
 from fogfleet.api.v1alpha1.common import Tier
 from fogfleet.api.v1alpha1.computenode import ComputeNode
+from fogfleet.api.v1alpha1.dnn import Dnn
 from fogfleet.api.v1alpha1.robotfleet import RobotFleet
 from fogfleet.api.v1alpha1.softwaremodule import Scope, SoftwareModule
-from fogfleet.contract.dnnsplit import DnnSplit
 from fogfleet.errors import InvalidSpec
 
 from .checks import capacity_of, module_cycle
-from .dnnpairs import model_of
+from .dnnpairs import REFERENCE
 from .fallback import standbys
 from .network import Link, uplink
 from .pairs import Block, Pair, PairTable, Refusal, pad_rungs
@@ -223,13 +223,10 @@ def build_problem(
     )
 
 
-def _split_models(modules: list[_Resolved]) -> dict[str, DnnSplit] | None:
-    """The split networks among the fleet's modules (``domain.dnnpairs.model_of``)."""
-    out = {
-        m.module.metadata.name: model_of(m.module.spec.dnn, m.cycle)
-        for m in modules
-        if m.module.spec.dnn is not None
-    }
+def _split_models(modules: list[_Resolved]) -> dict[str, Dnn] | None:
+    """The split networks among the fleet's modules (``domain.dnnpairs.network_on`` resolves
+    them per robot and tail node)."""
+    out = {m.module.metadata.name: m.module.spec.dnn for m in modules if m.module.spec.dnn}
     return out or None
 
 
@@ -260,10 +257,10 @@ def refusals(
         inst = _expand_instances([resolved], robots, nodes, current, pools)
         tier = inst.pool_tier[instance.replica] if instance.replica < len(inst.pool_tier) else None
     link = links[home] if home >= 0 else _mean_link(links[: len(robots)])
-    speed = table.robot_factor(home) if home >= 0 else 1.0
+    kind = table.robot_kind(home) if home >= 0 else REFERENCE
 
     def pair(j: int, alone: bool = False) -> Pair | Refusal | None:
-        return table.pair(resolved.module, resolved.cycle, tier, j, home, link, speed, alone)
+        return table.pair(resolved.module, resolved.cycle, tier, j, home, link, kind, alone)
 
     # a split network's local model answers alone at home when no edge or cloud node is left
     alone = resolved.module.spec.dnn is not None and not any(
@@ -366,10 +363,10 @@ def _fill_grid(inst: _Instances, table: PairTable, links: list[Link], n_robots: 
         mod, cycle, tier = resolved.module, resolved.cycle, inst.pool_tier[i]
         why: list[str] = []
         at_home = False
-        speed = table.robot_factor(h) if h >= 0 else 1.0
-        blk = table.block(mod, cycle, tier, remote, links[h] if h >= 0 else mean_robot, speed)
+        kind = table.robot_kind(h) if h >= 0 else REFERENCE
+        blk = table.block(mod, cycle, tier, remote, links[h] if h >= 0 else mean_robot, kind)
         if h >= 0:
-            own = table.pair(mod, cycle, tier, h, h, links[h], speed, not blk.any_allowed)
+            own = table.pair(mod, cycle, tier, h, h, links[h], kind, not blk.any_allowed)
             if isinstance(own, Pair):
                 _set_home_pair(grid, i, h, own, parse_cpu(mod.spec.resources.cpu))
                 at_home = True

@@ -30,7 +30,7 @@ from fogfleet.api.v1alpha1.softwaremodule import (
 from fogfleet.errors import DanglingReference, InvalidSpec
 
 from .checks import capacity_of
-from .dnnpairs import robot_row
+from .dnnpairs import kind_of, robot_row
 from .pairs import profile_rows
 from .problem import F64, Instance, freeze
 from .rows import ProfileRow
@@ -169,7 +169,7 @@ def standbys(
             # a split network's head and local model stay on its robot (DNNSPLIT.md 3.2): held
             # there like a variant standby, whatever the plan
             net, net_cycle = split[inst.module]
-            held = robot_row(net, net_cycle, robots[h], capacity_of(robots[h])[0])
+            held = robot_row(net, net_cycle, kind_of(robots[h]), capacity_of(robots[h])[0])
             if held is not None:
                 keep[i] = is_variant[i] = True
                 row[i] = (held.cpu, held.mean, held.std)

@@ -97,8 +97,10 @@ def rows_for(module: SoftwareModule, hardware_type: str, speed_factor: float) ->
     (``workload.dnn``, which ignores rows); these are the whole network's time at each CPU step
     (``dnnpairs.dnn_rows``), what its status reports as declared."""
     if module.spec.dnn is not None:
-        full = module.spec.dnn.full_millis / 1e3 / max(speed_factor, 1e-6)
-        return dnnpairs.dnn_rows(full, math.inf)
+        full = dnnpairs.full_seconds(
+            module.spec.dnn, dnnpairs.NodeKind(hardware_type, speed_factor)
+        )
+        return [] if full is None else dnnpairs.dnn_rows(full, math.inf)
     own = [r for r in module.spec.profile if r.hardware_type == hardware_type]
     scale = 1.0
     if not own:
@@ -170,13 +172,13 @@ class PairTable:
         j: int,
         home: int,
         home_link: Link,
-        home_factor: float = 1.0,
+        home_kind: dnnpairs.NodeKind = dnnpairs.REFERENCE,
         alone: bool = False,
     ) -> Pair | Refusal | None:
         """Module ``mod`` (instance of robot ``home``, -1 for a shared replica) on node ``j``:
         a Pair, or why it may not run there (None: not worth saying, such as another robot's
-        computer or a node of another pool's tier). ``home_factor`` is the robot's time per
-        reference second (a split network's head runs there); ``alone``: no edge or cloud node
+        computer or a node of another pool's tier). ``home_kind`` is the robot's hardware type
+        and speed (a split network's head runs there); ``alone``: no edge or cloud node
         is left to the instance (a split network's local model then answers at home)."""
         nd = self.nodes[j]
         ns = nd.spec
@@ -207,7 +209,7 @@ class PairTable:
                 f"{name}: privacy level {ns.privacy} < required {req.min_privacy}", "privacy"
             )
         if spec.dnn is not None:
-            return self._dnn_pair(mod, cycle, j, home, home_link, home_factor, alone)
+            return self._dnn_pair(mod, cycle, j, home, home_link, home_kind, alone)
         key = (id(mod), ns.hardware_type, ns.speed_factor)
         if key not in self._profiles:
             rows = profile_rows(mod, nd)
@@ -245,7 +247,7 @@ class PairTable:
         j: int,
         home: int,
         home_link: Link,
-        home_factor: float,
+        home_kind: dnnpairs.NodeKind,
         alone: bool,
     ) -> Pair | Refusal:
         """A split network on node ``j`` (``domain.dnnpairs``): its local model at home, its
@@ -253,21 +255,20 @@ class PairTable:
         nd = self.nodes[j]
         name = nd.metadata.name
         assert mod.spec.dnn is not None
-        alpha = dnnpairs.model_of(mod.spec.dnn, cycle).max_latency_s
+        alpha = dnnpairs.alpha_s(mod.spec.dnn, cycle)
         if j == home:
-            got = dnnpairs.local_pair_rows(mod, cycle, nd, self.caps[j, 0], alone)
+            got = dnnpairs.local_pair_rows(mod, cycle, home_kind, self.caps[j, 0], alone)
             if isinstance(got, str):
-                return Refusal(f"{name}: {got}", "dnn")
+                return Refusal(f"{name}: {got}", _dnn_rule(got))
             rows, outside, std, bits = got, 0.0, 0.0, 0.0
             action = len(mod.spec.dnn.split_points) + 1  # the local model (eq. 2's n+1)
         else:
             link = path(home_link, self.links[j])
-            tail = dnnpairs.off_board(mod, cycle, home_factor, nd, link)
+            tail = dnnpairs.off_board(mod, cycle, home_kind, dnnpairs.kind_of(nd), link)
             if isinstance(tail, str):
-                return Refusal(f"{name}: {tail}", "dnn")
-            choice, outside, std, bits = tail
-            model = dnnpairs.model_of(mod.spec.dnn, cycle)
-            rows = dnnpairs.tail_rows(model, choice.action, nd, self.caps[j, 0])
+                return Refusal(f"{name}: {tail}", _dnn_rule(tail))
+            on, choice, outside, std, bits = tail
+            rows = dnnpairs.tail_rows(on, choice.action, self.caps[j, 0])
             action = choice.action.index
         if not rows:
             return Refusal(f"{name}: has less than {dnnpairs.CPU_STEPS[0]:g} core", "profile")
@@ -278,9 +279,9 @@ class PairTable:
             rungs = (pick, *sorted((r for r in rows if r.cpu < pick.cpu), key=lambda r: -r.cpu))
         return Pair(outside, std, bits, pick, rows[-1], rungs, action)
 
-    def robot_factor(self, j: int) -> float:
-        """Node ``j``'s time per second on the reference core (1 / speedFactor)."""
-        return 1.0 / max(parse_quantity(self.nodes[j].spec.speed_factor), 1e-6)
+    def robot_kind(self, j: int) -> dnnpairs.NodeKind:
+        """Node ``j``'s hardware type and speed (a split network's head runs on its robot)."""
+        return dnnpairs.kind_of(self.nodes[j])
 
     def block(
         self,
@@ -289,18 +290,18 @@ class PairTable:
         pool_tier: Tier | None,
         cols: range,
         home_link: Link,
-        home_factor: float = 1.0,
+        home_kind: dnnpairs.NodeKind = dnnpairs.REFERENCE,
     ) -> Block:
         """``pair`` over the nodes ``cols`` (none of them the instance's own robot), memoised
         per (module, cycle, pool tier, nodes, the robot's uplink and, for a split network, the
         robot's speed)."""
-        speed = home_factor if mod.spec.dnn is not None else 1.0
-        key = (id(mod), cycle, pool_tier, cols.start, cols.stop, home_link, speed)
+        kind = home_kind if mod.spec.dnn is not None else dnnpairs.REFERENCE
+        key = (id(mod), cycle, pool_tier, cols.start, cols.stop, home_link, kind)
         hit = self._blocks.get(key)
         if hit is not None:
             return hit
         m = len(cols)
-        pairs = [self.pair(mod, cycle, pool_tier, j, -2, home_link, speed) for j in cols]
+        pairs = [self.pair(mod, cycle, pool_tier, j, -2, home_link, kind) for j in cols]
         ok = [isinstance(p, Pair) for p in pairs]
         got = [p for p in pairs if isinstance(p, Pair)]
         k = max((len(p.rungs) for p in got), default=1) or 1
@@ -337,3 +338,9 @@ class PairTable:
         )
         self._blocks[key] = blk
         return blk
+
+
+def _dnn_rule(why: str) -> str:
+    """The rule a split network's refusal names: ``profile`` while its times on a hardware
+    type are not known yet (``dnnpairs.network_on``), else ``dnn``."""
+    return "profile" if why.startswith("no times of its network") else "dnn"

@@ -31,7 +31,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from fogfleet.api.v1alpha1.common import Tier
-from fogfleet.contract.dnnsplit import DnnSplit
+from fogfleet.api.v1alpha1.dnn import Dnn
 
 __all__ = [
     "TIER_CODE",
@@ -177,7 +177,7 @@ class Problem:
     # each node (contract.dnnsplit: 0 whole off board, k split point k, n+1 the local model at
     # home); -1 where the instance is not a split network's or may not run; None: none is
     dnn_action: NDArray[np.int64] | None = None  # (I, N)
-    split_models: Mapping[str, DnnSplit] | None = None  # module -> its network (seconds)
+    split_models: Mapping[str, Dnn] | None = None  # module -> its network (spec.dnn)
     uplink_latency: F64 | None = None  # (N,) one-way latency of each node's uplink, seconds
 
     @property

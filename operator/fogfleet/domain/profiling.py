@@ -37,6 +37,7 @@ from typing import Any
 from fogfleet.api.v1alpha1.base import format_millicores, parse_cpu, status_part
 from fogfleet.api.v1alpha1.common import Tier
 from fogfleet.api.v1alpha1.computenode import ComputeNode
+from fogfleet.api.v1alpha1.dnn import DnnHardwareProfile
 from fogfleet.api.v1alpha1.profiling import ProfiledRow, ProfilingStatus
 from fogfleet.api.v1alpha1.softwaremodule import (
     ProfileEntry,
@@ -51,6 +52,7 @@ __all__ = [
     "Fit",
     "Measurement",
     "current_rows",
+    "dnn_limit",
     "edge_cases",
     "fit_profile",
     "grid_for",
@@ -58,6 +60,7 @@ __all__ = [
     "needed_profiles",
     "profiling_status",
     "with_profiled",
+    "with_profiled_dnn",
     "with_profiled_rows",
 ]
 
@@ -86,11 +89,13 @@ def module_spec_hash(module: SoftwareModule) -> str:
     """What a profile of the module depends on: its container, cycle and profiling settings
     (not its declared rows). A change to any of them profiles the module again."""
     spec = module.spec
-    basis = {
+    basis: dict[str, object] = {
         "template": spec.template.wire(),
         "cycle": str(spec.cycle_time_millis),
         "profiling": spec.profiling.wire() if spec.profiling is not None else None,
     }
+    if spec.dnn is not None:  # what a Job times: the image's parts of these names
+        basis["dnn"] = [p.name for p in spec.dnn.split_points]
     text = json.dumps(basis, sort_keys=True, default=str)
     return hashlib.sha256(text.encode()).hexdigest()[:10]
 
@@ -106,6 +111,12 @@ def edge_cases(grid: Sequence[float]) -> list[float]:
     inner = cpus[1:-1]
     mid = min(inner, key=lambda c: (round(abs(math.log(c / middle)), 9), c))
     return [lo, mid, hi]
+
+
+def dnn_limit(capacities: Iterable[float]) -> float:
+    """The CPU limit a split network's Job gets on a hardware type: one core (the network
+    runs on one thread), or the largest node's usable CPU below that (0: none)."""
+    return min(1.0, max(capacities, default=0.0))
 
 
 def grid_for(module: SoftwareModule, capacities: Iterable[float]) -> list[float]:
@@ -139,6 +150,8 @@ def needed_profiles(
         if not auto_profiled(mod.spec):
             continue
         have = {r.hardware_type for r in mod.spec.profile}
+        if mod.spec.dnn is not None:  # a split network: its times per type
+            have = {p.hardware_type for p in mod.spec.dnn.profiles}
         if "default" in have:
             continue  # every type has rows: the default ones, speed-scaled
         for node in nodes:
@@ -227,6 +240,23 @@ def with_profiled_rows(
     return module.model_copy(update={"spec": spec})
 
 
+def with_profiled_dnn(
+    module: SoftwareModule, measured: Iterable[DnnHardwareProfile], profiled_types: Iterable[str]
+) -> SoftwareModule:
+    """A split network with the profiles ``measured`` on ``profiled_types`` (runs of its current
+    spec) in ``spec.dnn.profiles``, where it declares none of that type."""
+    dnn = module.spec.dnn
+    assert dnn is not None
+    declared = {p.hardware_type for p in dnn.profiles}
+    use = set(profiled_types) - declared
+    extra = [p for p in measured if p.hardware_type in use]
+    if not extra:
+        return module
+    new_dnn = dnn.model_copy(update={"profiles": [*dnn.profiles, *extra]})
+    spec = module.spec.model_copy(update={"dnn": new_dnn})
+    return module.model_copy(update={"spec": spec})
+
+
 def current_rows(
     status: ProfilingStatus | None, spec_hash: str
 ) -> tuple[set[str], list[ProfiledRow]]:
@@ -249,5 +279,8 @@ def with_profiled(module: SoftwareModule, raw: Mapping[str, Any]) -> SoftwareMod
     status) in its profile, where it declares none of that hardware type."""
     if not auto_profiled(module.spec):
         return module
-    done, rows = current_rows(profiling_status(raw), module_spec_hash(module))
+    status = profiling_status(raw)
+    done, rows = current_rows(status, module_spec_hash(module))
+    if module.spec.dnn is not None:
+        return with_profiled_dnn(module, status.dnn if status else [], done)
     return with_profiled_rows(module, rows, done)

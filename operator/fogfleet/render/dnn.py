@@ -17,8 +17,8 @@ from fogfleet.contract.dnn import (
     ROLE_HEAD,
     ROLE_TAIL,
 )
-from fogfleet.contract.dnnsplit import action_name
-from fogfleet.domain.dnnpairs import model_of
+from fogfleet.contract.dnnsplit import DnnSplit, action_name
+from fogfleet.domain.dnnpairs import kind_of, network_on
 from fogfleet.domain.problem import Problem
 
 __all__ = ["ROLE_HEAD", "ROLE_TAIL", "split_body"]
@@ -27,19 +27,50 @@ __all__ = ["ROLE_HEAD", "ROLE_TAIL", "split_body"]
 def split_body(problem: Problem, module: SoftwareModule, i: int, j: int) -> dict[str, Any]:
     """The ``dnn`` key of the module spec its pods read: ``spec.dnn`` with alpha resolved,
     each side's time per reference-core second (1 / speedFactor), and the planned action of
-    instance ``i`` with its tail on node ``j`` (its robot: the local model alone)."""
-    assert module.spec.dnn is not None
-    cycle = float(problem.cycle[i])
-    model = model_of(module.spec.dnn, cycle)
+    instance ``i`` with its tail on node ``j`` (its robot: the local model alone). Where a
+    side's hardware type has a profile (``spec.dnn.profiles``, or measured by profiling), the
+    times are the network's on the robot and on the tail node as the planner used them
+    (``domain.dnnpairs.network_on``), with that side's factor 1."""
+    dnn = module.spec.dnn
+    assert dnn is not None
     home = int(problem.home[i])
     index = -1 if problem.dnn_action is None else int(problem.dnn_action[i, j])
-    if index < 0:
+    on = network_on(dnn, float(problem.cycle[i]), kind_of(problem.nodes[home]),
+                    kind_of(problem.nodes[j]))  # fmt: skip
+    if index < 0 or isinstance(on, str):
         raise ValueError(f"{problem.label(i)} is not planned as a split network on node {j}")
-    body = module.spec.dnn.wire() | {
-        "maxLatencyMillis": model.max_latency_s * 1e3,
-        KEY_ROBOT_FACTOR: 1.0 / max(problem.nodes[home].speed_factor, 1e-6),
-        KEY_PLANNED_ACTION: action_name(model, index),
+    body = dnn.wire()
+    body.pop("profiles", None)
+    if on.measured:
+        body |= _times(on.model)
+    body |= {
+        "maxLatencyMillis": on.model.max_latency_s * 1e3,
+        KEY_ROBOT_FACTOR: on.robot_factor,
+        KEY_PLANNED_ACTION: action_name(on.model, index),
     }
     if j != home:
-        body[KEY_TAIL_FACTOR] = 1.0 / max(problem.nodes[j].speed_factor, 1e-6)
+        body[KEY_TAIL_FACTOR] = on.tail_factor
     return body
+
+
+def _times(model: DnnSplit) -> dict[str, Any]:
+    """The times and bytes of ``model`` as ``spec.dnn`` writes them (milliseconds, bytes)."""
+    return {
+        "inputBytes": model.input_bytes,
+        "outputBytes": model.output_bytes,
+        "fullMillis": round(model.full_s * 1e3, 6),
+        "splitPoints": [
+            {
+                "name": p.name,
+                "headMillis": round(p.head_s * 1e3, 6),
+                "tailMillis": round(p.tail_s * 1e3, 6),
+                "tensorBytes": p.tensor_bytes,
+            }
+            for p in model.split_points
+        ],
+        "localModel": {
+            "name": model.local_name,
+            "robotMillis": round(model.local_s * 1e3, 6),
+            "accuracy": model.local_accuracy,
+        },
+    }

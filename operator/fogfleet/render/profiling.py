@@ -5,7 +5,8 @@ Deployments run it) in a Job pinned to the nodes of that hardware type, with the
 both requested and enforced, ``FOGFLEET_PROFILE_CYCLES`` set (the profiling contract:
 ``api.v1alpha1.profiling``) and nothing that belongs to a long-running pod: no sidecars (a Job
 ends when all its containers do), no probes, no ports. The Job is owned by its
-SoftwareModule, so deleting the module deletes its profiling.
+SoftwareModule, so deleting the module deletes its profiling. A split network's Job
+(``spec.dnn``) is told the split points to time (``contract.dnn.PROFILE_KEY``).
 """
 
 from __future__ import annotations
@@ -64,6 +65,7 @@ def render_profiling_job(
     limit = format_millicores(cpu)
     memory = str(module.spec.resources.memory)
     quantities = {"cpu": limit, "memory": memory}
+    dnn = module.spec.dnn
     env = module_env(
         None,
         fleet="",
@@ -73,6 +75,7 @@ def render_profiling_job(
         node="",
         hardware_type=hardware_type,
         cpu=limit,
+        dnn_profile=None if dnn is None else [p.name for p in dnn.split_points],
     )
     for var in env:
         if var["name"] == "FOGFLEET_NODE":  # wherever kube-scheduler puts it

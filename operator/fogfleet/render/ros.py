@@ -25,7 +25,7 @@ from fogfleet.api.names import label_value
 from fogfleet.api.v1alpha1.fallback import Fallback
 from fogfleet.api.v1alpha1.robotfleet import RosSettings
 from fogfleet.api.v1alpha1.softwaremodule import ProfileEntry, SoftwareModule
-from fogfleet.contract.dnn import SPEC_KEY
+from fogfleet.contract.dnn import PROFILE_KEY, SPEC_KEY
 from fogfleet.contract.env import (
     ENV_CPU,
     ENV_FLEET,
@@ -154,6 +154,7 @@ def module_spec_json(
     remote_cycle_millis: float | None = None,
     speed_factor: float = 1.0,
     split: Mapping[str, Any] | None = None,
+    dnn_profile: Sequence[str] | None = None,
 ) -> str:
     """What the workload needs of the module: cycle, activation, topics, its node's profile.
 
@@ -162,7 +163,8 @@ def module_spec_json(
     it gets the row of every node it may land on (``profileByNode``). ``remote_cycle_millis``
     is, for a variant's standby, the cycle time of the module it stands in for: the remote's
     silence is counted in the remote's cycles. ``split``: a split network's ``dnn``
-    (``render.dnn.split_body``).
+    (``render.dnn.split_body``); ``dnn_profile``: its profiling Job's split points to time
+    (``contract.dnn.PROFILE_KEY``).
     """
     spec = module.spec
     body: dict[str, Any] = {
@@ -175,6 +177,8 @@ def module_spec_json(
         body["profileByNode"] = {n: [row.wire()] for n, row in sorted(node_rows.items())}
     if split is not None:
         body[SPEC_KEY] = dict(split)
+    if dnn_profile is not None:
+        body[PROFILE_KEY] = {"splitPoints": list(dnn_profile)}
     if fallback is not None:
         body["fallback"] = {
             "silentCycles": fallback.silent_cycles,
@@ -203,6 +207,7 @@ def module_env(
     speed_factor: float = 1.0,
     split: Mapping[str, Any] | None = None,
     workload_role: str = "",
+    dnn_profile: Sequence[str] | None = None,
 ) -> list[dict[str, Any]]:
     """The environment fogfleet owns in a module container (ROS wiring + FOGFLEET_*).
 
@@ -213,7 +218,7 @@ def module_env(
     ``stands_in_for``: a variant's standby runs ``module`` for that module (its name in
     FOGFLEET_MODULE and the metrics, the variant's in FOGFLEET_VARIANT). A split network's
     pods have ``split`` (its ``dnn``) and ``workload_role`` (``head`` or ``tail``, which
-    FOGFLEET_ROLE then says instead of ``role``).
+    FOGFLEET_ROLE then says instead of ``role``); its profiling Job has ``dnn_profile``.
     """
     env = {
         ENV_FLEET: fleet,
@@ -224,7 +229,14 @@ def module_env(
         ENV_HARDWARE_TYPE: hardware_type,
         ENV_CPU: cpu,
         ENV_MODULE_SPEC: module_spec_json(
-            module, hardware_type, node_rows, fallback, remote_cycle_millis, speed_factor, split
+            module,
+            hardware_type,
+            node_rows,
+            fallback,
+            remote_cycle_millis,
+            speed_factor,
+            split,
+            dnn_profile,
         ),
     }
     if workload_role or role:

@@ -8,6 +8,7 @@ import dataclasses
 import os
 import sys
 
+from fogfleet.contract.dnn import PROFILE_WARMUP
 from fogfleet.contract.env import (
     ENV_LOG_INTERVAL,
     ENV_METRICS_HOST,
@@ -99,6 +100,15 @@ def main(argv: list[str] | None = None) -> int:
     except ValueError as exc:
         print(f"fogfleet-workload: {exc}", file=sys.stderr)
         return 2
+    if spec.dnn_profile is not None and ns.cmd in ("module", "dnn"):
+        # a split module's profiling Job: it times the image's models, nothing else
+        try:
+            dnn_cycles = profile_cycles(os.environ)
+        except ValueError as exc:
+            print(f"fogfleet-workload: {exc}", file=sys.stderr)
+            return 2
+        if dnn_cycles is not None:
+            return _profile_dnn(spec, spec.dnn_profile, dnn_cycles)
     if ns.cmd == "dnn" or (ns.cmd == "module" and spec.dnn is not None):
         # a split module's pods run the image's default command (module): its spec says it
         return _dnn(spec, ns.host, ns.port, ns.log_interval, getattr(ns, "link_mbit", None),
@@ -202,6 +212,30 @@ def _profile(spec: WorkloadSpec, cycles: int, what: str) -> int:
         return 1
     finally:
         work.close()
+    return 0
+
+
+def _profile_dnn(spec: WorkloadSpec, splits: tuple[str, ...], cycles: int) -> int:
+    """A split module's profiling Job (``dnn.measure``): no ROS, one result line; a missing
+    model, a line too long for a termination message or an unwritable output exits 1, saying
+    why (the operator reports the pod's words)."""
+    from .dnn.measure import run_dnn_profile
+    from .dnn.sessions import models_folder
+
+    folder = models_folder(os.environ)
+    output = os.environ.get(ENV_PROFILE_OUTPUT) or DEFAULT_OUTPUT
+    print(
+        f"fogfleet-workload: profiling {spec.module}'s network on {spec.node or 'this node'} "
+        f"({spec.hardware_type or 'unknown hardware'}, {spec.cpu_label or 'no limit'}): "
+        f"the whole network, the local model and {len(splits)} split points' heads and tails "
+        f"from {folder}, {cycles} frames each after {PROFILE_WARMUP} untimed",
+        flush=True,
+    )
+    try:
+        run_dnn_profile(folder, splits, cycles, output)
+    except (OSError, ValueError) as exc:
+        print(f"fogfleet-workload: {exc}", file=sys.stderr)
+        return 1
     return 0
 
 

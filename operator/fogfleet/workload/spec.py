@@ -8,7 +8,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
-from fogfleet.contract.dnn import SPEC_KEY
+from fogfleet.contract.dnn import PROFILE_KEY, SPEC_KEY
 from fogfleet.contract.env import (
     ENV_CPU,
     ENV_FLEET,
@@ -107,6 +107,9 @@ class WorkloadSpec:
     cpu_work_s: float | None = None
     # a split DNN module (the spec's "dnn" key, contract.dnn): its network, bounds and plan
     dnn: DnnRunSpec | None = None
+    # a split DNN module's profiling Job (the spec's "dnnProfile" key, contract.dnn): the
+    # split points whose models it times, in order; None: not such a Job
+    dnn_profile: tuple[str, ...] | None = None
 
     @property
     def cpu_label(self) -> str:
@@ -173,9 +176,24 @@ class WorkloadSpec:
                     else None
                 ),
                 dnn=DnnRunSpec.from_raw(raw) if SPEC_KEY in raw else None,
+                dnn_profile=_dnn_profile(raw),
             )
         except (KeyError, TypeError, ValueError) as exc:
             raise ValueError(f"{ENV_SPEC}: {exc!r}") from exc
+
+
+def _dnn_profile(raw: Mapping[str, Any]) -> tuple[str, ...] | None:
+    """The split points a profiling Job times (``PROFILE_KEY``'s ``splitPoints``: a list of
+    names), None when the spec has no ``PROFILE_KEY``."""
+    if PROFILE_KEY not in raw:
+        return None
+    body = raw[PROFILE_KEY]
+    names = body.get("splitPoints") if isinstance(body, Mapping) else None
+    if not isinstance(names, list) or not all(isinstance(n, str) and n for n in names):
+        raise ValueError(
+            f"{PROFILE_KEY}.splitPoints: {names!r} is not a list of split points' names"
+        )
+    return tuple(names)
 
 
 def _positive(raw: Mapping[str, Any], key: str, default: int) -> int:

@@ -31,6 +31,16 @@ DNN: dict[str, Any] = {
 }
 
 
+PROFILE: dict[str, Any] = {  # what a profiling Job measured on one hardware type
+    "hardwareType": "jetson",
+    "inputBytes": 150528,
+    "outputBytes": 4000,
+    "fullMillis": 7.9,
+    "localMillis": 0.9,
+    "splitPoints": [{"name": "bneck", "headMillis": 4.6, "tailMillis": 2.9, "tensorBytes": 6272}],
+}
+
+
 def _split_module() -> dict[str, Any]:
     """The warehouse's pose estimator as a split network (no profile, no fallback)."""
     doc = next(d for d in yaml.safe_load_all(MODULES.read_text()) if d["metadata"]["name"] == HPE)
@@ -49,6 +59,29 @@ def test_a_split_network_loads_and_reads_in_seconds_with_alpha_from_the_cycle() 
     assert model.input_bytes == 588 * 1024
     assert model.split_points[0].head_s == pytest.approx(2e-3)
     assert model.local_s == pytest.approx(0.4e-3)
+
+
+def _unmeasured(spec: dict[str, Any]) -> None:
+    """``spec.dnn`` without what profiling measures, and profiling on."""
+    dnn = spec["dnn"]
+    for key in ("inputBytes", "outputBytes", "fullMillis"):
+        dnn.pop(key)
+    dnn["localModel"].pop("robotMillis")
+    dnn["splitPoints"] = [{"name": p["name"]} for p in dnn["splitPoints"]]
+    spec["profiling"] = {"mode": "auto"}
+
+
+def test_with_profiling_auto_a_split_network_declares_no_time_and_may_declare_profiles() -> None:
+    doc = _split_module()
+    _unmeasured(doc["spec"])
+    module = parse_object(doc)
+    assert isinstance(module, SoftwareModule) and module.spec.dnn is not None
+    assert module.spec.dnn.declared() == []
+    assert "splitPoints[0].tailMillis" in module.spec.dnn.missing()
+    doc["spec"]["dnn"]["profiles"] = [PROFILE]
+    module = parse_object(doc)
+    assert isinstance(module, SoftwareModule) and module.spec.dnn is not None
+    assert module.spec.dnn.profiles[0].split_points[0].tensor_bytes == 6272
 
 
 Mutation = Callable[[dict[str, Any]], object]
@@ -101,7 +134,23 @@ Mutation = Callable[[dict[str, Any]], object]
             "spec.fallback",
             "falls back to dnn.localModel",
         ),
-        (lambda s: s.update(profiling={"mode": "auto"}), "spec.profiling", "not built yet"),
+        (lambda s: s.update(profiling={"mode": "auto"}), "spec.dnn", "leave them out"),
+        (lambda s: s["dnn"].pop("fullMillis"), "spec.dnn", "unless profiling.mode is auto"),
+        (
+            lambda s: s["dnn"]["splitPoints"][0].pop("tailMillis"),
+            "spec.dnn",
+            "every split point's headMillis, tailMillis",
+        ),
+        (
+            lambda s: s["dnn"].update(profiles=[dict(PROFILE, splitPoints=[])]),
+            "spec.dnn.profiles[0].splitPoints",
+            "are not splitPoints' names in order",
+        ),
+        (
+            lambda s: s["dnn"].update(profiles=[PROFILE, PROFILE]),
+            "spec.dnn.profiles",
+            "listed more than once",
+        ),
     ],
 )
 def test_a_bad_split_network_names_its_field_and_reason(

@@ -91,3 +91,45 @@ def test_an_accurate_enough_local_model_runs_at_home_and_wins_on_time(
     i = _first(p)
     assert p.allowed[i, int(p.home[i])]
     assert bool(p.allowed[i, p.tier == 1].any()) is offboard
+
+
+def test_times_measured_on_the_robots_hardware_type_are_used_there_as_they_are() -> None:
+    # the robots' own profile (no speed factor applied: it was measured there); the edges
+    # keep the reference times divided by their speed
+    robot_hw = "robot-nuc"
+    measured = {
+        "hardwareType": robot_hw,
+        "inputBytes": 602112,
+        "outputBytes": 4000,
+        "fullMillis": 60.0,
+        "localMillis": 8.0,
+        "splitPoints": [
+            {"name": "b6", "headMillis": 29.0, "tailMillis": 20.0, "tensorBytes": 401408},
+            {"name": "bneck", "headMillis": 30.0, "tailMillis": 20.0, "tensorBytes": 6272},
+        ],
+    }
+    p = _problem(split_catalog({**copy.deepcopy(DNN), "profiles": [measured]}, wifi=MEDIUM))
+    i = _first(p)
+    h = int(p.home[i])
+    assert p.nodes[h].hardware_type == robot_hw
+    edge = int(np.flatnonzero(p.allowed[i] & (p.tier == 1))[0])
+    outside = 30e-3 + (6272 + 4000) * 8 / 20e6 + 2 * 4.3e-3
+    assert p.net_mean[i, edge] == pytest.approx(outside, rel=1e-6)
+    # the robot holds the slowest head it measured: 30 ms fits 90 ms at half a core
+    assert p.fallback_row is not None and p.fallback_row[i, 0] == pytest.approx(0.5)
+
+
+def test_a_network_without_times_on_a_hardware_type_waits_for_profiling_there() -> None:
+    dnn = copy.deepcopy(DNN)
+    for key in ("inputBytes", "outputBytes", "fullMillis"):
+        dnn.pop(key)
+    dnn["localModel"].pop("robotMillis")
+    dnn["splitPoints"] = [{"name": s["name"]} for s in dnn["splitPoints"]]
+    catalog = split_catalog(dnn, profiling={"mode": "auto"})
+    p = _problem(catalog)
+    i = _first(p)
+    assert not p.allowed[i].any()
+    (fleet,) = catalog.fleets
+    why = [w for w in refusals(fleet, catalog, p.instances[i]).values() if w is not None]
+    assert why and all(w.rule == "profile" for w in why)
+    assert any("no times of its network for hardware type 'robot-nuc'" in str(w) for w in why)

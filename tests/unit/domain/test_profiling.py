@@ -168,3 +168,30 @@ def test_a_profile_may_be_empty_only_when_profiled_automatically() -> None:
         _module(profiling={"mode": "auto", "cpus": ["100m", "0.1"]})
     with pytest.raises(InvalidSpec, match=r"profiling.cpus\[0\]: must be greater than zero"):
         _module(profiling={"mode": "auto", "cpus": ["0m"]})
+
+
+def _split_network(profiles: list[dict[str, Any]]) -> SoftwareModule:
+    """A split network (``spec.dnn``) whose times profiling measures, with ``profiles``."""
+    dnn = {
+        "accuracy": 0.9,
+        "splitPoints": [{"name": "bneck"}],
+        "localModel": {"name": "tiny", "accuracy": 0.6},
+        "profiles": profiles,
+    }
+    return _module(profile=[], profiling={"mode": "auto"}, dnn=dnn)
+
+
+def test_a_split_network_needs_a_profile_on_every_type_it_may_use_that_has_none() -> None:
+    needs = needed_profiles([_split_network([])], NODES)
+    assert set(needs["mapper"]) == {"robot-x", "edge-x"}  # the heads' type and the tails'
+    robot = {
+        "hardwareType": "robot-x",
+        "inputBytes": 100,
+        "outputBytes": 10,
+        "fullMillis": 9,
+        "localMillis": 1,
+        "splitPoints": [{"name": "bneck", "headMillis": 5, "tailMillis": 4, "tensorBytes": 8}],
+    }
+    assert set(needed_profiles([_split_network([robot])], NODES)["mapper"]) == {"edge-x"}
+    # what a Job times depends on the split points' names
+    assert module_spec_hash(_split_network([])) != module_spec_hash(_module(profile=[]))

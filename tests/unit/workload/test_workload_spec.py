@@ -7,6 +7,7 @@ import random
 
 import pytest
 
+from fogfleet.contract.dnn import PROFILE_KEY
 from fogfleet.sim import episodes
 from fogfleet.workload.messages import Header, decode, encode
 from fogfleet.workload.spec import ExecRow, WorkloadSpec, exec_time, mean_episode_s
@@ -132,3 +133,16 @@ def test_a_plain_deployment_without_a_limit_plays_its_nodes_rows_at_full_paralle
     assert on_edge.row == ExecRow(2.0, 0.02, 0.002)
     # a node the spec does not know (or no node): the module's own rows
     assert WorkloadSpec.from_env(env).row == ExecRow(1.0, 0.05, 0.0)
+
+
+def test_a_split_modules_profiling_job_names_the_split_points_to_time() -> None:
+    """contract.dnn: PROFILE_KEY instead of SPEC_KEY, beside what every module spec has."""
+    body = {"cycleTimeMillis": 100, PROFILE_KEY: {"splitPoints": ["b6", "bneck"]}}
+    spec = WorkloadSpec.from_env({"FOGFLEET_MODULE_SPEC": json.dumps(body)})
+    assert spec.dnn_profile == ("b6", "bneck") and spec.dnn is None
+    assert spec.cycle_s == pytest.approx(0.1)
+    assert WorkloadSpec.from_env(_env()).dnn_profile is None
+    for bad in ({}, {"splitPoints": "b6"}, {"splitPoints": ["b6", ""]}, {"splitPoints": [6]}):
+        text = json.dumps({**body, PROFILE_KEY: bad})
+        with pytest.raises(ValueError, match=r"dnnProfile\.splitPoints"):
+            WorkloadSpec.from_env({"FOGFLEET_MODULE_SPEC": text})

@@ -24,6 +24,7 @@ from typing import Annotated, Literal
 from pydantic import Field, model_validator
 
 from .base import FogModel, Quantity, format_millicores, parse_cpu, refuse_duplicates
+from .dnn import DnnHardwareProfile
 
 __all__ = [
     "DEFAULT_PROFILING_CPUS",
@@ -55,9 +56,11 @@ class Profiling(FogModel):
         default_factory=lambda: list(DEFAULT_PROFILING_CPUS)
     )
     """The CPU limits the planner may give the module (the grid). Jobs measure the smallest,
-    the largest and one in between; the rest are fitted."""
+    the largest and one in between; the rest are fitted. A split network (spec.dnn) runs on
+    one thread: one Job per hardware type times it at one core (or the node's whole CPU
+    below that), and the grid is not used."""
     cycles: Annotated[int, Field(ge=5, le=10000)] = 50
-    """Cycles each profiling Job measures."""
+    """Cycles each profiling Job measures (a split network's: frames timed per part)."""
     timeout_seconds: Annotated[int, Field(ge=30, le=3600)] = 300
     """A profiling Job that has not finished by then has failed."""
 
@@ -120,3 +123,6 @@ class ProfilingStatus(FogModel):
     """One per hardware type profiled."""
     rows: list[ProfiledRow] = Field(default_factory=list)
     """The profile rows found, per hardware type and CPU limit."""
+    dnn: list[DnnHardwareProfile] = Field(default_factory=list)
+    """A split network's (spec.dnn) times measured per hardware type: every part's time per
+    frame and the bytes that cross (used like spec.dnn.profiles)."""

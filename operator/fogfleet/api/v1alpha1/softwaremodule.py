@@ -199,6 +199,8 @@ def _onboard(spec: SoftwareModuleSpec) -> bool:
     return spec.fallback is not None and spec.fallback.mode in STANDING_BY
 
 
+_AUTO = "(has(self.profiling) && has(self.profiling.mode) && self.profiling.mode == 'auto')"
+
 # A dnn module (RoboEC2's split network): a per-robot module that may leave its robot, whose
 # times and fallback (its local model) are stated in dnn alone.
 DNN_RULES = (
@@ -221,10 +223,25 @@ DNN_RULES = (
         lambda s: s.dnn is None or not s.profile,
     ),
     CrossFieldRule(
-        "!has(self.dnn) || !has(self.profiling)",
-        "profiling: a dnn module's times are declared in dnn (profiling split networks is "
-        "not built yet)",
-        lambda s: s.dnn is None or s.profiling is None,
+        f"!has(self.dnn) || {_AUTO} || (has(self.dnn.inputBytes) && has(self.dnn.outputBytes) "
+        "&& has(self.dnn.fullMillis) && has(self.dnn.localModel.robotMillis) && "
+        "(!has(self.dnn.splitPoints) || self.dnn.splitPoints.all(p, has(p.headMillis) && "
+        "has(p.tailMillis) && has(p.tensorBytes))))",
+        "dnn: inputBytes, outputBytes, fullMillis, localModel.robotMillis and every split "
+        "point's headMillis, tailMillis and tensorBytes are needed, unless profiling.mode is "
+        "auto (the operator then measures them on each hardware type)",
+        lambda s: s.dnn is None or auto_profiled(s) or not s.dnn.missing(),
+    ),
+    CrossFieldRule(
+        f"!has(self.dnn) || !{_AUTO} || (!has(self.dnn.inputBytes) && "
+        "!has(self.dnn.outputBytes) && !has(self.dnn.fullMillis) && "
+        "!has(self.dnn.localModel.robotMillis) && (!has(self.dnn.splitPoints) || "
+        "self.dnn.splitPoints.all(p, !has(p.headMillis) && !has(p.tailMillis) && "
+        "!has(p.tensorBytes))))",
+        "dnn: with profiling.mode auto the operator measures inputBytes, outputBytes, "
+        "fullMillis, localModel.robotMillis and the split points' times and bytes on each "
+        "hardware type; leave them out (times known for a hardware type go in dnn.profiles)",
+        lambda s: s.dnn is None or not auto_profiled(s) or not s.dnn.declared(),
     ),
     CrossFieldRule(
         "!has(self.dnn) || !has(self.fallback)",

@@ -8,6 +8,9 @@ finished Job's termination message, and once every Job succeeded fits the profil
 Event and deletes the Jobs. A Job that failed fails the run (``ProfilingFailed``, with the
 pod's own words): the fleet waits, and a change to the module's container or profiling
 settings profiles it again. Until then the fleet is told what it waits for.
+
+A split network (``spec.dnn``) gets one Job per hardware type, which times every part of its
+network (``contract.dnn``); what it measured goes to ``status.profiling.dnn``.
 """
 
 from __future__ import annotations
@@ -25,12 +28,15 @@ from fogfleet.api.timestamps import timestamp
 from fogfleet.api.v1alpha1.base import format_millicores, parse_cpu
 from fogfleet.api.v1alpha1.common import Tier
 from fogfleet.api.v1alpha1.computenode import ComputeNode
-from fogfleet.api.v1alpha1.profiling import ProfilingRun, ProfilingStatus
+from fogfleet.api.v1alpha1.dnn import DnnHardwareProfile
+from fogfleet.api.v1alpha1.profiling import ProfiledRow, ProfilingRun, ProfilingStatus
 from fogfleet.api.v1alpha1.robotfleet import RobotFleet
 from fogfleet.api.v1alpha1.softwaremodule import SoftwareModule
+from fogfleet.contract.dnn import RESULT_KEY
 from fogfleet.controllers.deps import Deps
 from fogfleet.domain.profiling import (
     Measurement,
+    dnn_limit,
     edge_cases,
     fit_profile,
     grid_for,
@@ -54,6 +60,7 @@ PROFILING_POLL_SECONDS = 5.0  # a fleet waiting for Jobs looks again this often
 
 log = logging.getLogger(__name__)
 Obj = dict[str, Any]
+Found = list[ProfiledRow] | DnnHardwareProfile  # what a finished run adds to the status
 
 
 @dataclass
@@ -111,13 +118,12 @@ def advance_profiling(
                 waiting.lines.append(f"{name} on {hw}: profiling failed: {run.message}")
                 waiting.failed = True
                 continue
-            new_run, rows = _step(deps, module, raw, hw, nodes, spec_hash, run)
+            new_run, found = _step(deps, module, raw, hw, nodes, spec_hash, run)
             if new_run is not None and new_run != run:
                 runs[hw] = new_run
                 changed = True
-                if rows is not None:
-                    keep = [r for r in status.rows if r.hardware_type != hw]
-                    status = status.model_copy(update={"rows": [*keep, *rows]})
+                if found is not None:
+                    status = _with_found(status, hw, found)
             if new_run is None or new_run.state != "Profiled":
                 run_now = runs.get(hw)
                 waiting.lines.append(
@@ -140,6 +146,27 @@ def advance_profiling(
     return waiting
 
 
+def _with_found(status: ProfilingStatus, hw: str, found: Found) -> ProfilingStatus:
+    """``status`` with what the run on ``hw`` found in place of what an earlier run found."""
+    if isinstance(found, DnnHardwareProfile):
+        kept = [p for p in status.dnn if p.hardware_type != hw]
+        return status.model_copy(update={"dnn": [*kept, found]})
+    keep = [r for r in status.rows if r.hardware_type != hw]
+    return status.model_copy(update={"rows": [*keep, *found]})
+
+
+def _limits(module: SoftwareModule, nodes: Sequence[ComputeNode]) -> tuple[list[float], str]:
+    """The module's grid on these nodes and why it is empty (a split network: its one
+    limit, ``dnn_limit``)."""
+    usable = [_usable_cpu(n) for n in nodes]
+    most = format_millicores(max(usable, default=0.0))
+    if module.spec.dnn is not None:
+        limit = dnn_limit(usable)
+        return ([limit] if limit > 0 else []), f"a {nodes[0].spec.hardware_type} node has no CPU"
+    why = f"no CPU limit of spec.profiling.cpus fits a {nodes[0].spec.hardware_type} node"
+    return grid_for(module, usable), f"{why} (the largest can give {most})"
+
+
 def _step(
     deps: Deps,
     module: SoftwareModule,
@@ -148,20 +175,17 @@ def _step(
     nodes: Sequence[ComputeNode],
     spec_hash: str,
     run: ProfilingRun | None,
-) -> tuple[ProfilingRun | None, list[Any] | None]:
-    """One (module, hardware type): the run as it stands now and, once profiled, its rows."""
+) -> tuple[ProfilingRun | None, Found | None]:
+    """One (module, hardware type): the run as it stands now and, once profiled, what it
+    found (the rows, or a split network's profile)."""
     name = module.metadata.name
     ns = module.metadata.namespace or "default"
-    grid = grid_for(module, (_usable_cpu(n) for n in nodes))
+    grid, empty = _limits(module, nodes)
     now = timestamp()
     if not grid:
-        most = max((_usable_cpu(n) for n in nodes), default=0.0)
-        why = (
-            f"no CPU limit of spec.profiling.cpus fits a {hw} node "
-            f"(the largest can give {format_millicores(most)})"
-        )
-        return _failed(deps, raw, hw, spec_hash, grid, why, now, run), None
+        return _failed(deps, raw, hw, spec_hash, grid, empty, now, run), None
     limits = edge_cases(grid)
+    split = module.spec.dnn is not None
     jobs = {
         j["metadata"]["labels"].get(LABEL_PROFILE_CPU): j
         for j in deps.kube.list_jobs(ns, profiling_selector(name, hw, spec_hash))
@@ -169,6 +193,7 @@ def _step(
     robots = all(n.spec.tier is Tier.ROBOT for n in nodes)
     node_names = sorted({n.node_name for n in nodes})
     measured: list[Measurement] = []
+    profiles: list[DnnHardwareProfile] = []
     pending = 0
     for cpu in limits:
         label = format_millicores(cpu)
@@ -193,14 +218,15 @@ def _step(
             )
             pending += 1
             continue
-        result = _result(deps, ns, job, cpu)
+        result = _result(deps, ns, job, cpu, hw if split else None)
         if isinstance(result, str):
             why = f"Job {job['metadata']['name']} ({label}) failed: {result}"
             return _failed(deps, raw, hw, spec_hash, grid, why, now, run), None
         if result is None:
             pending += 1
         else:
-            measured.append(result)
+            measured.append(result[0])
+            profiles += [result[1]] if result[1] is not None else []
     if pending:
         done = len(limits) - pending
         message = f"{done} of {len(limits)} profiling Jobs done"
@@ -218,18 +244,28 @@ def _step(
             ),
             None,
         )
-    fit = fit_profile(hw, grid, measured)
     cpu_s = sum(m.cpu_seconds for m in measured)
     wall_s = sum(m.wall_seconds for m in measured)
-    message = (
-        f"{len(limits)} Jobs at {', '.join(format_millicores(c) for c in limits)} "
-        f"({cpu_s:.1f} CPU-s) instead of {len(grid)}"
-        + (
-            f"; the middle limit predicted from the ends {fit.error_percent:g} % off"
-            if fit.error_percent is not None
-            else ""
+    found: Found
+    if profiles:
+        fit, found = None, profiles[0]
+        message = (
+            f"1 Job at {format_millicores(limits[0])} timed every part over {found.frames} "
+            f"frames ({cpu_s:.1f} CPU-s): the whole network {found.full_millis:g} ms, the "
+            f"local model {found.local_millis:g} ms per frame"
         )
-    )
+    else:
+        fit = fit_profile(hw, grid, measured)
+        found = list(fit.rows)
+        message = (
+            f"{len(limits)} Jobs at {', '.join(format_millicores(c) for c in limits)} "
+            f"({cpu_s:.1f} CPU-s) instead of {len(grid)}"
+            + (
+                f"; the middle limit predicted from the ends {fit.error_percent:g} % off"
+                if fit.error_percent is not None
+                else ""
+            )
+        )
     new_run = ProfilingRun(
         hardware_type=hw,
         state="Profiled",
@@ -237,7 +273,7 @@ def _step(
         grid=len(grid),
         cpu_seconds=round(cpu_s, 3),
         wall_seconds=round(wall_s, 3),
-        fit_error_percent=fit.error_percent,
+        fit_error_percent=None if fit is None else fit.error_percent,
         message=message,
         spec_hash=spec_hash,
         last_update=now,
@@ -246,7 +282,7 @@ def _step(
     log.info("Profiled SoftwareModule %s/%s on %s: %s", ns, name, hw, message)
     for job in jobs.values():
         deps.kube.delete_job(ns, job["metadata"]["name"])
-    return new_run, list(fit.rows)
+    return new_run, found
 
 
 def _failed(
@@ -287,8 +323,14 @@ def _usable_cpu(node: ComputeNode) -> float:
     return max(0.0, cap - kept)
 
 
-def _result(deps: Deps, ns: str, job: Obj, cpu: float) -> Measurement | str | None:
-    """What a Job measured, why it failed (str), or None while it runs."""
+Measured = tuple[Measurement, DnnHardwareProfile | None]
+
+
+def _result(
+    deps: Deps, ns: str, job: Obj, cpu: float, split_hw: str | None
+) -> Measured | str | None:
+    """What a Job measured (with a split network's profile on ``split_hw``), why it failed
+    (str), or None while it runs."""
     status = job.get("status") or {}
     name = job["metadata"]["name"]
     failed = next(
@@ -313,14 +355,17 @@ def _result(deps: Deps, ns: str, job: Obj, cpu: float) -> Measurement | str | No
         return f"{failed.get('reason', 'Failed')}: {detail or failed.get('message', '')}"
     for t in terminated:
         if t.get("exitCode") == 0 and t.get("message"):
-            return _measurement(t["message"], cpu) or "its termination message is not a profile"
+            got = _measurement(t["message"], cpu, split_hw)
+            return got or "its termination message is not a profile"
     return "it succeeded without a termination message (the profiling contract)"
 
 
-def _measurement(text: str, cpu: float) -> Measurement | None:
+def _measurement(text: str, cpu: float, split_hw: str | None) -> Measured | None:
+    """A Job's result line (``workload.profile``; a split network's also carries its parts'
+    times under ``contract.dnn.RESULT_KEY``), None when it is not one."""
     try:
         data = json.loads(text.strip().splitlines()[-1])
-        return Measurement(
+        measured = Measurement(
             cpu=cpu,
             mean_ms=float(data["meanMillis"]),
             std_ms=float(data["stdMillis"]),
@@ -328,5 +373,9 @@ def _measurement(text: str, cpu: float) -> Measurement | None:
             cpu_seconds=float(data.get("cpuSeconds", 0.0)),
             wall_seconds=float(data.get("wallSeconds", 0.0)),
         )
+        if split_hw is None:
+            return measured, None
+        parts = dict(data[RESULT_KEY], hardwareType=split_hw, frames=measured.cycles)
+        return measured, DnnHardwareProfile.model_validate(parts)
     except (ValueError, KeyError, TypeError, IndexError):
         return None

@@ -11,7 +11,6 @@ a downstream module or the probe sidecar reads it unchanged.
 from __future__ import annotations
 
 import array
-import os
 import signal
 import sys
 import threading
@@ -20,7 +19,6 @@ from pathlib import Path
 from typing import Any
 
 from fogfleet.contract.dnn import ROLE_HEAD, answer_topic, tensor_topic
-from fogfleet.contract.env import ENV_DNN_MODELS
 
 from ..messages import Header, encode
 from ..metrics import WorkloadMetrics
@@ -29,7 +27,7 @@ from ..spin import spin_until_stopped
 from .dnnmetrics import DnnMetrics, dnn_line
 from .head import FrameResult, Head
 from .runspec import DnnRunSpec, action_names
-from .sessions import DEFAULT_MODELS, RobotNets, TailNets
+from .sessions import RobotNets, TailNets, models_folder  # models_folder: re-exported
 from .tail import Tail
 from .whole import Whole, WholeHead
 from .wire import Packet, decode
@@ -38,11 +36,6 @@ from .wire import encode as encode_packet
 __all__ = ["models_folder", "run_dnn"]
 
 QOS_DEPTH = 4  # a few frames in flight at most: an older tensor is of no use
-
-
-def models_folder(env: dict[str, str] | os._Environ[str]) -> Path:
-    """Where the image's build stage wrote the models (``FOGFLEET_DNN_MODELS`` overrides)."""
-    return Path(env.get(ENV_DNN_MODELS) or DEFAULT_MODELS)
 
 
 def run_dnn(

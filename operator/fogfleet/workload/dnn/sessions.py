@@ -8,18 +8,32 @@ the times the head measures are then comparable with the declared ones, which ar
 from __future__ import annotations
 
 import os
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import onnxruntime as ort
 
+from fogfleet.contract.env import ENV_DNN_MODELS
+
 from .layout import FULL_FILE, LOCAL_FILE, head_file, tail_file
 
-__all__ = ["DEFAULT_MODELS", "Net", "RobotNets", "TailNets", "session_options"]
+__all__ = [
+    "DEFAULT_MODELS",
+    "Net",
+    "RobotNets",
+    "TailNets",
+    "models_folder",
+    "session_options",
+]
 
 DEFAULT_MODELS = Path("/opt/fogfleet-dnn/models")  # where the image's build stage wrote them
+
+
+def models_folder(env: Mapping[str, str]) -> Path:
+    """Where the image's build stage wrote the models (``FOGFLEET_DNN_MODELS`` overrides)."""
+    return Path(env.get(ENV_DNN_MODELS) or DEFAULT_MODELS)
 
 
 def session_options() -> ort.SessionOptions:
