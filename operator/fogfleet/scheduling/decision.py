@@ -5,6 +5,10 @@ deploys:
 
 1. an incremental re-plan of only what changed since the last decision (NSGA-II fleets planned
    before and not degraded; ``incremental.replan``), else a whole-fleet plan (``solver.plan``);
+   a first decision for a fleet that already runs (a new leader after a failover, a restarted
+   operator: no last decision in memory) keeps what runs: the incremental re-plan around the
+   placement found in the cluster is deployed when its first objective is within the
+   migration margin of the whole-fleet plan's (``_keep_what_runs``);
 2. the plan must place every placeable instance and hold (F1-F3 constraints; paper IV-A),
    else ``Infeasible`` explains it by node and resource;
 3. the migration-margin rule keeps running modules where they are unless the new plan is
@@ -134,6 +138,10 @@ def decide(
     incremental = schedule is not None
     if schedule is None:
         schedule = planner.plan(problem, settings)
+        if last is None:
+            kept = _keep_what_runs(planner, problem, settings, schedule)
+            incremental = kept is not None
+            schedule = kept or schedule
     seconds, cpu = time.perf_counter() - t0, time.thread_time() - cpu0
     placement = np.asarray(schedule.placement, dtype=np.int64)
     # a degraded plan's CPU amounts, feasibility and figures hold for the degraded problem
@@ -182,6 +190,27 @@ def decide(
         cpu,
         _remember(problem, last, stick),
     )
+
+
+def _keep_what_runs(
+    planner: Planner, problem: Problem, settings: SchedulerSettings, full: Schedule
+) -> Schedule | None:
+    """A first decision for a fleet whose instances already run (after a failover or a
+    restart the operator has no last decision, only the placement in the cluster): the
+    incremental re-plan around what runs (``incremental.replan``: what has no usable node or
+    no longer fits is affected, with its neighbourhood), when its first objective is no worse
+    than the whole-fleet plan ``full``'s by more than the migration margin; else None (deploy
+    ``full``). Not for a degraded plan, whose CPU amounts are chosen for the whole fleet."""
+    if not settings.incremental or SchedulerName(settings.algorithm) is not SchedulerName.NSGA2:
+        return None
+    if full.degraded or not bool((problem.current >= 0).any()):
+        return None
+    first = str(settings.objectives[0])
+    result = planner.replan(problem, settings, (), full.objectives.get(first))
+    if result.schedule is None:
+        return None
+    reason = f"kept what runs (no last decision in memory): {result.schedule.choice_reason}"
+    return dataclasses.replace(result.schedule, choice_reason=reason)
 
 
 def _holdable(

@@ -18,18 +18,20 @@ and proposes moves the migration-margin rule then has to argue away. ``replan``:
    the fullest nodes the affected instances may use (moving them makes room).
 4. Every other instance is fixed on its node (its gene space narrowed to it). The free ones
    start where they run if it still fits, else on the node they prefer with room
-   (``stickiness`` fill), and may go to their current node or any of their
-   ``CANDIDATE_NODES`` most preferred nodes with room; a Pareto local search
-   (``local.pareto_local_search``, bounded by ``MAX_MOVES`` scored moves, and by
-   ``MAX_MOVE_CELLS`` moves x nodes on a large cluster: a move costs a pass over the nodes)
-   improves that start and the fleet's choice rule picks from what it found, as
+   (``stickiness`` fill); where the affected fit nowhere around the others, the fewest moves
+   of running instances that make room for them (``room.fewest_moves``, an exact MILP over
+   the nodes they prefer) give the start, and what they moved is free too. They may go to
+   their current node or any of their ``CANDIDATE_NODES`` most preferred nodes with room; a
+   Pareto local search (``local.pareto_local_search``, bounded by ``MAX_MOVES`` scored moves,
+   and by ``MAX_MOVE_CELLS`` moves x nodes on a large cluster: a move costs a pass over the
+   nodes) improves that start and the fleet's choice rule picks from what it found, as
    ``solver.nsga2`` does.
 5. The result is *accepted* when it is feasible and its first objective is no worse than the
    ``reference`` (the deployed plan's value) by more than the migration margin (relative) or
    ``stickiness.ABS_TOLERANCE`` (absolute); otherwise the caller plans the fleet in full.
 
-So the plan moves at most the affected instances and the neighbourhood: a robot joining at
-1000 robots frees its 8 instances and 80 neighbours out of 8000.
+So the plan moves at most the affected instances, the neighbourhood and what made room: a
+robot joining at 1000 robots frees its 8 instances and 80 neighbours out of 8000.
 """
 
 from __future__ import annotations
@@ -51,6 +53,7 @@ from .heuristics import Fit, best_uncontended_miss, uncontended_miss
 from .local import pareto_local_search
 from .preference import polish
 from .problem import PlacementProblem
+from .room import fewest_moves
 from .schedule import Schedule
 from .solver import choose_plan
 from .spread import stacked
@@ -197,10 +200,19 @@ def replan(
     start = fill_around(
         problem, np.where(free, -1, kept), np.where(usable, cur, -1), fit, first=affected
     )
-    if np.any(start[placeable] < 0):
-        return Replan(
-            None, n_affected, int(free.sum()), "the affected instances do not fit around the others"
-        )
+    if np.any(start[placeable] < 0):  # no room: the fewest running instances make it
+        movable = (kept >= 0) & ~affected & (problem.allowed.sum(axis=1) > 1)
+        made = fewest_moves(problem, np.where(affected, -1, kept), affected, fit, movable)
+        if made is None:
+            return Replan(
+                None,
+                n_affected,
+                int(free.sum()),
+                "the affected instances do not fit around the others, nor after the fewest "
+                "moves of running instances that the nodes they prefer allow",
+            )
+        start = made
+        free |= (start != kept) & (kept >= 0)  # moved to make room: free in the search too
     narrowed = replace(problem, allowed=freeze(_narrow(problem, fit, start, free, usable)))
     names = tuple(str(n) for n in settings.objectives)
     pp = PlacementProblem(narrowed, names, with_limits=True)

@@ -5,20 +5,24 @@ from __future__ import annotations
 import dataclasses
 import math
 from functools import lru_cache
+from pathlib import Path
 
 import numpy as np
 import pytest
 
-from fogfleet.api.loader import Catalog
+from fogfleet.api.loader import Catalog, load_paths
 from fogfleet.api.v1alpha1.robotfleet import RobotFleet, SchedulerSettings
 from fogfleet.bench.scheduling import synthetic_fleet
 from fogfleet.domain.build import build_problem
 from fogfleet.domain.problem import Problem, freeze
 from fogfleet.scheduling import incremental
+from fogfleet.scheduling.decision import CorePlanner, decide, fingerprint
+from fogfleet.scheduling.heuristics import Fit
 from fogfleet.scheduling.incremental import changed_instances, replan
 from fogfleet.scheduling.solver import plan
 from fogfleet.scheduling.stickiness import feasible, fill_around, mask_unavailable
 
+WAREHOUSE = Path(__file__).resolve().parents[3] / "manifests" / "examples" / "warehouse"
 ROBOTS, EDGES = 20, 8
 SETTINGS = SchedulerSettings(seed=1, population=20, generations=10)
 
@@ -297,3 +301,83 @@ def test_the_local_search_scores_at_most_the_move_and_cell_budgets(monkeypatch, 
         assert n == 10  # the cell budget stopped it (without it, it scores more: below)
     else:
         assert 10 < n <= incremental.MAX_MOVES
+
+
+def test_a_first_decision_for_a_running_fleet_keeps_what_runs(
+    warehouse_left_by_edge: Problem,
+) -> None:
+    # a new leader (no last decision in memory) finds the warehouse running and an edge gone
+    # from spec.nodes: on its full edges the whole-fleet plan moved 18 running instances to
+    # place the 2 that ran there; around what runs, 4 moves make room (the fewest: below)
+    p = warehouse_left_by_edge
+    settings = SchedulerSettings()
+    fp = fingerprint(p, settings)
+    kept = decide(CorePlanner(), p, settings, fleet="w", fp=fp, before=p.current)
+    assert kept.incremental and "kept what runs" in kept.choice_reason, kept.choice_reason
+    assert feasible(p, kept.placement)
+    running = p.current >= 0
+    moved = int(np.sum(running & (kept.placement != p.current)))
+    assert moved == _fewest_moves(p), kept.moves  # 4 on this plan
+    # incremental re-planning off: the whole-fleet plan, as before
+    whole = decide(CorePlanner(), p, settings.model_copy(update={"incremental": False}),
+                   fleet="w", fp=fp, before=p.current)  # fmt: skip
+    assert not whole.incremental
+    assert int(np.sum(running & (whole.placement != p.current))) > moved
+
+
+@pytest.fixture(scope="module")
+def warehouse_left_by_edge() -> Problem:
+    """The warehouse as planned, then the edge running the fewest instances (2, on full
+    edges) taken out of spec.nodes, with everything else running where it was planned."""
+    cat = load_paths([WAREHOUSE])
+    (fleet,) = cat.fleets
+    p0 = build_problem(fleet, cat)
+    settings = SchedulerSettings()
+    x = decide(CorePlanner(), p0, settings, fleet="w", fp=fingerprint(p0, settings),
+               before=np.full(p0.n_instances, -1)).placement  # fmt: skip
+    count = {n: int(np.sum(x == j)) for j, n in enumerate(p0.nodes)}
+    gone = min((n.name for n in p0.nodes if n.tier.value == "edge" and count[n]),
+               key=lambda name: count[next(n for n in p0.nodes if n.name == name)])  # fmt: skip
+    spec = fleet.spec.model_copy(update={"nodes": [n for n in fleet.spec.nodes if n != gone]})
+    return build_problem(fleet.model_copy(update={"spec": spec}), cat, _current(p0, x))
+
+
+def _fewest_moves(p: Problem) -> int:
+    """The oracle: the fewest running instances any placement of every instance within the
+    nodes' CPU, memory and GPUs moves (a MILP over all instances and nodes, uplinks left
+    out: a lower bound on what ``room.fewest_moves`` may reach)."""
+    import scipy.sparse as sp
+    from scipy.optimize import Bounds, LinearConstraint, milp
+
+    fit = Fit(p, p.limits)
+    pairs = [(i, j) for i in range(p.n_instances) for j in np.flatnonzero(p.allowed[i])]
+    cost = np.array([float(p.current[i] >= 0 and j != p.current[i]) for i, j in pairs])
+    rows, cols, vals, ub = [], [], [], []
+    placed = sorted({i for i, _ in pairs})
+    for r, i in enumerate(placed):
+        for k, (a, _) in enumerate(pairs):
+            if a == i:
+                rows.append(r), cols.append(k), vals.append(1.0)
+    lb = [1.0] * len(placed)
+    ub = [1.0] * len(placed)
+    for j in range(p.n_nodes):
+        for res in range(3):
+            r = len(lb)
+            for k, (a, b) in enumerate(pairs):
+                if b == j:
+                    rows.append(r), cols.append(k), vals.append(fit.demand[a, j, res])
+            lb.append(-np.inf)
+            ub.append(fit.cap[j, res] - fit.reserve[j, res])
+    a = sp.csr_matrix((vals, (rows, cols)), shape=(len(lb), len(pairs)))
+    res = milp(cost, constraints=LinearConstraint(a, lb, ub), integrality=np.ones(len(pairs)),
+               bounds=Bounds(0, 1))  # fmt: skip
+    assert res.x is not None
+    return round(res.fun)
+
+
+def test_a_fleet_of_which_nothing_runs_gets_the_whole_fleet_plan() -> None:
+    cat, _ = _fleet()
+    p = build_problem(_without_last_robot(), cat)
+    fresh = decide(CorePlanner(), p, SETTINGS, fleet="f", fp=fingerprint(p, SETTINGS),
+                   before=np.full(p.n_instances, -1))  # fmt: skip
+    assert not fresh.incremental
