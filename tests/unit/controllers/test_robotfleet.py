@@ -102,7 +102,10 @@ def test_a_restarted_operator_keeps_running_modules_where_they_are(kube, deps, m
 def test_a_not_ready_edge_node_moves_only_its_modules(kube, deps):
     # no move for a better plan alone (the small test budget leaves room to improve on every
     # re-plan), and a spare edge node so the lost node's modules fit without moving others
-    kube.fleets[KEY]["spec"].setdefault("scheduler", {})["migrationMarginPercent"] = 100
+    scheduler = kube.fleets[KEY]["spec"].setdefault("scheduler", {})
+    scheduler["migrationMarginPercent"] = 100
+    # the whole-fleet plan after the restart (an incremental one would keep what runs itself)
+    scheduler["incremental"] = False
     run(kube, deps)
     kube.run_pods()
     before = placement(kube)
@@ -432,6 +435,9 @@ class ShiftingPlanner:
         values["missRate"] = 0.5  # a value the kept plan cannot have
         return dataclasses.replace(schedule, placement=x, objectives=values)
 
+    def replan(self, problem, settings, changed, reference):
+        return self.inner.replan(problem, settings, changed, reference)
+
 
 @pytest.mark.integration
 def test_status_reports_the_objectives_of_the_placement_actually_deployed(kube, make_deps):
@@ -439,7 +445,10 @@ def test_status_reports_the_objectives_of_the_placement_actually_deployed(kube, 
 
     planner = ShiftingPlanner(make_deps().planner)
     deps = Deps(kube=kube, planner=planner)
-    kube.fleets[KEY]["spec"].setdefault("scheduler", {})["migrationMarginPercent"] = 100
+    scheduler = kube.fleets[KEY]["spec"].setdefault("scheduler", {})
+    scheduler["migrationMarginPercent"] = 100
+    # the whole-fleet plan after the restart (an incremental one would keep what runs itself)
+    scheduler["incremental"] = False
     run(kube, deps)
     kube.run_pods()
     deployed = placement(kube)
@@ -526,7 +535,10 @@ def test_offloaded_fallbacks_get_standbys_their_robots_keep_while_down(kube, dep
     hpe = kube.modules[("warehouse", "human-pose-estimation")]["spec"]
     # with a fallback, offloading frees nothing on the robot: only the preference sends it out
     hpe["fallback"], hpe["preferredTiers"] = {"mode": "onboard", "cpu": 1}, ["edge"]
-    kube.fleets[KEY]["spec"].setdefault("scheduler", {})["migrationMarginPercent"] = 100
+    scheduler = kube.fleets[KEY]["spec"].setdefault("scheduler", {})
+    scheduler["migrationMarginPercent"] = 100
+    # the whole-fleet plan after the restart (an incremental one would keep what runs itself)
+    scheduler["incremental"] = False
     run(kube, deps)
     kube.run_pods()
     assert run(kube, deps).ready  # the standbys' pods count: they must run too
