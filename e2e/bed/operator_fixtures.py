@@ -176,6 +176,27 @@ def fleet(kube: Kube, namespace: str, name: str = "warehouse") -> Obj:
     return out
 
 
+def profiling_of(kube: Kube, namespace: str, module: str) -> Obj:
+    """A SoftwareModule's ``status.profiling`` (printed: what the Jobs measured)."""
+    obj = kube.kubectl_json("get", "softwaremodule", module, "-n", namespace)
+    out: Obj = obj["status"]["profiling"]
+    print(f"status.profiling of {module}: {out}")
+    return out
+
+
+def wait_profiling_jobs_deleted(kube: Kube, namespace: str) -> None:
+    """The operator deletes a recorded run's profiling Jobs."""
+    kube.wait_for(
+        "the profiling Jobs deleted",
+        lambda: (
+            not kube.kubectl_json(
+                "get", "jobs", "-n", namespace, "-l", "app.kubernetes.io/component=profiling"
+            )["items"]
+        ),
+        60,
+    )
+
+
 def conditions(obj: Obj) -> dict[str, Obj]:
     return {c["type"]: c for c in (obj.get("status") or {}).get("conditions") or []}
 

@@ -17,7 +17,13 @@ import pytest
 
 from e2e.bed.harness import Cluster
 from e2e.bed.kube import Kube
-from e2e.bed.operator_fixtures import conditions, events, fleet
+from e2e.bed.operator_fixtures import (
+    conditions,
+    events,
+    fleet,
+    profiling_of,
+    wait_profiling_jobs_deleted,
+)
 from e2e.tests.dnnbed import DNN, FLEET, MODULE, profiled_objects
 from e2e.tests.rosbed import EDGE, ROBOTS, operated_fleet
 
@@ -47,9 +53,7 @@ def test_the_network_is_timed_per_hardware_type_and_planned_with_what_was_measur
     kube: Kube, profiled_split: tuple[str, float]
 ) -> None:
     ns, took = profiled_split
-    module = kube.kubectl_json("get", "softwaremodule", MODULE, "-n", ns)
-    prof = module["status"]["profiling"]
-    print(f"status.profiling: {prof}")
+    prof = profiling_of(kube, ns, MODULE)
     runs = {r["hardwareType"]: r for r in prof["runs"]}
     assert set(runs) == {"bed-robot", "bed-edge"}, runs
     assert all(r["state"] == "Profiled" and r["jobs"] == 1 for r in runs.values()), runs
@@ -78,15 +82,7 @@ def test_the_network_is_timed_per_hardware_type_and_planned_with_what_was_measur
     for entry in placed.values():
         # 100 Mbit/s, 4 + 1 ms: bneck (the raw frame is 24 times its tensor)
         assert entry["node"] == EDGE and entry["split"]["action"] == "bneck", entry
-    kube.wait_for(
-        "the profiling Jobs deleted",
-        lambda: (
-            not kube.kubectl_json(
-                "get", "jobs", "-n", ns, "-l", "app.kubernetes.io/component=profiling"
-            )["items"]
-        ),
-        60,
-    )
+    wait_profiling_jobs_deleted(kube, ns)
     print(
         f"profiled and Ready {took:.1f} s after the apply; "
         + "; ".join(f"{hw}: {r['message']}" for hw, r in sorted(runs.items()))

@@ -21,7 +21,13 @@ import pytest
 
 from e2e.bed.harness import Cluster
 from e2e.bed.kube import Kube
-from e2e.bed.operator_fixtures import conditions, events, fleet
+from e2e.bed.operator_fixtures import (
+    conditions,
+    events,
+    fleet,
+    profiling_of,
+    wait_profiling_jobs_deleted,
+)
 from e2e.tests.rosbed import ROBOTS, bed_objects, operated_fleet, ros_module
 
 pytestmark = [
@@ -69,9 +75,7 @@ def test_a_module_without_a_profile_is_profiled_by_jobs_then_placed(
     kube: Kube, profiled_fleet: tuple[str, float]
 ) -> None:
     ns, took = profiled_fleet
-    module = kube.kubectl_json("get", "softwaremodule", MODULE, "-n", ns)
-    prof = module["status"]["profiling"]
-    print(f"status.profiling: {prof}")
+    prof = profiling_of(kube, ns, MODULE)
     (run,) = prof["runs"]
     assert run["hardwareType"] == "bed-robot" and run["state"] == "Profiled", run
     assert run["jobs"] == 3 and run["grid"] == 4
@@ -99,15 +103,7 @@ def test_a_module_without_a_profile_is_profiled_by_jobs_then_placed(
     placed = {p["robot"]: p for p in status["placement"] if p["module"] == MODULE}
     assert set(placed) == set(ROBOTS)
     # recorded: the profiling Jobs are deleted
-    kube.wait_for(
-        "the profiling Jobs deleted",
-        lambda: (
-            not kube.kubectl_json(
-                "get", "jobs", "-n", ns, "-l", "app.kubernetes.io/component=profiling"
-            )["items"]
-        ),
-        60,
-    )
+    wait_profiling_jobs_deleted(kube, ns)
     print(
         f"profiled and Ready {took:.1f} s after the apply; {run['message']}; "
         f"Jobs' wall time {run['wallSeconds']:.1f} s; placement {placed}"
