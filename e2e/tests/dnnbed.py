@@ -19,6 +19,7 @@ __all__ = [
     "FLEET",
     "MODULE",
     "SLOW",
+    "frames_by_action",
     "head_action",
     "profiled_objects",
     "split_objects",
@@ -75,3 +76,12 @@ def head_action(url: str) -> str:
     except OSError:
         return ""
     return next((lb["action"] for n, lb, v in series if n == "fogfleet_dnn_action" and v == 1), "")
+
+
+def frames_by_action(url: str) -> dict[str, float]:
+    """The head's frames so far per action, whoever answered them."""
+    out: dict[str, float] = {}
+    for name, labels, value in read(url).series:
+        if name == "fogfleet_dnn_frames_total":
+            out[labels["action"]] = out.get(labels["action"], 0.0) + value
+    return out
