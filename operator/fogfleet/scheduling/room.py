@@ -121,10 +121,14 @@ def _one_node_each(kk: I64, n: int) -> Any:
 
 
 def _capacities(fit: Fit, ii: I64, jj: I64, used: F64) -> tuple[Any, F64]:
-    """Rows: per node and resource the candidates' demand within what the rest leaves."""
+    """Rows: per node and resource the candidates' demand within what the rest leaves, in
+    units of the node's capacity (as ``exact._capacity_rows``: memory in bytes would span 1e9
+    and make HiGHS numerically fragile)."""
     import scipy.sparse as sp
 
     nodes = np.unique(jj)
+    cap = fit.cap[nodes]
+    scale = np.where(cap > 0, 1.0 / np.where(cap > 0, cap, 1.0), 1.0)  # (nodes, 3)
     demand = fit.demand_at(ii, jj)  # (P, 3)
     row_of = {int(j): r for r, j in enumerate(nodes)}
     r = np.array([row_of[int(j)] for j in jj], dtype=np.int64)
@@ -132,17 +136,18 @@ def _capacities(fit: Fit, ii: I64, jj: I64, used: F64) -> tuple[Any, F64]:
     for res in range(3):
         rows.append(r * 3 + res)
         cols.append(np.arange(jj.size))
-        vals.append(demand[:, res])
+        vals.append(demand[:, res] * scale[r, res])
     m = sp.csr_matrix(
         (np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
         shape=(nodes.size * 3, jj.size),
     )
-    ub: F64 = (fit.cap[nodes] - used[nodes]).reshape(-1)
+    ub: F64 = ((cap - used[nodes]) * scale).reshape(-1)
     return m, ub
 
 
 def _uplinks(problem: Problem, fit: Fit, ii: I64, jj: I64, up: F64) -> tuple[Any, F64]:
-    """Rows: per robot the candidates' off-board traffic within what the rest leaves."""
+    """Rows: per robot the candidates' off-board traffic within what the rest leaves, in units
+    of its uplink share (bits per second would span 1e8)."""
     import scipy.sparse as sp
 
     home = problem.home[ii]
@@ -153,6 +158,9 @@ def _uplinks(problem: Problem, fit: Fit, ii: I64, jj: I64, up: F64) -> tuple[Any
     row_of = {int(h): r for r, h in enumerate(robots)}
     cols = np.flatnonzero(away)
     r = np.array([row_of[int(h)] for h in home[cols]], dtype=np.int64)
-    m = sp.csr_matrix((problem.traffic[ii[cols]], (r, cols)), shape=(robots.size, jj.size))
-    ub: F64 = fit.uplink[robots] - up[robots]
+    share = np.maximum(fit.uplink[robots], 1e-12)
+    m = sp.csr_matrix(
+        (problem.traffic[ii[cols]] / share[r], (r, cols)), shape=(robots.size, jj.size)
+    )
+    ub: F64 = (fit.uplink[robots] - up[robots]) / share
     return m, ub
