@@ -19,7 +19,7 @@ from fogfleet.api.v1alpha1.robotfleet import RobotFleet
 from fogfleet.domain.build import build_problem
 from fogfleet.scheduling.heuristics import Fit
 from fogfleet.scheduling.room import fewest_moves
-from fogfleet.scheduling.stickiness import release_overloads
+from fogfleet.scheduling.stickiness import still_fitting, usable_current
 
 __all__ = ["fewest_to_move"]
 
@@ -47,11 +47,7 @@ def _fewest(fleet: RobotFleet, catalog: Catalog, placement: Iterable[Mapping[str
     }
     problem = build_problem(fleet, catalog, current)
     fit = Fit(problem, problem.limits)
-    rows = np.arange(problem.n_instances)
-    cur = problem.current
-    usable = (cur >= 0) & problem.allowed[rows, np.maximum(cur, 0)]
-    running = np.where(usable, cur, -1).astype(np.int64)
-    kept = release_overloads(problem, running, running, fit)
+    kept = still_fitting(problem, fit, usable_current(problem))
     todo = problem.allowed.any(axis=1) & (kept < 0)
     if not todo.any():
         return 0

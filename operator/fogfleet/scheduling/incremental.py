@@ -57,7 +57,7 @@ from .room import fewest_moves
 from .schedule import Schedule
 from .solver import choose_plan
 from .spread import stacked
-from .stickiness import ABS_TOLERANCE, fill_around, loads, release_overloads
+from .stickiness import ABS_TOLERANCE, fill_around, loads, still_fitting, usable_current
 
 __all__ = [
     "CANDIDATE_NODES",
@@ -176,13 +176,11 @@ def replan(
     t0 = time.perf_counter()
     cur = problem.current
     placeable = problem.allowed.any(axis=1)
-    rows = np.arange(problem.n_instances)
-    usable = (cur >= 0) & problem.allowed[rows, np.maximum(cur, 0)]
+    usable = usable_current(problem)
     if not usable.any():
         return Replan(None, 0, 0, "nothing runs yet")
     fit = Fit(problem, problem.limits)
-    running = np.where(usable, cur, -1).astype(np.int64)
-    kept = release_overloads(problem, running, running, fit)
+    kept = still_fitting(problem, fit, usable)
     affected = placeable & (kept < 0)
     affected[[i for i in changed if 0 <= i < problem.n_instances]] = True
     n_affected = int(affected.sum())

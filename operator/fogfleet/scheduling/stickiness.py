@@ -69,7 +69,9 @@ __all__ = [
     "mask_unavailable",
     "release_overloads",
     "release_robots",
+    "still_fitting",
     "trim_moves",
+    "usable_current",
 ]
 
 log = logging.getLogger(__name__)
@@ -251,6 +253,22 @@ def fill_around(
     return x
 
 
+def usable_current(problem: Problem) -> NDArray[np.bool_]:
+    """(I,) the instances that run on a node they may still use."""
+    cur = problem.current
+    rows = np.arange(problem.n_instances)
+    out: NDArray[np.bool_] = (cur >= 0) & problem.allowed[rows, np.maximum(cur, 0)]
+    return out
+
+
+def still_fitting(problem: Problem, fit: Fit, usable: NDArray[np.bool_]) -> I64:
+    """(I,) the node of each ``usable`` running instance where it still fits with the others
+    (``release_overloads`` of what runs), -1 for every other instance: what an incremental
+    re-plan places the rest around."""
+    running = np.where(usable, problem.current, -1).astype(np.int64)
+    return release_overloads(problem, running, running, fit)
+
+
 def release_overloads(problem: Problem, x: I64, new: I64, fit: Fit | None = None) -> I64:
     """Unpin instances from nodes that no longer fit them all (a module grew): first those the
     new plan moves anyway, largest CPU first, until the node fits."""
@@ -373,8 +391,7 @@ def keep_running(
     when what runs no longer fits (``hold``; None: none)."""
     new = np.asarray(new, dtype=np.int64)
     cur = problem.current
-    rows = np.arange(problem.n_instances)
-    usable = (cur >= 0) & problem.allowed[rows, np.maximum(cur, 0)]
+    usable = usable_current(problem)
     moved = [int(i) for i in np.flatnonzero(usable & (new != cur))]
     if not moved:
         return Stickiness(new, [], bool(usable.any()), "nothing that runs moves")
