@@ -220,9 +220,13 @@ def resolve(
 
 def tail_rows(on: OnNodes, action: Action, cap_cores: float) -> list[ProfileRow]:
     """The rows of the tail ``action`` leaves to the tail node (the whole network for action 0)."""
-    model = on.model
-    ref = model.full_s if action.index == 0 else model.split_points[action.index - 1].tail_s
-    return dnn_rows(ref * on.tail_factor, cap_cores)
+    return dnn_rows(_tail_s(on.model, action) * on.tail_factor, cap_cores)
+
+
+def _tail_s(model: DnnSplit, action: Action) -> float:
+    """What ``action`` leaves off board: the whole network for action 0, else its split's tail
+    (seconds as ``model`` states them)."""
+    return model.full_s if action.index == 0 else model.split_points[action.index - 1].tail_s
 
 
 def off_board(
@@ -239,10 +243,8 @@ def off_board(
     if not action.offloaded:
         why = "; ".join(f"{a.name}: {w}" for a, w in choice.dropped if a.offloaded)
         return f"no part of its network may run there over this link ({why})"
-    model = on.model
-    tail = model.full_s if action.index == 0 else model.split_points[action.index - 1].tail_s
-    outside = action.time_s - tail * on.tail_factor
-    crossing = (action.crossing_bytes + model.output_bytes) * BITS_PER_BYTE / cycle_s
+    outside = action.time_s - _tail_s(on.model, action) * on.tail_factor
+    crossing = (action.crossing_bytes + on.model.output_bytes) * BITS_PER_BYTE / cycle_s
     return on, choice, outside, link.jitter * math.sqrt(2), crossing
 
 
