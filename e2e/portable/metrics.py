@@ -49,14 +49,18 @@ class Metrics:
                 out[n] = out.get(n, 0.0) + value
         return out
 
+    def by(self, name: str, label: str, **labels: str) -> dict[str, float]:
+        """The series of ``name`` whose labels include ``labels``, summed per value of
+        ``label``."""
+        out: dict[str, float] = {}
+        for have, value in self._matching(name, labels):
+            out[have[label]] = out.get(have[label], 0.0) + value
+        return out
+
     def buckets(self, name: str, **labels: str) -> dict[float, float]:
         """Histogram ``name``'s cumulative buckets (le -> count, +Inf as ``inf``) over the
         series whose labels include ``labels``; from one scrape, so consistent together."""
-        out: dict[float, float] = {}
-        for have, value in self._matching(f"{name}_bucket", labels):
-            le = float(have["le"])
-            out[le] = out.get(le, 0.0) + value
-        return out
+        return {float(le): n for le, n in self.by(f"{name}_bucket", "le", **labels).items()}
 
 
 def parse(text: str) -> Metrics:

@@ -80,8 +80,4 @@ def head_action(url: str) -> str:
 
 def frames_by_action(url: str) -> dict[str, float]:
     """The head's frames so far per action, whoever answered them."""
-    out: dict[str, float] = {}
-    for name, labels, value in read(url).series:
-        if name == "fogfleet_dnn_frames_total":
-            out[labels["action"]] = out.get(labels["action"], 0.0) + value
-    return out
+    return read(url).by("fogfleet_dnn_frames_total", "action")
