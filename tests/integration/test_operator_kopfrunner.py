@@ -30,6 +30,9 @@ ROOT = Path(__file__).resolve().parents[2]
 EXAMPLES = ROOT / "manifests" / "examples"
 NS = "single-robot"
 MODULES = 8  # the warehouse's modules, on the one robot of the single-robot fleet
+# and its robot's discovery server: waiting for MODULES Deployments could return before the
+# last module's was written, whose pod then never ran (the fleet never Ready)
+DEPLOYMENTS = MODULES + 1
 
 Obj = dict[str, Any]
 
@@ -156,7 +159,7 @@ def test_a_new_fleet_is_planned_applied_and_reported(api: FakeApi, tmp_path: Pat
         )
         deployments = _until(
             "the fleet's Deployments",
-            lambda: len(api.list("Deployment", NS)) >= MODULES and api.list("Deployment", NS),
+            lambda: len(api.list("Deployment", NS)) >= DEPLOYMENTS and api.list("Deployment", NS),
         )
         # the Deployment controller, kube-scheduler and the kubelet: each runs its one pod
         _run_pods(api, deployments)
@@ -232,7 +235,7 @@ def test_a_deleted_fleet_leaves_the_compute_nodes_within_one_usage_pass(
     with _operator(api, tmp_path) as runner:
         deployments = _until(
             "the fleet's Deployments",
-            lambda: len(api.list("Deployment", NS)) >= MODULES and api.list("Deployment", NS),
+            lambda: len(api.list("Deployment", NS)) >= DEPLOYMENTS and api.list("Deployment", NS),
         )
         _run_pods(api, deployments)  # Ready: no re-check of the fleet is pending
         _until(
