@@ -138,8 +138,17 @@ bench-replan: venv ## A robot joining and an edge failing at 100, 300 and 1000 r
 bench-scale-plan: venv ## The first whole-fleet plan of 1000 robots (8000 instances, 1400 nodes), warm vs cold start, gap to the LP bound on seeds 1-5, peak memory; writes bench-scale-plan.json (~25 min)
 	$(BIN)/fogfleet bench scale-plan --robots $(or $(SIZES),1000) --runs 3 --record bench-scale-plan.json
 
+bench-plan-budget: venv ## The first plan of 1000 robots at timeBudgetMillis 5, 8, 12 and 20 s (3 runs each): the planner's seconds against the budget, the stages it cut, the gap to the robot bound; writes bench-plan-budget.json (~5 min)
+	$(BIN)/fogfleet bench budget --robots $(or $(SIZES),1000) --runs 3 --record bench-plan-budget.json
+
+bench-plan-page: venv ## docs/benchmarks/planning.md from bench-scale-plan.json and bench-plan-budget.json
+	$(BIN)/fogfleet bench page --title "Planning a large fleet" --records bench-scale-plan.json,bench-plan-budget.json --out docs/benchmarks/planning.md
+
 bench-why: venv ## How long `kubectl fogfleet why` computes at 1000 robots (build, refusals, explanation; median of 5)
 	$(BIN)/fogfleet bench why --robots $(or $(SIZES),1000) --runs 5
+
+bench-why-live: venv cluster-tools images ## `kubectl fogfleet why` on a contended 1000-robot fleet on the bed's kwok nodes, API reads included (median of 5; BASELINE=DIR compares an operator/ directory of another checkout); writes bench-why-live.json (~20 min)
+	$(BIN)/python -m e2e.bench.why_live --runs 5 $(if $(BASELINE),--baseline $(BASELINE)) --record bench-why-live.json
 
 bench-cluster: venv ## Operator benchmarks on the local control plane: apply-to-Running latency (40 and 400 pods), nsga2 vs kube-scheduler's real placement (~25 min)
 	$(BIN)/python -m e2e.bench.cluster --runs 5
@@ -172,4 +181,4 @@ clean: ## Remove the virtualenv and caches in the repo
 	rm -rf $(VENV) .pytest_cache .mypy_cache .ruff_cache
 
 
-.PHONY: bed-builds test-faults dashboard-check kubectl help venv lint unit integration docs-check test checkov images crds crds-check demo-offline bench-replan bench-scale-plan bench-cluster bench-scale bench-real bench-real-report bench-split cluster-tools cluster-up cluster-down cluster-status e2e e2e-kind e2e-k3d chart-lint bench demo clean
+.PHONY: bed-builds test-faults dashboard-check kubectl help venv lint unit integration docs-check test checkov images crds crds-check demo-offline bench-replan bench-scale-plan bench-plan-budget bench-plan-page bench-why-live bench-cluster bench-scale bench-real bench-real-report bench-split cluster-tools cluster-up cluster-down cluster-status e2e e2e-kind e2e-k3d chart-lint bench demo clean

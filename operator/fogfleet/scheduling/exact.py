@@ -238,10 +238,12 @@ def robot_bound(problem: Problem, weights: Mapping[str, float] | None = None) ->
     # V[l, i]: instance i's cheapest pair at price lambdas[l] (off board, or any for a shared one)
     V = np.empty((len(lambdas), problem.n_instances))
     starts = np.searchsorted(pi, np.arange(problem.n_instances))  # pi is sorted
+    # a shared replica: its cheapest pair (its share of z left out: still a bound); a robot's
+    # own instance: its cheapest off-board pair
+    c_off = np.where(home[pi] < 0, c, np.where(remote, c, np.inf))
+    req_off = np.where(home[pi] < 0, 0.0, req)
     for k, lam in enumerate(lambdas):
-        # a shared replica: its cheapest pair (its share of z left out: still a bound)
-        v = np.where(home[pi] < 0, c, np.where(remote, c + lam * req, np.inf))
-        V[k] = np.minimum.reduceat(v, starts)
+        V[k] = np.minimum.reduceat(c_off + lam * req_off, starts)
     shared = np.flatnonzero(home < 0)
     const = V[:, shared].sum(axis=1)  # (L,)
     fit = Fit(problem, problem.limits)
@@ -280,12 +282,21 @@ def robot_bound(problem: Problem, weights: Mapping[str, float] | None = None) ->
     cuts = cuts[cuts >= t_min - 1e-12]
     if len(cuts) > MAX_THRESHOLDS:
         cuts = np.quantile(cuts, np.linspace(0, 1, MAX_THRESHOLDS), method="lower")
+    # per group, each robot's configurations by rising peak and the cheapest so far at each
+    # price: the cheapest with u < b is then one look-up per robot, not a pass over all
+    ladders = []
+    for u, F in best_t:
+        order = np.argsort(u, axis=1)  # (R, K)
+        by_peak = np.take_along_axis(F, order[None], axis=2)
+        ladders.append((np.take_along_axis(u, order, axis=1), np.minimum.accumulate(by_peak, 2)))
     bound = np.inf
     for a, b in zip(cuts, np.append(cuts[1:], np.inf), strict=True):
         # every t in [a, b): configurations with u < b allowed, z >= a
         total = const.copy()
-        for u, F in best_t:
-            total += np.where(u[None] < b - 1e-12, F, np.inf).min(axis=2).sum(axis=1)
+        for peaks, cheapest in ladders:
+            below = (peaks < b - 1e-12).sum(axis=1)  # (R,) configurations allowed
+            at = np.take_along_axis(cheapest, np.maximum(below - 1, 0)[None, :, None], 2)[..., 0]
+            total += np.where(below > 0, at, np.inf).sum(axis=1)
         bound = min(bound, float((total + (w_z - lambdas) * a).max()))
     return bound if np.isfinite(bound) else None
 
@@ -303,9 +314,10 @@ def _costs(problem: Problem, w: Mapping[str, float], pi: I64, pj: I64) -> F64:
     w_mod = np.bincount(mod[genes], weights=a[genes], minlength=len(problem.module_names))
     n_mod = max(int((w_mod > 0).sum()), 1)
     share = a / np.where(w_mod[mod] > 0, w_mod[mod] * n_mod, 1.0)
-    q = uncontended_miss(problem, alloc)[pi, pj]
-    exe = np.where(problem.allowed, alloc.exe_mean, 0.0)
-    tau = ((problem.net_mean + exe) / problem.cycle[:, None])[pi, pj]
+    # at the allowed pairs only: the (I, N) tables would be 11 M cells at 1000 robots, where
+    # 2.4 M pairs are allowed
+    q = uncontended_miss(problem, alloc, pi, pj)
+    tau = (problem.net_mean[pi, pj] + alloc.exe_mean[pi, pj]) / problem.cycle[pi]
     cap = problem.capacity
     on_home = pj == problem.home[pi]
     # F1 as ``Evaluation.cpu_onboard`` / ``mem_requested`` count it: at home, a fallback's

@@ -33,6 +33,8 @@ polishes them. It is deterministic, and bounded by work (``WORK_CELLS``), not by
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 from numpy.typing import NDArray
 
@@ -64,14 +66,16 @@ LATENCY_TIE = 1e-3  # weight of ``Fit.pref`` (miss, then latency) among equally 
 
 
 class Work:
-    """A budget of instance x node cells, spent by each packing before it starts."""
+    """A budget of instance x node cells, spent by each packing before it starts; ``stop``
+    (the planning budget's clock, when it has one) ends it early."""
 
-    def __init__(self, cells: int = WORK_CELLS) -> None:
+    def __init__(self, cells: int = WORK_CELLS, stop: Callable[[], bool] | None = None) -> None:
         self.left = cells
+        self.stop = stop
 
     def take(self, cells: int) -> bool:
-        """Spend ``cells`` if that many are left."""
-        if cells > self.left:
+        """Spend ``cells`` if that many are left and ``stop`` does not say to stop."""
+        if cells > self.left or (self.stop is not None and self.stop()):
             self.left = 0
             return False
         self.left -= cells
@@ -299,14 +303,17 @@ def levelled_plans(
     return found
 
 
-def with_levelled(pp: PlacementProblem, X: I64, F: F64) -> tuple[I64, F64]:
+def with_levelled(
+    pp: PlacementProblem, X: I64, F: F64, stop: Callable[[], bool] | None = None
+) -> tuple[I64, F64]:
     """The archive (genes, objectives) plus the feasible levelled plans of its members that
-    are best in some objective other than ``reserve`` (nothing added without ``reserve``)."""
+    are best in some objective other than ``reserve`` (nothing added without ``reserve``);
+    ``stop`` (the planning budget) ends the packings early, checked before each."""
     if "reserve" not in pp.names or not len(X):
         return X, F
     starts = sorted({int(np.argmin(F[:, k])) for k, n in enumerate(pp.names) if n != "reserve"})
     full = pp.full(X)
-    work = Work()
+    work = Work(stop=stop)
     extra = [y for s in starts for y in levelled_plans(pp.fit, full[s], work=work)]
     if not extra:
         return X, F

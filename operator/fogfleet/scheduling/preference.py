@@ -15,7 +15,7 @@ prefer. Without such a reason a robot is no target: on-board use is F1's to weig
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 
 import numpy as np
 from numpy.typing import NDArray
@@ -51,11 +51,14 @@ def tie_breakers(problem: Problem, plans: I64, names: Sequence[str]) -> dict[str
     return out
 
 
-def polish(problem: Problem, x: I64, names: Sequence[str]) -> tuple[I64, int]:
+def polish(
+    problem: Problem, x: I64, names: Sequence[str], stop: Callable[[], bool] | None = None
+) -> tuple[I64, int]:
     """Move instances of plan ``x`` one at a time to a preferred, then cheaper node while the
     plan stays feasible and its miss objectives do not rise; returns the plan and the number
     of moves. An instance's own robot is such a node where its module prefers the robot
-    tier, or where its on-board standby already holds its CPU."""
+    tier, or where its on-board standby already holds its CPU. ``stop`` (the planning
+    budget) ends it early, checked before each trial."""
     rules = tie_breakers(problem, x[None, :], names)
     if not rules:
         return x, 0
@@ -105,7 +108,7 @@ def polish(problem: Problem, x: I64, names: Sequence[str]) -> tuple[I64, int]:
         ks = ks[np.lexsort((ks, last, price[ks], unwanted))]
         room = _has_room(fit, used, i, ks)
         for k, fits in zip(ks, room, strict=True):
-            if budget <= 0:
+            if budget <= 0 or (stop is not None and stop()):
                 return x, moves
             budget -= 1
             if not fits:

@@ -2,18 +2,43 @@
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
 from numpy.typing import NDArray
 
-__all__ = ["Clock", "Schedule"]
+__all__ = ["Budget", "Clock", "Schedule"]
 
 # Seconds on a monotonic clock (``time.perf_counter`` in production). The planners read their
 # time budget and durations from it; tests pass a clock they advance themselves, so whether a
 # budget cuts a search never depends on how fast or loaded the machine is.
 Clock = Callable[[], float]
+
+
+@dataclass
+class Budget:
+    """A planning budget of ``seconds`` from ``start`` on ``clock``, shared out among the
+    search's stages: each stops once ``clock()`` passes its share of it (``over``), and
+    ``cut`` records the stages it stopped, in order."""
+
+    clock: Clock
+    start: float
+    seconds: float = math.inf
+    cut: list[str] = field(default_factory=list)
+
+    def ends(self, share: float) -> float:
+        """The ``clock()`` value at which a stage given ``share`` of the budget stops."""
+        return self.start + share * self.seconds
+
+    def over(self, stage: str, share: float) -> bool:
+        """Whether ``stage``, given ``share`` of the budget, must stop now (recorded once)."""
+        if self.clock() <= self.ends(share):
+            return False
+        if stage not in self.cut:
+            self.cut.append(stage)
+        return True
 
 
 @dataclass(frozen=True)
@@ -43,6 +68,7 @@ class Schedule:
     levels: NDArray[np.int64] | None = None  # (I,) rungs each instance was degraded (degrade)
     # the time budget cut the search short (not: it converged, or ran every generation)
     time_budget_reached: bool = False
+    budget_cut: tuple[str, ...] = ()  # the stages it cut, in order ("evolution", "levelling")
 
     @property
     def degraded_instances(self) -> int:

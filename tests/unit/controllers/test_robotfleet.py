@@ -66,6 +66,17 @@ def test_the_miss_column_shows_the_prediction_as_the_cli_does(kube, deps):
     assert f"predicted miss rate {shown}" in kube.events[0][2]
 
 
+def test_the_plan_says_how_far_its_s_is_above_a_lower_bound(kube, deps):
+    """status.planGap and the Planned Event (issue 46): the deployed plan's scalarised S
+    against the tighter of the robot and LP bounds, never below the bound."""
+    run(kube, deps)
+    gap = kube.fleets[KEY]["status"]["planGap"]
+    assert gap["boundKind"] in ("robot", "lp") and not gap["timeBudgetReached"]
+    assert 0 < gap["bound"] <= gap["value"]
+    assert gap["percent"] == pytest.approx(100 * (gap["value"] / gap["bound"] - 1), abs=0.01)
+    assert f"{gap['percent']:.1f} % above the {gap['boundKind']} bound" in kube.events[0][2]
+
+
 def test_ready_once_pods_run_where_planned(kube, deps):
     run(kube, deps)
     kube.run_pods()

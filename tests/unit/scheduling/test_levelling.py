@@ -93,7 +93,7 @@ def test_nsga2_reaches_a_lower_peak_with_levelling_than_without(
     settings = SchedulerSettings(seed=1, objectives=list(NAMES))
     k = NAMES.index("reserve")
     with_it = solver.nsga2(p, settings)
-    monkeypatch.setattr(solver, "with_levelled", lambda pp, X, F: (X, F))
+    monkeypatch.setattr(solver, "with_levelled", lambda pp, X, F, stop=None: (X, F))
     without = solver.nsga2(p, settings)
     assert with_it.pareto_front is not None and without.pareto_front is not None
     assert with_it.pareto_front[:, k].min() < without.pareto_front[:, k].min() - 0.01

@@ -70,6 +70,16 @@ def cmd_bench(args: argparse.Namespace) -> int:
         robots = max(int(n) for n in args.robots.split(","))
         result = shown = scale_plan_rows(robots, seeds, runs=args.runs)
         table = format_table(result)
+    elif args.suite == "budget":
+        from fogfleet.bench.budget import BUDGETS_MILLIS, budget_rows
+        from fogfleet.bench.scheduling import format_table
+
+        budgets = (
+            [int(b) for b in args.budgets.split(",")] if args.budgets else list(BUDGETS_MILLIS)
+        )
+        robots = max(int(n) for n in args.robots.split(","))
+        result = shown = budget_rows(robots, budgets, runs=args.runs, seed=args.seed or 1)
+        table = format_table(result)
     elif args.suite == "replan":
         from fogfleet.bench.replan import replan_rows
         from fogfleet.bench.scheduling import format_table
@@ -105,8 +115,10 @@ def _bench_page(args: argparse.Namespace) -> int:
         "autoscaling": abench.format_table,
         "replan": format_table,
         "scale-plan": format_table,
+        "budget": format_table,
     }
-    text = page("Benchmarks of the pure core", records, tables, BENCH_ABOUT)
+    files = ", ".join(f"`{Path(p).name}`" for p in args.records.split(","))
+    text = page(args.title, records, tables, BENCH_ABOUT, f"`fogfleet bench page` from {files}")
     if args.out:
         Path(args.out).write_text(text)
     else:
@@ -131,6 +143,11 @@ BENCH_ABOUT = {
         "edges), NSGA-II warm-started from the repaired seed plans against the cold start "
         "used before, in the same run: seconds, best and chosen scalarised S against the LP "
         "relaxation's bound, peak memory."
+    ),
+    "budget": (
+        "The same first plan with spec.scheduler.timeBudgetMillis at several budgets: the "
+        "planner's seconds (median and largest; target at most 1.1x the budget), the stages "
+        "the budget cut, and the chosen plan's gap to the robot bound."
     ),
     "replan": (
         "A robot joining and an edge failing at several fleet sizes: the whole-fleet plan "
@@ -276,7 +293,7 @@ def _add_other_commands(sub: argparse._SubParsersAction[argparse.ArgumentParser]
     sp = sub.add_parser("bench", help="run a benchmark and print a table")
     sp.add_argument(
         "suite",
-        choices=("scheduling", "autoscaling", "replan", "why", "scale-plan", "page"),
+        choices=("scheduling", "autoscaling", "replan", "why", "scale-plan", "budget", "page"),
         help="page: the Markdown page of --records",
     )
     sp.add_argument("--seed", type=int)
@@ -285,11 +302,17 @@ def _add_other_commands(sub: argparse._SubParsersAction[argparse.ArgumentParser]
     sp.add_argument(
         "--robots",
         default="100,300,1000",
-        help="replan, why: fleet sizes, comma-separated; scale-plan: the largest",
+        help="replan, why: fleet sizes, comma-separated; scale-plan, budget: the largest",
+    )
+    sp.add_argument(
+        "--budgets",
+        metavar="MILLIS",
+        help="budget: timeBudgetMillis values, comma-separated (default 5000,8000,12000,20000)",
     )
     sp.add_argument("--json", action="store_true")
     sp.add_argument("--record", metavar="FILE", help="also write the result as a record (JSON)")
     sp.add_argument("--records", help="page: record files, comma-separated")
+    sp.add_argument("--title", default="Benchmarks of the pure core", help="page: its title")
     sp.add_argument("--out", metavar="FILE", help="page: write the page here (default: stdout)")
     sp.set_defaults(func=cmd_bench)
 

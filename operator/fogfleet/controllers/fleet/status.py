@@ -262,6 +262,7 @@ def _plan_figures(rendered: Rendered, placement: list[Obj]) -> Obj:
             ],
             **_miss(objectives.get(ObjectiveName.MISS_RATE)),
             "planning_millis": round(plan.schedule.duration_seconds * 1000),
+            "plan_gap": _gap(plan),
             "choice_reason": plan.choice_reason,
             "migrations": plan.migrations,
             "last_plan_time": plan.planned_at,
@@ -278,6 +279,20 @@ def _plan_figures(rendered: Rendered, placement: list[Obj]) -> Obj:
     return {
         "objectives": [{"name": k, "value": finite(v)} for k, v in values.items()],
         **_miss(values.get(ObjectiveName.MISS_RATE)),
+    }
+
+
+def _gap(plan: Decision) -> Obj | None:
+    """``status.planGap`` of the deployed plan (``scheduling.gap``)."""
+    gap = plan.gap
+    if gap is None or not np.isfinite(gap.percent):
+        return None
+    return {
+        "percent": round(gap.percent, 2),
+        "value": round(gap.value, 6),
+        "bound": round(gap.bound, 6),
+        "bound_kind": gap.kind,
+        "time_budget_reached": plan.schedule.time_budget_reached,
     }
 
 
@@ -312,6 +327,14 @@ def running_wire(status: RobotFleetStatus) -> Obj:
     return complete(wire(status), FLEET_STATUS_KEYS)
 
 
+def _gap_text(cached: Decision) -> str:
+    """The Planned Event's words on the plan's gap and the time budget."""
+    cut = cached.schedule.budget_cut
+    budget = f"; the time budget cut the {', the '.join(cut)}" if cut else ""
+    gap = cached.gap
+    return f"; {gap.describe()}{budget}" if gap is not None else budget
+
+
 def _with_room(message: str, room: str) -> str:
     """A degradation with who else holds how many cores on the fleet's nodes."""
     return f"{message}; {room}" if room else message
@@ -335,7 +358,7 @@ def plan_events(problem: Problem, cached: Decision, room: str = "") -> list[tupl
             f"Planned {int((p >= 0).sum())} modules ({split['robot']} on board, "
             f"{split['edge']} edge, {split['cloud']} cloud) with "
             f"{cached.schedule.scheduler} in "
-            f"{cached.schedule.duration_seconds * 1000:.0f} ms{miss_txt}",
+            f"{cached.schedule.duration_seconds * 1000:.0f} ms{miss_txt}{_gap_text(cached)}",
         )
     ]
     if problem.degraded:

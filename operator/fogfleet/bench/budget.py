@@ -1,0 +1,81 @@
+"""``fogfleet bench budget`` (``make bench-plan-budget``): whether the first whole-fleet plan of a
+large fleet keeps ``spec.scheduler.timeBudgetMillis``, and what a shorter budget costs.
+
+The synthetic warehouse of ``robots`` robots x 8 modules on 0.4 ``robots`` edge nodes (as
+``bench scale-plan``; 8000 instances on 1400 nodes at 1000 robots) is planned by
+``solver.plan`` with the operator's default settings and each budget, ``runs`` times, the
+budgets in a rotated order each run (the machine is shared: every budget sees its noise).
+Columns per budget: the planner's seconds (``Schedule.duration_seconds``, what
+``status.planningMillis`` reports), median and largest, and the largest over the budget
+(target: at most 1.1); the generations run and the stages the budget cut (in any run); the
+chosen plan's gap to the bound (``scheduling.gap``: S against the robot bound), median.
+"""
+
+from __future__ import annotations
+
+import math
+import statistics
+from collections.abc import Sequence
+from typing import Any
+
+from fogfleet.api.v1alpha1.robotfleet import SchedulerSettings
+from fogfleet.bench.scale_plan import EDGES_PER_ROBOT
+from fogfleet.bench.scheduling import synthetic_fleet
+from fogfleet.domain.build import build_problem
+from fogfleet.scheduling.exact import fleet_weights, scalarised
+from fogfleet.scheduling.gap import PlanGap, plan_gap
+from fogfleet.scheduling.schedule import Schedule
+from fogfleet.scheduling.solver import plan, weights_of
+
+__all__ = ["BUDGETS_MILLIS", "budget_rows"]
+
+BUDGETS_MILLIS = (5000, 8000, 12000, 20000)  # 20 s: the default
+Row = dict[str, Any]
+
+
+def budget_rows(
+    robots: int = 1000,
+    budgets: Sequence[int] = BUDGETS_MILLIS,
+    runs: int = 3,
+    seed: int = 1,
+) -> list[Row]:
+    """One row per budget (see the module docstring)."""
+    cat, fleet = synthetic_fleet(robots, max(2, math.ceil(EDGES_PER_ROBOT * robots)), seed)
+    problem = build_problem(fleet, cat)
+    done: dict[int, list[Schedule]] = {b: [] for b in budgets}
+    for run in range(runs):
+        k = run % len(budgets)
+        for budget in (*budgets[k:], *budgets[:k]):
+            settings = SchedulerSettings(seed=seed, time_budget_millis=budget)
+            done[budget].append(plan(problem, settings))
+    settings = SchedulerSettings(seed=seed)
+    w = fleet_weights(problem, [str(n) for n in settings.objectives], weights_of(settings))
+    first = plan_gap(problem, done[budgets[0]][0].placement, w)
+    rows: list[Row] = []
+    for budget in budgets:
+        plans = done[budget]
+        seconds = [s.duration_seconds for s in plans]
+        cut = sorted({stage for s in plans for stage in s.budget_cut})
+        gaps = (
+            [PlanGap(scalarised(problem, s.placement, w), first.bound, first.kind) for s in plans]
+            if first is not None
+            else []
+        )
+        rows.append(
+            {
+                "robots": robots,
+                "instances": problem.n_instances,
+                "nodes": problem.n_nodes,
+                "seed": seed,
+                "budget_s": budget / 1000,
+                "runs": len(plans),
+                "seconds": round(statistics.median(seconds), 2),
+                "seconds_max": round(max(seconds), 2),
+                "over_budget_max": round(max(seconds) / (budget / 1000), 2),
+                "generations": statistics.median(s.generations for s in plans),
+                "budget_cut": ", ".join(cut) or "-",
+                "gap_pct": round(statistics.median(g.percent for g in gaps), 2) if gaps else None,
+                "bound": first.kind if first is not None else None,
+            }
+        )
+    return rows
