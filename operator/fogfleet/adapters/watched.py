@@ -209,9 +209,11 @@ class WatchedKube(KubeClient):
             return super().list_pods(namespace, selector)
         return informer.list(namespace, selector)
 
-    def list_node_load(self) -> list[Obj]:
+    def list_node_load(self, besides: tuple[str, str] | None = None) -> list[Obj]:
+        """From the informer's cache once synced (it holds every Pod: ``besides`` filters
+        nothing out then; ``held_by_others`` leaves the fleet's own out)."""
         if not self.node_load.synced.is_set():
-            return super().list_node_load()
+            return super().list_node_load(besides)
         return [p for p in self.node_load.list() if holds_room(p)]
 
     # ---------------------------------------------------------------- writes, read back at once

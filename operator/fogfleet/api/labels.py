@@ -8,6 +8,7 @@ from __future__ import annotations
 
 __all__ = [
     "ANNOTATION_MODULE",
+    "ANNOTATION_NODE",
     "ANNOTATION_PLAN",
     "ANNOTATION_REPLICA",
     "ANNOTATION_ROBOT",
@@ -59,6 +60,10 @@ ANNOTATION_ROBOT = "fogfleet.io/robot"
 ANNOTATION_MODULE = "fogfleet.io/module"
 ANNOTATION_REPLICA = "fogfleet.io/replica"
 ANNOTATION_PLAN = "fogfleet.io/plan-id"
+ANNOTATION_NODE = "fogfleet.io/node"
+"""On a module's Deployment: the node its plan binds it to (its node affinity says the same),
+so a reader of the Deployments' metadata alone knows the placement (``kubectl fogfleet`` on a
+fleet too large for ``status.placement``). Not part of the spec hash."""
 ANNOTATION_ROLE = "fogfleet.io/role"
 """On a module's on-board standby (its fallback, issue 13): ``standby``. Its Deployment is not
 the instance's placement, so it has no identity (``render.deployments.identity_of``)."""

@@ -26,6 +26,7 @@ import numpy as np
 from fogfleet import API_VERSION
 from fogfleet.api.labels import (
     ANNOTATION_MODULE,
+    ANNOTATION_NODE,
     ANNOTATION_PLAN,
     ANNOTATION_REPLICA,
     ANNOTATION_ROBOT,
@@ -55,6 +56,7 @@ from fogfleet.render.ros import RosWiring, module_env, stay_on_robot
 
 __all__ = [
     "ANNOTATION_MODULE",
+    "ANNOTATION_NODE",
     "ANNOTATION_PLAN",
     "ANNOTATION_REPLICA",
     "ANNOTATION_ROBOT",
@@ -106,6 +108,7 @@ def spec_hash(deployment: Mapping[str, Any]) -> str:
     body = json.loads(json.dumps(deployment))
     annotations = body.get("metadata", {}).get("annotations", {})
     annotations.pop(ANNOTATION_PLAN, None)
+    annotations.pop(ANNOTATION_NODE, None)
     annotations.pop(ANNOTATION_SPEC_HASH, None)
     template = (body.get("spec") or {}).get("template") or {}
     ((template.get("metadata") or {}).get("annotations") or {}).pop(ANNOTATION_SPEC_HASH, None)
@@ -266,6 +269,8 @@ def render_instance(
     pod_annotations[ANNOTATION_SPEC_HASH] = annotations[ANNOTATION_SPEC_HASH]
     if plan_id:
         annotations[ANNOTATION_PLAN] = plan_id
+    if len(nodes) == 1 and not baseline:
+        annotations[ANNOTATION_NODE] = node.node_name  # after the hash: the affinity's twin
     return dep
 
 

@@ -8,6 +8,7 @@ from __future__ import annotations
 from collections.abc import Iterable, Mapping
 from typing import Any
 
+from fogfleet.api.labels import ANNOTATION_NODE
 from fogfleet.api.loader import parse_object
 from fogfleet.api.v1alpha1.base import status_part
 from fogfleet.api.v1alpha1.robotfleet import RobotFleet
@@ -67,7 +68,11 @@ def node_health(node: Mapping[str, Any] | None) -> str:
 
 
 def bound_nodes(dep: Mapping[str, Any]) -> list[str]:
-    """The node names of a Deployment's required node affinity."""
+    """The node names of a Deployment's required node affinity; of its metadata alone (a
+    metadata-only list), the node its ``fogfleet.io/node`` annotation names."""
+    if "spec" not in dep:
+        node = ((dep.get("metadata") or {}).get("annotations") or {}).get(ANNOTATION_NODE)
+        return [str(node)] if node else []
     try:
         terms = dep["spec"]["template"]["spec"]["affinity"]["nodeAffinity"][
             "requiredDuringSchedulingIgnoredDuringExecution"

@@ -11,6 +11,7 @@ import pytest
 import yaml
 
 from fogfleet.adapters.kube import holds_room, pod_load
+from fogfleet.api.labels import LABEL_FLEET
 from fogfleet.api.v1alpha1.robotfleet import SchedulerSettings
 from fogfleet.domain.problem import Problem
 from fogfleet.scheduling.decision import CorePlanner
@@ -141,9 +142,9 @@ class FakeKube:
             ]
         )
 
-    def list_node_load(self) -> list[Obj]:
+    def list_node_load(self, besides: tuple[str, str] | None = None) -> list[Obj]:
         loads = (pod_load(p) for p in self.pods.values())
-        return [p for p in loads if holds_room(p)]
+        return [p for p in loads if holds_room(p) and not _of(p, besides)]
 
     def list_pods(self, namespace: str, selector: Mapping[str, str]) -> list[Obj]:
         return copy.deepcopy(
@@ -319,3 +320,12 @@ def make_deps(kube: FakeKube) -> Any:
 @pytest.fixture
 def deps(make_deps: Any) -> Any:
     return make_deps()
+
+
+def _of(load: Obj, fleet: tuple[str, str] | None) -> bool:
+    """A Pod of ``fleet`` (namespace, fleet label value), which the API server leaves out of
+    a list with ``besides`` (``KubeClient.list_node_load``)."""
+    if fleet is None:
+        return False
+    meta = load.get("metadata") or {}
+    return (meta.get("namespace"), (meta.get("labels") or {}).get(LABEL_FLEET)) == fleet

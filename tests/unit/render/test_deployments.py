@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import copy
 import re
 from pathlib import Path
 
@@ -12,6 +13,7 @@ from fogfleet.api.loader import Catalog, load_paths
 from fogfleet.domain.build import build_problem
 from fogfleet.domain.problem import Instance, Problem
 from fogfleet.render.deployments import (
+    ANNOTATION_NODE,
     ANNOTATION_PLAN,
     ANNOTATION_SPEC_HASH,
     Owner,
@@ -22,6 +24,7 @@ from fogfleet.render.deployments import (
     spec_hash,
 )
 from fogfleet.render.names import deployment_name
+from fogfleet.snapshot.objects import bound_nodes
 from fogfleet.workload.spec import WorkloadSpec
 
 EXAMPLES = Path(__file__).resolve().parents[3] / "manifests" / "examples"
@@ -184,6 +187,21 @@ def test_rendering_is_deterministic_and_the_spec_hash_ignores_the_plan_id(catalo
         d["metadata"]["annotations"][ANNOTATION_SPEC_HASH] for d in b
     ]
     assert spec_hash(a[0]) == a[0]["metadata"]["annotations"][ANNOTATION_SPEC_HASH]
+
+
+def test_a_deployment_names_its_node_outside_the_spec_hash(catalog, problem):
+    """``fogfleet.io/node`` (the affinity's node, for readers of the metadata alone) is not
+    hashed: adding it to an operator's Deployments restarts no pod."""
+    p = first_allowed(problem)
+    for dep, j in zip(render_fleet(problem, modules(catalog), p), p, strict=True):
+        annotations = dep["metadata"]["annotations"]
+        assert annotations[ANNOTATION_NODE] == problem.nodes[j].node_name
+        assert bound_nodes(dep) == [annotations[ANNOTATION_NODE]]
+        assert ANNOTATION_NODE not in dep["spec"]["template"]["metadata"]["annotations"]
+        without = copy.deepcopy(dep)
+        del without["metadata"]["annotations"][ANNOTATION_NODE]
+        assert spec_hash(without) == annotations[ANNOTATION_SPEC_HASH]
+        assert bound_nodes({"metadata": dep["metadata"]}) == bound_nodes(dep)
 
 
 def test_moving_an_instance_changes_its_hash_only(catalog, problem):

@@ -17,11 +17,12 @@ from typing import Any, Protocol
 import numpy as np
 from numpy.typing import NDArray
 
-from fogfleet.api.labels import LABEL_FLEET
+from fogfleet.api.labels import ANNOTATION_NODE, LABEL_FLEET
 from fogfleet.api.names import label_value
 from fogfleet.api.v1alpha1.robotfleet import RobotFleet, SchedulerName
 from fogfleet.domain.problem import Problem
 from fogfleet.errors import InvalidSpec
+from fogfleet.render.deployments import identity_of
 from fogfleet.snapshot import (
     FleetSnapshot,
     Listed,
@@ -50,7 +51,10 @@ class Source(Protocol):
     def list_compute_nodes(self) -> list[Obj]: ...
     def list_nodes(self) -> list[Obj]: ...
     def list_deployments(self, namespace: str, selector: Mapping[str, str]) -> list[Obj]: ...
-    def list_node_load(self) -> list[Obj]: ...
+    def list_deployment_metadata(
+        self, namespace: str, selector: Mapping[str, str]
+    ) -> list[Obj]: ...
+    def list_node_load(self, besides: tuple[str, str] | None = None) -> list[Obj]: ...
 
 
 @dataclass(frozen=True)
@@ -94,10 +98,11 @@ def read_fleet(source: Source, namespace: str, name: str, what_if: WhatIf | None
         compute_nodes=source.list_compute_nodes(),
         modules=source.list_modules(namespace),
         nodes=source.list_nodes(),
-        deployments=source.list_deployments(namespace, {LABEL_FLEET: label_value(name)}),
+        deployments=_deployments(source, namespace, name),
     )
     claims = status_claims(source.list_fleets())
-    held = held_by_others((namespace, name), source.list_node_load(), claims)
+    load = source.list_node_load(besides=(namespace, label_value(name)))
+    held = held_by_others((namespace, name), load, claims)
     snapshot = with_what_if(snapshot_of(listed, held), what_if)
     problem = problem_of(snapshot)
     return Live(
@@ -106,6 +111,24 @@ def read_fleet(source: Source, namespace: str, name: str, what_if: WhatIf | None
         unavailable=unavailable_in(snapshot, problem),
         placement=_deployed(problem, snapshot),
     )
+
+
+def _deployments(source: Source, namespace: str, name: str) -> list[Obj]:
+    """The fleet's Deployments as far as a plan reads them: their metadata alone when every
+    one names its node (``fogfleet.io/node``, written by the operator beside the affinity),
+    else whole (Deployments written before the annotation existed)."""
+    selector = {LABEL_FLEET: label_value(name)}
+    found = source.list_deployment_metadata(namespace, selector)
+    if all(_names_its_node(d) for d in found):
+        return found
+    return source.list_deployments(namespace, selector)
+
+
+def _names_its_node(deployment: Obj) -> bool:
+    """A module's Deployment with its node annotation, or one that has none to give (an
+    on-board standby, a k8s-default fleet's unbound Deployment)."""
+    annotations = (deployment.get("metadata") or {}).get("annotations") or {}
+    return ANNOTATION_NODE in annotations or identity_of(deployment) is None
 
 
 def _deployed(problem: Problem, snapshot: FleetSnapshot) -> I64:

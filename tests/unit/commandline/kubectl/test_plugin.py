@@ -114,10 +114,13 @@ class FakeCluster:
     def list_deployments(self, namespace: str, selector: Mapping[str, str]) -> list[Obj]:
         return []
 
+    def list_deployment_metadata(self, namespace: str, selector: Mapping[str, str]) -> list[Obj]:
+        return []
+
     def list_fleets(self, namespace: str | None = None) -> list[Obj]:
         return [self.fleet]
 
-    def list_node_load(self) -> list[Obj]:
+    def list_node_load(self, besides: tuple[str, str] | None = None) -> list[Obj]:
         return []
 
 
@@ -251,7 +254,7 @@ class CrowdedCluster(FakeCluster):
         }
         return [self.fleet, other]
 
-    def list_node_load(self) -> list[Obj]:
+    def list_node_load(self, besides: tuple[str, str] | None = None) -> list[Obj]:
         return [
             {
                 "metadata": {"namespace": "team", "labels": {}},
@@ -297,3 +300,60 @@ def test_why_names_the_fleets_and_pods_that_fill_a_node(capsys: pytest.CaptureFi
         for r in full
     ), full
     assert "Shared nodes of warehouse/warehouse: other fleets and pods hold 11 cores" in out.err
+
+
+class LargeFleetCluster(FakeCluster):
+    """A fleet too large for status.placement (issue 46): its placement is read from its
+    Deployments, whose metadata names their node (``fogfleet.io/node``) unless ``old``."""
+
+    def __init__(self, old: bool = False) -> None:
+        super().__init__()
+        self.fleet = copy.deepcopy(self.fleet)
+        self.fleet["status"].pop("placement", None)
+        self.calls: list[tuple[str, object]] = []
+        self.metadata = [
+            {
+                "metadata": {
+                    "name": f"warehouse-robot-{k}-nav-controller",
+                    "labels": {"fogfleet.io/fleet": "warehouse"},
+                    "annotations": {
+                        "fogfleet.io/robot": f"robot-{k}",
+                        "fogfleet.io/module": "nav-controller",
+                        "fogfleet.io/replica": "0",
+                        **({} if old and k == 2 else {"fogfleet.io/node": f"robot-{k}"}),
+                    },
+                }
+            }
+            for k in (1, 2)
+        ]
+
+    def list_deployments(self, namespace: str, selector: Mapping[str, str]) -> list[Obj]:
+        self.calls.append(("whole", dict(selector)))
+        return []
+
+    def list_deployment_metadata(self, namespace: str, selector: Mapping[str, str]) -> list[Obj]:
+        self.calls.append(("metadata", dict(selector)))
+        return copy.deepcopy(self.metadata)
+
+    def list_node_load(self, besides: tuple[str, str] | None = None) -> list[Obj]:
+        self.calls.append(("pods besides", besides))
+        return []
+
+
+def test_a_large_fleets_placement_is_read_from_its_deployments_metadata() -> None:
+    """The plugin's read of a large fleet is bounded (issue 46): the Deployments' metadata, not
+    the Deployments, and every Pod but the fleet's own; Deployments written before the node
+    annotation existed are read whole."""
+    from fogfleet.commandline.kubectl.live import read_fleet
+
+    cluster = LargeFleetCluster()
+    live = read_fleet(cluster, "warehouse", "warehouse")
+    assert [c[0] for c in cluster.calls] == ["metadata", "pods besides"]
+    assert ("pods besides", ("warehouse", "warehouse")) in cluster.calls
+    nodes = [n.name for n in live.problem.nodes]
+    placed = {live.problem.label(i): nodes[j] for i, j in enumerate(live.placement) if j >= 0}
+    assert placed == {"robot-1/nav-controller": "robot-1", "robot-2/nav-controller": "robot-2"}
+
+    old = LargeFleetCluster(old=True)
+    read_fleet(old, "warehouse", "warehouse")
+    assert [c[0] for c in old.calls] == ["metadata", "whole", "pods besides"]
