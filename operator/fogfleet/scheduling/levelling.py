@@ -309,7 +309,7 @@ def with_levelled(
     """The archive (genes, objectives) plus the feasible levelled plans of its members that
     are best in some objective other than ``reserve`` (nothing added without ``reserve``);
     ``stop`` (the planning budget) ends the packings early, checked before each."""
-    if "reserve" not in pp.names or not len(X):
+    if "reserve" not in pp.names or not len(X) or (stop is not None and stop()):
         return X, F
     starts = sorted({int(np.argmin(F[:, k])) for k, n in enumerate(pp.names) if n != "reserve"})
     full = pp.full(X)

@@ -59,6 +59,8 @@ def polish(
     of moves. An instance's own robot is such a node where its module prefers the robot
     tier, or where its on-board standby already holds its CPU. ``stop`` (the planning
     budget) ends it early, checked before each trial."""
+    if stop is not None and stop():
+        return x, 0
     rules = tie_breakers(problem, x[None, :], names)
     if not rules:
         return x, 0
