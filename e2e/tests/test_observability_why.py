@@ -81,6 +81,31 @@ def test_why_and_top_match_the_fleets_status(
             edges = [a for a in inst["alternatives"] if a["tier"] == "edge"]
             assert edges and {a["rule"] for a in edges} == {"taxonomy"}
 
+    # the bounded read of a large fleet (issue 46), against the real API server: the
+    # Deployments' metadata name their node, and the fleet's own Pods are left out
+    from fogfleet.commandline.kubectl.cluster import connect
+
+    source, _ = connect(str(kube.kubeconfig), None)
+    meta = source.list_deployment_metadata(namespace, {"fogfleet.io/fleet": "warehouse"})
+    named = {
+        (a.get("fogfleet.io/robot", ""), a["fogfleet.io/module"], int(a["fogfleet.io/replica"])): (
+            a["fogfleet.io/node"]
+        )
+        for a in (d["metadata"]["annotations"] for d in meta)
+        if "fogfleet.io/module" in a and a.get("fogfleet.io/role") != "standby"
+    }
+    assert meta and all("spec" not in d for d in meta)
+    assert named == where
+    mine = [
+        p
+        for p in source.list_node_load(besides=(namespace, "warehouse"))
+        if p["metadata"]["namespace"] == namespace
+        and p["metadata"]["labels"].get("fogfleet.io/fleet") == "warehouse"
+    ]
+    assert not mine and any(
+        p["metadata"]["namespace"] == namespace for p in source.list_node_load()
+    )
+
     top = _plugin(kube, namespace, "top", "warehouse")
     assert top["split"] == status.get("split")
     raw = kube.kubectl_json("get", "softwaremodules", "-n", namespace)
