@@ -1,0 +1,177 @@
+"""``make bench-why-live``: ``kubectl fogfleet why`` on a contended 1000-robot fleet on the
+local bed, reading from the API included (issue 46's target: under 2 s).
+
+Protocol (fixed before the first result):
+
+- **Bed:** the local bed (started if not running); the fleet on its kwok nodes.
+- **Fleet:** ``cluster.large_spec(robots, edges)``, the synthetic warehouse robots; at 1000
+  robots on 100 edges (0.1 edge per robot, where ``make bench-scale`` gives 0.4) the edges are
+  short of CPU, so the explained moves land on contended nodes. The operator (a local process)
+  plans it and every module pod runs before anything is timed.
+- **Command:** ``kubectl fogfleet why FLEET scene-segmentation --robot <the middle robot>
+  -o json``, as users run it: a new process with the bed's kubeconfig. It runs ``--runs``
+  times, and each time beside the same command of a ``--baseline`` checkout (its
+  ``operator/`` directory first on PYTHONPATH, e.g. a ``git worktree`` of an earlier commit),
+  in alternating order.
+- **Endpoint:** the command's wall seconds, median over the runs.
+- **Also:** in this process, the same read and explanation split into the API reads (every
+  ``Source`` call), the snapshot and problem build, and the explanation, median over the runs;
+  and the process's import seconds (``--help``), which every command pays.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import secrets
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+from e2e.bed.kube import Kube
+from e2e.bed.operator_fixtures import ROOT, Operator
+from e2e.bench.cluster import (
+    Watcher,
+    connect,
+    create_namespace,
+    large_spec,
+    log,
+    server_side_apply,
+    setup_cluster,
+    teardown_cluster,
+)
+
+MODULE = "scene-segmentation"
+Obj = dict[str, Any]
+
+
+def _command(kube: Kube, ns: str, fleet: str, robot: str) -> list[str]:
+    return [
+        *("-m", "fogfleet.commandline.kubectl", "why", fleet, MODULE, "--robot", robot),
+        *("--kubeconfig", str(kube.kubeconfig), "-n", ns, "-o", "json"),
+    ]
+
+
+def _wall(args: list[str], operator_dir: Path | None) -> float:
+    """Seconds of ``python ARGS`` in a new process (``operator_dir`` first on its path)."""
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
+    if operator_dir is not None:
+        env["PYTHONPATH"] = str(operator_dir)
+    t0 = time.perf_counter()
+    out = subprocess.run(
+        [sys.executable, *args], capture_output=True, text=True, timeout=300, cwd=ROOT, env=env
+    )
+    took = time.perf_counter() - t0
+    if out.returncode != 0:
+        raise RuntimeError(f"{' '.join(args[:4])} failed: {out.stderr[-400:]}")
+    return took
+
+
+class TimedSource:
+    """The plugin's ``Source`` with the seconds its calls took summed (the API reads)."""
+
+    def __init__(self, inner: Any) -> None:
+        self.inner, self.seconds = inner, 0.0
+
+    def __getattr__(self, name: str) -> Callable[..., Any]:
+        call = getattr(self.inner, name)
+
+        def timed(*args: Any, **kwargs: Any) -> Any:
+            t0 = time.perf_counter()
+            try:
+                return call(*args, **kwargs)
+            finally:
+                self.seconds += time.perf_counter() - t0
+
+        return timed
+
+
+def _phases(kube: Kube, ns: str, fleet: str, robot: str) -> dict[str, float]:
+    """The plugin's steps in this process: API reads, build, explanation (seconds)."""
+    from fogfleet.commandline.kubectl.cluster import connect as plugin_connect
+    from fogfleet.commandline.kubectl.commands import why_of
+    from fogfleet.commandline.kubectl.live import read_fleet
+
+    source = TimedSource(plugin_connect(str(kube.kubeconfig), None)[0])
+    t0 = time.perf_counter()
+    live = read_fleet(source, ns, fleet)
+    t1 = time.perf_counter()
+    why = why_of(live, MODULE, robot)
+    t2 = time.perf_counter()
+    assert why.instances and why.instances[0].alternatives, "the instance is explained"
+    return {"api_s": source.seconds, "build_s": t1 - t0 - source.seconds, "why_s": t2 - t1}
+
+
+def bench(args: argparse.Namespace) -> Obj:
+    kube = connect()
+    spec = large_spec(args.robots, args.edges)
+    ns = f"bench-why-{secrets.token_hex(2)}"
+    op = Operator(kube.kubeconfig, [ns], Path(tempfile.mkdtemp(prefix="fogfleet-why-")) / "op.log")
+    robots = spec.fleet["spec"]["robots"]
+    robot = robots[len(robots) // 2]
+    versions: list[tuple[str, Path | None]] = [("this checkout", None)]
+    if args.baseline is not None:
+        versions.append(("baseline", args.baseline))
+    rows: dict[str, list[float]] = {name: [] for name, _ in versions}
+    phases: list[dict[str, float]] = []
+    try:
+        setup_cluster(kube, [spec])
+        op.start().wait_live()
+        create_namespace(kube, ns)
+        server_side_apply(kube, spec.modules_in(ns), "fogfleet-bench")
+        watcher = Watcher(kube, ns, spec.pods)
+        try:
+            server_side_apply(kube, [spec.fleet_in(ns)], "fogfleet-bench")
+            watcher.wait(args.timeout)
+        finally:
+            watcher.close()
+        log(f"{spec.pods} module pods Running; timing `kubectl fogfleet why` x{args.runs}")
+        command = _command(kube, ns, spec.fleet_name, robot)
+        imports = [_wall(["-m", "fogfleet.commandline.kubectl", "--help"], None)]
+        for k in range(args.runs):
+            for name, where in versions if k % 2 == 0 else versions[::-1]:
+                rows[name].append(_wall(command, where))
+            phases.append(_phases(kube, ns, spec.fleet_name, robot))
+            imports.append(_wall(["-m", "fogfleet.commandline.kubectl", "--help"], None))
+    finally:
+        teardown_cluster(kube, [ns])
+        op.stop()
+    median = {k: round(statistics.median(v), 2) for k, v in rows.items()}
+    return {
+        "robots": args.robots,
+        "edges": args.edges,
+        "instances": spec.pods,
+        "runs": args.runs,
+        "why_wall_s": median,
+        "why_wall_runs": rows,
+        "imports_s": round(statistics.median(imports), 2),
+        **{k: round(statistics.median(p[k] for p in phases), 3) for k in phases[0]},
+        "baseline": str(args.baseline or ""),
+    }
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--robots", type=int, default=1000)
+    ap.add_argument("--edges", type=int, default=100)
+    ap.add_argument("--runs", type=int, default=5)
+    ap.add_argument("--timeout", type=float, default=1200.0, help="seconds until all Running")
+    ap.add_argument("--baseline", type=Path, help="an operator/ directory to compare with")
+    ap.add_argument("--record", type=Path, help="write the result as JSON here")
+    args = ap.parse_args(argv)
+    result = bench(args)
+    text = json.dumps(result, indent=1)
+    print(text)
+    if args.record:
+        args.record.write_text(text + "\n")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
