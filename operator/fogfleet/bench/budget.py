@@ -56,11 +56,8 @@ def budget_rows(
         plans = done[budget]
         seconds = [s.duration_seconds for s in plans]
         cut = sorted({stage for s in plans for stage in s.budget_cut})
-        gaps = (
-            [PlanGap(scalarised(problem, s.placement, w), first.bound, first.kind) for s in plans]
-            if first is not None
-            else []
-        )
+        chosen = [scalarised(problem, s.placement, w) for s in plans]
+        gaps = [PlanGap(v, first.bound, first.kind, v) for v in chosen] if first is not None else []
         rows.append(
             {
                 "robots": robots,

@@ -218,7 +218,7 @@ def _gap(
     if incremental and int(problem.allowed.sum()) > GAP_INCREMENTAL_PAIRS:
         return None
     w = fleet_weights(problem, [str(n) for n in settings.objectives], weights_of(settings))
-    return plan_gap(problem, chosen, w)
+    return plan_gap(problem, chosen, w, schedule.pareto_placements)
 
 
 def _keep_what_runs(

@@ -52,6 +52,7 @@ __all__ = [
     "lp_bound",
     "robot_bound",
     "scalarised",
+    "scalarised_plans",
     "solve_exact",
 ]
 
@@ -108,12 +109,19 @@ def scalarised(
     problem: Problem, placement: NDArray[np.integer], weights: Mapping[str, float] | None = None
 ) -> float:
     """S of the module docstring for one plan (limits allocation)."""
+    return float(scalarised_plans(problem, np.asarray(placement)[None, :], weights)[0])
+
+
+def scalarised_plans(
+    problem: Problem, plans: NDArray[np.integer], weights: Mapping[str, float] | None = None
+) -> F64:
+    """S of each plan of ``plans`` (P, I), evaluated together (limits allocation)."""
     w = dict(DEFAULT_WEIGHTS if weights is None else weights)
-    vals = evaluate(problem, np.asarray(placement)[None, :], problem.limits, tuple(w))
+    vals = evaluate(problem, np.asarray(plans), problem.limits, tuple(w))
     n_r = max(int((problem.tier == 0).sum()), 1)
-    total = 0.0
+    total = np.zeros(len(plans))
     for name, wk in w.items():
-        v = float(vals[name][0])
+        v = np.asarray(vals[name], dtype=np.float64)
         total += wk * (v / n_r if name == ObjectiveName.ONBOARD.value else v)
     return total
 

@@ -25,6 +25,11 @@ def test_the_optimum_is_within_the_solvers_tolerance_of_the_bound_and_a_worse_pl
     other = plan_gap(tiny, worse, DEFAULT_WEIGHTS)
     assert other is not None and other.bound == best.bound
     assert other.percent > best.percent + 1.0
+    # with the optimum on the front, the best found is the optimum; the deployed stays worse
+    both = plan_gap(tiny, worse, DEFAULT_WEIGHTS, np.stack([worse, optimum]))
+    assert both is not None and both.value == pytest.approx(best.value)
+    assert both.deployed_percent == pytest.approx(other.percent)
+    assert other.percent > both.percent
 
 
 def test_the_tighter_bound_is_reported() -> None:
@@ -48,4 +53,5 @@ def test_an_unplaced_instance_gets_no_gap(tiny: Problem) -> None:
     [(1.1, 1.0, 10.0), (1.0, 1.0 + 1e-12, 0.0), (0.0, 0.0, 0.0), (1.0, 0.0, np.inf)],
 )
 def test_the_percent_is_above_the_bound_and_never_negative(value, bound, percent) -> None:
-    assert PlanGap(value, bound, "lp").percent == pytest.approx(percent)
+    gap = PlanGap(value, bound, "lp", value)
+    assert gap.percent == pytest.approx(percent) and gap.deployed_percent == gap.percent

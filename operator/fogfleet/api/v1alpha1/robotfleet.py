@@ -348,21 +348,27 @@ class ObjectiveValue(FogModel):
 
 
 class PlanGapStatus(FogModel):
-    """How far the deployed plan is from the best any plan could do, in one number: its
-    scalarised S (the weighted sum the exact scheduler minimises: 100*missRate +
+    """How far the search came from the best any plan could do, in one number: the best
+    scalarised S it found (the weighted sum the exact scheduler minimises: 100*missRate +
     missedCycles + onboard per robot + reserve [+ cost]) against a lower bound on every
-    plan's S. A plan chosen lexicographically (misses first) is not the plan of least S."""
+    plan's S, and the deployed plan's S beside it."""
 
     percent: float
-    """(S - bound) / bound in percent: an upper bound on how far the plan's S is from the
-    optimum (part of it may be the bound's own)."""
+    """(best S found - bound) / bound in percent: an upper bound on how far the search's best
+    plan is from the optimum of S (part of it may be the bound's own)."""
     value: float
-    """The deployed plan's S."""
+    """The best S the search found (its Pareto front, or the deployed plan)."""
     bound: float
     """The lower bound on every plan's S."""
     bound_kind: Literal["robot", "lp"]
     """robot: each robot's instances kept whole (a Lagrangian bound); lp: the LP
     relaxation's optimum (solved for fleets of up to 5000 instance-node pairs)."""
+    deployed_percent: float
+    """The deployed plan's gap. It is chosen from the front by spec.scheduler.choice, not by
+    S (the default lexicographic rule puts misses first), so this also holds what that rule
+    traded for the fleet's own order of objectives."""
+    deployed_value: float
+    """The deployed plan's S."""
     time_budget_reached: bool = False
     """The planning budget (spec.scheduler.timeBudgetMillis) cut the search: a larger budget
     may lower the gap."""

@@ -285,13 +285,15 @@ def _plan_figures(rendered: Rendered, placement: list[Obj]) -> Obj:
 def _gap(plan: Decision) -> Obj | None:
     """``status.planGap`` of the deployed plan (``scheduling.gap``)."""
     gap = plan.gap
-    if gap is None or not np.isfinite(gap.percent):
+    if gap is None or not np.isfinite(gap.deployed_percent):
         return None
     return {
         "percent": round(gap.percent, 2),
         "value": round(gap.value, 6),
         "bound": round(gap.bound, 6),
         "bound_kind": gap.kind,
+        "deployed_percent": round(gap.deployed_percent, 2),
+        "deployed_value": round(gap.deployed, 6),
         "time_budget_reached": plan.schedule.time_budget_reached,
     }
 
