@@ -22,10 +22,10 @@ from fogfleet.api.v1alpha1.robotfleet import SchedulerSettings
 from fogfleet.bench.scale_plan import EDGES_PER_ROBOT
 from fogfleet.bench.scheduling import synthetic_fleet
 from fogfleet.domain.build import build_problem
-from fogfleet.scheduling.exact import fleet_weights, scalarised
+from fogfleet.scheduling.exact import scalarised
 from fogfleet.scheduling.gap import PlanGap, plan_gap
 from fogfleet.scheduling.schedule import Schedule
-from fogfleet.scheduling.solver import plan, weights_of
+from fogfleet.scheduling.solver import exact_weights, plan
 
 __all__ = ["BUDGETS_MILLIS", "budget_rows"]
 
@@ -49,7 +49,7 @@ def budget_rows(
             settings = SchedulerSettings(seed=seed, time_budget_millis=budget)
             done[budget].append(plan(problem, settings))
     settings = SchedulerSettings(seed=seed)
-    w = fleet_weights(problem, [str(n) for n in settings.objectives], weights_of(settings))
+    w = exact_weights(problem, settings)
     first = plan_gap(problem, done[budgets[0]][0].placement, w)
     rows: list[Row] = []
     for budget in budgets:

@@ -39,13 +39,12 @@ from fogfleet.domain.problem import Problem
 from fogfleet.errors import Infeasible
 
 from . import stickiness
-from .exact import fleet_weights
 from .explain.shortfall import infeasible_message
 from .gap import PlanGap, plan_gap
 from .incremental import Replan, changed_instances, replan
 from .objectives import feasible, objective_values
 from .schedule import Schedule
-from .solver import plan, weights_of
+from .solver import exact_weights, plan
 
 __all__ = ["CorePlanner", "Decision", "Planner", "decide", "fingerprint", "with_defaults"]
 
@@ -217,7 +216,7 @@ def _gap(
         return None
     if incremental and int(problem.allowed.sum()) > GAP_INCREMENTAL_PAIRS:
         return None
-    w = fleet_weights(problem, [str(n) for n in settings.objectives], weights_of(settings))
+    w = exact_weights(problem, settings)
     return plan_gap(problem, chosen, w, schedule.pareto_placements)
 
 

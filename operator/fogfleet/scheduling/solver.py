@@ -53,7 +53,7 @@ LOCAL_SEARCH_SHARE = 0.9  # the levelling and the local search
 POLISH_SHARE = 0.97
 OVER_BUDGET = 1.1  # a search past this multiple of its budget says why in its reason
 
-__all__ = ["Clock", "Progress", "choose_plan", "nsga2", "plan", "weights_of"]
+__all__ = ["Clock", "Progress", "choose_plan", "exact_weights", "nsga2", "plan", "weights_of"]
 
 Progress = Callable[[int, int], None]
 I64 = NDArray[np.int64]
@@ -67,6 +67,12 @@ class Stop(enum.Enum):
     STALLED = "stalled"  # converged: convergence.StallWatch
     WARM = "warm"  # a warm start's generations ran: convergence.WARM_GENERATIONS
     EXHAUSTIVE = "exhaustive"  # a small search space was enumerated instead
+
+
+def exact_weights(problem: Problem, settings: SchedulerSettings) -> dict[str, float]:
+    """The weights of S the exact scheduler minimises for a fleet with ``settings``
+    (``exact.fleet_weights``): its MILP, and the gap ``scheduling.gap`` reports."""
+    return fleet_weights(problem, [str(n) for n in settings.objectives], weights_of(settings))
 
 
 def weights_of(settings: SchedulerSettings) -> dict[str, float]:
@@ -104,7 +110,7 @@ def plan(
     if algo is SchedulerName.RANDOM:
         return random_plan(problem, settings.seed)
     t0 = time.perf_counter()
-    w = fleet_weights(problem, [str(n) for n in settings.objectives], weights_of(settings))
+    w = exact_weights(problem, settings)
     res = solve_exact(problem, w)
     return finish(
         problem,
