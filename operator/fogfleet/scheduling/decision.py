@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import dataclasses
 import hashlib
+import logging
 import time
 from collections.abc import Collection, Mapping
 from dataclasses import dataclass, field
@@ -47,6 +48,8 @@ from .schedule import Schedule
 from .solver import exact_weights, plan
 
 __all__ = ["CorePlanner", "Decision", "Planner", "decide", "fingerprint", "with_defaults"]
+
+log = logging.getLogger(__name__)
 
 
 class Planner(Protocol):
@@ -217,7 +220,11 @@ def _gap(
     if incremental and int(problem.allowed.sum()) > GAP_INCREMENTAL_PAIRS:
         return None
     w = exact_weights(problem, settings)
-    return plan_gap(problem, chosen, w, schedule.pareto_placements)
+    try:
+        return plan_gap(problem, chosen, w, schedule.pareto_placements)
+    except Exception:  # a report: its bug must not keep a fleet from its plan
+        log.exception("The plan's gap could not be computed (a bug: please report it)")
+        return None
 
 
 def _keep_what_runs(

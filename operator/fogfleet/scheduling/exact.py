@@ -261,11 +261,11 @@ def robot_bound(problem: Problem, weights: Mapping[str, float] | None = None) ->
     best_t: list[tuple[F64, F64]] = []  # per robot group: (U (R, K), F (L, R, K))
     for size in np.unique(sizes):
         group = robots[sizes == size]
-        inst = np.stack([np.flatnonzero(home == h) for h in group]) if size else None
-        configs = np.array(list(np.ndindex(*(2,) * int(size))), dtype=bool).reshape(-1, size)
-        if inst is None:
+        if size == 0:  # robots with none of the fleet's instances: nothing to choose (u >= 0)
             best_t.append((np.zeros((len(group), 1)), np.zeros((len(lambdas), len(group), 1))))
             continue
+        inst = np.stack([np.flatnonzero(home == h) for h in group])
+        configs = np.array(list(np.ndindex(*(2,) * int(size))), dtype=bool).reshape(-1, size)
         dem = fit.demand_at(inst.ravel(), np.repeat(group, size)).reshape(len(group), size, 3)
         load = fit.reserve[group][:, None, :] + np.einsum("ks,rsq->rkq", configs.astype(float), dem)
         traffic = (~configs).astype(float) @ problem.traffic[inst].T  # (K, R)

@@ -193,6 +193,32 @@ def test_a_dangling_module_reference_fails_without_touching_what_runs(kube, deps
     assert kube.deployments.keys() == snapshot.keys()
 
 
+def test_a_bug_says_so_in_the_status_instead_of_the_last_reason(kube, deps, monkeypatch):
+    """An unexpected error replaces a stale reason (a dangling reference since created) with
+    ReconcileError and the error, and goes on to the queue's retry; nothing runs changes."""
+    run(kube, deps)
+    snapshot = {k: dict(v) for k, v in kube.deployments.items()}
+    kube.fleets[KEY]["spec"]["modules"].append({"name": "no-such-module"})
+    kube.fleets[KEY]["metadata"]["generation"] = 2
+    with pytest.raises(DanglingReference):
+        run(kube, deps)
+    kube.fleets[KEY]["spec"]["modules"].pop()
+    kube.fleets[KEY]["metadata"]["generation"] = 3
+
+    def broken(*_, **__):
+        raise ValueError("cannot reshape array of size 0")
+
+    monkeypatch.setattr("fogfleet.controllers.fleet.reconcile.plan_step", broken)
+    with pytest.raises(ValueError, match="reshape"):
+        run(kube, deps)
+    cond = conditions(kube)
+    assert cond["Ready"]["status"] == "False" and cond["Ready"]["reason"] == "ReconcileError"
+    assert "ValueError: cannot reshape array of size 0" in cond["Ready"]["message"]
+    assert cond["Scheduled"]["reason"] == "ReconcileError"
+    assert ("Warning", "ReconcileError") in [e[:2] for e in kube.events]
+    assert kube.deployments.keys() == snapshot.keys()
+
+
 def test_a_fleet_that_cannot_fit_is_reported_and_nothing_is_applied(kube, deps):
     for cn in kube.compute_nodes.values():
         cn["spec"]["capacity"] = {"cpu": 3, "memory": "16Gi"}

@@ -44,3 +44,17 @@ def test_operator_defaults_fill_only_what_the_fleet_left_out() -> None:
     merged = with_defaults(given, {"population": 99, "generations": 7})
     assert merged.population == 16 and merged.generations == 7
     assert with_defaults(given, {}) is given
+
+
+def test_a_gap_that_cannot_be_computed_leaves_the_plan_and_is_logged(
+    tiny: Problem, monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture
+) -> None:
+    assert _decide(tiny, CorePlanner(), [0, 0, 0]).gap is not None
+
+    def broken(*_: object, **__: object) -> None:
+        raise ValueError("a bug in the bound")
+
+    monkeypatch.setattr("fogfleet.scheduling.decision.plan_gap", broken)
+    decision = _decide(tiny, CorePlanner(), [0, 0, 0])
+    assert decision.gap is None and (decision.placement >= 0).all()
+    assert "gap could not be computed" in caplog.text and "a bug in the bound" in caplog.text

@@ -2,14 +2,19 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
+from fogfleet.api.loader import load_paths
 from fogfleet.bench.scheduling import synthetic_fleet
 from fogfleet.domain.build import build_problem
 from fogfleet.domain.problem import Problem
 from fogfleet.scheduling.exact import DEFAULT_WEIGHTS, lp_bound, robot_bound, solve_exact
 from fogfleet.scheduling.gap import PlanGap, plan_gap
+
+ROOT = Path(__file__).resolve().parents[3]
 
 
 def test_the_optimum_is_within_the_solvers_tolerance_of_the_bound_and_a_worse_plan_is_not(
@@ -55,3 +60,20 @@ def test_an_unplaced_instance_gets_no_gap(tiny: Problem) -> None:
 def test_the_percent_is_above_the_bound_and_never_negative(value, bound, percent) -> None:
     gap = PlanGap(value, bound, "lp", value)
     assert gap.percent == pytest.approx(percent) and gap.deployed_percent == gap.percent
+
+
+def test_a_fleet_of_shared_modules_only_gets_a_gap() -> None:
+    # the demo's shared-detector fleet cut to its shared detector: no robot has an instance of
+    # its own, so every robot has one configuration (nothing on board)
+    cat = load_paths([ROOT / "manifests/examples/shared-detector"])
+    fleet = cat.fleets[0]
+    spec = fleet.spec.model_copy(
+        update={"modules": [m for m in fleet.spec.modules if m.name == "object-detector"]}
+    )
+    p = build_problem(fleet.model_copy(update={"spec": spec}), cat)
+    assert p.n_instances > 0 and (p.home < 0).all()
+    optimum = solve_exact(p).placement
+    gap = plan_gap(p, optimum, DEFAULT_WEIGHTS)
+    whole = robot_bound(p)
+    assert whole is not None and gap is not None
+    assert whole <= gap.value + 1e-9 and gap.percent < 1.0

@@ -49,6 +49,7 @@ from fogfleet.controllers.fleet.status_step import (
     keep_last_plan,
     paused,
     refresh,
+    report_bug,
     report_failure,
     waiting_for_profiles,
 )
@@ -58,7 +59,7 @@ from fogfleet.controllers.measure.profiling import PROFILING_POLL_SECONDS, profi
 from fogfleet.controllers.outcome import Outcome
 from fogfleet.controllers.stamp import RESYNC_MAX_DEFER_SECONDS, resync_overdue
 from fogfleet.controllers.state import FleetState, Rendered
-from fogfleet.errors import Infeasible, InvalidSpec
+from fogfleet.errors import FogfleetError, Infeasible, InvalidSpec
 from fogfleet.snapshot import room_note
 from fogfleet.snapshot.objects import current_placement
 
@@ -97,6 +98,11 @@ def reconcile(body: Obj, deps: Deps) -> Outcome:
             return keep_last_plan(deps, state, inputs, last, exc)
     except InvalidSpec as exc:
         report_failure(deps, obj, exc)
+        raise
+    except FogfleetError:  # the cluster or Prometheus did not answer: retried with a backoff
+        raise
+    except Exception as exc:
+        report_bug(deps, obj, exc)
         raise
 
 

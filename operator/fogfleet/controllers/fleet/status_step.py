@@ -168,6 +168,24 @@ def report_failure(deps: Deps, obj: FleetObject, exc: InvalidSpec) -> None:
     log.warning("Failed to reconcile RobotFleet %s/%s: %s", ns, name, msg)
 
 
+def report_bug(deps: Deps, obj: FleetObject, exc: Exception) -> None:
+    """An unexpected error (a bug) says so in Ready and Scheduled, with one Event, instead of
+    leaving the last reason standing; nothing that runs is touched. Best effort: the error
+    itself goes on to the queue's retry and log."""
+    msg = (
+        f"the operator failed on this fleet: {type(exc).__name__}: {exc} (a bug: please report "
+        "it with the operator's log); it retries with a backoff, what runs stays as it is"
+    )
+    conditions = [
+        condition("Ready", False, "ReconcileError", msg, obj.generation),
+        condition("Scheduled", False, "ReconcileError", msg, obj.generation),
+    ]
+    try:
+        hold(deps, obj, conditions, keep="Degraded", event=("Warning", "ReconcileError", msg))
+    except Exception:  # the cluster did not take it: the log and the retry still say it
+        log.warning("RobotFleet %s/%s: could not write the error to its status", *obj.key)
+
+
 def _write(
     deps: Deps, obj: FleetObject, status: Obj, events: list[tuple[str, str, str]]
 ) -> float | None:
