@@ -61,7 +61,7 @@ images: venv ## Build (or reuse from ~/.cache/fogfleet/images) the operator, wor
 bed-builds: venv ## cluster-tools and images side by side (the Go compiles use the CPU, the images mostly the network and disk); their progress lines interleave
 	$(MAKE) --no-print-directory -j2 cluster-tools images
 
-cluster-up: venv ## Start the local bed (control plane, Prometheus, cluster DNS, kwok and real nodes) on 127.0.0.1 and the bed bridge; PROFILE=paper for the paper's real nodes
+cluster-up: venv ## Start the local bed (control plane, Prometheus, cluster DNS, kwok and real nodes) on 127.0.0.1 and the bed bridge; PROFILE=paper for the paper's real nodes, PROFILE=kwok for kwok nodes only
 	$(BIN)/python e2e/bed/harness.py up --profile $(or $(PROFILE),default)
 
 cluster-down: venv ## Stop the local control plane and remove its state
@@ -147,7 +147,7 @@ bench-plan-page: venv ## docs/benchmarks/planning.md from bench-scale-plan.json 
 bench-why: venv ## How long `kubectl fogfleet why` computes at 1000 robots (build, refusals, explanation; median of 5)
 	$(BIN)/fogfleet bench why --robots $(or $(SIZES),1000) --runs 5
 
-bench-why-live: venv cluster-tools images ## `kubectl fogfleet why` on a contended 1000-robot fleet on the bed's kwok nodes, API reads included (median of 5; BASELINE=DIR compares an operator/ directory of another checkout); writes bench-why-live.json (~20 min)
+bench-why-live: venv cluster-tools ## `kubectl fogfleet why` on a contended 1000-robot fleet on a bed of kwok nodes only (PROFILE=kwok), API reads included (median of 5; BASELINE=DIR compares an operator/ directory of another checkout); writes bench-why-live.json (~20 min)
 	$(BIN)/python -m e2e.bench.why_live --runs 5 $(if $(BASELINE),--baseline $(BASELINE)) --record bench-why-live.json
 
 bench-cluster: venv ## Operator benchmarks on the local control plane: apply-to-Running latency (40 and 400 pods), nsga2 vs kube-scheduler's real placement (~25 min)

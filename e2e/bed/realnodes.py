@@ -55,7 +55,12 @@ NODES_DIR = STATE_DIR / "nodes"
 # Bed profiles: which real nodes a bed runs. ``default`` is the e2e suite's bed (nodes.yaml);
 # ``paper`` is the paper's real-robot experiment (IV-C) scaled by 15: two Raspberry Pi 4
 # robots and two unequal i9 edge servers (e2e/bench/real/paper/nodes.yaml says how).
-PROFILES = {"default": NODES_FILE, "paper": HERE / "nodes-paper.yaml"}
+# ``kwok`` has none: the control plane and the kwok nodes only, for benchmarks at scale.
+PROFILES = {
+    "default": NODES_FILE,
+    "paper": HERE / "nodes-paper.yaml",
+    "kwok": HERE / "nodes-kwok.yaml",
+}
 DEFAULT_PROFILE = "default"
 CREATED_MOUNTPOINTS = STATE_DIR / "created-mountpoints.json"
 # Paths containerd and the kubelet hard-code: private per node (tmpfs or a bind of its dir).

@@ -191,11 +191,13 @@ def large_spec(robots: int, edges: int, seed: int = 1) -> FleetSpec:
 # cluster access and watches
 
 
-def connect() -> Kube:
+def connect(profile: str | None = None) -> Kube:
+    """The running bed, started if none runs; with ``profile``, a bed of that profile (one of
+    another profile is restarted as it)."""
     cluster = harness.running()
-    if cluster is None:
-        log("the local control plane is not running; starting it (harness ensure_up)")
-        cluster = harness.ensure_up()
+    if cluster is None or (profile is not None and cluster.profile != profile):
+        log(f"starting the local bed ({profile or 'default'} profile; harness ensure_up)")
+        cluster = harness.ensure_up(**({"profile": profile} if profile else {}))
     server = guard_kubeconfig(cluster.kubeconfig, expected_server=cluster.api_server)
     return Kube(
         kubeconfig=cluster.kubeconfig,
