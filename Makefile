@@ -141,13 +141,13 @@ bench-scale-plan: venv ## The first whole-fleet plan of 1000 robots (8000 instan
 bench-plan-budget: venv ## The first plan of 1000 robots at timeBudgetMillis 5, 8, 12 and 20 s (3 runs each): the planner's seconds against the budget, the stages it cut, the gap to the robot bound; writes bench-plan-budget.json (~5 min)
 	$(BIN)/fogfleet bench budget --robots $(or $(SIZES),1000) --runs 3 --record bench-plan-budget.json
 
-bench-plan-page: venv ## docs/benchmarks/planning.md from bench-scale-plan.json and bench-plan-budget.json
-	$(BIN)/fogfleet bench page --title "Planning a large fleet" --records bench-scale-plan.json,bench-plan-budget.json --out docs/benchmarks/planning.md
+bench-plan-page: venv ## docs/benchmarks/planning.md from bench-scale-plan.json, bench-plan-budget.json and bench-why-live.json
+	$(BIN)/fogfleet bench page --title "Planning a large fleet" --records bench-scale-plan.json,bench-plan-budget.json,bench-why-live.json --out docs/benchmarks/planning.md
 
 bench-why: venv ## How long `kubectl fogfleet why` computes at 1000 robots (build, refusals, explanation; median of 5)
 	$(BIN)/fogfleet bench why --robots $(or $(SIZES),1000) --runs 5
 
-bench-why-live: venv cluster-tools ## `kubectl fogfleet why` on a contended 1000-robot fleet on a bed of kwok nodes only (PROFILE=kwok), API reads included (median of 5; BASELINE=DIR compares an operator/ directory of another checkout); writes bench-why-live.json (~20 min)
+bench-why-live: venv cluster-tools ## `kubectl fogfleet why` on a contended 1000-robot fleet on a bed of kwok nodes only (PROFILE=kwok), API reads included (median of 5; BASELINE=DIR compares an operator/ directory of another checkout); writes the record bench-why-live.json (~35 min with its teardown)
 	$(BIN)/python -m e2e.bench.why_live --runs 5 $(if $(BASELINE),--baseline $(BASELINE)) --record bench-why-live.json
 
 bench-cluster: venv ## Operator benchmarks on the local control plane: apply-to-Running latency (40 and 400 pods), nsga2 vs kube-scheduler's real placement (~25 min)

@@ -27,7 +27,6 @@ Protocol (fixed before the first result):
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import secrets
 import statistics
@@ -52,6 +51,8 @@ from e2e.bench.cluster import (
     setup_cluster,
     teardown_cluster,
 )
+from fogfleet.bench.record import write_record
+from fogfleet.bench.scheduling import format_table
 
 MODULE = "scene-segmentation"
 Obj = dict[str, Any]
@@ -80,10 +81,12 @@ def _wall(args: list[str], operator_dir: Path | None) -> float:
 
 
 class TimedSource:
-    """The plugin's ``Source`` with the seconds its calls took summed (the API reads)."""
+    """The plugin's ``Source`` with the seconds its calls took summed (the API reads), in all
+    and per method."""
 
     def __init__(self, inner: Any) -> None:
         self.inner, self.seconds = inner, 0.0
+        self.by_call: dict[str, float] = {}
 
     def __getattr__(self, name: str) -> Callable[..., Any]:
         call = getattr(self.inner, name)
@@ -93,7 +96,9 @@ class TimedSource:
             try:
                 return call(*args, **kwargs)
             finally:
-                self.seconds += time.perf_counter() - t0
+                took = time.perf_counter() - t0
+                self.seconds += took
+                self.by_call[name] = self.by_call.get(name, 0.0) + took
 
         return timed
 
@@ -111,15 +116,16 @@ def _phases(kube: Kube, ns: str, fleet: str, robot: str) -> dict[str, float]:
     why = why_of(live, MODULE, robot)
     t2 = time.perf_counter()
     assert why.instances and why.instances[0].alternatives, "the instance is explained"
-    return {"api_s": source.seconds, "build_s": t1 - t0 - source.seconds, "why_s": t2 - t1}
+    reads = {f"api_{name}_s": took for name, took in source.by_call.items()}
+    return {"api_s": source.seconds, "build_s": t1 - t0 - source.seconds, "why_s": t2 - t1, **reads}
 
 
-def bench(args: argparse.Namespace) -> Obj:
+def bench(args: argparse.Namespace) -> list[Obj]:
     with heartbeats.relaxed():
         return _bench(args)
 
 
-def _bench(args: argparse.Namespace) -> Obj:
+def _bench(args: argparse.Namespace) -> list[Obj]:
     kube = connect(profile="kwok")
     spec = large_spec(args.robots, args.edges)
     ns = f"bench-why-{secrets.token_hex(2)}"
@@ -153,18 +159,24 @@ def _bench(args: argparse.Namespace) -> Obj:
     finally:
         teardown_cluster(kube, [ns])
         op.stop()
-    median = {k: round(statistics.median(v), 2) for k, v in rows.items()}
-    return {
-        "robots": args.robots,
-        "edges": args.edges,
-        "instances": spec.pods,
-        "runs": args.runs,
-        "why_wall_s": median,
-        "why_wall_runs": rows,
+    split = {
         "imports_s": round(statistics.median(imports), 2),
-        **{k: round(statistics.median(p[k] for p in phases), 3) for k in phases[0]},
-        "baseline": str(args.baseline or ""),
+        **{k: round(statistics.median(p.get(k, 0.0) for p in phases), 3) for k in phases[0]},
     }
+    return [
+        {
+            "version": name if where is None else f"{name} ({where})",
+            "robots": args.robots,
+            "edges": args.edges,
+            "instances": spec.pods,
+            "runs": len(rows[name]),
+            "why_s_median": round(statistics.median(rows[name]), 2),
+            "why_s_min": round(min(rows[name]), 2),
+            "why_s_max": round(max(rows[name]), 2),
+            **(split if where is None else {}),  # the split is this checkout's, in-process
+        }
+        for name, where in versions
+    ]
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -177,10 +189,11 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--record", type=Path, help="write the result as JSON here")
     args = ap.parse_args(argv)
     result = bench(args)
-    text = json.dumps(result, indent=1)
-    print(text)
+    print(format_table(result))
     if args.record:
-        args.record.write_text(text + "\n")
+        words = argv if argv is not None else sys.argv[1:]
+        command = ["python", "-m", "e2e.bench.why_live", *words]
+        write_record(args.record, "why-live", result, command)
     return 0
 
 

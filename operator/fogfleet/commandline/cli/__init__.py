@@ -116,6 +116,7 @@ def _bench_page(args: argparse.Namespace) -> int:
         "replan": format_table,
         "scale-plan": format_table,
         "budget": format_table,
+        "why-live": format_table,
     }
     files = ", ".join(f"`{Path(p).name}`" for p in args.records.split(","))
     text = page(args.title, records, tables, BENCH_ABOUT, f"`fogfleet bench page` from {files}")
@@ -148,6 +149,13 @@ BENCH_ABOUT = {
         "The same first plan with spec.scheduler.timeBudgetMillis at several budgets: the "
         "planner's seconds (median and largest; target at most 1.1x the budget), the stages "
         "the budget cut, and the chosen plan's gap to the robot bound."
+    ),
+    "why-live": (
+        "`kubectl fogfleet why` on a contended 1000-robot fleet (100 edges short of CPU) whose "
+        "8000 module pods run on kwok nodes, as users run it: a new process reading the API "
+        "server, median over the runs, beside a baseline checkout in alternating order; for "
+        "this checkout, in-process: its imports, the API reads, the problem build and the "
+        "explanation (e2e/bench/why_live.py; issue 46's target: under 2 s)."
     ),
     "replan": (
         "A robot joining and an edge failing at several fleet sizes: the whole-fleet plan "
