@@ -179,13 +179,20 @@ def test_a_changed_cycle_time_replans_once_and_leaves_the_others_alone(kube, dep
     assert len(changed) <= 5 + out.migrations
 
 
-def test_a_dangling_module_reference_fails_without_touching_what_runs(kube, deps):
+def _planned_then_dangling(kube, deps) -> dict:
+    """Plan the fleet, then reconcile it with a module reference to nothing (generation 2);
+    the Deployments as planned."""
     run(kube, deps)
     snapshot = {k: dict(v) for k, v in kube.deployments.items()}
     kube.fleets[KEY]["spec"]["modules"].append({"name": "no-such-module"})
     kube.fleets[KEY]["metadata"]["generation"] = 2
     with pytest.raises(DanglingReference):
         run(kube, deps)
+    return snapshot
+
+
+def test_a_dangling_module_reference_fails_without_touching_what_runs(kube, deps):
+    snapshot = _planned_then_dangling(kube, deps)
     cond = conditions(kube)
     assert cond["Ready"]["status"] == "False" and cond["Ready"]["reason"] == "DanglingReference"
     assert "spec.modules[8].name" in cond["Ready"]["message"]
@@ -196,12 +203,7 @@ def test_a_dangling_module_reference_fails_without_touching_what_runs(kube, deps
 def test_a_bug_says_so_in_the_status_instead_of_the_last_reason(kube, deps, monkeypatch):
     """An unexpected error replaces a stale reason (a dangling reference since created) with
     ReconcileError and the error, and goes on to the queue's retry; nothing runs changes."""
-    run(kube, deps)
-    snapshot = {k: dict(v) for k, v in kube.deployments.items()}
-    kube.fleets[KEY]["spec"]["modules"].append({"name": "no-such-module"})
-    kube.fleets[KEY]["metadata"]["generation"] = 2
-    with pytest.raises(DanglingReference):
-        run(kube, deps)
+    snapshot = _planned_then_dangling(kube, deps)
     kube.fleets[KEY]["spec"]["modules"].pop()
     kube.fleets[KEY]["metadata"]["generation"] = 3
 
