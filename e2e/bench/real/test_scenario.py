@@ -55,12 +55,15 @@ def test_the_pi_runs_the_perception_four_times_slower_and_navigation_as_declared
 
 
 def test_profiles_are_known_by_name_and_their_node_names_never_collide() -> None:
-    assert set(PROFILES) == {"default", "paper"}
+    assert set(PROFILES) == {"default", "paper", "kwok"}
     names = [n.name for p in PROFILES for n in profile_nodes(p)]
     assert len(names) == len(set(names))
     assert declared("paper-edge-2").cpu_millis == 300
     assert declared("bed-edge-1").cpu_millis == 1000
-    with pytest.raises(HarnessError, match="unknown bed profile 'lab': one of default, paper"):
+    assert profile_nodes("kwok") == []  # the control plane and kwok nodes only
+    with pytest.raises(
+        HarnessError, match="unknown bed profile 'lab': one of default, paper, kwok"
+    ):
         profile_nodes("lab")
     with pytest.raises(HarnessError, match="no bed profile declares a real node 'nope'"):
         declared("nope")
