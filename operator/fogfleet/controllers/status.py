@@ -21,6 +21,7 @@ from fogfleet.snapshot.objects import scaling_status
 
 __all__ = [
     "Rollout",
+    "changed_parts",
     "complete",
     "condition",
     "find_condition",
@@ -120,6 +121,13 @@ def merge_conditions(old: Iterable[Mapping[str, Any]] | None, new: Sequence[Obj]
 def without_transition_times(conditions: Any) -> list[Obj]:
     """Conditions as compared between reconciles: a new stamp alone is no change."""
     return [{k: v for k, v in c.items() if k != "lastTransitionTime"} for c in conditions or []]
+
+
+def changed_parts(old: Mapping[str, Any], new: Mapping[str, Any]) -> Obj:
+    """The top-level fields of ``new`` that differ from ``old`` (None for one ``new`` drops):
+    a merge patch of these leaves the rest as it is, so an unchanged large field (a 1000-robot
+    fleet's placement) is not sent again at every rollout step."""
+    return {k: v for k, v in new.items() if old.get(k) != v}
 
 
 def same_status(old: Mapping[str, Any], new: Mapping[str, Any]) -> bool:

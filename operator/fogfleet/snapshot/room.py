@@ -17,6 +17,7 @@ import numpy as np
 from fogfleet.api.labels import LABEL_FLEET, LABEL_MANAGED_BY, MANAGER
 from fogfleet.api.names import label_value
 from fogfleet.api.v1alpha1.base import parse_cpu
+from fogfleet.api.v1alpha1.placement import placement_entries_of
 from fogfleet.domain.problem import Problem
 from fogfleet.domain.tenancy import Held
 
@@ -136,15 +137,16 @@ def _needed_cores(problem: Problem) -> float:
 
 
 def status_claims(fleets: Iterable[Mapping[str, Any]]) -> dict[FleetKey, Claims]:
-    """Every fleet's claims as its status lists them (``status.placement``: node and CPU per
-    instance): what a reader outside the operator knows of the plans (the operator keeps them
-    in its store). A fleet above the list's limit lists none: its pods' requests stand in."""
+    """Every fleet's claims as its status lists them (``status.placement``, or its compact
+    form above the list's limit: node and CPU per instance): what a reader outside the operator
+    knows of the plans (the operator keeps them in its store). A fleet whose status lists no
+    placement yet claims nothing here: its pods' requests stand in."""
     out: dict[FleetKey, Claims] = {}
     for raw in fleets:
         meta = raw.get("metadata") or {}
         key = (str(meta.get("namespace") or "default"), str(meta.get("name") or ""))
         nodes: dict[str, tuple[float, float]] = {}
-        for entry in (raw.get("status") or {}).get("placement") or []:
+        for entry in placement_entries_of(raw.get("status") or {}):
             node, cpu = entry.get("node"), entry.get("cpu")
             if node and cpu is not None:
                 held = nodes.get(str(node), (0.0, 0.0))[0]

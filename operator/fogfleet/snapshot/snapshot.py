@@ -14,7 +14,8 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from fogfleet.api.loader import Catalog
-from fogfleet.api.v1alpha1.robotfleet import RobotFleet
+from fogfleet.api.v1alpha1.placement import placement_entries_of
+from fogfleet.api.v1alpha1.robotfleet import RobotFleet, SchedulerName
 from fogfleet.domain.network import Link
 from fogfleet.domain.rows import Learnt
 from fogfleet.domain.tenancy import Held, with_held
@@ -44,7 +45,9 @@ class Listed:
     compute_nodes: list[Obj]
     modules: list[Obj]  # the fleet namespace's SoftwareModules, with their status
     nodes: list[Obj]  # the Kubernetes Nodes
-    deployments: list[Obj] = field(default_factory=list)  # the fleet's module Deployments
+    # the fleet's module Deployments; None: not read, the status's placement says where its
+    # instances run (``kubectl fogfleet`` on a fleet whose status lists it)
+    deployments: list[Obj] | None = field(default_factory=list)
 
 
 @dataclass(frozen=True)
@@ -60,7 +63,7 @@ class FleetSnapshot:
     catalog: Catalog
     unavailable: Mapping[str, str] = field(default_factory=dict)  # ComputeNode -> why
     broken: Mapping[str, InvalidSpec] = field(default_factory=dict)  # "Kind/name" -> error
-    current: Placement = field(default_factory=dict)  # from the Deployments' node affinity
+    current: Placement = field(default_factory=dict)  # the Deployments' node (or the status')
     pools: Mapping[str, Mapping[str, int]] = field(default_factory=dict)  # module -> tiers
     corrections: Mapping[tuple[str, str], Learnt] = field(default_factory=dict)
     measured_links: Mapping[str, Link] = field(default_factory=dict)  # robot -> as measured
@@ -90,8 +93,14 @@ def snapshot_of(
     measured (``domain.linkhealth``)."""
     fleet = parse_fleet(listed.fleet)
     gathered = gather(listed.compute_nodes, listed.modules, listed.nodes, held)
-    current = current_placement(listed.deployments)
     status = dict(listed.fleet.get("status") or {})
+    deployed = _listed_placement(status)
+    if listed.deployments is not None:
+        current = current_placement(listed.deployments)
+    elif fleet.spec.scheduler.algorithm is SchedulerName.K8S_DEFAULT:
+        current = {}  # kube-scheduler binds its pods: no Deployment of it names a node
+    else:
+        current = deployed
     return FleetSnapshot(
         key=(fleet.metadata.namespace or "default", fleet.metadata.name),
         fleet=fleet,
@@ -103,7 +112,7 @@ def snapshot_of(
         corrections=profile_corrections(listed.modules),
         measured_links=dict(measured_links or {}),
         held=dict(held or {}),
-        deployed=_listed_placement(status) or current,
+        deployed=deployed or current,
         measured=measured_rates(listed.fleet, listed.modules),
         module_splits={
             str(m["metadata"]["name"]): (m.get("status") or {}).get("split") for m in listed.modules
@@ -130,10 +139,11 @@ def snapshot_of_catalog(
 
 
 def _listed_placement(status: Mapping[str, Any]) -> Placement:
-    """``status.placement`` by (robot, module, replica) (a fleet above the list's limit lists
-    none there: then the Deployments' node affinity says it)."""
+    """The status's placement (its list, or its compact form above the list's limit) by
+    (robot, module, replica); empty when it has none (then the Deployments' node affinity
+    says it)."""
     return {
         (e.get("robot") or "", e["module"], int(e.get("replica") or 0)): e["node"]
-        for e in status.get("placement") or []
+        for e in placement_entries_of(status)
         if e.get("node")
     }

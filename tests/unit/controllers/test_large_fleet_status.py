@@ -1,6 +1,7 @@
 """A fleet with more instances than PLACEMENT_LIST_LIMIT: its status lists no per-instance
-placement (the object would approach etcd's limit), says per module where its instances run,
-and the modules' and ComputeNodes' usage still counts every instance."""
+placement (the object would approach etcd's limit) but holds it in compact form, says per
+module where its instances run, and the modules' and ComputeNodes' usage still counts every
+instance."""
 
 from __future__ import annotations
 
@@ -10,6 +11,7 @@ from collections import Counter
 import pytest
 
 import fogfleet.controllers.fleet.status as fleet_status
+from fogfleet.api.v1alpha1.placement import CompactPlacement
 from fogfleet.commandline.cli.planning import recorded_placement
 from fogfleet.controllers.fleet.reconcile import reconcile
 from fogfleet.controllers.measure.usage import reconcile_usage
@@ -63,6 +65,29 @@ def test_a_large_fleet_lists_no_instances_but_counts_them_per_module(
         sum(r["robot"] + r["edge"] + r["cloud"] for r in status["placementByModule"])
         == (status["modulesPlaced"])
     )
+    entries = small_status["placement"]
+    listed = sorted(({k: v for k, v in e.items() if k != "split"} for e in entries), key=repr)
+    compact = CompactPlacement.model_validate(status["placementCompact"]).entries()
+    assert sorted(compact, key=repr) == listed
+
+
+def test_a_status_write_sends_only_what_changed(kube, make_deps, monkeypatch):
+    """The compact placement is sent when the plan changes it, not at every rollout step."""
+    monkeypatch.setattr(fleet_status, "PLACEMENT_LIST_LIMIT", 3)
+    settle(kube, make_deps())
+    patches = kube.status_patches
+    assert len(patches) >= 2
+    assert sum("placementCompact" in p for p in patches) == 1, [sorted(p) for p in patches]
+    assert "placementCompact" in patches[0] and "conditions" in patches[-1]
+
+
+def test_a_fleet_that_shrinks_below_the_limit_drops_its_compact_form(kube, make_deps, monkeypatch):
+    monkeypatch.setattr(fleet_status, "PLACEMENT_LIST_LIMIT", 3)
+    deps = make_deps()
+    assert settle(kube, deps)["placementCompact"]
+    monkeypatch.setattr(fleet_status, "PLACEMENT_LIST_LIMIT", 1000)
+    status = settle(kube, deps)
+    assert status["placement"] and "placementCompact" not in status  # removed by the patch
 
 
 def test_usage_counts_a_large_fleet_from_what_its_reconcile_found(
@@ -79,10 +104,32 @@ def test_usage_counts_a_large_fleet_from_what_its_reconcile_found(
     assert usage(kube) == small_usage
 
 
-def test_simulating_a_status_without_its_placement_says_why(kube, deps, monkeypatch):
+def test_usage_counts_a_large_fleet_from_its_status_after_a_restart(
+    kube, listed, make_deps, monkeypatch
+):
+    """A new operator counts a fleet it has not reconciled yet from the compact form."""
+    _, small_usage = listed
+    for obj in [*kube.modules.values(), *kube.compute_nodes.values()]:
+        obj.pop("status", None)
+    monkeypatch.setattr(fleet_status, "PLACEMENT_LIST_LIMIT", 3)
+    settle(kube, make_deps())
+    reconcile_usage(make_deps())  # a fresh operator: only the fleet's status to go by
+    assert usage(kube) == small_usage
+
+
+def test_simulating_a_large_fleets_status_reads_its_compact_placement(
+    kube, listed, deps, monkeypatch
+):
+    small_status, _ = listed
+    problem = deps.store.state(KEY).rendered.problem
+    small = recorded_placement(problem, {"status": small_status}, "small.yaml")
     monkeypatch.setattr(fleet_status, "PLACEMENT_LIST_LIMIT", 3)
     settle(kube, deps)
-    problem = deps.store.state(KEY).rendered.problem
+    large = copy.deepcopy(kube.fleets[KEY])
+    placement, alloc = recorded_placement(problem, large, "fleet.yaml")
+    assert (placement == small[0]).all() and (placement >= 0).all()
+    assert (alloc.cpu_request == small[1].cpu_request).all()
+    large["status"].pop("placementCompact")
     with pytest.raises(InvalidSpec) as err:
-        recorded_placement(problem, copy.deepcopy(kube.fleets[KEY]), "fleet.yaml")
+        recorded_placement(problem, large, "fleet.yaml")
     assert err.value.field == "status.placement" and "fogfleet plan --json" in str(err.value)

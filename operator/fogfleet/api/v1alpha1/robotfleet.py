@@ -9,17 +9,23 @@ from pydantic import Field, model_validator
 
 from .base import FogModel, Number, PosInt, parse_millis, refuse_duplicates
 from .common import Condition, LabelSelector, Name, ObjectMeta, Tier
-from .dnn import DnnChoice
 from .fallback import Fallback, FallbackMode
 from .linkhealth import LinkHealth, RobotLinkStatus
 from .objectives import DEFAULT_OBJECTIVES, ObjectiveName
 from .observed import DriftSettings
+from .placement import (
+    PLACEMENT_LIST_LIMIT,
+    CompactPlacement,
+    ModulePlacement,
+    PlacementEntry,
+)
 from .rules import CrossFieldRule, enforce
 
 __all__ = [
     "DISCOVERY_SERVER_RMWS",
     "PLACEMENT_LIST_LIMIT",
     "ChoiceRule",
+    "CompactPlacement",
     "DiscoveryRange",
     "ModuleMissStatus",
     "ModulePlacement",
@@ -298,46 +304,6 @@ class RobotFleetSpec(FogModel):
         return self
 
 
-# A RobotFleet must stay well below etcd's 1.5 MiB object limit, and its status is rewritten at
-# every step of a rollout: one placement entry is about 110 bytes of JSON, so a 1000-robot
-# fleet's 8000 made the object 0.9 MiB and each status patch took 0.6 s of the API server on an
-# idle bed. Beyond this many instances status.placement is left empty (placementByModule stays).
-PLACEMENT_LIST_LIMIT = 1000
-
-
-class PlacementEntry(FogModel):
-    """Where one module instance runs."""
-
-    robot: str
-    """The robot the instance serves (empty for a shared module's replica)."""
-    module: str
-    """The SoftwareModule."""
-    node: str
-    """The Kubernetes Node its pod is bound to (node affinity)."""
-    tier: str
-    """robot, edge or cloud."""
-    cpu: str | None = None
-    """CPU request = limit given to the instance, in cores."""
-    replica: int | None = None
-    """Replica index of a shared module."""
-    split: DnnChoice | None = None
-    """A split network's (SoftwareModule spec.dnn): the action taken with its tail on this
-    node, and why."""
-
-
-class ModulePlacement(FogModel):
-    """How many instances of one module run on each tier."""
-
-    module: str
-    """The SoftwareModule."""
-    robot: int = 0
-    """Instances on the robots' own computers."""
-    edge: int = 0
-    """Instances on edge nodes."""
-    cloud: int = 0
-    """Instances in the cloud."""
-
-
 class ObjectiveValue(FogModel):
     """One objective of the deployed plan."""
 
@@ -475,9 +441,13 @@ class RobotFleetStatus(FogModel):
     """The algorithm that made the plan."""
     placement: list[PlacementEntry] = Field(default_factory=list)
     """Where every module instance runs, for fleets of up to 1000 instances. A larger fleet
-    lists none here (the object would approach etcd's 1.5 MiB limit and be rewritten on every
-    rollout step): read placementByModule, and each instance's node from its pods (`kubectl get
-    pods -l fogfleet.io/fleet=NAME -o wide`)."""
+    lists none here (the object would approach etcd's 1.5 MiB limit): placementCompact holds
+    the same facts in a few bytes per instance."""
+    placement_compact: CompactPlacement | None = None
+    """Where every module instance runs, for fleets of more than 1000 instances (unset for
+    smaller ones): the robots and nodes once each, then per module one robot, replica, node
+    and CPU per instance. `kubectl fogfleet` reads it; people read placementByModule, or an
+    instance's node from its pods (`kubectl get pods -l fogfleet.io/fleet=NAME -o wide`)."""
     placement_by_module: list[ModulePlacement] = Field(default_factory=list)
     """Per module, how many of its instances run on robots, edge nodes and in the cloud."""
     objectives: list[ObjectiveValue] = Field(default_factory=list)

@@ -12,7 +12,7 @@ from typing import Any
 import numpy as np
 
 from fogfleet.api.v1alpha1.objectives import ObjectiveName
-from fogfleet.api.v1alpha1.robotfleet import PLACEMENT_LIST_LIMIT
+from fogfleet.api.v1alpha1.placement import placement_entries_of
 from fogfleet.commandline.exits import BAD_INPUT, OK
 from fogfleet.domain.dnnpairs import planned_choice
 from fogfleet.domain.miss_rates import format_miss_rate, worst_module
@@ -177,21 +177,20 @@ def recorded_placement(problem: Any, doc: Any, source: str) -> tuple[Any, Any]:
     if not isinstance(doc, dict):
         raise InvalidSpec(source, "", "not a saved plan or a RobotFleet with status")
     body = doc.get("status", doc) if "status" in doc else doc
-    if not isinstance(body, dict) or "placement" not in body:
+    if not isinstance(body, dict) or not {"placement", "placementCompact"} & body.keys():
         raise InvalidSpec(
             source,
             "placement",
             "missing: not a plan saved by `fogfleet plan --json`, nor a RobotFleet whose status "
             "has a placement",
         )
-    entries = body.get("placement") or []
+    entries = placement_entries_of(body)
     if not entries and body.get("modulesPlaced"):
         raise InvalidSpec(
             source,
             "status.placement",
-            f"lists none of the {body['modulesPlaced']} placed instances (a fleet of more than "
-            f"{PLACEMENT_LIST_LIMIT} instances is not listed in its status); save the plan with "
-            "`fogfleet plan --json` instead",
+            f"lists none of the {body['modulesPlaced']} placed instances (nor does "
+            "placementCompact); save the plan with `fogfleet plan --json` instead",
         )
     # plain-Deployment schedulers run with nominal requests and no limits
     nominal = body.get("scheduler") in ("k8s-default", "onboard")

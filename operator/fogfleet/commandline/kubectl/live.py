@@ -1,8 +1,9 @@
 """A running fleet as the operator sees it: its objects read through a ``Source`` (the cluster
 adapter, ``plugin.cluster``, or a fake) into a ``snapshot.FleetSnapshot`` with the room the
 other fleets and pods hold on its nodes, and its problem built the one way
-(``snapshot.problem_of``), with the deployed placement (``status.placement``, or the
-Deployments' node affinity above 1000 instances) and the measured miss rates
+(``snapshot.problem_of``), with the deployed placement (``status.placement``, or its compact
+form ``status.placementCompact`` above 1000 instances; the Deployments' node only for a fleet
+whose status lists neither) and the measured miss rates
 (``status.measured``, else the SoftwareModules' ``status.observed``).
 
 A what-if (``snapshot.WhatIf``) changes the snapshot before the build: a node removed, a robot
@@ -11,6 +12,7 @@ added, a link slowed."""
 from __future__ import annotations
 
 from collections.abc import Mapping
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from typing import Any, Protocol
 
@@ -19,6 +21,7 @@ from numpy.typing import NDArray
 
 from fogfleet.api.labels import ANNOTATION_NODE, LABEL_FLEET
 from fogfleet.api.names import label_value
+from fogfleet.api.v1alpha1.placement import placement_entries_of
 from fogfleet.api.v1alpha1.robotfleet import RobotFleet, SchedulerName
 from fogfleet.domain.problem import Problem
 from fogfleet.errors import InvalidSpec
@@ -40,6 +43,7 @@ __all__ = ["Live", "Source", "WhatIf", "read_fleet"]
 
 Obj = dict[str, Any]
 I64 = NDArray[np.int64]
+READERS = 5  # the reads read_fleet runs beside its own get of the fleet
 
 
 class Source(Protocol):
@@ -89,20 +93,34 @@ class Live:
 
 
 def read_fleet(source: Source, namespace: str, name: str, what_if: WhatIf | None = None) -> Live:
-    """The fleet ``namespace/name`` rebuilt as the operator builds it (see the docstring)."""
-    raw = source.get_fleet(namespace, name)
-    if raw is None:
-        raise InvalidSpec(f"RobotFleet/{name}", "", f"not found in namespace {namespace}")
-    listed = Listed(
-        fleet=raw,
-        compute_nodes=source.list_compute_nodes(),
-        modules=source.list_modules(namespace),
-        nodes=source.list_nodes(),
-        deployments=_deployments(source, namespace, name),
-    )
-    claims = status_claims(source.list_fleets())
-    load = source.list_node_load(besides=(namespace, label_value(name)))
-    held = held_by_others((namespace, name), load, claims)
+    """The fleet ``namespace/name`` rebuilt as the operator builds it (see the docstring).
+
+    The reads are independent, so they run side by side: the API server encodes one list while
+    this process decodes another (at 1000 robots the Nodes and ComputeNodes are 8 MiB)."""
+    with ThreadPoolExecutor(max_workers=READERS) as pool:
+        compute_nodes = pool.submit(source.list_compute_nodes)
+        modules = pool.submit(source.list_modules, namespace)
+        nodes = pool.submit(source.list_nodes)
+        fleets = pool.submit(source.list_fleets)
+        load = pool.submit(source.list_node_load, besides=(namespace, label_value(name)))
+        raw = source.get_fleet(namespace, name)
+        if raw is None:
+            raise InvalidSpec(f"RobotFleet/{name}", "", f"not found in namespace {namespace}")
+        # the status's placement (its list, or its compact form) says where the instances
+        # run: then the Deployments are not read (8000 of them at 1000 robots)
+        deployments = (
+            None
+            if placement_entries_of(raw.get("status") or {})
+            else _deployments(source, namespace, name)
+        )
+        listed = Listed(
+            fleet=raw,
+            compute_nodes=compute_nodes.result(),
+            modules=modules.result(),
+            nodes=nodes.result(),
+            deployments=deployments,
+        )
+        held = held_by_others((namespace, name), load.result(), status_claims(fleets.result()))
     snapshot = with_what_if(snapshot_of(listed, held), what_if)
     problem = problem_of(snapshot)
     return Live(

@@ -13,7 +13,8 @@ from typing import Any
 import numpy as np
 
 from fogfleet.api.v1alpha1.objectives import ObjectiveName
-from fogfleet.api.v1alpha1.robotfleet import PLACEMENT_LIST_LIMIT, RobotFleet, RobotFleetStatus
+from fogfleet.api.v1alpha1.placement import PLACEMENT_LIST_LIMIT, CompactPlacement
+from fogfleet.api.v1alpha1.robotfleet import RobotFleet, RobotFleetStatus
 from fogfleet.controllers.measure.drift_report import DriftReport
 from fogfleet.controllers.measure.links import LinkReport
 from fogfleet.controllers.state import Rendered
@@ -125,8 +126,9 @@ def fleet_status(
     replan_failed: tuple[str, str] | None = None,
 ) -> RobotFleetStatus:
     """The status of a fleet whose instances stand where ``placement`` (placement_entries)
-    says; the per-instance list only up to PLACEMENT_LIST_LIMIT entries. ``monitored``: the
-    operator's Monitored condition (``monitoring.Monitoring``); ``replan_failed``: (reason,
+    says: the per-instance list up to PLACEMENT_LIST_LIMIT entries, its compact form above.
+    ``monitored``: the operator's Monitored condition (``monitoring.Monitoring``);
+    ``replan_failed``: (reason,
     message) of a re-plan that failed while the fleet runs ``rendered``, its last plan: Ready
     and Scheduled say it, Degraded and the rest still describe what runs."""
     problem, plan = rendered.problem, rendered.plan
@@ -154,6 +156,9 @@ def fleet_status(
         "conditions": merge_conditions(old.get("conditions") or [], conds),
         "scheduler": fleet.spec.scheduler.algorithm.value,
         "placement": placement if len(placement) <= PLACEMENT_LIST_LIMIT else [],
+        "placement_compact": (
+            CompactPlacement.of(placement) if len(placement) > PLACEMENT_LIST_LIMIT else None
+        ),
         "placement_by_module": by_module(placement),
         "modules_placed": len(placement),
         "modules_total": problem.n_instances,

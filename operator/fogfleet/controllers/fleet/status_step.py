@@ -26,7 +26,13 @@ from fogfleet.controllers.measure.drift_report import drift_events, drift_report
 from fogfleet.controllers.measure.links import link_events, link_report, takeover_events
 from fogfleet.controllers.outcome import Outcome
 from fogfleet.controllers.state import FleetState, Rendered
-from fogfleet.controllers.status import condition, find_condition, rollout, same_status
+from fogfleet.controllers.status import (
+    changed_parts,
+    condition,
+    find_condition,
+    rollout,
+    same_status,
+)
 from fogfleet.errors import DanglingReference, Infeasible, InvalidSpec
 from fogfleet.render.deployments import label_value
 
@@ -189,13 +195,13 @@ def report_bug(deps: Deps, obj: FleetObject, exc: Exception) -> None:
 def _write(
     deps: Deps, obj: FleetObject, status: Obj, events: list[tuple[str, str, str]]
 ) -> float | None:
-    """Patch ``status`` when it differs from the fleet's, then post ``events``; the seconds
-    the patch took (None: nothing changed)."""
+    """Patch the parts of ``status`` that differ from the fleet's, then post ``events``; the
+    seconds the patch took (None: nothing changed)."""
     deps.metrics.observe_fleet_status(*obj.key, status)
     if same_status(obj.old_status, status):
         return None
     t0 = time.perf_counter()
-    deps.kube.patch_fleet_status(*obj.key, status)
+    deps.kube.patch_fleet_status(*obj.key, changed_parts(obj.old_status, status))
     took = time.perf_counter() - t0
     for kind, reason, message in events:
         deps.kube.emit_event(obj.involved, kind, reason, message)

@@ -3,8 +3,8 @@ instances run where.
 
 Everything is derived from the plans actually deployed: each fleet's placement as its last
 status refresh found it (``FleetState.placement``), or, for a fleet this process has not reconciled
-yet, its ``status.placement`` (a fleet of more than ``PLACEMENT_LIST_LIMIT`` instances lists none
-there and counts from its first reconcile, seconds after the operator starts). So it needs no
+yet, its status's placement (``status.placement``, or ``status.placementCompact`` for a fleet
+of more than ``PLACEMENT_LIST_LIMIT`` instances). So it needs no
 state of its own and any replica of the operator can rebuild it. One pass
 (``reconcile_usage``) lists the fleets, modules, ComputeNodes and Nodes
 and patches only the statuses that changed; each patch carries every field this pass owns
@@ -32,6 +32,7 @@ from pydantic import ValidationError
 
 from fogfleet.api.v1alpha1.base import format_cores, parse_cpu
 from fogfleet.api.v1alpha1.computenode import ComputeNodeStatus
+from fogfleet.api.v1alpha1.placement import placement_entries_of
 from fogfleet.api.v1alpha1.softwaremodule import SoftwareModuleStatus, Taxonomy
 from fogfleet.controllers.deps import Deps
 from fogfleet.controllers.status import (
@@ -91,7 +92,7 @@ def _placements(
         key = (meta.get("namespace") or "default", meta.get("name", ""))
         entries = known.get(key)
         if entries is None:
-            entries = (fleet.get("status") or {}).get("placement") or []
+            entries = placement_entries_of(fleet.get("status") or {})
         for entry in entries:
             yield key[0], key[1], entry
 
