@@ -12,7 +12,7 @@ from typing import Any
 
 from pydantic import Field, ValidationError, model_validator
 
-from .base import FogModel
+from .base import FogModel, parse_cpu
 from .dnn import DnnChoice
 
 __all__ = [
@@ -178,8 +178,7 @@ def _millicores(cpu: Any) -> int:
     """The operator's CPU quantity ("250m") in millicores; 0 when the entry has none."""
     if cpu in (None, ""):
         return 0
-    text = str(cpu)
-    return int(text[:-1]) if text.endswith("m") else round(float(text) * 1000)
+    return round(parse_cpu(cpu) * 1000)
 
 
 def placement_entries_of(status: Mapping[str, Any]) -> list[Obj]:
