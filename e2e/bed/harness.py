@@ -55,8 +55,9 @@ from e2e.bed.base import (
 from e2e.bed.bed import down, ensure_up, status
 from e2e.bed.cluster import COMPONENTS, Cluster, running
 from e2e.bed.fakenodes import NODES_FILE, create_nodes, generated_nodes, node_object
+from e2e.bed.gomodule import GoToolchain
 from e2e.bed.realnodes import DEFAULT_PROFILE, PROFILES
-from e2e.bed.tools import TOOLS, GoToolchain, _staging_modules, ensure_built
+from e2e.bed.tools import TOOLS, ensure_built
 
 __all__ = [
     "BIN_DIR",
@@ -70,7 +71,6 @@ __all__ = [
     "Cluster",
     "GoToolchain",
     "HarnessError",
-    "_staging_modules",
     "create_nodes",
     "down",
     "ensure_built",

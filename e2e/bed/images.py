@@ -38,7 +38,8 @@ if __package__ in (None, ""):  # run as a script: make the repository root impor
     sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 
 from e2e.bed.base import CACHE_ROOT, REPO_ROOT, HarnessError, load_versions, log, run
-from e2e.bed.tools import GoToolchain, install_debian_packages
+from e2e.bed.gomodule import GoToolchain
+from e2e.bed.tools import install_debian_packages
 
 IMAGES_DIR = CACHE_ROOT / "images"
 IMAGE_PACKAGES = ("debootstrap", "umoci", "skopeo", "buildah", "busybox-static", "gcc", "libc6-dev")
@@ -162,8 +163,8 @@ def pause_archive() -> Path:
     v = load_versions()
     kv = v["K8S_VERSION"]
     go = GoToolchain.find(v)
-    info = json.loads(go("mod", "download", "-json", f"k8s.io/kubernetes@v{kv}"))
-    source = Path(info["Dir"]) / "build" / "pause" / "linux" / "pause.c"
+    kubernetes = Path(go.download(f"k8s.io/kubernetes@v{kv}")["Dir"])
+    source = kubernetes / "build" / "pause" / "linux" / "pause.c"
     key = _sha(source.read_bytes(), PAUSE_REF)
     out = _cached("pause", key)
     if out.exists():

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-from e2e.bed import harness
+from e2e.bed import gomodule, harness
 from e2e.bed.fakenodes import SIMULATED_TAINT
 from e2e.bed.kube import UnsafeKubeconfig, guard_kubeconfig
 from e2e.bed.realnodes import split_manifest
@@ -83,7 +83,7 @@ replace (
 \tk8s.io/api => ./staging/src/k8s.io/api
 )
 """
-    assert harness._staging_modules(gomod) == ["k8s.io/api", "k8s.io/kubectl", "k8s.io/streaming"]
+    assert gomodule.staging_modules(gomod) == ["k8s.io/api", "k8s.io/kubectl", "k8s.io/streaming"]
 
 
 def test_generated_nodes_label_like_nodes_yaml() -> None:
@@ -216,16 +216,16 @@ def test_prometheus_finds_the_real_nodes_pods_through_the_api_as_itself() -> Non
 def test_cluster_dns_serves_cluster_local_on_the_bridge_only(tmp_path: Path) -> None:
     """CoreDNS binds the bridge address (never 0.0.0.0), has no forward plugin and serves one
     zone; kubelets point pods at its Service without the host's resolv.conf."""
-    from e2e.bed import bednet, clusterservices, realnodes, tools
+    from e2e.bed import bednet, clusterservices, gomodule, realnodes
     from e2e.bed.cluster import PREFERRED_PORTS
 
     text = clusterservices.corefile(PREFERRED_PORTS, tmp_path / "kc")
     assert text.startswith("cluster.local:53 {") and text.count("{") == 2
     assert f"bind {bednet.BRIDGE_IP}\n" in text and "forward" not in text
-    assert "forward" not in tools.COREDNS_PLUGINS and "kubernetes" in tools.COREDNS_PLUGINS
-    main = tools.coredns_main()
+    assert "forward" not in gomodule.COREDNS_PLUGINS and "kubernetes" in gomodule.COREDNS_PLUGINS
+    main = gomodule.coredns_main()
     assert '"github.com/coredns/coredns/core/plugin"' not in main  # not every plugin
-    assert all(f'plugin/{p}"' in main for p in tools.COREDNS_PLUGINS)
+    assert all(f'plugin/{p}"' in main for p in gomodule.COREDNS_PLUGINS)
     services = {o["metadata"]["name"]: o for o in clusterservices.service_objects(29090)}
     assert services["kube-dns"]["spec"]["clusterIP"] == bednet.DNS_SERVICE_IP == "198.19.0.10"
     endpoints = services["prometheus-bed"]
@@ -238,7 +238,7 @@ def test_cluster_dns_serves_cluster_local_on_the_bridge_only(tmp_path: Path) -> 
 
 
 def test_prometheus_module_version_follows_the_release() -> None:
-    from e2e.bed.tools import prometheus_module_version
+    from e2e.bed.gomodule import prometheus_module_version
 
     assert prometheus_module_version("3.16.0") == "v0.316.0"
     assert prometheus_module_version("3.5.1") == "v0.305.1"
@@ -327,3 +327,31 @@ def test_a_node_fault_signals_only_a_pid_whose_start_time_matches(tmp_path, monk
     finally:
         child.kill()
         child.wait()
+
+
+def test_the_bed_module_is_one_per_set_of_releases_and_its_tools_name_it(tmp_path: Path) -> None:
+    """The module is remade when a pinned release changes, and a tool built another way (no
+    stamp naming this module) is built again; kube-router is built apart, without one."""
+    from e2e.bed.tools import Tool, tool_specs
+
+    v = harness.load_versions()
+    assert gomodule.module_dir(v) == gomodule.module_dir(dict(v))
+    for key in ("K8S_VERSION", "ETCD_VERSION", "COREDNS_VERSION", "GO_MIN_VERSION"):
+        assert gomodule.module_dir({**v, key: "9.9.9"}) != gomodule.module_dir(v), key
+    specs = tool_specs(v)
+    stamped = {n for n, t in specs.items() if t.stamp is not None}
+    assert stamped == set(gomodule.MODULE_TOOLS)
+    stamp = f"built-from-{gomodule.module_dir(v).name}"
+    assert {specs[n].root / stamp for n in stamped} == {specs[n].stamp for n in stamped}
+    packages = gomodule._tool_packages(v)
+    assert f"k8s.io/kubernetes/cmd/kubelet@v{v['K8S_VERSION']}" in packages
+    assert not any("kube-router" in p or "coredns" in p for p in packages)
+    binary = tmp_path / "bin" / "tool"
+    binary.parent.mkdir()
+    binary.write_text("")
+    new = tmp_path / "built-from-go-module-new"
+    tool = Tool("t", tmp_path, {"tool": binary}, stamp=new)
+    (tmp_path / "built-from-go-module-old").write_text("go-module-old\n")
+    assert not tool.ok()
+    tool.stamp_built()
+    assert tool.ok() and list(tmp_path.glob("built-from-*")) == [new]
