@@ -18,7 +18,7 @@ help: ## Show this help
 $(BIN)/fogfleet: pyproject.toml
 	$(PY) -m venv $(VENV)
 	$(BIN)/pip install -q -U pip
-	$(BIN)/pip install -q -e '.[dev,ros]'
+	$(BIN)/pip install --progress-bar off -e '.[dev,ros]'  # not -q: a cold install is a minute of downloads, and make demo never goes silent for 30 s
 	@touch $@
 
 venv: $(BIN)/fogfleet ## Create .venv with fogfleet and the dev tools
