@@ -29,6 +29,7 @@ from e2e.bed.base import (
 )
 from e2e.bed.gomodule import (
     K8S_COMMANDS,
+    MODULE_TOOLS,
     GoToolchain,
     ensure_module,
     module_dir,
@@ -136,10 +137,7 @@ def tool_specs(v: Mapping[str, str]) -> dict[str, Tool]:
     kr_root = TOOLS_DIR / f"kube-router-{krv}"
     kube_router = Tool("kube-router", kr_root, {"kube-router": kr_root / "bin" / "kube-router"})
     kube_router.checks.append((kube_router.binaries["kube-router"], ["--version"], f"v{krv}"))
-    stamp = f"built-from-{module_dir(v).name}"
-    for tool in (k8s, etcd, kwok, helm, prom, coredns):
-        tool.stamp = tool.root / stamp
-    return {
+    specs = {
         "k8s": k8s,
         "etcd": etcd,
         "kwok": kwok,
@@ -149,6 +147,10 @@ def tool_specs(v: Mapping[str, str]) -> dict[str, Tool]:
         "node-runtime": runtime,
         "kube-router": kube_router,
     }
+    stamp = f"built-from-{module_dir(v).name}"
+    for name in MODULE_TOOLS:
+        specs[name].stamp = specs[name].root / stamp
+    return specs
 
 
 def _module_build(
