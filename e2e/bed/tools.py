@@ -163,7 +163,8 @@ def _module_build(
     tags: str = "",
 ) -> None:
     """``go build`` of ``packages`` in the bed's Go module (``gomodule``) into ``out`` (a file,
-    or a directory ending in /), each package named in the log as it compiles."""
+    or an existing directory for several packages), each package named in the log as it
+    compiles."""
     src = ensure_module(v, go, blog)
     go(
         "build",
@@ -196,7 +197,7 @@ def _build_k8s(tool: Tool, v: Mapping[str, str], go: GoToolchain, blog: Path) ->
         ]
     (tool.root / "bin").mkdir(parents=True, exist_ok=True)
     cmds = [f"k8s.io/kubernetes/cmd/{c}" for c in K8S_COMMANDS]
-    _module_build(go, v, blog, Path(f"{tool.root / 'bin'}/"), cmds, ldflags)
+    _module_build(go, v, blog, tool.root / "bin", cmds, ldflags)
 
 
 def _build_etcd(tool: Tool, v: Mapping[str, str], go: GoToolchain, blog: Path) -> None:
@@ -233,7 +234,7 @@ def _build_prometheus(tool: Tool, v: Mapping[str, str], go: GoToolchain, blog: P
         ldflags.append(f"-X github.com/prometheus/common/version.{key}={value}")
     (tool.root / "bin").mkdir(parents=True, exist_ok=True)
     packages = [f"github.com/prometheus/prometheus/cmd/{c}" for c in ("prometheus", "promtool")]
-    _module_build(go, v, blog, Path(f"{tool.root / 'bin'}/"), packages, ldflags, PROMETHEUS_TAGS)
+    _module_build(go, v, blog, tool.root / "bin", packages, ldflags, PROMETHEUS_TAGS)
 
 
 def _build_coredns(tool: Tool, v: Mapping[str, str], go: GoToolchain, blog: Path) -> None:
