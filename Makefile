@@ -55,14 +55,17 @@ docs-check: venv ## Fail when README.md or docs/ name a missing file, anchor, ma
 cluster-tools: venv ## Build (or reuse from ~/.cache/fogfleet) etcd, kube-*, kwok, helm, kube-router, Prometheus and CoreDNS
 	$(BIN)/python e2e/bed/harness.py build
 
+cloud-tools: venv ## Build (or reuse from ~/.cache/fogfleet) Open Cluster Management's hub and agent for the cloud cluster (make cluster-up CLOUD=1, the multicluster tests)
+	$(BIN)/python e2e/bed/harness.py build --only ocm
+
 images: venv ## Build (or reuse from ~/.cache/fogfleet/images) the operator, workload, pause and busybox images without Docker
 	$(BIN)/python e2e/bed/images.py build
 
 bed-builds: venv ## cluster-tools and images side by side (the Go compiles use the CPU, the images mostly the network and disk); their progress lines interleave
 	$(MAKE) --no-print-directory -j2 cluster-tools images
 
-cluster-up: venv ## Start the local bed (control plane, Prometheus, cluster DNS, kwok and real nodes) on 127.0.0.1 and the bed bridge; PROFILE=paper for the paper's real nodes, PROFILE=kwok for kwok nodes only
-	$(BIN)/python e2e/bed/harness.py up --profile $(or $(PROFILE),default)
+cluster-up: venv ## Start the local bed (control plane, Prometheus, cluster DNS, kwok and real nodes) on 127.0.0.1 and the bed bridge; PROFILE=paper for the paper's real nodes, PROFILE=kwok for kwok nodes only; CLOUD=1 adds a cloud cluster joined by Open Cluster Management
+	$(BIN)/python e2e/bed/harness.py up --profile $(or $(PROFILE),default) $(if $(filter 1,$(CLOUD)),--cloud)
 
 cluster-down: venv ## Stop the local control plane and remove its state
 	$(BIN)/python e2e/bed/harness.py down
@@ -77,7 +80,7 @@ cluster-status: venv ## Show the local control plane's processes and health
 # FOGFLEET_E2E_HELM, else the bed's (when built), else PATH; tests needing the bed are deselected.
 E2E_KUBECONFIG := $(if $(filter command line,$(origin KUBECONFIG)),$(abspath $(KUBECONFIG)))
 E2E_PORTABLE_ENV := FOGFLEET_E2E_EXTERNAL=1 FOGFLEET_E2E_KUBECONFIG=$(E2E_KUBECONFIG)
-e2e: venv $(if $(E2E_KUBECONFIG),,cluster-tools images) ## End-to-end tests on the local bed (started if not running; a demo left on it is removed first), each test named as it runs; KUBECONFIG=<file>: the portable part on that cluster
+e2e: venv $(if $(E2E_KUBECONFIG),,cluster-tools cloud-tools images) ## End-to-end tests on the local bed (started if not running; a demo left on it is removed first), each test named as it runs; KUBECONFIG=<file>: the portable part on that cluster
 	$(if $(E2E_KUBECONFIG),$(E2E_PORTABLE_ENV) $(BIN)/pytest e2e/tests -v --durations=10 --with-e2e,$(BIN)/python e2e/demo.py remove && $(BIN)/pytest e2e -v --durations=25 --with-e2e -m "not long")
 
 test-long: venv cluster-tools images ## The long scenarios make test leaves out for CI's time (marker long: benchmark runs, slow faults, the slowed link; ~35 min); the paper-bed run restarts the bed last
@@ -181,4 +184,4 @@ clean: ## Remove the virtualenv and caches in the repo
 	rm -rf $(VENV) .pytest_cache .mypy_cache .ruff_cache
 
 
-.PHONY: bed-builds test-faults dashboard-check kubectl help venv lint unit integration docs-check test checkov images crds crds-check demo-offline bench-replan bench-scale-plan bench-plan-budget bench-plan-page bench-why-live bench-cluster bench-scale bench-real bench-real-report bench-split cluster-tools cluster-up cluster-down cluster-status e2e e2e-kind e2e-k3d chart-lint bench demo clean
+.PHONY: cloud-tools bed-builds test-faults dashboard-check kubectl help venv lint unit integration docs-check test checkov images crds crds-check demo-offline bench-replan bench-scale-plan bench-plan-budget bench-plan-page bench-why-live bench-cluster bench-scale bench-real bench-real-report bench-split cluster-tools cluster-up cluster-down cluster-status e2e e2e-kind e2e-k3d chart-lint bench demo clean

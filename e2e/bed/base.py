@@ -181,14 +181,24 @@ def locked(lock_file: Path = LOCK_FILE) -> Iterator[None]:
             fcntl.flock(fh, fcntl.LOCK_UN)
 
 
-def wait_for(what: str, check: Callable[[], bool], timeout: float, interval: float = 0.5) -> None:
-    """Poll ``check`` until it holds; a wait longer than ``PROGRESS_SECONDS`` says so that often."""
+def wait_for(
+    what: str,
+    check: Callable[[], bool],
+    timeout: float,
+    interval: float = 0.5,
+    fatal: tuple[type[Exception], ...] = (),
+) -> None:
+    """Poll ``check`` until it holds; a wait longer than ``PROGRESS_SECONDS`` says so that often.
+    A probe that raises counts as "not yet", unless it raises one of ``fatal`` (a process that
+    exited: no use waiting), which goes to the caller at once."""
     t0 = time.monotonic()
     deadline, report = t0 + timeout, t0 + PROGRESS_SECONDS
     while True:
         try:
             if check():
                 return
+        except fatal:
+            raise
         except Exception:  # a probe that raises counts as "not yet"
             pass
         now = time.monotonic()

@@ -15,7 +15,7 @@ from collections.abc import Mapping
 from functools import partial
 from pathlib import Path
 
-from e2e.bed import bednet, cgroups, clusterservices, heartbeats, realnodes
+from e2e.bed import bednet, cgroups, cloud, clusterservices, heartbeats, ocm, realnodes
 from e2e.bed.base import (
     BIN_DIR,
     HERE,
@@ -147,6 +147,8 @@ def _refresh_images(cluster: Cluster) -> None:
 
 
 def _stop_everything() -> None:
+    ocm.stop()
+    cloud.stop()
     state = _read_state() or {}
     names = state.get("real_nodes", [])
     nodes = [realnodes.RealNode(n, i + 1, {}, 0, 0) for i, n in enumerate(names)]
@@ -232,6 +234,15 @@ def ensure_up(*, nodes: bool = True, profile: str = realnodes.DEFAULT_PROFILE) -
         _write_state(ports, "running", [n.name for n in real], profile)
         log(f"cluster up in {time.monotonic() - t0:.1f}s ({profile} bed, {len(real)} real nodes)")
         return Cluster.from_state(_read_state() or {})  # with its real nodes and versions
+
+
+def ensure_cloud(site: Cluster) -> tuple[cloud.CloudCluster, ocm.Joined]:
+    """The cloud cluster beside the running bed ``site``, joined to it by OCM (``cloud``,
+    ``ocm``); a cloud that already runs joined is left alone."""
+    with locked():
+        ensure_built(["ocm"])
+        c = cloud.start(f"http://{HOST}:{site.ports['etcd']}")
+        return c, ocm.join(c, site.kubeconfig, load_versions()["OCM_VERSION"])
 
 
 def leftovers() -> list[str]:
@@ -323,6 +334,13 @@ def status() -> int:
               f"CoreDNS on {bednet.BRIDGE_IP}:53: {'ok' if ok else 'DOWN'})")  # fmt: skip
     print(f"scrape targets:  pods through kubernetes_sd; tests' loopback targets in "
           f"{cluster.prometheus_targets_dir}/*.json")  # fmt: skip
+    hub = cloud.running()
+    if hub is not None or any(_alive(n) for n in (*cloud.COMPONENTS, *ocm.PROCESSES)):
+        alive = {n: _alive(n) for n in (*cloud.COMPONENTS, *ocm.PROCESSES)}
+        all_ok &= hub is not None and all(alive.values())
+        print(f"cloud cluster:   {hub.api_server if hub else 'DOWN'} (OCM hub; kubeconfig "
+              f"{cloud.KUBECONFIG})")  # fmt: skip
+        print("  processes:     " + ", ".join(f"{n} {p or 'DOWN'}" for n, p in alive.items()))
     print(f"logs:            {cluster.logs_dir}/<component>.log")
     if all_ok:
         nodes = cluster.kubectl("get", "nodes", "--no-headers", check=False).stdout

@@ -52,12 +52,12 @@ from e2e.bed.base import (
     log,
     run,
 )
-from e2e.bed.bed import down, ensure_up, status
+from e2e.bed.bed import down, ensure_cloud, ensure_up, status
 from e2e.bed.cluster import COMPONENTS, Cluster, running
 from e2e.bed.fakenodes import NODES_FILE, create_nodes, generated_nodes, node_object
 from e2e.bed.gomodule import GoToolchain
 from e2e.bed.realnodes import DEFAULT_PROFILE, PROFILES
-from e2e.bed.tools import TOOLS, ensure_built
+from e2e.bed.tools import CLOUD_TOOLS, TOOLS, ensure_built
 
 __all__ = [
     "BIN_DIR",
@@ -152,7 +152,11 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="harness.py", description=__doc__.split("\n\n")[0])
     sub = parser.add_subparsers(dest="cmd", required=True)
     b = sub.add_parser("build", help="build or reuse the pinned tools")
-    b.add_argument("--only", default=",".join(TOOLS), help=f"comma list of {','.join(TOOLS)}")
+    b.add_argument(
+        "--only",
+        default=",".join(TOOLS),
+        help=f"comma list of {','.join(TOOLS)} (default), {','.join(CLOUD_TOOLS)} (the cloud's)",
+    )
     b.add_argument("--force", action="store_true", help="rebuild even when cached")
     u = sub.add_parser("up", help="start the control plane (idempotent)")
     u.add_argument(
@@ -160,6 +164,11 @@ def main(argv: list[str] | None = None) -> int:
         default=DEFAULT_PROFILE,
         choices=sorted(PROFILES),
         help="which real nodes the bed runs (a running bed of another profile is restarted)",
+    )
+    u.add_argument(
+        "--cloud",
+        action="store_true",
+        help="also a cloud cluster beside it, joined by Open Cluster Management (e2e/bed/ocm.py)",
     )
     sub.add_parser("down", help="stop the control plane and remove its state")
     sub.add_parser("status", help="components, pids, ports, health")
@@ -190,6 +199,11 @@ def main(argv: list[str] | None = None) -> int:
         if cluster.real_nodes:
             print(f"prometheus in cluster: {cluster.in_cluster_prometheus_url}")
             print(f"cluster dns: {cluster.dns_service_ip}")
+        if ns.cloud:
+            cloud, joined = ensure_cloud(cluster)
+            print(f"cloud api server: {cloud.api_server} (OCM hub)")
+            print(f"cloud kubeconfig: {cloud.kubeconfig}")
+            print(f"managed clusters: {', '.join(joined.clusters)} (Available)")
         print(f"export KUBECONFIG={cluster.kubeconfig}")
         return 0
     if ns.cmd == "down":

@@ -5,22 +5,30 @@ from __future__ import annotations
 
 import base64
 import json
+from functools import partial
 from pathlib import Path
 
 from e2e.bed.base import HOST, KUBECONFIG, STATE_DIR, run
 from e2e.bed.bednet import BRIDGE_IP, KUBERNETES_SERVICE_IP
 
+PKI_DIR = STATE_DIR / "pki"
 
-def _openssl(*args: str | Path) -> None:
-    run(["openssl", *args], cwd=STATE_DIR / "pki", hint="hint: openssl is needed for the PKI")
+
+def _openssl(*args: str | Path, pki: Path = PKI_DIR) -> None:
+    run(["openssl", *args], cwd=pki, hint="hint: openssl is needed for the PKI")
 
 
 def issue_cert(
-    name: str, subject: str, sans: list[str], usage: str = "serverAuth,clientAuth"
+    name: str,
+    subject: str,
+    sans: list[str],
+    usage: str = "serverAuth,clientAuth",
+    pki: Path = PKI_DIR,
 ) -> Path:
-    """Sign `<name>.crt` (+ `<name>.key`) with the bed's CA; returns the certificate's path."""
-    pki = STATE_DIR / "pki"
-    _openssl(
+    """Sign `<name>.crt` (+ `<name>.key`) with the CA in ``pki`` (the bed's); returns the
+    certificate's path."""
+    openssl = partial(_openssl, pki=pki)
+    openssl(
         "req", "-newkey", "rsa:2048", "-nodes", "-subj", subject,
         "-keyout", f"{name}.key", "-out", f"{name}.csr",
     )  # fmt: skip
@@ -32,12 +40,27 @@ def issue_cert(
         "basicConstraints=CA:FALSE",
     ]
     ext.write_text("\n".join(lines) + "\n")
-    _openssl(
+    openssl(
         "x509", "-req", "-in", f"{name}.csr", "-CA", "ca.crt", "-CAkey", "ca.key",
         "-CAcreateserial", "-days", "3650", "-extfile", ext.name, "-out", f"{name}.crt",
     )  # fmt: skip
     (pki / f"{name}.key").chmod(0o600)
     return pki / f"{name}.crt"
+
+
+def make_ca(pki: Path, name: str) -> None:
+    """A CA of its own in ``pki``, and a service-account signing key beside it."""
+    pki.mkdir(parents=True, exist_ok=True)
+    _openssl(
+        "req", "-x509", "-newkey", "rsa:2048", "-nodes", "-days", "3650",
+        "-subj", f"/CN={name}", "-keyout", "ca.key", "-out", "ca.crt",
+        "-addext", "basicConstraints=critical,CA:TRUE",
+        "-addext", "keyUsage=critical,keyCertSign,cRLSign,digitalSignature",
+        pki=pki,
+    )  # fmt: skip
+    _openssl("genrsa", "-out", "sa.key", "2048", pki=pki)
+    for key in pki.glob("*.key"):
+        key.chmod(0o600)
 
 
 def _make_pki() -> None:
@@ -46,14 +69,8 @@ def _make_pki() -> None:
     The serving names include the bed bridge's address and the `kubernetes` Service's IP, so
     kubelets on real nodes and in-cluster clients verify the apiserver.
     """
-    pki = STATE_DIR / "pki"
-    pki.mkdir(parents=True, exist_ok=True)
-    _openssl(
-        "req", "-x509", "-newkey", "rsa:2048", "-nodes", "-days", "3650",
-        "-subj", "/CN=fogfleet-e2e-ca", "-keyout", "ca.key", "-out", "ca.crt",
-        "-addext", "basicConstraints=critical,CA:TRUE",
-        "-addext", "keyUsage=critical,keyCertSign,cRLSign,digitalSignature",
-    )  # fmt: skip
+    pki = PKI_DIR
+    make_ca(pki, "fogfleet-e2e-ca")
     sans = [f"IP:{ip}" for ip in (HOST, BRIDGE_IP, KUBERNETES_SERVICE_IP)] + [
         f"DNS:{d}"
         for d in (
@@ -70,7 +87,6 @@ def _make_pki() -> None:
     # Prometheus (kubernetes_sd) and CoreDNS read the API as themselves (clusterservices.RBAC)
     issue_cert("prometheus", "/CN=system:prometheus", [], usage="clientAuth")
     issue_cert("coredns", "/CN=system:coredns", [], usage="clientAuth")
-    _openssl("genrsa", "-out", "sa.key", "2048")
     for key in pki.glob("*.key"):
         key.chmod(0o600)
 
@@ -79,9 +95,10 @@ def _b64(path: Path) -> str:
     return base64.b64encode(path.read_bytes()).decode()
 
 
-def kubeconfig(api_server: str, user: str, cert: Path, key: Path) -> str:
+def kubeconfig(
+    api_server: str, user: str, cert: Path, key: Path, ca: Path = PKI_DIR / "ca.crt"
+) -> str:
     """A kubeconfig (JSON, which is valid YAML) for `user` with an embedded client cert."""
-    ca = STATE_DIR / "pki" / "ca.crt"
     cfg = {
         "apiVersion": "v1",
         "kind": "Config",

@@ -3,7 +3,8 @@
 Each tool is built from published Go modules into ``TOOLS_DIR/<tool>-<version>/`` and reused
 after a ``--version`` check: Kubernetes, etcd, kwok, helm, Prometheus (only its kubernetes_sd)
 and CoreDNS (only the plugins the bed uses) from the bed's one Go module (``gomodule``, which
-says why one), kube-router on its own. Only the real nodes' runtime comes from Debian packages.
+says why one), kube-router on its own, and for the cloud cluster only, Open Cluster Management
+in a module of its own (``ocm.build``). Only the real nodes' runtime comes from Debian packages.
 ``GOTOOLCHAIN=local`` always: a too-old Go fails at once.
 """
 
@@ -17,6 +18,7 @@ from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from e2e.bed import ocm
 from e2e.bed.base import (
     BIN_DIR,
     CACHE_ROOT,
@@ -37,6 +39,8 @@ from e2e.bed.gomodule import (
 )
 
 TOOLS = ("k8s", "etcd", "kwok", "helm", "prometheus", "coredns", "node-runtime", "kube-router")
+# Built only for the cloud cluster (``bed.ensure_cloud``): nothing of the default bed uses them.
+CLOUD_TOOLS = ("ocm",)
 # Debian packages a real node runs on (the kubelet and kube-proxy come from the k8s build).
 # ipset: kube-router's NetworkPolicy firewall keeps each policy's peers in ip sets.
 NODE_PACKAGES = ("containerd", "runc", "containernetworking-plugins", "iptables", "ipset")
@@ -137,6 +141,12 @@ def tool_specs(v: Mapping[str, str]) -> dict[str, Tool]:
     kr_root = TOOLS_DIR / f"kube-router-{krv}"
     kube_router = Tool("kube-router", kr_root, {"kube-router": kr_root / "bin" / "kube-router"})
     kube_router.checks.append((kube_router.binaries["kube-router"], ["--version"], f"v{krv}"))
+    ov = v["OCM_VERSION"]
+    ocm_root = TOOLS_DIR / f"ocm-{ov}"
+    ocm_tool = Tool("ocm", ocm_root, {c: ocm_root / "bin" / c for c in ocm.COMMANDS})
+    for c in ocm.COMMANDS:
+        ocm_tool.checks.append((ocm_tool.binaries[c], ["--version"], f"version v{ov}"))
+    ocm_tool.files += [ocm_root / "manifests" / name for name in (*ocm.MANIFESTS, "bootstrap")]
     specs = {
         "k8s": k8s,
         "etcd": etcd,
@@ -146,6 +156,7 @@ def tool_specs(v: Mapping[str, str]) -> dict[str, Tool]:
         "coredns": coredns,
         "node-runtime": runtime,
         "kube-router": kube_router,
+        "ocm": ocm_tool,
     }
     stamp = f"built-from-{module_dir(v).name}"
     for name in MODULE_TOOLS:
@@ -327,6 +338,7 @@ BUILDERS: dict[str, Callable[..., None]] = {
     "prometheus": _build_prometheus,
     "coredns": _build_coredns,
     "kube-router": _build_kube_router,
+    "ocm": ocm.build,
 }
 
 
@@ -337,12 +349,14 @@ def ensure_built(only: Sequence[str] = TOOLS, *, force: bool = False, quiet: boo
     """
     v = load_versions()
     specs = tool_specs(v)
-    unknown = set(only) - set(TOOLS)
+    unknown = set(only) - set(TOOLS) - set(CLOUD_TOOLS)
     if unknown:
-        raise HarnessError(f"unknown tool(s) {sorted(unknown)}; choose from {TOOLS}")
+        raise HarnessError(
+            f"unknown tool(s) {sorted(unknown)}; choose from {(*TOOLS, *CLOUD_TOOLS)}"
+        )
     go: GoToolchain | None = None
     timings: list[tuple[str, float, str]] = []
-    for name in TOOLS:
+    for name in (*TOOLS, *CLOUD_TOOLS):
         if name not in only:
             continue
         tool = specs[name]

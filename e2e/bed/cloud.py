@@ -1,0 +1,198 @@
+"""The cloud as a second cluster (issue 47; MULTICLUSTER.md): a control plane of its own beside
+the bed's, which Open Cluster Management joins to it (``ocm``).
+
+    python e2e/bed/harness.py up --cloud      (make cluster-up CLOUD=1)
+
+- **Its own API**: a kube-apiserver on its own loopback port, with a CA, serving and admin
+  certificates and a service-account key of its own, so that nothing signed by one cluster is
+  trusted by the other. It stores in the bed's etcd under a prefix of its own (``/cloud/<its
+  start>``): the two clusters share no object, and a 2-core machine runs one etcd less.
+- **A kube-controller-manager** that signs certificate requests (OCM's agents register by
+  them, as kubelets do), and runs the namespace, service-account and garbage collectors.
+- **What is still the site's**: nothing of this cluster runs pods yet (no scheduler, no node);
+  the hub only stores ManagedClusters and ManifestWorks.
+
+Everything listens on 127.0.0.1; its processes are the bed's (``processes``: stopped by pid,
+logs beside the others), and ``bed.down`` stops them with the rest.
+"""
+
+from __future__ import annotations
+
+import json
+import ssl
+import time
+import urllib.error
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from e2e.bed.base import (
+    BIN_DIR,
+    HOST,
+    STATE_DIR,
+    HarnessError,
+    free_port,
+    http_get,
+    insecure_tls,
+    kubectl,
+    log,
+    wait_for,
+)
+from e2e.bed.pki import issue_cert, kubeconfig, make_ca
+from e2e.bed.processes import _alive, _start, _stop, log_tail
+
+__all__ = ["CLOUD_DIR", "COMPONENTS", "CloudCluster", "running", "start", "stop"]
+
+CLOUD_DIR = STATE_DIR / "cloud"
+PKI = CLOUD_DIR / "pki"
+STATE_FILE = CLOUD_DIR / "state.json"
+KUBECONFIG = CLOUD_DIR / "kubeconfig"
+ETCD_PREFIX = "/cloud"  # and a start's own key below it: each start is a new cluster
+# the cloud's Service range: apart from the site's (bednet.SERVICE_CIDR), as two clusters' are
+SERVICE_CIDR = "10.97.0.0/16"
+APISERVER, CONTROLLER_MANAGER = "cloud-kube-apiserver", "cloud-kube-controller-manager"
+COMPONENTS = (APISERVER, CONTROLLER_MANAGER)
+START_TIMEOUT_S = 180
+
+
+@dataclass(frozen=True)
+class CloudCluster:
+    """The running cloud cluster: where its API is and how to reach it as its admin."""
+
+    api_server: str
+    kubeconfig: Path
+    ports: Mapping[str, int]
+
+    def kubectl(self, *args: str, input: str | None = None, check: bool = True) -> str:
+        return kubectl(BIN_DIR / "kubectl", self.kubeconfig, *args, input=input, check=check).stdout
+
+    def healthy(self) -> bool:
+        return all(_healthy(name, self.ports) for name in COMPONENTS)
+
+
+def _healthy(name: str, ports: Mapping[str, int]) -> bool:
+    try:
+        if name == APISERVER:
+            ctx = ssl.create_default_context(cafile=str(PKI / "ca.crt"))
+            return http_get(f"https://{HOST}:{ports[name]}/readyz", context=ctx).strip() == "ok"
+        body = http_get(f"https://{HOST}:{ports[name]}/healthz", context=insecure_tls())
+        return body.strip() == "ok"
+    except (OSError, urllib.error.URLError, ssl.SSLError):
+        return False
+
+
+def running() -> CloudCluster | None:
+    """The cloud cluster if its state is there and every process of it is up and healthy."""
+    try:
+        state: dict[str, Any] = json.loads(STATE_FILE.read_text())
+    except (OSError, ValueError):
+        return None
+    cloud = CloudCluster(state["api_server"], KUBECONFIG, state["ports"])
+    if any(_alive(name) is None for name in COMPONENTS) or not cloud.healthy():
+        return None
+    return cloud
+
+
+def _make_pki() -> None:
+    make_ca(PKI, "fogfleet-cloud-ca")
+    sans = [f"IP:{HOST}", "DNS:localhost"]
+    issue_cert("admin", "/O=system:masters/CN=fogfleet-cloud-admin", sans, pki=PKI)
+
+
+def _argv(ports: Mapping[str, int], etcd_url: str, prefix: str) -> dict[str, list[str]]:
+    kc = str(KUBECONFIG)
+    return {
+        APISERVER: [
+            str(BIN_DIR / "kube-apiserver"),
+            f"--etcd-servers={etcd_url}",
+            f"--etcd-prefix={prefix}",
+            f"--bind-address={HOST}",
+            f"--secure-port={ports[APISERVER]}",
+            f"--advertise-address={HOST}",
+            "--endpoint-reconciler-type=none",
+            f"--tls-cert-file={PKI / 'admin.crt'}",
+            f"--tls-private-key-file={PKI / 'admin.key'}",
+            f"--client-ca-file={PKI / 'ca.crt'}",
+            "--service-account-issuer=https://kubernetes.default.svc.cloud.local",
+            f"--service-account-key-file={PKI / 'sa.key'}",
+            f"--service-account-signing-key-file={PKI / 'sa.key'}",
+            f"--service-cluster-ip-range={SERVICE_CIDR}",
+            "--authorization-mode=Node,RBAC",
+            f"--cert-dir={CLOUD_DIR / 'certs'}",
+        ],
+        CONTROLLER_MANAGER: [
+            str(BIN_DIR / "kube-controller-manager"),
+            f"--kubeconfig={kc}",
+            f"--authentication-kubeconfig={kc}",
+            f"--authorization-kubeconfig={kc}",
+            f"--bind-address={HOST}",
+            f"--secure-port={ports[CONTROLLER_MANAGER]}",
+            "--authorization-always-allow-paths=/healthz,/readyz,/livez,/metrics",
+            "--leader-elect=false",
+            f"--root-ca-file={PKI / 'ca.crt'}",
+            f"--service-account-private-key-file={PKI / 'sa.key'}",
+            f"--cluster-signing-cert-file={PKI / 'ca.crt'}",
+            f"--cluster-signing-key-file={PKI / 'ca.key'}",
+            # a cluster of no node: the node controllers have nothing to do
+            "--controllers=*,-nodeipam,-nodelifecycle,-cloud-node-lifecycle,-route,-service",
+            f"--cert-dir={CLOUD_DIR / 'certs' / 'kcm'}",
+        ],
+    }
+
+
+def start(etcd_url: str) -> CloudCluster:
+    """Start the cloud cluster's control plane against the bed's etcd (``etcd_url``), or
+    return it when it already runs healthy. Returns once its API is ready."""
+    cloud = running()
+    if cloud is not None:
+        log(f"cloud cluster: already running ({cloud.api_server})")
+        return cloud
+    stop()
+    t0 = time.monotonic()
+    ports = {name: free_port() for name in COMPONENTS}
+    CLOUD_DIR.mkdir(parents=True, exist_ok=True)
+    _make_pki()
+    api_server = f"https://{HOST}:{ports[APISERVER]}"
+    KUBECONFIG.write_text(
+        kubeconfig(api_server, "fogfleet-cloud-admin", PKI / "admin.crt", PKI / "admin.key",
+                   ca=PKI / "ca.crt")
+    )  # fmt: skip
+    KUBECONFIG.chmod(0o600)
+    # a new CA, so a new cluster: nothing the last one stored is read again (it stays in the
+    # bed's etcd until the bed's data directory goes)
+    prefix = f"{ETCD_PREFIX}/{int(time.time())}"
+    argv = _argv(ports, etcd_url, prefix)
+    for name in COMPONENTS:
+        _start(name, argv[name])
+        _wait_healthy(name, ports)
+    cloud = CloudCluster(api_server, KUBECONFIG, ports)
+    STATE_FILE.write_text(
+        json.dumps({"api_server": api_server, "ports": ports, "etcd_prefix": prefix}) + "\n"
+    )
+    log(f"cloud cluster: control plane up in {time.monotonic() - t0:.1f}s ({api_server})")
+    return cloud
+
+
+class _Exited(HarnessError):
+    pass
+
+
+def _wait_healthy(name: str, ports: Mapping[str, int]) -> None:
+    def check() -> bool:
+        if _alive(name) is None:
+            raise _Exited(f"{name} exited during start-up")
+        return _healthy(name, ports)
+
+    try:
+        wait_for(f"{name} healthy", check, START_TIMEOUT_S, 0.3, fatal=(_Exited,))
+    except HarnessError as exc:
+        raise HarnessError(f"{exc}; log tail:\n{log_tail(name)}") from exc
+
+
+def stop() -> None:
+    """Stop the cloud cluster's processes (by pid) and remove its state. Its objects in the
+    bed's etcd go with the bed's data directory."""
+    for name in reversed(COMPONENTS):
+        _stop(name)
+    STATE_FILE.unlink(missing_ok=True)

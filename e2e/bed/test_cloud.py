@@ -1,0 +1,73 @@
+"""Fast checks of the cloud cluster and OCM's part of the bed (no cluster, no network)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from e2e.bed import base, cloud, ocm, tools
+
+
+def _listen_addresses(argv: list[str]) -> list[str]:
+    flags = ("--bind-address=", "--listen=", "--advertise-address=")
+    return [a.split("=", 1)[1] for a in argv if a.startswith(flags)]
+
+
+def test_the_cloud_control_plane_listens_on_loopback_and_stores_apart_from_the_site() -> None:
+    ports = {name: 40000 + i for i, name in enumerate(cloud.COMPONENTS)}
+    argv = cloud._argv(ports, "http://127.0.0.1:2379", f"{cloud.ETCD_PREFIX}/1")
+    for name, args in argv.items():
+        addresses = _listen_addresses(args)
+        assert addresses and all(a.startswith("127.0.0.1") for a in addresses), name
+    api = argv[cloud.APISERVER]
+    assert f"--etcd-prefix={cloud.ETCD_PREFIX}/1" in api and cloud.ETCD_PREFIX != "/registry"
+    # its own CA: nothing the site's CA signed is trusted by the cloud's API
+    assert f"--client-ca-file={cloud.PKI / 'ca.crt'}" in api
+    assert not any("/cluster/pki/" in a for a in api)
+
+
+def test_every_ocm_process_listens_on_loopback_without_leader_election(tmp_path: Path) -> None:
+    c = cloud.CloudCluster("https://127.0.0.1:1", tmp_path / "cloud.kubeconfig", {})
+    managed = {"site": tmp_path / "site.kubeconfig", "cloud": c.kubeconfig}
+    names = [ocm.HUB, *(ocm.agent_name(m) for m in managed)]
+    argv = ocm._argv(
+        c, managed, tmp_path / "bootstrap", {n: 41000 + i for i, n in enumerate(names)}
+    )
+    assert sorted(argv) == sorted(names)
+    for name, args in argv.items():
+        assert _listen_addresses(args) and all(
+            a.startswith("127.0.0.1:") for a in _listen_addresses(args)
+        ), name
+        assert "--disable-leader-election" in args, name
+    site = argv[ocm.agent_name("site")]
+    assert "--cluster-name=site" in site
+    assert f"--spoke-kubeconfig={managed['site']}" in site
+    assert f"--bootstrap-kubeconfig={tmp_path / 'bootstrap'}" in site
+
+
+def test_ocm_is_built_for_the_cloud_only_and_checked_by_its_version() -> None:
+    v = base.load_versions()
+    spec = tools.tool_specs(v)["ocm"]
+    assert "ocm" not in tools.TOOLS and "ocm" in tools.CLOUD_TOOLS
+    assert sorted(spec.binaries) == sorted(ocm.COMMANDS)
+    assert all(expect == f"version v{v['OCM_VERSION']}" for _, _, expect in spec.checks)
+    # the manifests it installs come with the build, and a build without them is not done
+    assert {p.name for p in spec.files} == {"hub-crds", "managed-crds", "bootstrap"}
+
+
+def test_a_fatal_probe_error_ends_the_wait_at_once() -> None:
+    class Gone(base.HarnessError):
+        pass
+
+    calls = []
+
+    def probe() -> bool:
+        calls.append(1)
+        if len(calls) == 1:
+            raise ValueError("not yet")  # an ordinary probe failure: try again
+        raise Gone("the process exited")
+
+    with pytest.raises(Gone):
+        base.wait_for("a process", probe, timeout=30, interval=0.0, fatal=(Gone,))
+    assert len(calls) == 2

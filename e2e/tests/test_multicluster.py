@@ -1,0 +1,157 @@
+"""The cloud as a second cluster (issue 47): the bed's cloud cluster, with its own API and CA,
+joined to the site by Open Cluster Management (``e2e/bed/cloud.py``, ``e2e/bed/ocm.py``).
+
+What holds here, with OCM's own binaries and conditions: both managed clusters are accepted,
+joined and Available on the hub; a ManifestWork written on the hub for the site is applied on
+the site by the site's agent, with its status fed back to the hub, and removed with it; and an
+agent's hub credentials reach its own cluster's namespace only.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from collections.abc import Iterator
+from typing import Any
+
+import pytest
+
+from e2e.bed import cloud, ocm
+from e2e.bed.base import BIN_DIR, kubectl
+from e2e.bed.bed import ensure_cloud
+from e2e.bed.harness import Cluster
+from e2e.bed.kube import Kube
+
+pytestmark = [
+    pytest.mark.e2e,
+    pytest.mark.multicluster,
+    pytest.mark.bed("a second control plane beside the bed's, and OCM's hub and agents"),
+    pytest.mark.timeout(600),
+]
+
+# issue 47's target: both clusters joined and Available within 60 s of the control planes
+JOIN_BOUND_S = 60.0
+
+
+@pytest.fixture(scope="module")
+def joined(cluster: Cluster) -> Iterator[tuple[cloud.CloudCluster, ocm.Joined]]:
+    # a cloud left by an earlier session is started again, so that the join is measured
+    ocm.stop()
+    cloud.stop()
+    yield ensure_cloud(cluster)
+    ocm.stop()
+    cloud.stop()
+
+
+def _conditions(obj: dict[str, Any]) -> dict[str, str]:
+    return {c["type"]: c["status"] for c in obj.get("status", {}).get("conditions", [])}
+
+
+def test_the_site_and_the_cloud_are_joined_and_available_on_the_hub(
+    joined: tuple[cloud.CloudCluster, ocm.Joined],
+) -> None:
+    hub, result = joined
+    assert result.seconds <= JOIN_BOUND_S, f"joined in {result.seconds:.1f}s"
+    clusters = json.loads(hub.kubectl("get", "managedclusters", "-o", "json"))["items"]
+    assert sorted(mc["metadata"]["name"] for mc in clusters) == sorted(ocm.CLUSTERS)
+    for mc in clusters:
+        conds = _conditions(mc)
+        name = mc["metadata"]["name"]
+        assert conds.get("HubAcceptedManagedCluster") == "True", (name, conds)
+        assert conds.get("ManagedClusterJoined") == "True", (name, conds)
+        assert conds.get("ManagedClusterConditionAvailable") == "True", (name, conds)
+    print(f"\nsite and cloud joined and Available {result.seconds:.1f}s after the hub started")
+
+
+def _work(name: str, configmap: str, namespace: str) -> dict[str, Any]:
+    return {
+        "apiVersion": "work.open-cluster-management.io/v1",
+        "kind": "ManifestWork",
+        "metadata": {"name": name, "namespace": "site"},
+        "spec": {
+            "workload": {
+                "manifests": [
+                    {
+                        "apiVersion": "v1",
+                        "kind": "ConfigMap",
+                        "metadata": {"name": configmap, "namespace": namespace},
+                        "data": {"placed-by": "the hub"},
+                    }
+                ]
+            },
+            "manifestConfigs": [
+                {
+                    "resourceIdentifier": {
+                        "resource": "configmaps",
+                        "name": configmap,
+                        "namespace": namespace,
+                    },
+                    "feedbackRules": [
+                        {
+                            "type": "JSONPaths",
+                            "jsonPaths": [{"name": "placedBy", "path": ".data.placed-by"}],
+                        }
+                    ],
+                }
+            ],
+        },
+    }
+
+
+def _wait(what: str, check: Any, timeout: float = 60) -> Any:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        got = check()
+        if got:
+            return got
+        time.sleep(0.5)
+    raise AssertionError(f"timed out after {timeout:.0f}s waiting for {what}")
+
+
+def test_a_manifestwork_on_the_hub_runs_on_the_site_and_reports_back(
+    joined: tuple[cloud.CloudCluster, ocm.Joined], kube: Kube, namespace: str
+) -> None:
+    hub, _ = joined
+    work = _work("e2e-configmap", "placed-by-the-hub", namespace)
+    hub.kubectl("apply", "-f", "-", input=json.dumps(work))
+
+    def on_site() -> dict[str, Any] | None:
+        got = kube.kubectl(
+            "get", "configmap", "placed-by-the-hub", "-n", namespace, "-o", "json", check=False
+        )
+        return json.loads(got.stdout) if got.returncode == 0 else None
+
+    configmap = _wait("the ConfigMap on the site", on_site)
+    assert configmap["data"] == {"placed-by": "the hub"}
+
+    def fed_back() -> list[Any] | None:
+        status = json.loads(hub.kubectl("get", "manifestwork", "e2e-configmap", "-n", "site",
+                                        "-o", "json"))["status"]  # fmt: skip
+        found = status.get("resourceStatus", {}).get("manifests", [])
+        values = [v for m in found for v in m.get("statusFeedback", {}).get("values", [])]
+        return values if _conditions({"status": status}).get("Applied") == "True" else None
+
+    values = _wait("the work Applied with its status feedback", fed_back)
+    assert {"name": "placedBy", "fieldValue": {"type": "String", "string": "the hub"}} in values
+
+    hub.kubectl("delete", "manifestwork", "e2e-configmap", "-n", "site")
+    _wait("the ConfigMap gone from the site", lambda: on_site() is None)
+
+
+def test_an_agents_hub_credentials_reach_its_own_cluster_only(
+    joined: tuple[cloud.CloudCluster, ocm.Joined],
+) -> None:
+    from e2e.bed.cloud import CLOUD_DIR
+
+    hub_kubeconfig = CLOUD_DIR / "ocm" / "site" / "kubeconfig"
+    assert hub_kubeconfig.exists(), "the site agent wrote no hub kubeconfig"
+
+    def can(verb: str, resource: str, ns: str) -> str:
+        out = kubectl(BIN_DIR / "kubectl", hub_kubeconfig, "auth", "can-i", verb, resource,
+                      "-n", ns, check=False)  # fmt: skip
+        return out.stdout.strip()
+
+    assert can("get", "manifestworks", "site") == "yes"
+    assert can("get", "manifestworks", "cloud") == "no"
+    assert can("create", "manifestworks", "site") == "no"  # only the hub's users write work
+    assert can("get", "secrets", "cloud") == "no"
