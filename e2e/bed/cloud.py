@@ -9,8 +9,9 @@ the bed's, which Open Cluster Management joins to it (``ocm``).
   start>``): the two clusters share no object, and a 2-core machine runs one etcd less.
 - **A kube-controller-manager** that signs certificate requests (OCM's agents register by
   them, as kubelets do), and runs the namespace, service-account and garbage collectors.
-- **What is still the site's**: nothing of this cluster runs pods yet (no scheduler, no node);
-  the hub only stores ManagedClusters and ManifestWorks.
+- **Its machines**: kwok's nodes (``NODES``, tier ``cloud``), with a kube-scheduler that binds
+  pods to them, so that the cloud has a capacity OCM reports and Deployments that become
+  Available; nothing runs inside them (the bed's real containers run at the site).
 
 Everything listens on 127.0.0.1; its processes are the bed's (``processes``: stopped by pid,
 logs beside the others), and ``bed.down`` stops them with the rest.
@@ -19,6 +20,7 @@ logs beside the others), and ``bed.down`` stops them with the rest.
 from __future__ import annotations
 
 import json
+import os
 import ssl
 import time
 import urllib.error
@@ -39,6 +41,13 @@ from e2e.bed.base import (
     log,
     wait_for,
 )
+from e2e.bed.controlplane import (
+    kwok_argv,
+    scheduler_argv,
+    write_kwok_config,
+    write_scheduler_config,
+)
+from e2e.bed.fakenodes import node_object, only_simulated_taint
 from e2e.bed.pki import issue_cert, kubeconfig, make_ca
 from e2e.bed.processes import _alive, _start, _stop, log_tail
 
@@ -52,7 +61,12 @@ ETCD_PREFIX = "/cloud"  # and a start's own key below it: each start is a new cl
 # the cloud's Service range: apart from the site's (bednet.SERVICE_CIDR), as two clusters' are
 SERVICE_CIDR = "10.97.0.0/16"
 APISERVER, CONTROLLER_MANAGER = "cloud-kube-apiserver", "cloud-kube-controller-manager"
-COMPONENTS = (APISERVER, CONTROLLER_MANAGER)
+SCHEDULER, KWOK = "cloud-kube-scheduler", "cloud-kwok"
+COMPONENTS = (APISERVER, CONTROLLER_MANAGER, SCHEDULER, KWOK)
+# The cloud's nodes: kwok's, for capacity (a cloud region's machines; nothing runs in them).
+NODES = tuple(f"cloud-vm-{i}" for i in (1, 2))
+NODE_CPU, NODE_MEMORY_GI, NODE_HARDWARE = 16, 64, "fsv2-16"
+KWOK_LEASE_SECONDS = 40  # kwok renews every 10 s: nothing here tests a cloud node's failure
 START_TIMEOUT_S = 180
 
 
@@ -69,6 +83,16 @@ class CloudCluster:
 
     def healthy(self) -> bool:
         return all(_healthy(name, self.ports) for name in COMPONENTS)
+
+    def nodes_ready(self) -> bool:
+        items = json.loads(self.kubectl("get", "nodes", "-o", "json"))["items"]
+        ready = {n["metadata"]["name"] for n in items if _ready(n) and only_simulated_taint(n)}
+        return set(NODES) <= ready
+
+
+def _ready(node: Mapping[str, Any]) -> bool:
+    conds = node.get("status", {}).get("conditions", [])
+    return any(c["type"] == "Ready" and c["status"] == "True" for c in conds)
 
 
 def _healthy(name: str, ports: Mapping[str, int]) -> bool:
@@ -103,6 +127,8 @@ def _make_pki() -> None:
 def _argv(ports: Mapping[str, int], etcd_url: str, prefix: str) -> dict[str, list[str]]:
     kc = str(KUBECONFIG)
     return {
+        SCHEDULER: scheduler_argv(KUBECONFIG, CLOUD_DIR, ports[SCHEDULER]),
+        KWOK: kwok_argv(KUBECONFIG, CLOUD_DIR, PKI, ports[KWOK], KWOK_LEASE_SECONDS),
         APISERVER: [
             str(BIN_DIR / "kube-apiserver"),
             f"--etcd-servers={etcd_url}",
@@ -134,8 +160,9 @@ def _argv(ports: Mapping[str, int], etcd_url: str, prefix: str) -> dict[str, lis
             f"--service-account-private-key-file={PKI / 'sa.key'}",
             f"--cluster-signing-cert-file={PKI / 'ca.crt'}",
             f"--cluster-signing-key-file={PKI / 'ca.key'}",
-            # a cluster of no node: the node controllers have nothing to do
-            "--controllers=*,-nodeipam,-nodelifecycle,-cloud-node-lifecycle,-route,-service",
+            # kwok's nodes need no CIDR, route or cloud provider; node lifecycle stays (it takes
+            # the not-ready taint off a node that turns Ready)
+            "--controllers=*,-nodeipam,-cloud-node-lifecycle,-route,-service",
             f"--cert-dir={CLOUD_DIR / 'certs' / 'kcm'}",
         ],
     }
@@ -162,11 +189,18 @@ def start(etcd_url: str) -> CloudCluster:
     # a new CA, so a new cluster: nothing the last one stored is read again (it stays in the
     # bed's etcd until the bed's data directory goes)
     prefix = f"{ETCD_PREFIX}/{int(time.time())}"
+    write_scheduler_config(KUBECONFIG, CLOUD_DIR)
+    write_kwok_config(CLOUD_DIR)
     argv = _argv(ports, etcd_url, prefix)
+    env = {KWOK: dict(os.environ, KWOK_WORKDIR=str(CLOUD_DIR / "kwok"))}
     for name in COMPONENTS:
-        _start(name, argv[name])
+        _start(name, argv[name], env.get(name))
         _wait_healthy(name, ports)
     cloud = CloudCluster(api_server, KUBECONFIG, ports)
+    nodes = [node_object(n, "cloud", NODE_HARDWARE, NODE_CPU, NODE_MEMORY_GI) for n in NODES]
+    cloud.kubectl("apply", "-f", "-", input=json.dumps({"apiVersion": "v1", "kind": "List",
+                                                        "items": nodes}))  # fmt: skip
+    wait_for(f"the cloud's {len(NODES)} nodes Ready", cloud.nodes_ready, START_TIMEOUT_S)
     STATE_FILE.write_text(
         json.dumps({"api_server": api_server, "ports": ports, "etcd_prefix": prefix}) + "\n"
     )

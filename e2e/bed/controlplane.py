@@ -15,6 +15,7 @@ import time
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from functools import partial
+from pathlib import Path
 from typing import Any
 
 from e2e.bed.base import (
@@ -48,6 +49,8 @@ from e2e.bed.cluster import (
 from e2e.bed.clusterservices import IN_CLUSTER_PROMETHEUS_URL, kubernetes_pods_job
 from e2e.bed.pki import _make_pki, _write_kubeconfig
 from e2e.bed.processes import _alive, _proc_starttime, _start, _stop, log_tail
+
+ALLOW_PATHS = "--authorization-always-allow-paths=/healthz,/readyz,/livez,/metrics"
 
 # Prometheus 3 refuses a scrape whose Content-Type it does not know unless told what to
 # assume; the bed's small exporters (tests, twins) may answer with none.
@@ -132,13 +135,76 @@ class Heartbeats:
     grace_period: str = NODE_MONITOR_GRACE_PERIOD
 
 
+def scheduler_argv(kubeconfig: Path, state: Path, port: int) -> list[str]:
+    """kube-scheduler of the cluster whose admin ``kubeconfig`` is given, with its config
+    (``write_scheduler_config``) and certificates in ``state``."""
+    return [
+        str(BIN_DIR / "kube-scheduler"),
+        f"--config={state / 'scheduler.yaml'}",
+        f"--authentication-kubeconfig={kubeconfig}",
+        f"--authorization-kubeconfig={kubeconfig}",
+        f"--bind-address={HOST}",
+        f"--secure-port={port}",
+        ALLOW_PATHS,
+        f"--cert-dir={state / 'certs' / 'scheduler'}",
+    ]
+
+
+def write_scheduler_config(kubeconfig: Path, state: Path) -> None:
+    (state / "scheduler.yaml").write_text(
+        json.dumps(
+            {
+                "apiVersion": "kubescheduler.config.k8s.io/v1",
+                "kind": "KubeSchedulerConfiguration",
+                "clientConnection": {
+                    "kubeconfig": str(kubeconfig),
+                    "qps": CONTROLLER_API_QPS,
+                    "burst": CONTROLLER_API_BURST,
+                },
+                "leaderElection": {"leaderElect": False},
+            },
+            indent=1,
+        )
+        + "\n"
+    )
+
+
+def kwok_argv(kubeconfig: Path, state: Path, pki: Path, port: int, lease_seconds: int) -> list[str]:
+    """kwok playing the kubelet of the cluster's fake nodes (its stages in ``state``/kwok.yaml,
+    serving with ``pki``'s admin certificate)."""
+    return [
+        str(BIN_DIR / "kwok"),
+        f"--kubeconfig={kubeconfig}",
+        f"--config={state / 'kwok.yaml'}",
+        # only the fake nodes: real nodes have kubelets of their own
+        "--manage-nodes-with-annotation-selector=kwok.x-k8s.io/node=fake",
+        f"--manage-nodes-with-label-selector={HEARTBEAT_LABEL}!=stopped",
+        "--node-name=localhost",
+        "--node-ip=",
+        f"--node-port={port}",
+        f"--server-address={HOST}:{port}",
+        f"--tls-cert-file={pki / 'admin.crt'}",
+        f"--tls-private-key-file={pki / 'admin.key'}",
+        f"--node-lease-duration-seconds={lease_seconds}",
+        "--cidr=10.0.0.0/16",
+        "--v=WARN",  # INFO logs every Lease renewal (about 10 MB an hour)
+    ]
+
+
+def write_kwok_config(state: Path) -> None:
+    stages = (BIN_DIR / "kwok-stages.yaml").read_text()
+    # Only Stage documents: a KwokConfiguration document here would replace kwok's defaults
+    # (v0.8.0 then fails with "node leases parallelism must be greater than 0"); flags suffice.
+    (state / "kwok.yaml").write_text(stages)
+
+
 def _argv(
     ports: Mapping[str, int], heartbeats: Heartbeats | None = None
 ) -> dict[str, tuple[list[str], dict[str, str] | None]]:
     b, s, pki = BIN_DIR, STATE_DIR, STATE_DIR / "pki"
     heartbeats = heartbeats or Heartbeats()
     kc = str(KUBECONFIG)
-    allow = "--authorization-always-allow-paths=/healthz,/readyz,/livez,/metrics"
+    allow = ALLOW_PATHS
     etcd_url = f"http://{HOST}:{ports['etcd']}"
     peer_url = f"http://{HOST}:{ports['etcd-peer']}"
     kwok_env = dict(os.environ, KWOK_WORKDIR=str(s / "kwok"))  # keeps ~/.kwok/kwok.yaml out
@@ -220,36 +286,11 @@ def _argv(
             None,
         ),
         "kube-scheduler": (
-            [
-                str(b / "kube-scheduler"),
-                f"--config={s / 'scheduler.yaml'}",
-                f"--authentication-kubeconfig={kc}",
-                f"--authorization-kubeconfig={kc}",
-                f"--bind-address={HOST}",
-                f"--secure-port={ports['kube-scheduler']}",
-                allow,
-                f"--cert-dir={s / 'certs' / 'scheduler'}",
-            ],
+            scheduler_argv(KUBECONFIG, s, ports["kube-scheduler"]),
             None,
         ),
         "kwok": (
-            [
-                str(b / "kwok"),
-                f"--kubeconfig={kc}",
-                f"--config={s / 'kwok.yaml'}",
-                # only the fake nodes: real nodes have kubelets of their own
-                "--manage-nodes-with-annotation-selector=kwok.x-k8s.io/node=fake",
-                f"--manage-nodes-with-label-selector={HEARTBEAT_LABEL}!=stopped",
-                "--node-name=localhost",
-                "--node-ip=",
-                f"--node-port={ports['kwok']}",
-                f"--server-address={HOST}:{ports['kwok']}",
-                f"--tls-cert-file={pki / 'admin.crt'}",
-                f"--tls-private-key-file={pki / 'admin.key'}",
-                f"--node-lease-duration-seconds={heartbeats.lease_seconds}",
-                "--cidr=10.0.0.0/16",
-                "--v=WARN",  # INFO logs every Lease renewal (about 10 MB an hour)
-            ],
+            kwok_argv(KUBECONFIG, s, pki, ports["kwok"], heartbeats.lease_seconds),
             kwok_env,
         ),
         "prometheus": (
@@ -283,26 +324,8 @@ def _write_configs(ports: Mapping[str, int], real_nodes: Sequence[str] = ()) -> 
     PROMETHEUS_TARGETS_DIR.mkdir(parents=True, exist_ok=True)
     _make_pki()
     _write_kubeconfig(f"https://{HOST}:{ports['kube-apiserver']}")
-    (STATE_DIR / "scheduler.yaml").write_text(
-        json.dumps(
-            {
-                "apiVersion": "kubescheduler.config.k8s.io/v1",
-                "kind": "KubeSchedulerConfiguration",
-                "clientConnection": {
-                    "kubeconfig": str(KUBECONFIG),
-                    "qps": CONTROLLER_API_QPS,
-                    "burst": CONTROLLER_API_BURST,
-                },
-                "leaderElection": {"leaderElect": False},
-            },
-            indent=1,
-        )
-        + "\n"
-    )
-    stages = (BIN_DIR / "kwok-stages.yaml").read_text()
-    # Only Stage documents: a KwokConfiguration document here would replace kwok's defaults
-    # (v0.8.0 then fails with "node leases parallelism must be greater than 0"); flags suffice.
-    (STATE_DIR / "kwok.yaml").write_text(stages)
+    write_scheduler_config(KUBECONFIG, STATE_DIR)
+    write_kwok_config(STATE_DIR)
     (STATE_DIR / "prometheus.yml").write_text(
         json.dumps(_prometheus_config(ports, real_nodes), indent=1)
     )

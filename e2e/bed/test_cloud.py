@@ -10,7 +10,7 @@ from e2e.bed import base, cloud, ocm, tools
 
 
 def _listen_addresses(argv: list[str]) -> list[str]:
-    flags = ("--bind-address=", "--listen=", "--advertise-address=")
+    flags = ("--bind-address=", "--listen=", "--advertise-address=", "--server-address=")
     return [a.split("=", 1)[1] for a in argv if a.startswith(flags)]
 
 

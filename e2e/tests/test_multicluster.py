@@ -3,8 +3,9 @@ joined to the site by Open Cluster Management (``e2e/bed/cloud.py``, ``e2e/bed/o
 
 What holds here, with OCM's own binaries and conditions: both managed clusters are accepted,
 joined and Available on the hub; a ManifestWork written on the hub for the site is applied on
-the site by the site's agent, with its status fed back to the hub, and removed with it; and an
-agent's hub credentials reach its own cluster's namespace only.
+the site by the site's agent, with its status fed back to the hub, and removed with it; the
+cloud reports its nodes' capacity, and a Deployment sent to it runs on its nodes, Available as
+the hub hears it; and an agent's hub credentials reach its own cluster's namespace only.
 """
 
 from __future__ import annotations
@@ -19,6 +20,7 @@ import pytest
 from e2e.bed import cloud, ocm
 from e2e.bed.base import BIN_DIR, kubectl
 from e2e.bed.bed import ensure_cloud
+from e2e.bed.fakenodes import SIMULATED_TAINT
 from e2e.bed.harness import Cluster
 from e2e.bed.kube import Kube
 
@@ -136,6 +138,72 @@ def test_a_manifestwork_on_the_hub_runs_on_the_site_and_reports_back(
 
     hub.kubectl("delete", "manifestwork", "e2e-configmap", "-n", "site")
     _wait("the ConfigMap gone from the site", lambda: on_site() is None)
+
+
+def test_the_cloud_reports_its_nodes_capacity_and_runs_a_deployment_sent_to_it(
+    joined: tuple[cloud.CloudCluster, ocm.Joined],
+) -> None:
+    hub, _ = joined
+    mc = json.loads(hub.kubectl("get", "managedcluster", "cloud", "-o", "json"))
+    capacity = mc["status"]["capacity"]
+    assert int(capacity["cpu"]) == cloud.NODE_CPU * len(cloud.NODES), capacity
+    labels = {"app": "sent-to-the-cloud"}
+    deployment = {
+        "apiVersion": "apps/v1",
+        "kind": "Deployment",
+        "metadata": {"name": "sent-to-the-cloud", "namespace": "default"},
+        "spec": {
+            "replicas": 2,
+            "selector": {"matchLabels": labels},
+            "template": {
+                "metadata": {"labels": labels},
+                "spec": {
+                    "nodeSelector": {"fogfleet.io/tier": "cloud"},
+                    "tolerations": [{**SIMULATED_TAINT, "operator": "Equal"}],
+                    "containers": [{"name": "main", "image": "registry.invalid/none:0"}],
+                },
+            },
+        },
+    }
+    work = {
+        "apiVersion": "work.open-cluster-management.io/v1",
+        "kind": "ManifestWork",
+        "metadata": {"name": "e2e-deployment", "namespace": "cloud"},
+        "spec": {
+            "workload": {"manifests": [deployment]},
+            "manifestConfigs": [
+                {
+                    "resourceIdentifier": {"group": "apps", "resource": "deployments",
+                                           "name": "sent-to-the-cloud", "namespace": "default"},
+                    "feedbackRules": [{"type": "WellKnownStatus"}],
+                }
+            ],
+        },
+    }  # fmt: skip
+    hub.kubectl("apply", "-f", "-", input=json.dumps(work))
+
+    def available() -> int:
+        status = json.loads(hub.kubectl("get", "manifestwork", "e2e-deployment", "-n", "cloud",
+                                        "-o", "json")).get("status", {})  # fmt: skip
+        for m in status.get("resourceStatus", {}).get("manifests", []):
+            for v in m.get("statusFeedback", {}).get("values", []):
+                if v["name"] == "AvailableReplicas":
+                    return int(v["fieldValue"]["integer"])
+        return 0
+
+    _wait("the cloud's Deployment Available, as the hub hears it", lambda: available() == 2)
+    pods = json.loads(hub.kubectl("get", "pods", "-n", "default", "-l", "app=sent-to-the-cloud",
+                                  "-o", "json"))["items"]  # fmt: skip
+    assert sorted(p["spec"]["nodeName"] in cloud.NODES for p in pods) == [True, True]
+    hub.kubectl("delete", "manifestwork", "e2e-deployment", "-n", "cloud")
+    _wait(
+        "the Deployment gone from the cloud",
+        lambda: (
+            not hub.kubectl(
+                "get", "deployment", "sent-to-the-cloud", "-n", "default", "--ignore-not-found"
+            )
+        ),
+    )
 
 
 def test_an_agents_hub_credentials_reach_its_own_cluster_only(
