@@ -9,6 +9,9 @@ the bed's, which Open Cluster Management joins to it (``ocm``).
   start>``): the two clusters share no object, and a 2-core machine runs one etcd less.
 - **A kube-controller-manager** that signs certificate requests (OCM's agents register by
   them, as kubelets do), and runs the namespace, service-account and garbage collectors.
+- **The WAN**: the site reaches the cloud's API only through ``wan.py``, a relay on loopback
+  that delays (20 ms each way), paces (50 Mbit/s) and can be cut (``set_wan``); the cloud's
+  own agent reaches it directly.
 - **Its machines**: kwok's nodes (``NODES``, tier ``cloud``), with a kube-scheduler that binds
   pods to them, so that the cloud has a capacity OCM reports and Deployments that become
   Available; nothing runs inside them (the bed's real containers run at the site).
@@ -21,7 +24,9 @@ from __future__ import annotations
 
 import json
 import os
+import signal
 import ssl
+import sys
 import time
 import urllib.error
 from collections.abc import Mapping
@@ -31,6 +36,7 @@ from typing import Any
 
 from e2e.bed.base import (
     BIN_DIR,
+    HERE,
     HOST,
     STATE_DIR,
     HarnessError,
@@ -39,6 +45,7 @@ from e2e.bed.base import (
     insecure_tls,
     kubectl,
     log,
+    port_is_free,
     wait_for,
 )
 from e2e.bed.controlplane import (
@@ -51,7 +58,16 @@ from e2e.bed.fakenodes import node_object, only_simulated_taint
 from e2e.bed.pki import issue_cert, kubeconfig, make_ca
 from e2e.bed.processes import _alive, _start, _stop, log_tail
 
-__all__ = ["CLOUD_DIR", "COMPONENTS", "CloudCluster", "running", "start", "stop"]
+__all__ = [
+    "CLOUD_DIR",
+    "COMPONENTS",
+    "CloudCluster",
+    "WanSettings",
+    "running",
+    "set_wan",
+    "start",
+    "stop",
+]
 
 CLOUD_DIR = STATE_DIR / "cloud"
 PKI = CLOUD_DIR / "pki"
@@ -62,7 +78,12 @@ ETCD_PREFIX = "/cloud"  # and a start's own key below it: each start is a new cl
 SERVICE_CIDR = "10.97.0.0/16"
 APISERVER, CONTROLLER_MANAGER = "cloud-kube-apiserver", "cloud-kube-controller-manager"
 SCHEDULER, KWOK = "cloud-kube-scheduler", "cloud-kwok"
-COMPONENTS = (APISERVER, CONTROLLER_MANAGER, SCHEDULER, KWOK)
+WAN = "site-cloud-wan"  # the relay the site reaches the cloud's API through (``wan.py``)
+COMPONENTS = (APISERVER, CONTROLLER_MANAGER, SCHEDULER, KWOK, WAN)
+WAN_SETTINGS = CLOUD_DIR / "wan.json"
+# The WAN's one-way delay and rate: a round trip of 40 ms, 50 Mbit/s (issue 47's example; a
+# cloud region one country away)
+WAN_DELAY_MS, WAN_RATE_MBIT = 20.0, 50.0
 # The cloud's nodes: kwok's, for capacity (a cloud region's machines; nothing runs in them).
 NODES = tuple(f"cloud-vm-{i}" for i in (1, 2))
 NODE_CPU, NODE_MEMORY_GI, NODE_HARDWARE = 16, 64, "fsv2-16"
@@ -77,6 +98,11 @@ class CloudCluster:
     api_server: str
     kubeconfig: Path
     ports: Mapping[str, int]
+
+    @property
+    def from_site(self) -> str:
+        """The cloud's API as the site reaches it: across the WAN."""
+        return f"https://{HOST}:{self.ports[WAN]}"
 
     def kubectl(self, *args: str, input: str | None = None, check: bool = True) -> str:
         return kubectl(BIN_DIR / "kubectl", self.kubeconfig, *args, input=input, check=check).stdout
@@ -96,6 +122,8 @@ def _ready(node: Mapping[str, Any]) -> bool:
 
 
 def _healthy(name: str, ports: Mapping[str, int]) -> bool:
+    if name == WAN:  # it listens; a cut WAN is a healthy relay holding what crosses
+        return not port_is_free(ports[WAN])
     try:
         if name == APISERVER:
             ctx = ssl.create_default_context(cafile=str(PKI / "ca.crt"))
@@ -128,6 +156,13 @@ def _argv(ports: Mapping[str, int], etcd_url: str, prefix: str) -> dict[str, lis
     kc = str(KUBECONFIG)
     return {
         SCHEDULER: scheduler_argv(KUBECONFIG, CLOUD_DIR, ports[SCHEDULER]),
+        WAN: [
+            sys.executable,
+            str(HERE / "wan.py"),
+            f"--listen={HOST}:{ports[WAN]}",
+            f"--target={HOST}:{ports[APISERVER]}",
+            f"--settings={WAN_SETTINGS}",
+        ],
         KWOK: kwok_argv(KUBECONFIG, CLOUD_DIR, PKI, ports[KWOK], KWOK_LEASE_SECONDS),
         APISERVER: [
             str(BIN_DIR / "kube-apiserver"),
@@ -191,6 +226,7 @@ def start(etcd_url: str) -> CloudCluster:
     prefix = f"{ETCD_PREFIX}/{int(time.time())}"
     write_scheduler_config(KUBECONFIG, CLOUD_DIR)
     write_kwok_config(CLOUD_DIR)
+    WAN_SETTINGS.write_text(json.dumps(WanSettings().as_json()) + "\n")
     argv = _argv(ports, etcd_url, prefix)
     env = {KWOK: dict(os.environ, KWOK_WORKDIR=str(CLOUD_DIR / "kwok"))}
     for name in COMPONENTS:
@@ -222,6 +258,29 @@ def _wait_healthy(name: str, ports: Mapping[str, int]) -> None:
         wait_for(f"{name} healthy", check, START_TIMEOUT_S, 0.3, fatal=(_Exited,))
     except HarnessError as exc:
         raise HarnessError(f"{exc}; log tail:\n{log_tail(name)}") from exc
+
+
+@dataclass(frozen=True)
+class WanSettings:
+    """The WAN between the site and the cloud: one-way delay, rate, and whether it is cut."""
+
+    delay_ms: float = WAN_DELAY_MS
+    rate_mbit: float = WAN_RATE_MBIT
+    cut: bool = False
+
+    def as_json(self) -> dict[str, Any]:
+        return {"delay_ms": self.delay_ms, "rate_mbit": self.rate_mbit, "cut": self.cut}
+
+
+def set_wan(settings: WanSettings) -> None:
+    """Change the running WAN (a cut holds what crosses until ``cut`` is False again)."""
+    pid = _alive(WAN)
+    if pid is None:
+        raise HarnessError("the cloud's WAN relay is not running (harness.py up --cloud)")
+    WAN_SETTINGS.write_text(json.dumps(settings.as_json()) + "\n")
+    os.kill(pid, signal.SIGHUP)
+    log(f"cloud WAN: {'CUT' if settings.cut else 'up'}, {settings.delay_ms:g} ms one way, "
+        f"{settings.rate_mbit:g} Mbit/s")  # fmt: skip
 
 
 def stop() -> None:

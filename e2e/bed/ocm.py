@@ -6,10 +6,11 @@ hub, and its managed clusters are the bed's own cluster (``site``) and the cloud
   (``registration controller``) run as the cloud's admin.
 - **An agent per managed cluster**: OCM's singleton klusterlet agent (``registration-operator
   agent``: registration and work in one process), with the managed cluster's CRDs
-  (ClusterClaims, AppliedManifestWorks) installed there. It starts from a bootstrap kubeconfig
-  of a hub ServiceAccount bound to OCM's own bootstrap ClusterRole, which may create
-  certificate requests and ManagedClusters and nothing else, and keeps its hub credentials in
-  a directory of its own.
+  (ClusterClaims, AppliedManifestWorks) installed there. The site's reaches the hub across
+  the WAN (``cloud.WAN``), as a site's agent dials out to a cloud hub. Each starts from a
+  bootstrap kubeconfig of a hub ServiceAccount bound to OCM's own bootstrap ClusterRole, which
+  may create certificate requests and ManagedClusters and nothing else, and keeps its hub
+  credentials in a directory of its own.
 - **The join**, as ``clusteradm accept`` does it: the bed approves the agent's first
   certificate request and sets ``hubAcceptsClient`` on its ManagedCluster; the agent then gets
   its certificate, and OCM's own conditions say the cluster is Joined and Available.
@@ -26,7 +27,7 @@ import time
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import Protocol
 
 from e2e.bed.base import BIN_DIR, HOST, TOOLS_DIR, HarnessError, free_port, log, wait_for
 from e2e.bed.base import kubectl as run_kubectl
@@ -34,8 +35,12 @@ from e2e.bed.cloud import CLOUD_DIR, CloudCluster
 from e2e.bed.gomodule import GoToolchain
 from e2e.bed.processes import _alive, _start, _stop, log_tail
 
-if TYPE_CHECKING:
-    from e2e.bed.tools import Tool
+
+class _ToolDir(Protocol):
+    """What ``build`` needs of ``tools.Tool`` (named so, not imported: tools imports this)."""
+
+    root: Path
+
 
 __all__ = [
     "AGENT_NAMESPACE",
@@ -109,9 +114,11 @@ def _apply_crds(kubeconfig: Path, folder: Path) -> None:
     _kubectl(kubeconfig, "wait", "--for=condition=Established", "--timeout=60s", "crd", "--all")
 
 
-def _bootstrap_kubeconfig(cloud: CloudCluster, manifests: Path) -> Path:
-    """A kubeconfig of the hub's bootstrap ServiceAccount (OCM's bootstrap ClusterRole), with a
-    token that outlives the bed."""
+def _bootstrap_kubeconfigs(cloud: CloudCluster, manifests: Path) -> dict[str, Path]:
+    """Per managed cluster, a kubeconfig of the hub's bootstrap ServiceAccount (OCM's
+    bootstrap ClusterRole) with a token that outlives the bed: the site's names the hub across
+    the WAN (``cloud.from_site``), the cloud's names it directly. The hub kubeconfig an agent
+    gets keeps its bootstrap's server."""
     kc = cloud.kubeconfig
     _kubectl(kc, "apply", "-f", str(manifests / "bootstrap"))
     objects = {
@@ -147,18 +154,24 @@ def _bootstrap_kubeconfig(cloud: CloudCluster, manifests: Path) -> Path:
     token = _kubectl(
         kc, "create", "token", BOOTSTRAP_SA, "-n", BOOTSTRAP_NAMESPACE, "--duration=24h"
     ).strip()
-    cfg = json.loads(kc.read_text())
-    cfg["users"] = [{"name": BOOTSTRAP_SA, "user": {"token": token}}]
-    cfg["contexts"][0]["context"]["user"] = BOOTSTRAP_SA
-    path = CLOUD_DIR / "ocm" / "bootstrap.kubeconfig"
-    path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(json.dumps(cfg, indent=1) + "\n")
-    path.chmod(0o600)
-    return path
+    paths = {}
+    for cluster, server in (("site", cloud.from_site), ("cloud", cloud.api_server)):
+        cfg = json.loads(kc.read_text())
+        cfg["users"] = [{"name": BOOTSTRAP_SA, "user": {"token": token}}]
+        cfg["contexts"][0]["context"]["user"] = BOOTSTRAP_SA
+        cfg["clusters"][0]["cluster"]["server"] = server
+        path = paths[cluster] = CLOUD_DIR / "ocm" / f"bootstrap-{cluster}.kubeconfig"
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(json.dumps(cfg, indent=1) + "\n")
+        path.chmod(0o600)
+    return paths
 
 
 def _argv(
-    cloud: CloudCluster, managed: Mapping[str, Path], bootstrap: Path, ports: Mapping[str, int]
+    cloud: CloudCluster,
+    managed: Mapping[str, Path],
+    bootstrap: Mapping[str, Path],
+    ports: Mapping[str, int],
 ) -> dict[str, list[str]]:
     argv = {
         HUB: [
@@ -179,7 +192,7 @@ def _argv(
             f"--agent-id={cluster}-agent",
             f"--kubeconfig={kubeconfig}",
             f"--spoke-kubeconfig={kubeconfig}",
-            f"--bootstrap-kubeconfig={bootstrap}",
+            f"--bootstrap-kubeconfig={bootstrap[cluster]}",
             f"--hub-kubeconfig-dir={_hub_dir(cluster)}",
             f"--hub-kubeconfig-secret={HUB_SECRET}",
             # the work agent reads the hub kubeconfig the registration agent writes there
@@ -243,7 +256,7 @@ def join(cloud: CloudCluster, site_kubeconfig: Path, ocm_version: str) -> Joined
         _kubectl(kubeconfig, "delete", "secret", HUB_SECRET, "-n", AGENT_NAMESPACE,
                  "--ignore-not-found")  # fmt: skip
         shutil.rmtree(_hub_dir(cluster), ignore_errors=True)
-    bootstrap = _bootstrap_kubeconfig(cloud, manifests)
+    bootstrap = _bootstrap_kubeconfigs(cloud, manifests)
     ports = {name: free_port() for name in names}
     argv = _argv(cloud, managed, bootstrap, ports)
     for name in names:
@@ -268,7 +281,7 @@ def join(cloud: CloudCluster, site_kubeconfig: Path, ocm_version: str) -> Joined
     return Joined(CLUSTERS, seconds)
 
 
-def build(tool: Tool, v: Mapping[str, str], go: GoToolchain, blog: Path) -> None:
+def build(tool: _ToolDir, v: Mapping[str, str], go: GoToolchain, blog: Path) -> None:
     """OCM's ``registration`` and ``registration-operator`` commands, in a module of their own:
     OCM v1.0.0 is built against the Kubernetes libraries v0.32, the bed's module against v0.36.
     Its ``go.sum`` is seeded from OCM's own (the checksum database answers 404 here for one of

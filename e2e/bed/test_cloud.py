@@ -31,9 +31,8 @@ def test_every_ocm_process_listens_on_loopback_without_leader_election(tmp_path:
     c = cloud.CloudCluster("https://127.0.0.1:1", tmp_path / "cloud.kubeconfig", {})
     managed = {"site": tmp_path / "site.kubeconfig", "cloud": c.kubeconfig}
     names = [ocm.HUB, *(ocm.agent_name(m) for m in managed)]
-    argv = ocm._argv(
-        c, managed, tmp_path / "bootstrap", {n: 41000 + i for i, n in enumerate(names)}
-    )
+    boot = {m: tmp_path / f"bootstrap-{m}" for m in managed}
+    argv = ocm._argv(c, managed, boot, {n: 41000 + i for i, n in enumerate(names)})
     assert sorted(argv) == sorted(names)
     for name, args in argv.items():
         assert _listen_addresses(args) and all(
@@ -43,7 +42,7 @@ def test_every_ocm_process_listens_on_loopback_without_leader_election(tmp_path:
     site = argv[ocm.agent_name("site")]
     assert "--cluster-name=site" in site
     assert f"--spoke-kubeconfig={managed['site']}" in site
-    assert f"--bootstrap-kubeconfig={tmp_path / 'bootstrap'}" in site
+    assert f"--bootstrap-kubeconfig={boot['site']}" in site
 
 
 def test_ocm_is_built_for_the_cloud_only_and_checked_by_its_version() -> None:

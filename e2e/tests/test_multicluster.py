@@ -10,12 +10,17 @@ the hub hears it; and an agent's hub credentials reach its own cluster's namespa
 
 from __future__ import annotations
 
+import http.client
 import json
+import ssl
+import statistics
 import time
+import urllib.parse
 from collections.abc import Iterator
 from typing import Any
 
 import pytest
+import yaml
 
 from e2e.bed import cloud, ocm
 from e2e.bed.base import BIN_DIR, kubectl
@@ -204,6 +209,77 @@ def test_the_cloud_reports_its_nodes_capacity_and_runs_a_deployment_sent_to_it(
             )
         ),
     )
+
+
+def _round_trips(url: str, n: int = 15) -> float:
+    """The median time of ``n`` GET /readyz on one kept-alive connection (one round trip
+    each)."""
+    parsed = urllib.parse.urlsplit(url)
+    ctx = ssl.create_default_context(cafile=str(cloud.PKI / "ca.crt"))
+    conn = http.client.HTTPSConnection(parsed.hostname or "", parsed.port, context=ctx, timeout=10)
+    times = []
+    try:
+        for _ in range(n + 1):
+            t0 = time.monotonic()
+            conn.request("GET", "/readyz")
+            assert conn.getresponse().read() == b"ok"
+            times.append(time.monotonic() - t0)
+    finally:
+        conn.close()
+    return statistics.median(times[1:])  # the first also made the TLS session
+
+
+def test_the_site_reaches_the_hub_across_the_wan_and_pays_its_round_trip(
+    joined: tuple[cloud.CloudCluster, ocm.Joined],
+) -> None:
+    hub, _ = joined
+    site_hub = yaml.safe_load((cloud.CLOUD_DIR / "ocm" / "site" / "kubeconfig").read_text())
+    assert site_hub["clusters"][0]["cluster"]["server"] == hub.from_site
+    direct, across = _round_trips(hub.api_server), _round_trips(hub.from_site)
+    rtt = 2 * cloud.WAN_DELAY_MS / 1e3
+    print(f"\nGET /readyz: {direct * 1e3:.1f} ms direct, {across * 1e3:.1f} ms across the WAN "
+          f"(round trip configured {rtt * 1e3:.0f} ms)")  # fmt: skip
+    assert abs((across - direct) - rtt) <= 0.2 * rtt, (direct, across)
+
+
+@pytest.mark.long
+def test_a_wan_cut_leaves_the_sites_work_running_and_it_catches_up_after(
+    joined: tuple[cloud.CloudCluster, ocm.Joined], kube: Kube, namespace: str
+) -> None:
+    hub, _ = joined
+    hub.kubectl("apply", "-f", "-", input=json.dumps(_work("e2e-cut", "across-a-cut", namespace)))
+
+    def site_value() -> str | None:
+        got = kube.kubectl("get", "configmap", "across-a-cut", "-n", namespace,
+                           "-o", "jsonpath={.data.placed-by}", check=False)  # fmt: skip
+        return got.stdout if got.returncode == 0 else None
+
+    _wait("the ConfigMap on the site", lambda: site_value() == "the hub")
+
+    def site_available() -> str | None:
+        mc = json.loads(hub.kubectl("get", "managedcluster", "site", "-o", "json"))
+        return _conditions(mc).get("ManagedClusterConditionAvailable")
+
+    cloud.set_wan(cloud.WanSettings(cut=True))
+    try:
+        t0 = time.monotonic()
+        # OCM's rule: unavailable after 5 lease periods unrenewed (ocm.LEASE_SECONDS each)
+        _wait("the hub to lose the site", lambda: site_available() != "True",
+              timeout=5 * ocm.LEASE_SECONDS + 60)  # fmt: skip
+        lost = time.monotonic() - t0
+        changed = _work("e2e-cut", "across-a-cut", namespace)
+        changed["spec"]["workload"]["manifests"][0]["data"] = {"placed-by": "the hub, later"}
+        hub.kubectl("apply", "-f", "-", input=json.dumps(changed))
+        time.sleep(5)
+        assert site_value() == "the hub"  # the work applied runs on; the change waits
+    finally:
+        cloud.set_wan(cloud.WanSettings())
+    t1 = time.monotonic()
+    _wait("the site Available again", lambda: site_available() == "True", timeout=120)
+    _wait("the change applied at the site", lambda: site_value() == "the hub, later", 120)
+    print(f"\nhub lost the site {lost:.0f}s into the cut; back {time.monotonic() - t1:.0f}s "
+          "after it ended; the site's work ran on throughout")  # fmt: skip
+    hub.kubectl("delete", "manifestwork", "e2e-cut", "-n", "site")
 
 
 def test_an_agents_hub_credentials_reach_its_own_cluster_only(
