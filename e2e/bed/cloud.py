@@ -9,9 +9,10 @@ the bed's, which Open Cluster Management joins to it (``ocm``).
   start>``): the two clusters share no object, and a 2-core machine runs one etcd less.
 - **A kube-controller-manager** that signs certificate requests (OCM's agents register by
   them, as kubelets do), and runs the namespace, service-account and garbage collectors.
-- **The WAN**: the site reaches the cloud's API only through ``wan.py``, a relay on loopback
-  that delays (20 ms each way), paces (50 Mbit/s) and can be cut (``set_wan``); the cloud's
-  own agent reaches it directly.
+- **The WAN**: the site reaches the cloud only through ``wan.py``, a relay on loopback that
+  delays (20 ms each way), paces (50 Mbit/s) and can be cut (``set_wan``): the site's OCM
+  agent reaches the hub's API across it, and the site's Zenoh router the cloud's
+  (``routers.py``, ROS 2's data across the WAN); the cloud's own agent reaches its API directly.
 - **Its machines**: kwok's nodes (``NODES``, tier ``cloud``), with a kube-scheduler that binds
   pods to them, so that the cloud has a capacity OCM reports and Deployments that become
   Available; nothing runs inside them (the bed's real containers run at the site).
@@ -78,8 +79,11 @@ ETCD_PREFIX = "/cloud"  # and a start's own key below it: each start is a new cl
 SERVICE_CIDR = "10.97.0.0/16"
 APISERVER, CONTROLLER_MANAGER = "cloud-kube-apiserver", "cloud-kube-controller-manager"
 SCHEDULER, KWOK = "cloud-kube-scheduler", "cloud-kwok"
-WAN = "site-cloud-wan"  # the relay the site reaches the cloud's API through (``wan.py``)
-COMPONENTS = (APISERVER, CONTROLLER_MANAGER, SCHEDULER, KWOK, WAN)
+WAN = "site-cloud-wan"  # the relay the site reaches the cloud through (``wan.py``)
+WAN_ZENOH = "wan-zenoh"  # the WAN's second port (ports only): the cloud's router, from the site
+# The Zenoh routers (``routers.py``): the cloud's listens, the site's dials it across the WAN
+CLOUD_ROUTER, SITE_ROUTER = "cloud-zenoh-router", "site-zenoh-router"
+COMPONENTS = (APISERVER, CONTROLLER_MANAGER, SCHEDULER, KWOK, CLOUD_ROUTER, WAN, SITE_ROUTER)
 WAN_SETTINGS = CLOUD_DIR / "wan.json"
 # The WAN's one-way delay and rate: a round trip of 40 ms, 50 Mbit/s (issue 47's example; a
 # cloud region one country away)
@@ -104,6 +108,16 @@ class CloudCluster:
         """The cloud's API as the site reaches it: across the WAN."""
         return f"https://{HOST}:{self.ports[WAN]}"
 
+    @property
+    def cloud_router(self) -> str:
+        """The Zenoh endpoint of the cloud's router (what the cloud's modules connect to)."""
+        return f"tcp/{HOST}:{self.ports[CLOUD_ROUTER]}"
+
+    @property
+    def site_router(self) -> str:
+        """The Zenoh endpoint of the site's router (what the site's modules connect to)."""
+        return f"tcp/{HOST}:{self.ports[SITE_ROUTER]}"
+
     def kubectl(self, *args: str, input: str | None = None, check: bool = True) -> str:
         return kubectl(BIN_DIR / "kubectl", self.kubeconfig, *args, input=input, check=check).stdout
 
@@ -122,8 +136,8 @@ def _ready(node: Mapping[str, Any]) -> bool:
 
 
 def _healthy(name: str, ports: Mapping[str, int]) -> bool:
-    if name == WAN:  # it listens; a cut WAN is a healthy relay holding what crosses
-        return not port_is_free(ports[WAN])
+    if name in (WAN, CLOUD_ROUTER, SITE_ROUTER):  # they listen (a cut WAN holds what crosses)
+        return not port_is_free(ports[name])
     try:
         if name == APISERVER:
             ctx = ssl.create_default_context(cafile=str(PKI / "ca.crt"))
@@ -159,9 +173,20 @@ def _argv(ports: Mapping[str, int], etcd_url: str, prefix: str) -> dict[str, lis
         WAN: [
             sys.executable,
             str(HERE / "wan.py"),
-            f"--listen={HOST}:{ports[WAN]}",
-            f"--target={HOST}:{ports[APISERVER]}",
+            f"--route={HOST}:{ports[WAN]}={HOST}:{ports[APISERVER]}",
+            f"--route={HOST}:{ports[WAN_ZENOH]}={HOST}:{ports[CLOUD_ROUTER]}",
             f"--settings={WAN_SETTINGS}",
+        ],
+        CLOUD_ROUTER: [
+            sys.executable,
+            str(HERE / "routers.py"),
+            f"--listen=tcp/{HOST}:{ports[CLOUD_ROUTER]}",
+        ],
+        SITE_ROUTER: [
+            sys.executable,
+            str(HERE / "routers.py"),
+            f"--listen=tcp/{HOST}:{ports[SITE_ROUTER]}",
+            f"--connect=tcp/{HOST}:{ports[WAN_ZENOH]}",
         ],
         KWOK: kwok_argv(KUBECONFIG, CLOUD_DIR, PKI, ports[KWOK], KWOK_LEASE_SECONDS),
         APISERVER: [
@@ -212,7 +237,9 @@ def start(etcd_url: str) -> CloudCluster:
         return cloud
     stop()
     t0 = time.monotonic()
-    ports = {name: free_port() for name in COMPONENTS}
+    ports = {name: free_port() for name in (*COMPONENTS, WAN_ZENOH)}
+    while len(set(ports.values())) < len(ports):  # free_port may hand the same port twice
+        ports = {name: free_port() for name in (*COMPONENTS, WAN_ZENOH)}
     CLOUD_DIR.mkdir(parents=True, exist_ok=True)
     _make_pki()
     api_server = f"https://{HOST}:{ports[APISERVER]}"

@@ -10,16 +10,28 @@ from e2e.bed import base, cloud, ocm, tools
 
 
 def _listen_addresses(argv: list[str]) -> list[str]:
-    flags = ("--bind-address=", "--listen=", "--advertise-address=", "--server-address=")
-    return [a.split("=", 1)[1] for a in argv if a.startswith(flags)]
+    """Where a process listens, by its flags (a Zenoh endpoint without its ``tcp/``; a WAN
+    route's listening side); a Zenoh router's ``--connect`` too, which must stay on loopback."""
+    flags = ("--bind-address=", "--listen=", "--advertise-address=", "--server-address=",
+             "--connect=")  # fmt: skip
+    found = [a.split("=", 1)[1].removeprefix("tcp/") for a in argv if a.startswith(flags)]
+    found += [a.split("=")[1] for a in argv if a.startswith("--route=")]
+    return found
 
 
 def test_the_cloud_control_plane_listens_on_loopback_and_stores_apart_from_the_site() -> None:
-    ports = {name: 40000 + i for i, name in enumerate(cloud.COMPONENTS)}
+    ports = {name: 40000 + i for i, name in enumerate((*cloud.COMPONENTS, cloud.WAN_ZENOH))}
     argv = cloud._argv(ports, "http://127.0.0.1:2379", f"{cloud.ETCD_PREFIX}/1")
     for name, args in argv.items():
         addresses = _listen_addresses(args)
         assert addresses and all(a.startswith("127.0.0.1") for a in addresses), name
+    # the site reaches the cloud's API and router only across the WAN
+    assert argv[cloud.SITE_ROUTER][-1] == f"--connect=tcp/127.0.0.1:{ports[cloud.WAN_ZENOH]}"
+    routes = [a.removeprefix("--route=") for a in argv[cloud.WAN] if a.startswith("--route=")]
+    assert routes == [
+        f"127.0.0.1:{ports[cloud.WAN]}=127.0.0.1:{ports[cloud.APISERVER]}",
+        f"127.0.0.1:{ports[cloud.WAN_ZENOH]}=127.0.0.1:{ports[cloud.CLOUD_ROUTER]}",
+    ]
     api = argv[cloud.APISERVER]
     assert f"--etcd-prefix={cloud.ETCD_PREFIX}/1" in api and cloud.ETCD_PREFIX != "/registry"
     # its own CA: nothing the site's CA signed is trusted by the cloud's API

@@ -52,9 +52,9 @@ class Relay:
         self.port, self.settings = free_port(), settings
         self.set(delay_ms=DELAY_MS)
         self.proc = subprocess.Popen(
-            [sys.executable, str(WAN), f"--listen=127.0.0.1:{self.port}",
-             f"--target=127.0.0.1:{target}", f"--settings={settings}"],
-            stdout=subprocess.PIPE, text=True,
+            [sys.executable, str(WAN), f"--route=127.0.0.1:{self.port}=127.0.0.1:{target}",
+             f"--settings={settings}"],
+            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
         )  # fmt: skip
         assert self.proc.stdout is not None
         while "->" not in self.proc.stdout.readline():  # listening
@@ -67,16 +67,19 @@ class Relay:
             assert self.proc.stdout is not None
             self.proc.stdout.readline()  # "wan: up|CUT, ...": applied
 
-    def stop(self) -> None:
+    def stop(self) -> str:
+        """Stop it; return what it wrote to stderr (nothing, when it stopped cleanly)."""
         self.proc.send_signal(signal.SIGTERM)
         self.proc.wait(timeout=10)
+        assert self.proc.stderr is not None
+        return self.proc.stderr.read()
 
 
 @pytest.fixture
 def relay(echo: int, tmp_path: Path) -> Iterator[Relay]:
     r = Relay(echo, tmp_path / "wan.json")
     yield r
-    r.stop()
+    assert r.stop() == ""  # a stop with connections open leaves no traceback
 
 
 def _round_trip(port: int, payload: bytes = b"ping", timeout: float = 10.0) -> float:
@@ -120,7 +123,7 @@ def test_a_cut_holds_everything_until_the_link_returns(relay: Relay) -> None:
 def test_the_relay_refuses_an_address_off_loopback(tmp_path: Path) -> None:
     (tmp_path / "wan.json").write_text("{}")
     out = subprocess.run(
-        [sys.executable, str(WAN), "--listen=0.0.0.0:1", "--target=127.0.0.1:2",
+        [sys.executable, str(WAN), "--route=0.0.0.0:1=127.0.0.1:2",
          f"--settings={tmp_path / 'wan.json'}"],
         capture_output=True, text=True, timeout=30, env=dict(os.environ),
     )  # fmt: skip

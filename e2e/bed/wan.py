@@ -2,12 +2,13 @@
 """The WAN between the site and the cloud: a TCP relay on loopback that delays, paces and cuts
 (stdlib only).
 
-    python3 e2e/bed/wan.py --listen 127.0.0.1:P --target 127.0.0.1:Q --settings FILE
+    python3 e2e/bed/wan.py --route 127.0.0.1:P=127.0.0.1:Q [--route ...] --settings FILE
 
-Everything of the site that talks to the cloud cluster dials the relay's port instead of the
-cloud's (issue 47: the site's OCM agent; later its router), so that what crosses between them
-crosses this link and nothing else does. Each direction holds each chunk for the one-way delay,
-in arrival order (nothing overtakes), and paces the bytes to the rate. A cut holds everything:
+Everything of the site that talks to the cloud dials one of the relay's ports instead of the
+cloud's (issue 47: the site's OCM agent to the hub's API, the site's Zenoh router to the
+cloud's), so that what crosses between them crosses this link and nothing else does. Each
+direction holds each chunk for the one-way delay, in arrival order (nothing overtakes), and
+paces the bytes to the rate. A cut holds everything:
 the bytes in flight and new connections (accepted by the kernel on loopback, not passed on)
 wait until the link returns, as TCP's retransmissions would carry them; a client whose own
 timeouts run out first gives up, as over a real cut.
@@ -97,8 +98,8 @@ async def _direction(
     await asyncio.gather(read(), deliver())
 
 
-def _handler(target: tuple[str, int], link: Link):  # type: ignore[no-untyped-def]
-    async def handle(reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
+def _handler(target: tuple[str, int], link: Link, tasks: set[asyncio.Task[None]]):  # type: ignore[no-untyped-def]
+    async def relay(reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
         assert link.up is not None
         await link.up.wait()  # a connection made during a cut reaches nothing until it ends
         try:
@@ -110,6 +111,18 @@ def _handler(target: tuple[str, int], link: Link):  # type: ignore[no-untyped-de
             _direction(reader, up_writer, link), _direction(up_reader, writer, link)
         )
 
+    async def handle(reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
+        # the relay runs as a task of its own, cancelled at the end; this one (asyncio's, per
+        # connection) then ends normally: a cancelled one prints a traceback on Python 3.11
+        task = asyncio.create_task(relay(reader, writer))
+        tasks.add(task)
+        try:
+            await task
+        except asyncio.CancelledError:
+            pass
+        finally:
+            tasks.discard(task)
+
     return handle
 
 
@@ -120,29 +133,47 @@ def _split(addr: str) -> tuple[str, int]:
     return host, int(port)
 
 
-async def serve(listen: str, target: str, settings: Path) -> None:
+async def serve(routes: list[tuple[str, str]], settings: Path) -> None:
+    """Relay each ``(listen, target)`` of ``routes`` over one link: one delay, one rate (per
+    connection and direction), one cut."""
     link = Link(up=asyncio.Event())
     link.load(settings)
     loop = asyncio.get_running_loop()
     loop.add_signal_handler(signal.SIGHUP, link.load, settings)
-    server = await asyncio.start_server(
-        _handler(_split(target), link), *_split(listen), reuse_address=True
-    )
-    print(f"wan: {listen} -> {target}", flush=True)
+    tasks: set[asyncio.Task[None]] = set()
+    servers = []
+    for listen, target in routes:
+        handler = _handler(_split(target), link, tasks)
+        servers.append(await asyncio.start_server(handler, *_split(listen), reuse_address=True))
+        print(f"wan: {listen} -> {target}", flush=True)
     stop = asyncio.Event()
     for sig in (signal.SIGTERM, signal.SIGINT):
         loop.add_signal_handler(sig, stop.set)
     await stop.wait()
-    server.close()
+    for server in servers:
+        server.close()
+    relays = list(tasks)
+    for task in relays:
+        task.cancel()
+    await asyncio.gather(*relays, return_exceptions=True)
+    await asyncio.sleep(0.05)  # the connections' own tasks end after their relays
 
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="wan.py", description=__doc__.split("\n\n")[0])
-    ap.add_argument("--listen", required=True, help="127.0.0.1:PORT the site dials")
-    ap.add_argument("--target", required=True, help="127.0.0.1:PORT of the cloud's service")
+    ap.add_argument(
+        "--route",
+        action="append",
+        required=True,
+        metavar="LISTEN=TARGET",
+        help="127.0.0.1:PORT the site dials = 127.0.0.1:PORT of the cloud's service (repeatable)",
+    )
     ap.add_argument("--settings", required=True, type=Path, help="JSON: delay_ms, rate_mbit, cut")
     ns = ap.parse_args(argv)
-    asyncio.run(serve(ns.listen, ns.target, ns.settings))
+    routes = [tuple(r.split("=", 1)) for r in ns.route]
+    if any(len(r) != 2 for r in routes):
+        ap.error("--route takes LISTEN=TARGET")
+    asyncio.run(serve([(a, b) for a, b in routes], ns.settings))
     return 0
 
 

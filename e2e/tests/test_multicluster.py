@@ -14,6 +14,7 @@ import http.client
 import json
 import ssl
 import statistics
+import threading
 import time
 import urllib.parse
 from collections.abc import Iterator
@@ -22,7 +23,7 @@ from typing import Any
 import pytest
 import yaml
 
-from e2e.bed import cloud, ocm
+from e2e.bed import cloud, ocm, routers
 from e2e.bed.base import BIN_DIR, kubectl
 from e2e.bed.bed import ensure_cloud
 from e2e.bed.fakenodes import SIMULATED_TAINT
@@ -240,6 +241,64 @@ def test_the_site_reaches_the_hub_across_the_wan_and_pays_its_round_trip(
     print(f"\nGET /readyz: {direct * 1e3:.1f} ms direct, {across * 1e3:.1f} ms across the WAN "
           f"(round trip configured {rtt * 1e3:.0f} ms)")  # fmt: skip
     assert abs((across - direct) - rtt) <= 0.2 * rtt, (direct, across)
+
+
+def test_messages_cross_the_wan_between_the_routers_and_wait_out_a_cut(
+    joined: tuple[cloud.CloudCluster, ocm.Joined],
+) -> None:
+    """A site client and a cloud client of the two Zenoh routers: each ping crosses the WAN
+    and its answer back, so it costs the WAN's round trip; one sent during a cut is answered
+    only after it (held, not lost)."""
+    import zenoh
+
+    hub, _ = joined
+    site = zenoh.open(routers.config("client", connect=[hub.site_router]))
+    in_cloud = zenoh.open(routers.config("client", connect=[hub.cloud_router]))
+    answered: dict[bytes, float] = {}
+    got = threading.Event()
+
+    def on_pong(sample: Any) -> None:
+        answered[sample.payload.to_bytes()] = time.monotonic()
+        got.set()
+
+    try:
+        pong = in_cloud.declare_publisher("fogfleet/e2e/pong")
+        echo = in_cloud.declare_subscriber(
+            "fogfleet/e2e/ping", lambda sample: pong.put(sample.payload.to_bytes())
+        )
+        back = site.declare_subscriber("fogfleet/e2e/pong", on_pong)
+        ping = site.declare_publisher("fogfleet/e2e/ping")
+
+        def answered_once() -> bool:
+            got.clear()
+            ping.put(b"hello")
+            return got.wait(1.0)
+
+        _wait("a ping answered across the WAN (the routers' routes made)", answered_once, 30)
+        rtts = []
+        for i in range(20):
+            got.clear()
+            t0 = time.monotonic()
+            ping.put(f"{i}".encode())
+            assert got.wait(5), f"ping {i} unanswered"
+            rtts.append(answered[f"{i}".encode()] - t0)
+        rtt, want = statistics.median(rtts), 2 * cloud.WAN_DELAY_MS / 1e3
+        print(f"\nZenoh ping across the WAN: median {rtt * 1e3:.1f} ms of 20 "
+              f"(round trip configured {want * 1e3:.0f} ms)")  # fmt: skip
+        assert abs(rtt - want) <= 0.2 * want, rtts
+
+        cloud.set_wan(cloud.WanSettings(cut=True))
+        try:
+            got.clear()
+            ping.put(b"during the cut")
+            assert not got.wait(2.0), "a ping crossed a cut WAN"
+        finally:
+            cloud.set_wan(cloud.WanSettings())
+        assert got.wait(30) and b"during the cut" in answered, "the held ping never arrived"
+        del echo, back
+    finally:
+        site.close()
+        in_cloud.close()
 
 
 @pytest.mark.long
