@@ -256,14 +256,19 @@ def start(etcd_url: str) -> CloudCluster:
     WAN_SETTINGS.write_text(json.dumps(WanSettings().as_json()) + "\n")
     argv = _argv(ports, etcd_url, prefix)
     env = {KWOK: dict(os.environ, KWOK_WORKDIR=str(CLOUD_DIR / "kwok"))}
-    for name in COMPONENTS:
-        _start(name, argv[name], env.get(name))
-        _wait_healthy(name, ports)
     cloud = CloudCluster(api_server, KUBECONFIG, ports)
-    nodes = [node_object(n, "cloud", NODE_HARDWARE, NODE_CPU, NODE_MEMORY_GI) for n in NODES]
-    cloud.kubectl("apply", "-f", "-", input=json.dumps({"apiVersion": "v1", "kind": "List",
-                                                        "items": nodes}))  # fmt: skip
-    wait_for(f"the cloud's {len(NODES)} nodes Ready", cloud.nodes_ready, START_TIMEOUT_S)
+    try:
+        for name in COMPONENTS:
+            _start(name, argv[name], env.get(name))
+            _wait_healthy(name, ports)
+        nodes = [node_object(n, "cloud", NODE_HARDWARE, NODE_CPU, NODE_MEMORY_GI) for n in NODES]
+        cloud.kubectl("apply", "-f", "-", input=json.dumps({"apiVersion": "v1", "kind": "List",
+                                                            "items": nodes}))  # fmt: skip
+        wait_for(f"the cloud's {len(NODES)} nodes Ready", cloud.nodes_ready, START_TIMEOUT_S)
+    except BaseException:
+        log(f"cloud cluster: start-up failed; stopping what started (logs in {STATE_DIR / 'logs'})")
+        stop()
+        raise
     STATE_FILE.write_text(
         json.dumps({"api_server": api_server, "ports": ports, "etcd_prefix": prefix}) + "\n"
     )

@@ -102,7 +102,7 @@ class Joined:
     """The managed clusters as the hub sees them once joined, and how long the join took."""
 
     clusters: tuple[str, ...]
-    seconds: float  # from the hub's start until every cluster was Available
+    seconds: float  # from OCM's install (CRDs, then the hub and agents) until all are Available
 
 
 def _kubectl(kubeconfig: Path, *args: str, input: str | None = None) -> str:
@@ -275,6 +275,7 @@ def join(cloud: CloudCluster, site_kubeconfig: Path, ocm_version: str) -> Joined
                  JOIN_TIMEOUT_S, 1.0, fatal=(_Exited,))  # fmt: skip
     except HarnessError as exc:
         tails = "\n".join(f"--- {n}:\n{log_tail(n, 15)}" for n in names)
+        stop()  # the next join starts them again from their bootstrap
         raise HarnessError(f"{exc} (available: {sorted(available) or 'none'})\n{tails}") from exc
     seconds = time.monotonic() - t0
     log(f"ocm: {', '.join(CLUSTERS)} joined and Available in {seconds:.1f}s")

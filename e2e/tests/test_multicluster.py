@@ -68,7 +68,7 @@ def test_the_site_and_the_cloud_are_joined_and_available_on_the_hub(
         assert conds.get("HubAcceptedManagedCluster") == "True", (name, conds)
         assert conds.get("ManagedClusterJoined") == "True", (name, conds)
         assert conds.get("ManagedClusterConditionAvailable") == "True", (name, conds)
-    print(f"\nsite and cloud joined and Available {result.seconds:.1f}s after the hub started")
+    print(f"\nsite and cloud joined and Available {result.seconds:.1f}s after OCM's install began")
 
 
 def _work(name: str, configmap: str, namespace: str) -> dict[str, Any]:
