@@ -1,7 +1,8 @@
 #!/usr/bin/env python3
 """A real Kubernetes control plane for fogfleet's e2e tests, run as local processes (no Docker).
 
-    python e2e/bed/harness.py build | up [--profile default|paper|kwok] | down | status
+    python e2e/bed/harness.py build [--only T,..] | down | status
+    python e2e/bed/harness.py up [--profile default|paper|kwok] [--cloud]
     python e2e/bed/harness.py nodes [--robots N --edges M --cloud K]
     python e2e/bed/harness.py kubectl ARGS... | helm ARGS...
     python e2e/bed/harness.py fault NODE restart kubelet|containerd|kube-proxy | reboot
