@@ -29,7 +29,6 @@ import signal
 import ssl
 import sys
 import time
-import urllib.error
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -42,22 +41,24 @@ from e2e.bed.base import (
     STATE_DIR,
     HarnessError,
     free_port,
-    http_get,
     insecure_tls,
     kubectl,
     log,
     port_is_free,
     wait_for,
 )
+from e2e.bed.cluster import is_ok, probe
 from e2e.bed.controlplane import (
+    ALLOW_PATHS,
+    _wait_healthy,
     kwok_argv,
     scheduler_argv,
     write_kwok_config,
     write_scheduler_config,
 )
-from e2e.bed.fakenodes import node_object, only_simulated_taint
+from e2e.bed.fakenodes import node_object, ready_nodes
 from e2e.bed.pki import issue_cert, kubeconfig, make_ca
-from e2e.bed.processes import _alive, _start, _stop, log_tail
+from e2e.bed.processes import _alive, _start, _stop
 
 __all__ = [
     "CLOUD_DIR",
@@ -122,30 +123,21 @@ class CloudCluster:
         return kubectl(BIN_DIR / "kubectl", self.kubeconfig, *args, input=input, check=check).stdout
 
     def healthy(self) -> bool:
-        return all(_healthy(name, self.ports) for name in COMPONENTS)
+        return all(_health(name, self.ports)[0] for name in COMPONENTS)
 
     def nodes_ready(self) -> bool:
         items = json.loads(self.kubectl("get", "nodes", "-o", "json"))["items"]
-        ready = {n["metadata"]["name"] for n in items if _ready(n) and only_simulated_taint(n)}
-        return set(NODES) <= ready
+        return set(NODES) <= ready_nodes(items)
 
 
-def _ready(node: Mapping[str, Any]) -> bool:
-    conds = node.get("status", {}).get("conditions", [])
-    return any(c["type"] == "Ready" and c["status"] == "True" for c in conds)
-
-
-def _healthy(name: str, ports: Mapping[str, int]) -> bool:
+def _health(name: str, ports: Mapping[str, int]) -> tuple[bool, str]:
     if name in (WAN, CLOUD_ROUTER, SITE_ROUTER):  # they listen (a cut WAN holds what crosses)
-        return not port_is_free(ports[name])
-    try:
-        if name == APISERVER:
-            ctx = ssl.create_default_context(cafile=str(PKI / "ca.crt"))
-            return http_get(f"https://{HOST}:{ports[name]}/readyz", context=ctx).strip() == "ok"
-        body = http_get(f"https://{HOST}:{ports[name]}/healthz", context=insecure_tls())
-        return body.strip() == "ok"
-    except (OSError, urllib.error.URLError, ssl.SSLError):
-        return False
+        listening = not port_is_free(ports[name])
+        return listening, "listening" if listening else "not listening"
+    if name == APISERVER:
+        ctx = ssl.create_default_context(cafile=str(PKI / "ca.crt"))
+        return probe(f"https://{HOST}:{ports[name]}/readyz", is_ok, ctx)
+    return probe(f"https://{HOST}:{ports[name]}/healthz", is_ok, insecure_tls())
 
 
 def running() -> CloudCluster | None:
@@ -214,7 +206,7 @@ def _argv(ports: Mapping[str, int], etcd_url: str, prefix: str) -> dict[str, lis
             f"--authorization-kubeconfig={kc}",
             f"--bind-address={HOST}",
             f"--secure-port={ports[CONTROLLER_MANAGER]}",
-            "--authorization-always-allow-paths=/healthz,/readyz,/livez,/metrics",
+            ALLOW_PATHS,
             "--leader-elect=false",
             f"--root-ca-file={PKI / 'ca.crt'}",
             f"--service-account-private-key-file={PKI / 'sa.key'}",
@@ -260,7 +252,7 @@ def start(etcd_url: str) -> CloudCluster:
     try:
         for name in COMPONENTS:
             _start(name, argv[name], env.get(name))
-            _wait_healthy(name, ports)
+            _wait_healthy(name, ports, _health, START_TIMEOUT_S)
         nodes = [node_object(n, "cloud", NODE_HARDWARE, NODE_CPU, NODE_MEMORY_GI) for n in NODES]
         cloud.kubectl("apply", "-f", "-", input=json.dumps({"apiVersion": "v1", "kind": "List",
                                                             "items": nodes}))  # fmt: skip
@@ -274,22 +266,6 @@ def start(etcd_url: str) -> CloudCluster:
     )
     log(f"cloud cluster: control plane up in {time.monotonic() - t0:.1f}s ({api_server})")
     return cloud
-
-
-class _Exited(HarnessError):
-    pass
-
-
-def _wait_healthy(name: str, ports: Mapping[str, int]) -> None:
-    def check() -> bool:
-        if _alive(name) is None:
-            raise _Exited(f"{name} exited during start-up")
-        return _healthy(name, ports)
-
-    try:
-        wait_for(f"{name} healthy", check, START_TIMEOUT_S, 0.3, fatal=(_Exited,))
-    except HarnessError as exc:
-        raise HarnessError(f"{exc}; log tail:\n{log_tail(name)}") from exc
 
 
 @dataclass(frozen=True)

@@ -9,7 +9,7 @@ import subprocess
 import time
 import urllib.error
 import urllib.parse
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -71,7 +71,8 @@ HEARTBEAT_LABEL = "fogfleet.io/e2e-heartbeat"
 KWOK_NOT_READY_LABEL = "node-not-ready.stage.kwok.x-k8s.io"
 
 
-def _condition(obj: Mapping[str, Any], type_: str) -> str | None:
+def condition_status(obj: Mapping[str, Any], type_: str) -> str | None:
+    """The status ("True", "False", "Unknown") of an object's condition ``type_``, if it has one."""
     for c in (obj.get("status") or {}).get("conditions") or []:
         if c.get("type") == type_:
             return str(c.get("status"))
@@ -86,24 +87,33 @@ def _read_state() -> dict[str, Any] | None:
     return state
 
 
-def _health(name: str, ports: Mapping[str, int]) -> tuple[bool, str]:
-    port = ports[name]
+def probe(
+    url: str, ok: Callable[[str], bool], context: ssl.SSLContext | None = None
+) -> tuple[bool, str]:
+    """GET ``url``: whether ``ok`` holds of its body, and the body (or why the GET failed)."""
     try:
-        if name == "etcd":
-            body = http_get(f"http://{HOST}:{port}/health")
-            return '"health":"true"' in body, body.strip()
-        if name == "kube-apiserver":
-            ctx = ssl.create_default_context(cafile=str(STATE_DIR / "pki" / "ca.crt"))
-            body = http_get(f"https://{HOST}:{port}/readyz", context=ctx)
-            return body.strip() == "ok", body.strip()
-        if name in ("kube-controller-manager", "kube-scheduler", "kwok"):
-            body = http_get(f"https://{HOST}:{port}/healthz", context=insecure_tls())
-            return body.strip() == "ok", body.strip()
-        if name == "prometheus":
-            body = http_get(f"http://{HOST}:{port}/-/ready")
-            return "Ready" in body, body.strip()
+        body = http_get(url, context=context).strip()
     except (OSError, urllib.error.URLError, ssl.SSLError) as exc:
         return False, str(getattr(exc, "reason", exc))
+    return ok(body), body
+
+
+def is_ok(body: str) -> bool:
+    """What a Kubernetes component's /healthz or /readyz answers when it is."""
+    return body == "ok"
+
+
+def _health(name: str, ports: Mapping[str, int]) -> tuple[bool, str]:
+    port = ports[name]
+    if name == "etcd":
+        return probe(f"http://{HOST}:{port}/health", lambda body: '"health":"true"' in body)
+    if name == "kube-apiserver":
+        ctx = ssl.create_default_context(cafile=str(STATE_DIR / "pki" / "ca.crt"))
+        return probe(f"https://{HOST}:{port}/readyz", is_ok, ctx)
+    if name in ("kube-controller-manager", "kube-scheduler", "kwok"):
+        return probe(f"https://{HOST}:{port}/healthz", is_ok, insecure_tls())
+    if name == "prometheus":
+        return probe(f"http://{HOST}:{port}/-/ready", lambda body: "Ready" in body)
     raise HarnessError(f"unknown component {name}")
 
 
@@ -255,7 +265,7 @@ class Cluster:
             n["metadata"]["name"]
             for n in nodes
             if (n["metadata"].get("annotations") or {}).get("kwok.x-k8s.io/node") == "fake"
-            and _condition(n, "Ready") == "True"
+            and condition_status(n, "Ready") == "True"
         }
         changed = []
         for pod in self.kubectl_json("get", "pods", "-n", namespace)["items"]:
@@ -263,8 +273,8 @@ class Cluster:
                 pod["spec"].get("nodeName") in fake_ready
                 and not pod["metadata"].get("deletionTimestamp")
                 and pod["status"].get("phase") == "Running"
-                and _condition(pod, "ContainersReady") == "True"
-                and _condition(pod, "Ready") == "False"
+                and condition_status(pod, "ContainersReady") == "True"
+                and condition_status(pod, "Ready") == "False"
             ):
                 now = time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())
                 ready = {"type": "Ready", "status": "True", "lastTransitionTime": now}

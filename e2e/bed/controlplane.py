@@ -12,7 +12,7 @@ from __future__ import annotations
 import json
 import os
 import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from functools import partial
 from pathlib import Path
@@ -204,7 +204,6 @@ def _argv(
     b, s, pki = BIN_DIR, STATE_DIR, STATE_DIR / "pki"
     heartbeats = heartbeats or Heartbeats()
     kc = str(KUBECONFIG)
-    allow = ALLOW_PATHS
     etcd_url = f"http://{HOST}:{ports['etcd']}"
     peer_url = f"http://{HOST}:{ports['etcd-peer']}"
     kwok_env = dict(os.environ, KWOK_WORKDIR=str(s / "kwok"))  # keeps ~/.kwok/kwok.yaml out
@@ -271,7 +270,7 @@ def _argv(
                 f"--authorization-kubeconfig={kc}",
                 f"--bind-address={HOST}",
                 f"--secure-port={ports['kube-controller-manager']}",
-                allow,
+                ALLOW_PATHS,
                 "--leader-elect=false",
                 f"--root-ca-file={pki / 'ca.crt'}",
                 f"--service-account-private-key-file={pki / 'sa.key'}",
@@ -368,19 +367,29 @@ _START_TIMEOUTS = {
 }
 
 
-def _wait_healthy(name: str, ports: Mapping[str, int]) -> None:
+def _wait_healthy(
+    name: str,
+    ports: Mapping[str, int],
+    health: Callable[[str, Mapping[str, int]], tuple[bool, str]] = _health,
+    timeout: float | None = None,
+) -> None:
+    """Wait until process ``name`` is healthy by ``health`` (the site's ``_health``, or the
+    cloud's), at most ``timeout`` (the site's start-up timeouts by default); one that exits
+    fails at once, with its log's tail."""
+    limit = _START_TIMEOUTS[name] if timeout is None else timeout
+
     def check() -> bool:
         if _alive(name) is None:
             raise HarnessError(f"{name} exited during start-up; log tail:\n{log_tail(name)}")
-        return _health(name, ports)[0]
+        return health(name, ports)[0]
 
-    deadline = time.monotonic() + _START_TIMEOUTS[name]
+    deadline = time.monotonic() + limit
     t0 = time.monotonic()
     while not check():
         if time.monotonic() > deadline:
             raise HarnessError(
-                f"{name} not healthy after {_START_TIMEOUTS[name]}s "
-                f"({_health(name, ports)[1]}); log tail:\n{log_tail(name)}"
+                f"{name} not healthy after {limit:g}s "
+                f"({health(name, ports)[1]}); log tail:\n{log_tail(name)}"
             )
         time.sleep(0.3)
     log(f"{name}: healthy after {time.monotonic() - t0:.1f}s")

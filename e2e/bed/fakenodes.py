@@ -7,7 +7,7 @@ import time
 from typing import Any
 
 from e2e.bed.base import NODES_FILE, HarnessError, log, wait_for
-from e2e.bed.cluster import Cluster, running
+from e2e.bed.cluster import Cluster, condition_status, running
 
 # Nothing runs on a fake node, so nothing but the pods fogfleet plans (which tolerate the key)
 # may be bound to one: the operator installed as the README says lands on a real node.
@@ -64,14 +64,17 @@ def only_simulated_taint(node: dict[str, Any]) -> bool:
     return all(t == SIMULATED_TAINT for t in node.get("spec", {}).get("taints") or [])
 
 
+def ready_nodes(items: list[dict[str, Any]]) -> set[str]:
+    """The names of the Nodes in ``items`` that are Ready with no taint but the bed's."""
+    return {
+        node["metadata"]["name"]
+        for node in items
+        if condition_status(node, "Ready") == "True" and only_simulated_taint(node)
+    }
+
+
 def _nodes_ready(cluster: Cluster, names: set[str]) -> bool:
-    items = cluster.kubectl_json("get", "nodes")["items"]
-    ready = set()
-    for node in items:
-        conds = {c["type"]: c["status"] for c in node.get("status", {}).get("conditions", [])}
-        if conds.get("Ready") == "True" and only_simulated_taint(node):
-            ready.add(node["metadata"]["name"])
-    return names <= ready
+    return names <= ready_nodes(cluster.kubectl_json("get", "nodes")["items"])
 
 
 def _apply_nodes(cluster: Cluster, manifest: str, timeout: float = 120) -> list[str]:

@@ -32,6 +32,7 @@ from typing import Protocol
 from e2e.bed.base import BIN_DIR, HOST, TOOLS_DIR, HarnessError, free_port, log, wait_for
 from e2e.bed.base import kubectl as run_kubectl
 from e2e.bed.cloud import CLOUD_DIR, CloudCluster
+from e2e.bed.cluster import condition_status
 from e2e.bed.gomodule import GoToolchain
 from e2e.bed.processes import _alive, _start, _stop, log_tail
 
@@ -204,12 +205,6 @@ def _argv(
     return argv
 
 
-def _condition(obj: Mapping[str, object], type_: str) -> str | None:
-    status = obj.get("status")
-    conds = status.get("conditions", []) if isinstance(status, dict) else []
-    return next((c.get("status") for c in conds if c.get("type") == type_), None)
-
-
 def _accept(cloud: CloudCluster, clusters: Sequence[str]) -> set[str]:
     """One pass of ``clusteradm accept``: approve the pending certificate requests of
     ``clusters`` and accept their ManagedClusters; return the clusters now Available."""
@@ -228,7 +223,7 @@ def _accept(cloud: CloudCluster, clusters: Sequence[str]) -> set[str]:
         if not mc["spec"].get("hubAcceptsClient"):
             patch = {"spec": {"hubAcceptsClient": True, "leaseDurationSeconds": LEASE_SECONDS}}
             _kubectl(kc, "patch", "managedcluster", name, "--type=merge", "-p", json.dumps(patch))
-        if _condition(mc, "ManagedClusterConditionAvailable") == "True":
+        if condition_status(mc, "ManagedClusterConditionAvailable") == "True":
             available.add(name)
     return available
 

@@ -87,8 +87,6 @@ def _make_pki() -> None:
     # Prometheus (kubernetes_sd) and CoreDNS read the API as themselves (clusterservices.RBAC)
     issue_cert("prometheus", "/CN=system:prometheus", [], usage="clientAuth")
     issue_cert("coredns", "/CN=system:coredns", [], usage="clientAuth")
-    for key in pki.glob("*.key"):
-        key.chmod(0o600)
 
 
 def _b64(path: Path) -> str:

@@ -26,6 +26,7 @@ import yaml
 from e2e.bed import cloud, ocm, routers
 from e2e.bed.base import BIN_DIR, kubectl
 from e2e.bed.bed import ensure_cloud
+from e2e.bed.cluster import condition_status
 from e2e.bed.fakenodes import SIMULATED_TAINT
 from e2e.bed.harness import Cluster
 from e2e.bed.kube import Kube
@@ -51,10 +52,6 @@ def joined(cluster: Cluster) -> Iterator[tuple[cloud.CloudCluster, ocm.Joined]]:
     cloud.stop()
 
 
-def _conditions(obj: dict[str, Any]) -> dict[str, str]:
-    return {c["type"]: c["status"] for c in obj.get("status", {}).get("conditions", [])}
-
-
 def test_the_site_and_the_cloud_are_joined_and_available_on_the_hub(
     joined: tuple[cloud.CloudCluster, ocm.Joined],
 ) -> None:
@@ -63,11 +60,9 @@ def test_the_site_and_the_cloud_are_joined_and_available_on_the_hub(
     clusters = json.loads(hub.kubectl("get", "managedclusters", "-o", "json"))["items"]
     assert sorted(mc["metadata"]["name"] for mc in clusters) == sorted(ocm.CLUSTERS)
     for mc in clusters:
-        conds = _conditions(mc)
-        name = mc["metadata"]["name"]
-        assert conds.get("HubAcceptedManagedCluster") == "True", (name, conds)
-        assert conds.get("ManagedClusterJoined") == "True", (name, conds)
-        assert conds.get("ManagedClusterConditionAvailable") == "True", (name, conds)
+        for type_ in ("HubAcceptedManagedCluster", "ManagedClusterJoined",
+                      "ManagedClusterConditionAvailable"):  # fmt: skip
+            assert condition_status(mc, type_) == "True", (mc["metadata"]["name"], mc["status"])
     print(f"\nsite and cloud joined and Available {result.seconds:.1f}s after OCM's install began")
 
 
@@ -106,16 +101,6 @@ def _work(name: str, configmap: str, namespace: str) -> dict[str, Any]:
     }
 
 
-def _wait(what: str, check: Any, timeout: float = 60) -> Any:
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        got = check()
-        if got:
-            return got
-        time.sleep(0.5)
-    raise AssertionError(f"timed out after {timeout:.0f}s waiting for {what}")
-
-
 def test_a_manifestwork_on_the_hub_runs_on_the_site_and_reports_back(
     joined: tuple[cloud.CloudCluster, ocm.Joined], kube: Kube, namespace: str
 ) -> None:
@@ -129,25 +114,26 @@ def test_a_manifestwork_on_the_hub_runs_on_the_site_and_reports_back(
         )
         return json.loads(got.stdout) if got.returncode == 0 else None
 
-    configmap = _wait("the ConfigMap on the site", on_site)
-    assert configmap["data"] == {"placed-by": "the hub"}
+    kube.wait_for("the ConfigMap on the site", lambda: on_site() is not None)
+    assert (on_site() or {})["data"] == {"placed-by": "the hub"}
 
     def fed_back() -> list[Any] | None:
         status = json.loads(hub.kubectl("get", "manifestwork", "e2e-configmap", "-n", "site",
                                         "-o", "json"))["status"]  # fmt: skip
         found = status.get("resourceStatus", {}).get("manifests", [])
         values = [v for m in found for v in m.get("statusFeedback", {}).get("values", [])]
-        return values if _conditions({"status": status}).get("Applied") == "True" else None
+        return values if condition_status({"status": status}, "Applied") == "True" else None
 
-    values = _wait("the work Applied with its status feedback", fed_back)
+    kube.wait_for("the work Applied with its status feedback", lambda: bool(fed_back()))
+    values = fed_back() or []
     assert {"name": "placedBy", "fieldValue": {"type": "String", "string": "the hub"}} in values
 
     hub.kubectl("delete", "manifestwork", "e2e-configmap", "-n", "site")
-    _wait("the ConfigMap gone from the site", lambda: on_site() is None)
+    kube.wait_for("the ConfigMap gone from the site", lambda: on_site() is None)
 
 
 def test_the_cloud_reports_its_nodes_capacity_and_runs_a_deployment_sent_to_it(
-    joined: tuple[cloud.CloudCluster, ocm.Joined],
+    joined: tuple[cloud.CloudCluster, ocm.Joined], kube: Kube
 ) -> None:
     hub, _ = joined
     mc = json.loads(hub.kubectl("get", "managedcluster", "cloud", "-o", "json"))
@@ -197,12 +183,12 @@ def test_the_cloud_reports_its_nodes_capacity_and_runs_a_deployment_sent_to_it(
                     return int(v["fieldValue"]["integer"])
         return 0
 
-    _wait("the cloud's Deployment Available, as the hub hears it", lambda: available() == 2)
+    kube.wait_for("the cloud's Deployment Available, as the hub hears it", lambda: available() == 2)
     pods = json.loads(hub.kubectl("get", "pods", "-n", "default", "-l", "app=sent-to-the-cloud",
                                   "-o", "json"))["items"]  # fmt: skip
     assert sorted(p["spec"]["nodeName"] in cloud.NODES for p in pods) == [True, True]
     hub.kubectl("delete", "manifestwork", "e2e-deployment", "-n", "cloud")
-    _wait(
+    kube.wait_for(
         "the Deployment gone from the cloud",
         lambda: (
             not hub.kubectl(
@@ -244,7 +230,7 @@ def test_the_site_reaches_the_hub_across_the_wan_and_pays_its_round_trip(
 
 
 def test_messages_cross_the_wan_between_the_routers_and_wait_out_a_cut(
-    joined: tuple[cloud.CloudCluster, ocm.Joined],
+    joined: tuple[cloud.CloudCluster, ocm.Joined], kube: Kube
 ) -> None:
     """A site client and a cloud client of the two Zenoh routers: each ping crosses the WAN
     and its answer back, so it costs the WAN's round trip; one sent during a cut is answered
@@ -274,7 +260,9 @@ def test_messages_cross_the_wan_between_the_routers_and_wait_out_a_cut(
             ping.put(b"hello")
             return got.wait(1.0)
 
-        _wait("a ping answered across the WAN (the routers' routes made)", answered_once, 30)
+        kube.wait_for(
+            "a ping answered across the WAN (the routers' routes made)", answered_once, 30
+        )
         rtts = []
         for i in range(20):
             got.clear()
@@ -313,17 +301,17 @@ def test_a_wan_cut_leaves_the_sites_work_running_and_it_catches_up_after(
                            "-o", "jsonpath={.data.placed-by}", check=False)  # fmt: skip
         return got.stdout if got.returncode == 0 else None
 
-    _wait("the ConfigMap on the site", lambda: site_value() == "the hub")
+    kube.wait_for("the ConfigMap on the site", lambda: site_value() == "the hub")
 
     def site_available() -> str | None:
         mc = json.loads(hub.kubectl("get", "managedcluster", "site", "-o", "json"))
-        return _conditions(mc).get("ManagedClusterConditionAvailable")
+        return condition_status(mc, "ManagedClusterConditionAvailable")
 
     cloud.set_wan(cloud.WanSettings(cut=True))
     try:
         t0 = time.monotonic()
         # OCM's rule: unavailable after 5 lease periods unrenewed (ocm.LEASE_SECONDS each)
-        _wait("the hub to lose the site", lambda: site_available() != "True",
+        kube.wait_for("the hub to lose the site", lambda: site_available() != "True",
               timeout=5 * ocm.LEASE_SECONDS + 60)  # fmt: skip
         lost = time.monotonic() - t0
         changed = _work("e2e-cut", "across-a-cut", namespace)
@@ -334,8 +322,8 @@ def test_a_wan_cut_leaves_the_sites_work_running_and_it_catches_up_after(
     finally:
         cloud.set_wan(cloud.WanSettings())
     t1 = time.monotonic()
-    _wait("the site Available again", lambda: site_available() == "True", timeout=120)
-    _wait("the change applied at the site", lambda: site_value() == "the hub, later", 120)
+    kube.wait_for("the site Available again", lambda: site_available() == "True", timeout=120)
+    kube.wait_for("the change applied at the site", lambda: site_value() == "the hub, later", 120)
     print(f"\nhub lost the site {lost:.0f}s into the cut; back {time.monotonic() - t1:.0f}s "
           "after it ended; the site's work ran on throughout")  # fmt: skip
     hub.kubectl("delete", "manifestwork", "e2e-cut", "-n", "site")
