@@ -53,7 +53,16 @@ LOCAL_SEARCH_SHARE = 0.9  # the levelling and the local search
 POLISH_SHARE = 0.97
 OVER_BUDGET = 1.1  # a search past this multiple of its budget says why in its reason
 
-__all__ = ["Clock", "Progress", "choose_plan", "exact_weights", "nsga2", "plan", "weights_of"]
+__all__ = [
+    "Clock",
+    "Progress",
+    "choose_plan",
+    "every_choice",
+    "exact_weights",
+    "nsga2",
+    "plan",
+    "weights_of",
+]
 
 Progress = Callable[[int, int], None]
 I64 = NDArray[np.int64]
@@ -123,6 +132,21 @@ def plan(
     )
 
 
+def every_choice(table: NDArray[np.int64], counts: NDArray[np.int64]) -> NDArray[np.int64]:
+    """Every combination of the genes' choices (gene ``g`` takes ``table[g, :counts[g]]``), the
+    first gene slowest: the rows ``np.meshgrid(..., indexing="ij")`` would give, for any number
+    of genes (numpy broadcasts at most 32 arrays, and a fleet whose instances each have one
+    node left, as when a cluster is cut off, has more genes than that)."""
+    total = int(np.prod(counts.astype(np.float64)))
+    rest = np.arange(total, dtype=np.int64)
+    out = np.empty((total, len(counts)), dtype=table.dtype)
+    for g in range(len(counts) - 1, -1, -1):
+        n = int(counts[g])
+        out[:, g] = table[g, rest % n]
+        rest //= n
+    return out
+
+
 def nsga2(
     problem: Problem,
     settings: SchedulerSettings,
@@ -168,8 +192,7 @@ def nsga2(
     if exhaustive:
         # A search space this small is cheaper to enumerate than to evolve (pymoo's mating
         # loop would spin on duplicates), and the front is then exact.
-        axes = [pp.table[g, : pp.counts[g]] for g in range(pp.n_var)]
-        X = np.stack([a.ravel() for a in np.meshgrid(*axes, indexing="ij")], axis=1)
+        X = every_choice(pp.table, pp.counts)
         generations, n_eval, stop = settings.generations, len(X), Stop.EXHAUSTIVE
         local_search = False
     else:
