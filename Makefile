@@ -118,12 +118,12 @@ $(CHECKOV_VENV)/bin/checkov:
 	$(PY) -m venv $(CHECKOV_VENV)
 	$(CHECKOV_VENV)/bin/pip install -q checkov==$(CHECKOV_VERSION)
 
-checkov: venv $(CHECKOV_VENV)/bin/checkov ## checkov (offline) over manifests/install, the rendered chart and the rendered warehouse and split-network Deployments
+checkov: venv $(CHECKOV_VENV)/bin/checkov ## checkov (offline) over manifests/install, manifests/ocm-hub, the rendered chart and the rendered warehouse and split-network Deployments
 	@d=$$(mktemp -d); trap 'rm -rf "$$d"' EXIT; set -e; \
 	$(BIN)/python e2e/bed/harness.py helm template fogfleet charts/fogfleet -n fogfleet-system > "$$d/chart.yaml"; \
 	mkdir "$$d/rendered"; $(BIN)/fogfleet render manifests/examples/warehouse > "$$d/rendered/warehouse.yaml"; \
 	$(BIN)/fogfleet render manifests/examples/split-network > "$$d/rendered/split-network.yaml"; \
-	for target in manifests/install "$$d/chart.yaml"; do \
+	for target in manifests/install manifests/ocm-hub "$$d/chart.yaml"; do \
 	  echo "checkov: $$target"; \
 	  if [ -d "$$target" ]; then $(CHECKOV) -d "$$target"; else $(CHECKOV) -f "$$target"; fi; \
 	done; \

@@ -29,7 +29,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Protocol
 
-from e2e.bed.base import BIN_DIR, HOST, TOOLS_DIR, HarnessError, free_port, log, wait_for
+from e2e.bed.base import BIN_DIR, HOST, REPO_ROOT, TOOLS_DIR, HarnessError, free_port, log, wait_for
 from e2e.bed.base import kubectl as run_kubectl
 from e2e.bed.cloud import CLOUD_DIR, CloudCluster
 from e2e.bed.cluster import condition_status
@@ -77,6 +77,8 @@ BOOTSTRAP_NAMESPACE = "open-cluster-management"
 BOOTSTRAP_SA = "agent-registration-bootstrap"
 BOOTSTRAP_ROLE = "open-cluster-management:bootstrap"
 JOIN_TIMEOUT_S = 120
+HUB_RBAC = REPO_ROOT / "manifests" / "ocm-hub" / "rbac.yaml"  # what a site's operator may do there
+SITE_ACCOUNT = ("fogfleet-hub", "fogfleet-site")  # its ServiceAccount there
 # how often an agent renews its ManagedCluster's Lease; the hub calls a cluster unavailable
 # after 5 of them unrenewed (OCM's rule), so 10 s here: 50 s
 LEASE_SECONDS = 10
@@ -155,17 +157,36 @@ def _bootstrap_kubeconfigs(cloud: CloudCluster, manifests: Path) -> dict[str, Pa
     token = _kubectl(
         kc, "create", "token", BOOTSTRAP_SA, "-n", BOOTSTRAP_NAMESPACE, "--duration=24h"
     ).strip()
-    paths = {}
-    for cluster, server in (("site", cloud.from_site), ("cloud", cloud.api_server)):
-        cfg = json.loads(kc.read_text())
-        cfg["users"] = [{"name": BOOTSTRAP_SA, "user": {"token": token}}]
-        cfg["contexts"][0]["context"]["user"] = BOOTSTRAP_SA
-        cfg["clusters"][0]["cluster"]["server"] = server
-        path = paths[cluster] = CLOUD_DIR / "ocm" / f"bootstrap-{cluster}.kubeconfig"
-        path.parent.mkdir(parents=True, exist_ok=True)
-        path.write_text(json.dumps(cfg, indent=1) + "\n")
-        path.chmod(0o600)
-    return paths
+    return {
+        cluster: _token_kubeconfig(cloud, BOOTSTRAP_SA, token, server, f"bootstrap-{cluster}")
+        for cluster, server in (("site", cloud.from_site), ("cloud", cloud.api_server))
+    }
+
+
+def _token_kubeconfig(cloud: CloudCluster, user: str, token: str, server: str, name: str) -> Path:
+    """A kubeconfig of the hub as ``user`` with ``token``, naming it at ``server``."""
+    cfg = json.loads(cloud.kubeconfig.read_text())
+    cfg["users"] = [{"name": user, "user": {"token": token}}]
+    cfg["contexts"][0]["context"]["user"] = user
+    cfg["clusters"][0]["cluster"]["server"] = server
+    path = CLOUD_DIR / "ocm" / f"{name}.kubeconfig"
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(cfg, indent=1) + "\n")
+    path.chmod(0o600)
+    return path
+
+
+def site_operator_kubeconfig(cloud: CloudCluster) -> Path:
+    """The hub kubeconfig the site's fogfleet operator gets (FOGFLEET_HUB_KUBECONFIG): the
+    ServiceAccount of ``manifests/ocm-hub/rbac.yaml``, applied as a user applies it, naming
+    the hub across the WAN. It reads ManagedClusters and writes ManifestWorks in the cloud's
+    namespace, and nothing else."""
+    namespace, account = SITE_ACCOUNT
+    _kubectl(cloud.kubeconfig, "apply", "-f", str(HUB_RBAC))
+    token = _kubectl(
+        cloud.kubeconfig, "create", "token", account, "-n", namespace, "--duration=24h"
+    ).strip()
+    return _token_kubeconfig(cloud, account, token, cloud.from_site, "site-operator")
 
 
 def _argv(

@@ -18,6 +18,7 @@ import threading
 import time
 import urllib.parse
 from collections.abc import Iterator
+from pathlib import Path
 from typing import Any
 
 import pytest
@@ -30,6 +31,7 @@ from e2e.bed.cluster import condition_status
 from e2e.bed.fakenodes import SIMULATED_TAINT
 from e2e.bed.harness import Cluster
 from e2e.bed.kube import Kube
+from e2e.bed.operator_fixtures import Operator, example_in, fleet, wait_ready
 
 pytestmark = [
     pytest.mark.e2e,
@@ -346,3 +348,171 @@ def test_an_agents_hub_credentials_reach_its_own_cluster_only(
     assert can("get", "manifestworks", "cloud") == "no"
     assert can("create", "manifestworks", "site") == "no"  # only the hub's users write work
     assert can("get", "secrets", "cloud") == "no"
+
+
+# ---------------------------------------------------------------- fogfleet places into the cloud
+CLOUD_NODE = "e2e-cloud"  # the ComputeNode that stands for the cloud cluster
+SITE_NAME = "site"  # the site's ManagedCluster name: what the operator labels its works with
+MODULE_DEFAULTS = {
+    "template": {"image": "ghcr.io/fogfleet/ros2-module:0.1.0", "imagePullPolicy": "Never"},
+    "cycleTimeMillis": 1000,
+    "activationPercent": 100,
+}
+
+
+def _module(namespace: str, name: str, **spec: Any) -> dict[str, Any]:
+    return {
+        "apiVersion": "fogfleet.io/v1alpha1",
+        "kind": "SoftwareModule",
+        "metadata": {"name": name, "namespace": namespace},
+        "spec": {**MODULE_DEFAULTS, **spec},
+    }
+
+
+def _cloud_fleet(namespace: str) -> list[dict[str, Any]]:
+    """One bed robot and the cloud cluster as a ComputeNode; a mapping module too large for
+    the robot (2 cores), a localisation that reads the robot's lidar, and a recorder whose
+    data may not leave the robot (minPrivacy 2: the cloud's privacy level is 0)."""
+    robot = next(
+        d for d in example_in("warehouse-lite", namespace) if d["metadata"]["name"] == "bed-robot-1"
+    )
+    robot["metadata"].pop("labels", None)
+    cloud_node = {
+        "apiVersion": "fogfleet.io/v1alpha1",
+        "kind": "ComputeNode",
+        "metadata": {"name": CLOUD_NODE},
+        "spec": {
+            "tier": "cloud",
+            "hardwareType": "cloud-vm",
+            "managedCluster": "cloud",
+            "costPerCoreHour": 0.05,
+            "network": [{"type": "wan", "latencyMillis": 20, "bandwidthMbps": 50}],
+        },
+    }
+    light = {"executionPattern": "periodic", "realtime": "none", "safety": "irrelevant"}
+    modules = [
+        _module(
+            namespace, "localization",
+            taxonomy={"executionPattern": "continuous", "realtime": "soft", "safety": "relevant"},
+            resources={"cpu": "20m", "memory": "128Mi"},
+            requirements={"devices": ["lidar"]},
+            profile=[{"hardwareType": "default", "cpu": "50m", "meanMillis": 20, "stdMillis": 2}],
+            topics={"publishes": [{"name": "pose", "sizeBytes": "1Ki", "rateHz": 1}]},
+        ),
+        _module(
+            namespace, "mapping",
+            taxonomy=light,
+            resources={"cpu": "2", "memory": "256Mi"},
+            profile=[{"hardwareType": "default", "cpu": "2", "meanMillis": 300, "stdMillis": 20}],
+            topics={"subscribes": [{"name": "pose", "sizeBytes": "1Ki", "rateHz": 1}]},
+        ),
+        _module(
+            namespace, "private-recorder",
+            taxonomy=light,
+            resources={"cpu": "10m", "memory": "64Mi"},
+            requirements={"minPrivacy": 2},
+            profile=[{"hardwareType": "default", "cpu": "20m", "meanMillis": 50, "stdMillis": 5}],
+            topics={"subscribes": [{"name": "pose", "sizeBytes": "1Ki", "rateHz": 1}]},
+        ),
+    ]  # fmt: skip
+    fleet = {
+        "apiVersion": "fogfleet.io/v1alpha1",
+        "kind": "RobotFleet",
+        "metadata": {"name": "mapped", "namespace": namespace},
+        "spec": {
+            "robots": ["bed-robot-1"],
+            "nodes": [CLOUD_NODE],
+            "modules": [{"name": m["metadata"]["name"]} for m in modules],
+            "scheduler": {"algorithm": "nsga2", "seed": 1},
+        },
+    }
+    return [robot, cloud_node, *modules, fleet]
+
+
+@pytest.fixture
+def site_operator(
+    joined: tuple[cloud.CloudCluster, ocm.Joined],
+    kube: Kube,
+    crds: None,
+    namespace: str,
+    tmp_path: Path,
+    diagnostics: list[Any],
+) -> Iterator[Operator]:
+    """``fogfleet run`` at the site with the hub's kubeconfig of ``manifests/ocm-hub`` (across
+    the WAN) and none of the cloud cluster's."""
+    hub, _ = joined
+    env = {
+        "FOGFLEET_HUB_KUBECONFIG": str(ocm.site_operator_kubeconfig(hub)),
+        "FOGFLEET_CLUSTER_NAME": SITE_NAME,
+    }
+    op = Operator(kube.kubeconfig, [namespace], tmp_path / "operator.log", env)
+    diagnostics.append(lambda: ("operator log", op.logs(150)))
+    op.start().wait_live()
+    yield op
+    kube.kubectl("delete", "robotfleets", "--all", "-n", namespace, "--wait=true",
+                 "--timeout=60s", check=False, timeout=90)  # fmt: skip
+    kube.kubectl("delete", "computenode", CLOUD_NODE, "--ignore-not-found", check=False)
+    op.stop()
+
+
+def _works(hub: cloud.CloudCluster, namespace: str) -> list[dict[str, Any]]:
+    """The works the site's operator wrote on the hub for ``namespace``, in every cluster."""
+    selector = f"fogfleet.io/site={SITE_NAME},fogfleet.io/namespace={namespace}"
+    found = hub.kubectl("get", "manifestworks", "-A", "-o", "json", "-l", selector)
+    items: list[dict[str, Any]] = json.loads(found)["items"]
+    return items
+
+
+def _cloud_pods(hub: cloud.CloudCluster, namespace: str) -> list[dict[str, Any]]:
+    found = hub.kubectl("get", "pods", "-n", namespace, "-o", "json", check=False)
+    return json.loads(found)["items"] if found else []
+
+
+def test_a_module_too_large_for_the_site_runs_in_the_cloud_and_goes_with_its_fleet(
+    joined: tuple[cloud.CloudCluster, ocm.Joined],
+    kube: Kube,
+    namespace: str,
+    site_operator: Operator,
+) -> None:
+    hub, _ = joined
+    applied = time.monotonic()
+    kube.apply(_cloud_fleet(namespace))
+    wait_ready(kube, namespace, "mapped", timeout=240)
+    ready = time.monotonic() - applied
+
+    # the plan: mapping in the cloud; the lidar reader and the private recorder on the robot
+    placement = {
+        p["module"]: p["node"] for p in fleet(kube, namespace, "mapped")["status"]["placement"]
+    }
+    assert placement == {"localization": "bed-robot-1", "mapping": CLOUD_NODE,
+                         "private-recorder": "bed-robot-1"}, placement  # fmt: skip
+    # Ready from OCM's feedback alone: the operator has no credentials of the cloud cluster
+    works = _works(hub, namespace)
+    assert [w["metadata"]["namespace"] for w in works] == ["cloud"], works
+    carried = [m for w in works for m in w["spec"]["workload"]["manifests"]]
+    modules = {m["metadata"].get("labels", {}).get("fogfleet.io/module") for m in carried}
+    assert modules == {None, "mapping"}, modules  # the namespace, and mapping's Deployment
+    assert "private-recorder" not in json.dumps(works)  # privacy: never in a ManifestWork
+    there = json.loads(hub.kubectl("get", "deployments", "-n", namespace, "-o", "json"))["items"]
+    # owned there by OCM's record of the work, not by the RobotFleet (not in that cluster)
+    owners = [[r["kind"] for r in d["metadata"].get("ownerReferences", [])] for d in there]
+    assert owners == [["AppliedManifestWork"]], owners
+    assert there[0]["status"].get("availableReplicas") == 1
+    pods = _cloud_pods(hub, namespace)
+    assert [p["spec"]["nodeName"] in cloud.NODES for p in pods] == [True], pods
+    site_mapping = kube.kubectl("get", "deployments", "-n", namespace, "-l",
+                                "fogfleet.io/module=mapping", "-o", "name")  # fmt: skip
+    assert not site_mapping.stdout.strip()
+    node = kube.kubectl_json("get", "computenode", CLOUD_NODE)
+    assert condition_status(node, "Ready") == "True", node.get("status")
+    assert node["status"]["allocatableCpu"] == str(cloud.NODE_CPU * len(cloud.NODES))
+
+    # the fleet's deletion removes the cloud's pods (issue 47: within 30 s)
+    started = time.monotonic()
+    kube.kubectl("delete", "robotfleet", "mapped", "-n", namespace, "--wait=false")
+    kube.wait_for("the cloud's pods gone", lambda: not _cloud_pods(hub, namespace), timeout=60)
+    gone = time.monotonic() - started
+    assert gone <= 30.0, f"the cloud's pods went {gone:.1f}s after the fleet's deletion"
+    assert _works(hub, namespace) == []
+    print(f"\nReady {ready:.1f}s after the apply, from OCM's feedback; the cloud's pods gone "
+          f"{gone:.1f}s after the fleet")  # fmt: skip

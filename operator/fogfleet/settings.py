@@ -11,7 +11,7 @@ import secrets
 import socket
 from typing import Annotated, Literal
 
-from pydantic import Field, field_validator
+from pydantic import Field, field_validator, model_validator
 from pydantic_settings import BaseSettings, NoDecode, SettingsConfigDict
 
 __all__ = ["Settings", "settings_help"]
@@ -113,6 +113,17 @@ class Settings(BaseSettings):
     lease_seconds: Annotated[int, Field(ge=3, le=300)] = Field(
         15, description="lease duration: a dead leader is replaced within this + 2 s"
     )
+    hub_kubeconfig: str | None = Field(
+        None,
+        description="kubeconfig of the Open Cluster Management hub: instances planned onto a "
+        "ComputeNode with spec.managedCluster run there through ManifestWorks (unset: such "
+        "nodes are unavailable)",
+    )
+    cluster_name: str | None = Field(
+        None,
+        description="this cluster's name among the hub's ManagedClusters, labelled on the "
+        "ManifestWorks it writes (needed with HUB_KUBECONFIG)",
+    )
 
     def scheduler_defaults(self) -> dict[str, int]:
         """Scheduler fields (SchedulerSettings names) that fleets inherit when they omit them."""
@@ -122,6 +133,15 @@ class Settings(BaseSettings):
             "time_budget_millis": self.scheduler_time_budget_millis,
         }
         return {k: v for k, v in pairs.items() if v is not None}
+
+    @model_validator(mode="after")
+    def _hub_needs_a_name(self) -> Settings:
+        if self.hub_kubeconfig and not self.cluster_name:
+            raise ValueError(
+                "FOGFLEET_CLUSTER_NAME: needed with FOGFLEET_HUB_KUBECONFIG (this cluster's "
+                "ManagedCluster name on the hub)"
+            )
+        return self
 
     @field_validator("namespaces", mode="before")
     @classmethod

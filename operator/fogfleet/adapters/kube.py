@@ -120,6 +120,9 @@ class KubeClient:
         metrics: ClientMetrics | None = None,
     ) -> None:
         self.api = api
+        self.timeout: tuple[float, float] = (
+            TIMEOUT  # (connect, read) seconds of each request but a watch
+        )
         self.manager = manager
         self.instance = instance
         self.metrics = metrics
@@ -159,7 +162,13 @@ class KubeClient:
         accept: str = JSON,
     ) -> Obj | None:
         resp = self._request(
-            method, path, query=query, body=body, content_type=content_type, accept=accept
+            method,
+            path,
+            query=query,
+            body=body,
+            content_type=content_type,
+            accept=accept,
+            timeout=self.timeout,
         )
         data = resp.read()
         if resp.status == 404 and missing_ok:

@@ -14,6 +14,7 @@ from typing import Any, Protocol
 
 __all__ = [
     "ClientMetrics",
+    "HubPort",
     "KubePort",
     "Listener",
     "MetricsPort",
@@ -173,6 +174,19 @@ class MetricsPort(Protocol):
     def set_queue_depth(self, name: str, depth: int) -> None: ...
 
     def count_queue_add(self, name: str, retry: bool = False) -> None: ...
+
+
+class HubPort(Protocol):
+    """An Open Cluster Management hub (adapters.hub): its ManagedClusters, and the
+    ManifestWorks the operator writes in a cluster's namespace there."""
+
+    def list_managed_clusters(self) -> list[Obj]: ...
+
+    def list_works(self, cluster: str, selector: Mapping[str, str]) -> list[Obj]: ...
+
+    def apply_work(self, body: Obj) -> Obj: ...
+
+    def delete_work(self, cluster: str, name: str) -> None: ...
 
 
 class ClientMetrics(Protocol):

@@ -7,6 +7,7 @@ reconcile must remember without a status field (which plan, which spec, the scal
 from __future__ import annotations
 
 __all__ = [
+    "ANNOTATION_MANAGED_CLUSTER",
     "ANNOTATION_MODULE",
     "ANNOTATION_NODE",
     "ANNOTATION_PLAN",
@@ -28,6 +29,8 @@ __all__ = [
     "LABEL_PROFILE_HARDWARE",
     "LABEL_PROFILE_SPEC",
     "LABEL_ROBOT",
+    "LABEL_SITE",
+    "LABEL_SITE_NAMESPACE",
     "LABEL_TIER",
     "MANAGER",
     "ROLE_REMOTE",
@@ -71,6 +74,14 @@ ROLE_STANDBY, ROLE_REMOTE = "standby", "remote"
 """Values of ``ANNOTATION_ROLE``: an offloaded instance with an on-board fallback (``remote``)
 and its standby on the robot (``standby``, which its Deployment's name also says)."""
 ANNOTATION_SPEC_HASH = "fogfleet.io/spec-hash"
+ANNOTATION_MANAGED_CLUSTER = "fogfleet.io/managed-cluster"
+"""On a ManifestWork the operator writes on an OCM hub (and the Deployment read back from it):
+the managed cluster it runs in (render.manifestwork)."""
+LABEL_SITE = "fogfleet.io/site"
+"""On the ManifestWorks a site's operator writes on the hub: the site (FOGFLEET_CLUSTER_NAME),
+so that several sites share one hub."""
+LABEL_SITE_NAMESPACE = "fogfleet.io/namespace"
+"""On those ManifestWorks: the site namespace of the fleet they belong to."""
 ANNOTATION_SCALER_STATE = "fogfleet.io/scaler-state"
 
 HOSTNAME_KEY = "kubernetes.io/hostname"

@@ -10,15 +10,24 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any, Protocol
 
-from fogfleet.adapters.ports import KubePort, MetricsPort, NullMetrics, Watches
+from fogfleet.adapters.ports import HubPort, KubePort, MetricsPort, NullMetrics, Watches
 from fogfleet.adapters.prometheus import PrometheusPort
 from fogfleet.controllers.monitoring import Monitoring
 from fogfleet.controllers.state import FleetStore
 from fogfleet.scheduling.decision import CorePlanner, Planner
 
-__all__ = ["Deps", "ScalingDeps", "ScalingKube"]
+__all__ = ["Deps", "Hub", "ScalingDeps", "ScalingKube"]
 
 Obj = dict[str, Any]
+
+
+@dataclass(frozen=True)
+class Hub:
+    """The Open Cluster Management hub the operator places managed clusters' instances
+    through, and the name of its own cluster there (docs/multicluster.md)."""
+
+    port: HubPort
+    site: str
 
 
 @dataclass
@@ -40,6 +49,8 @@ class Deps:
     planning: threading.Lock = field(default_factory=threading.Lock)
     # the operator's Prometheus as every fleet's Monitored condition tells it (none by default)
     monitoring: Monitoring = field(default_factory=Monitoring)
+    # the OCM hub, for ComputeNodes with spec.managedCluster (None: such nodes are unavailable)
+    hub: Hub | None = None
 
 
 class ScalingKube(Protocol):

@@ -190,6 +190,9 @@ class FleetState:
     # Kubernetes Node -> why it is unavailable, as the last full pass saw the fleet's nodes
     # (node_events.py: a cache, so a restarted operator reports a node still down once more)
     unavailable: dict[str, str] = field(default_factory=dict)
+    # its Deployments in managed clusters as last read from the OCM hub (kept while the hub
+    # cannot be read: controllers/fleet/clusters.py)
+    remote: list[Obj] = field(default_factory=list)
 
 
 class FleetStore:

@@ -17,6 +17,7 @@ from fogfleet.api.timestamps import timestamp
 from fogfleet.api.v1alpha1.common import Condition
 from fogfleet.domain.miss_rates import format_miss_rate
 from fogfleet.render.deployments import hash_annotation
+from fogfleet.render.manifestwork import managed_cluster_of
 from fogfleet.snapshot.objects import scaling_status
 
 __all__ = [
@@ -189,7 +190,8 @@ def rollout(desired: Sequence[Obj], deployments: Sequence[Obj], pods: Sequence[O
 
     A module is settled when it runs only on its planned nodes and either a ready pod carries
     the desired spec hash (rendered into the pod template) or its Deployment reports the
-    desired spec rolled out (pods from before the hash was on pods)."""
+    desired spec rolled out (pods from before the hash was on pods). One in a managed cluster
+    (read back from its ManifestWork) is settled when the work's feedback says so."""
     by_name = {d["metadata"]["name"]: d for d in deployments}
     running: dict[str, list[str]] = {}
     current: dict[str, set[str]] = {}  # instance -> nodes of ready pods of the desired spec
@@ -208,6 +210,14 @@ def rollout(desired: Sequence[Obj], deployments: Sequence[Obj], pods: Sequence[O
         have = by_name.get(name)
         nodes = running.get(name, [])
         allowed = set(affinity_nodes(want))
+        if have is not None and managed_cluster_of(have):
+            # in a managed cluster: no pod here; its work's feedback is its rollout
+            if _deployment_done(have, wanted[name]):
+                out.settled.append(name)
+                out.bound[name] = min(allowed, default="")
+            else:
+                out.waiting.append(name)
+            continue
         good = [n for n in nodes if n in allowed]
         if good:
             out.bound[name] = good[0]

@@ -66,6 +66,7 @@ __all__ = [
     "robot_network_policy_name",
     "scaled_object_name",
     "shared_network_policy_name",
+    "work_name",
 ]
 
 
@@ -133,6 +134,13 @@ def deployment_name(fleet: str, inst: Instance, role: str = "") -> str:
     if standby:
         identity += (ROLE_STANDBY,)
     return _hashed(parts, ROLE_STANDBY if standby else "", identity, DEPLOYMENT)
+
+
+def work_name(site: str, namespace: str, deployment: str) -> str:
+    """The ManifestWork that runs a module's Deployment in a managed cluster, in the hub's
+    namespace of that cluster (render.manifestwork): ``<namespace>-<deployment>-<hash8>``,
+    hashed with the site so that several sites' works of one namespace never meet."""
+    return _hashed((namespace, deployment), "", (site, namespace, deployment), LABELLED)
 
 
 def discovery_service_name(fleet: str, robot: str) -> str:

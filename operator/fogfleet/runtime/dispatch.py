@@ -19,6 +19,7 @@ from typing import Any, TypeVar
 
 from fogfleet.api.labels import LABEL_FLEET, LABEL_INSTANCE
 from fogfleet.controllers.deps import Deps
+from fogfleet.controllers.fleet.clusters import delete_remote
 from fogfleet.controllers.fleet.reconcile import reconcile
 from fogfleet.controllers.measure.links import LinkDeps, measure_links
 from fogfleet.controllers.measure.observed import ObservedDeps, observe
@@ -266,13 +267,15 @@ class Runtime:
         return await self.queue.run_now((namespace, name))
 
     async def delete_fleet(self, namespace: str, name: str) -> None:
-        """Delete the fleet's Deployments now (the garbage collector would, via ownerReferences)."""
+        """Delete the fleet's Deployments now (the garbage collector would, via ownerReferences),
+        and its ManifestWorks on the OCM hub (which nothing else deletes)."""
         self._forget((namespace, name))
         deps = await self.call(
             self.deps.kube.list_deployments, namespace, {LABEL_FLEET: label_value(name)}
         )
         for dep in deps:
             await self.call(self.deps.kube.delete_deployment, namespace, dep["metadata"]["name"])
+        await self.call(delete_remote, self.deps, namespace, label_value(name))
         self.usage_changed()
 
     # ------------------------------------------------------------------ related objects

@@ -14,12 +14,13 @@ from typing import Any
 
 import kopf
 
+from fogfleet.adapters.hub import hub_client
 from fogfleet.adapters.kube import KubeClient, load_config
 from fogfleet.adapters.leases import LeaseLock, LeaseSettings
 from fogfleet.adapters.metrics import PrometheusMetrics
 from fogfleet.adapters.prometheus import PrometheusClient
 from fogfleet.adapters.watched import WatchedKube
-from fogfleet.controllers.deps import Deps
+from fogfleet.controllers.deps import Deps, Hub
 from fogfleet.controllers.measure.links import LinkDeps
 from fogfleet.controllers.measure.observed import ObservedDeps
 from fogfleet.controllers.module.scaling import ScalingDeps
@@ -53,8 +54,17 @@ def build_runtime(settings: Settings, *, serve_metrics: bool = True) -> Runtime:
         api_concurrency=settings.api_concurrency,
         watches=watched,
         monitoring=Monitoring(settings.prometheus_url),
+        hub=_hub(settings, metrics),
     )
     return Runtime(deps, workers=settings.workers, debounce=settings.debounce_seconds)
+
+
+def _hub(settings: Settings, metrics: PrometheusMetrics) -> Hub | None:
+    """The OCM hub, when the operator has one (docs/multicluster.md)."""
+    if not settings.hub_kubeconfig or not settings.cluster_name:
+        return None
+    log.info("Managed clusters are reached through the OCM hub as %s", settings.cluster_name)
+    return Hub(hub_client(settings.hub_kubeconfig, metrics), settings.cluster_name)
 
 
 def _standby_health(settings: Settings) -> http.server.HTTPServer | None:

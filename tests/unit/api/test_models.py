@@ -410,3 +410,19 @@ def test_a_status_part_is_read_back_as_its_model_or_none_with_a_warning(caplog) 
     bad = {"status": {"profiling": {"runs": "not a list"}}}
     assert status_part(bad, "profiling", ProfilingStatus) is None
     assert "unreadable status.profiling" in caplog.text
+
+
+def test_a_managed_cluster_is_never_a_robot_and_has_no_node_name_of_its_own() -> None:
+    robot = _node()
+    robot["spec"]["managedCluster"] = "cloud"
+    err = _invalid(robot)
+    assert "managedCluster" in f"{err.field} {err.message}", err
+    cloud = _node()
+    cloud["spec"] = {"tier": "cloud", "hardwareType": "vm", "managedCluster": "cloud",
+                     "nodeName": "cloud-vm-1"}  # fmt: skip
+    err = _invalid(cloud)
+    assert "nodeName" in f"{err.field} {err.message}", err
+    del cloud["spec"]["nodeName"]
+    assert isinstance(parse_object(cloud), ComputeNode)
+    cloud["spec"]["managedCluster"] = "Not_A_Name"
+    assert "managedCluster" in _invalid(cloud).field

@@ -1,10 +1,10 @@
-"""The one apply engine (``controllers.fleet.apply.sync``): what it writes, keeps and prunes."""
+"""The one apply engine (``controllers.fleet.engine.sync``): what it writes, keeps and prunes."""
 
 from __future__ import annotations
 
 from typing import Any
 
-from fogfleet.controllers.fleet.apply import Kind, sync
+from fogfleet.controllers.fleet.engine import Kind, sync
 from fogfleet.render.deployments import with_spec_hash
 
 Obj = dict[str, Any]

@@ -17,6 +17,11 @@ from .base import FogModel, NonNegInt, Number, Quantity, refuse_duplicates
 from .common import Condition, Name, ObjectMeta, Tier
 from .rules import CrossFieldRule, enforce
 
+# a ManagedCluster's name: the namespace of its ManifestWorks on the hub (a DNS label)
+ClusterName = Annotated[
+    str, Field(min_length=1, max_length=63, pattern=r"^[a-z0-9]([-a-z0-9]*[a-z0-9])?$")
+]
+
 __all__ = [
     "ComputeNode",
     "ComputeNodeSpec",
@@ -123,6 +128,16 @@ class ComputeNodeSpec(FogModel):
             "power: only robot nodes have a battery model",
             lambda s: s.power is None or s.tier is Tier.ROBOT,
         ),
+        CrossFieldRule(
+            "!has(self.managedCluster) || self.tier != 'robot'",
+            "managedCluster: a robot's own computer is not a cluster of its own",
+            lambda s: s.managed_cluster is None or s.tier is not Tier.ROBOT,
+        ),
+        CrossFieldRule(
+            "!has(self.managedCluster) || !has(self.nodeName)",
+            "nodeName: a node that stands for a managed cluster has no Kubernetes Node here",
+            lambda s: s.managed_cluster is None or s.node_name is None,
+        ),
     )
 
     node_name: Name | None = Field(
@@ -156,6 +171,12 @@ class ComputeNodeSpec(FogModel):
     """Battery and power model of a robot (robot nodes only; the energy objective)."""
     network: list[NetworkLink] = Field(default_factory=list, max_length=8)
     """The node's uplinks; the first is the one the planner uses (at most 8)."""
+    managed_cluster: ClusterName | None = None
+    """An Open Cluster Management ManagedCluster this node stands for: a cluster of its own
+    (a cloud), reached over the WAN. The operator places the instances planned here through
+    ManifestWorks on the OCM hub (FOGFLEET_HUB_KUBECONFIG) and reads their readiness back from
+    the works' status feedback; capacity (when omitted) is the ManagedCluster's allocatable,
+    and the node is available while the ManagedCluster is (docs/multicluster.md)."""
 
     @property
     def privacy(self) -> int:

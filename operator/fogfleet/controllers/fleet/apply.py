@@ -1,93 +1,28 @@
-"""The one apply engine: every object the fleet's reconcile writes (the modules' Deployments,
-the robots' discovery Services and Deployments, the fleet's NetworkPolicies) goes through
-``sync``: compare spec hashes, server-side apply what changed, prune what is no longer
-wanted, in parallel (``controllers.parallel``).
-
-The steps: ``apply_services`` (the discovery Services first: their cluster IPs go into every
-module's ``ROS_DISCOVERY_SERVER``, ``render.wiring``) and ``apply_step`` (the discovery
-servers, the NetworkPolicies, then the modules' Deployments, keeping what a node that is down
-still runs).
+"""The apply steps, through the one apply engine (``engine.sync``): ``apply_services`` (the
+discovery Services first: their cluster IPs go into every module's ``ROS_DISCOVERY_SERVER``,
+``render.wiring``) and ``apply_step`` (the discovery servers, the NetworkPolicies, then the
+modules' Deployments, at the site or, for a node that stands for a managed cluster, as
+ManifestWorks on the OCM hub (``clusters``), keeping what a node that is down still runs).
 """
 
 from __future__ import annotations
 
-import functools
-from collections.abc import Callable, Iterable, Mapping
-from dataclasses import dataclass
+from collections.abc import Mapping
 from typing import Any
 
 from fogfleet.api.labels import ANNOTATION_ROBOT, ANNOTATION_ROLE
 from fogfleet.controllers.deps import Deps
-from fogfleet.controllers.parallel import run_all
+from fogfleet.controllers.fleet.clusters import split_remote, sync_remote
+from fogfleet.controllers.fleet.engine import Kind, sync
 from fogfleet.domain.problem import Problem
-from fogfleet.render.deployments import ROLE_STANDBY, hash_annotation, identity_of
+from fogfleet.render.deployments import ROLE_STANDBY, identity_of
+from fogfleet.render.manifestwork import managed_cluster_of
 from fogfleet.render.ros import RosWiring
 from fogfleet.render.wiring import RosObjects, is_ros_object
 
-__all__ = ["Kind", "Synced", "apply_services", "apply_step", "owned", "sync"]
+__all__ = ["apply_services", "apply_step"]
 
 Obj = dict[str, Any]
-
-
-@dataclass(frozen=True)
-class Kind:
-    """How the engine writes one kind: the API calls, and when an object there, whose spec
-    hash is the wanted one, is complete (a Service once its cluster IP is allocated)."""
-
-    apply: Callable[[Obj], Obj]
-    delete: Callable[[str, str], None]
-    complete: Callable[[Mapping[str, Any]], bool] = lambda _obj: True
-
-
-@dataclass(frozen=True)
-class Synced:
-    """What ``sync`` did, and each wanted object as the cluster stores it now."""
-
-    stored: Mapping[str, Obj]  # name -> the object there (unchanged) or as applied
-    applied: int
-    pruned: int
-
-
-def _name(obj: Mapping[str, Any]) -> str:
-    return str(obj["metadata"]["name"])
-
-
-def sync(
-    kind: Kind,
-    namespace: str,
-    desired: Iterable[Obj],
-    there: Iterable[Obj],
-    concurrency: int,
-    keep: Callable[[Obj], bool] = lambda _obj: False,
-) -> Synced:
-    """Make the objects ``there`` (the fleet's, of one kind) what ``desired`` says: apply each
-    desired object whose spec hash differs from the one there (or that is not complete yet),
-    delete each one there that is not desired, unless ``keep`` says to leave it."""
-    have = {_name(o): o for o in there}
-    wanted = {_name(d): d for d in desired}
-    stored: dict[str, Obj] = {}
-    changed = []
-    for name, body in wanted.items():
-        old = have.get(name)
-        if old is not None and hash_annotation(old) == hash_annotation(body) and kind.complete(old):
-            stored[name] = old
-        else:
-            changed.append(body)
-
-    def write(body: Obj) -> None:
-        result = kind.apply(body)
-        stored[_name(body)] = result if result and result.get("spec") else body
-
-    stale = [n for n, o in have.items() if n not in wanted and not keep(o)]
-    run_all([functools.partial(write, body) for body in changed], concurrency)
-    run_all([functools.partial(kind.delete, namespace, n) for n in stale], concurrency)
-    return Synced(stored, len(changed), len(stale))
-
-
-def owned(dep: Obj, uid: str | None) -> bool:
-    """Whether the fleet of ``uid`` owns ``dep`` (or either says nothing)."""
-    refs = (dep.get("metadata") or {}).get("ownerReferences") or []
-    return not uid or not refs or any(r.get("uid") == uid for r in refs)
 
 
 def _standby_of(deployment: Obj, robots: set[str]) -> bool:
@@ -124,11 +59,15 @@ def apply_step(
     stranded: frozenset[int],
     objects: RosObjects | None,
     selector: Mapping[str, str],
+    clusters: Mapping[str, str],
+    hub_error: str = "",
 ) -> tuple[int, int]:
     """Apply the fleet's discovery servers and NetworkPolicies (``objects``; ``selector``
     picks the fleet's own policies, the only ones pruned), then its modules' Deployments
-    (``desired``) against ``listed`` (the fleet's Deployments); count what changed of the
-    modules' (applied, pruned)."""
+    (``desired``) against ``listed`` (the fleet's Deployments, those in managed clusters read
+    back from the hub): at the site, or as ManifestWorks for those bound to a node that
+    stands for a managed cluster (``clusters``: node -> cluster; none written while the hub
+    does not answer, ``hub_error``); count what changed of the modules' (applied, pruned)."""
     kube, n = deps.kube, deps.api_concurrency
     deployments = Kind(kube.apply_deployment, kube.delete_deployment)
     if objects is not None:
@@ -149,7 +88,12 @@ def apply_step(
         return identity_of(dep) in idents or _standby_of(dep, down)
 
     modules = [d for d in listed if not is_ros_object(d)]
-    synced = sync(deployments, namespace, desired, modules, n, keep=kept)
-    if synced.applied or synced.pruned:
-        deps.metrics.count_apply(fleet, synced.applied, synced.pruned)
-    return synced.applied, synced.pruned
+    here, remote = split_remote(desired, clusters)
+    there = [d for d in modules if managed_cluster_of(d)]
+    at_site = [d for d in modules if not managed_cluster_of(d)]
+    synced = sync(deployments, namespace, here, at_site, n, kept)
+    far = sync_remote(deps, namespace, remote, there, kept, hub_error)
+    applied, pruned = synced.applied + far[0], synced.pruned + far[1]
+    if applied or pruned:
+        deps.metrics.count_apply(fleet, applied, pruned)
+    return applied, pruned

@@ -18,7 +18,8 @@ from fogfleet.api.loader import Catalog
 from fogfleet.api.v1alpha1.robotfleet import RobotFleet
 from fogfleet.api.v1alpha1.softwaremodule import SoftwareModule
 from fogfleet.controllers.deps import Deps
-from fogfleet.controllers.fleet.apply import owned
+from fogfleet.controllers.fleet.clusters import hub_nodes, remote_deployments
+from fogfleet.controllers.fleet.engine import owned
 from fogfleet.controllers.fleet.tenancy import claims_in
 from fogfleet.controllers.stamp import input_stamp
 from fogfleet.controllers.state import FleetKey, FleetState, References, fleet_key
@@ -108,6 +109,7 @@ class FleetInputs:
     corrections: dict[tuple[str, str], Learnt]  # profiles corrected by what ran
     held: Mapping[str, Held]  # Node -> what other tenants hold there (controllers/fleet/tenancy)
     stamp: tuple[Any, ...]
+    hub_error: str = ""  # why the OCM hub was not read ("": it was, or no node needs it)
 
     @property
     def deployments(self) -> list[Obj]:
@@ -121,11 +123,14 @@ def observe(deps: Deps, state: FleetState, obj: FleetObject, fleet: RobotFleet) 
     ns = obj.key[0]
     raw_modules = kube.list_modules(ns)
     compute_nodes, nodes = kube.list_compute_nodes(), kube.list_nodes()
+    # a ComputeNode that stands for a managed cluster: its Node is what the hub says of it
+    far, hub_error = hub_nodes(deps, compute_nodes)
+    nodes = [*nodes, *far]
     # a robot's link measured worse than declared is planned with the measured figures
     measured = planned_links(state.links.robots)
     corrections = profile_corrections(raw_modules)
     inputs = FleetInputs(
-        obj, fleet, [], raw_modules, compute_nodes, nodes, measured, corrections, {}, ()
+        obj, fleet, [], raw_modules, compute_nodes, nodes, measured, corrections, {}, (), hub_error
     )
     return relisted(deps, state, with_held_now(deps, state, inputs))
 
@@ -139,9 +144,14 @@ def with_held_now(deps: Deps, state: FleetState, inputs: FleetInputs) -> FleetIn
 
 def relisted(deps: Deps, state: FleetState, inputs: FleetInputs) -> FleetInputs:
     """``inputs`` with the fleet's Deployments listed again (after an apply: what the next
-    stamp sees), and its stamp."""
+    stamp sees), those in managed clusters read back from the hub, and its stamp."""
     obj = inputs.obj
     listed = [d for d in deps.kube.list_deployments(obj.key[0], obj.selector) if owned(d, obj.uid)]
+    label = obj.selector[LABEL_FLEET]
+    remote, hub_error = remote_deployments(
+        deps, state, inputs.compute_nodes, obj.key[0], label, inputs.hub_error
+    )
+    listed += remote
     fleet_meta = {"metadata": {"uid": obj.uid, "generation": obj.generation}}
     stamp = (
         *input_stamp(
@@ -156,7 +166,7 @@ def relisted(deps: Deps, state: FleetState, inputs: FleetInputs) -> FleetInputs:
         (tuple(sorted(inputs.corrections.items())), profiled(inputs.raw_modules)),
         held_signature(inputs.held, state.references.nodes if state.references else None),
     )
-    return replace(inputs, listed=listed, stamp=stamp)
+    return replace(inputs, listed=listed, stamp=stamp, hub_error=hub_error)
 
 
 @dataclass(frozen=True)

@@ -61,6 +61,7 @@ from fogfleet.controllers.stamp import RESYNC_MAX_DEFER_SECONDS, resync_overdue
 from fogfleet.controllers.state import FleetState, Rendered
 from fogfleet.errors import FogfleetError, Infeasible, InvalidSpec
 from fogfleet.snapshot import room_note
+from fogfleet.snapshot.clusters import managed_clusters_of
 from fogfleet.snapshot.objects import current_placement
 
 __all__ = ["Outcome", "reconcile"]
@@ -152,6 +153,8 @@ def _full_pass(
         planned.stranded,
         objects,
         obj.selector,
+        managed_clusters_of(inputs.compute_nodes),
+        inputs.hub_error,
     )
     inputs = relisted(deps, state, inputs)  # what we wrote is what the next stamp sees
     rendered = _remember(state, inputs, parsed, planned, desired, started)

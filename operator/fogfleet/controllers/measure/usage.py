@@ -35,6 +35,7 @@ from fogfleet.api.v1alpha1.computenode import ComputeNodeStatus
 from fogfleet.api.v1alpha1.placement import placement_entries_of
 from fogfleet.api.v1alpha1.softwaremodule import SoftwareModuleStatus, Taxonomy
 from fogfleet.controllers.deps import Deps
+from fogfleet.controllers.fleet.clusters import hub_nodes
 from fogfleet.controllers.status import (
     condition,
     merge_conditions,
@@ -195,8 +196,16 @@ def compute_node_status(
     name = (compute_node.get("spec") or {}).get("nodeName") or meta.get("name", "")
     health = node_health(node)
     alloc = ((node or {}).get("status") or {}).get("allocatable") or {}
+    cluster = (compute_node.get("spec") or {}).get("managedCluster")
     if node is None:
         ready = condition("Ready", False, "NodeNotFound", f"No Kubernetes Node {name}", generation)
+    elif cluster:
+        what = f"ManagedCluster {cluster} (through the OCM hub)"
+        ready = (
+            condition("Ready", False, "ClusterUnavailable", f"{what} is {health}", generation)
+            if health
+            else condition("Ready", True, "ClusterAvailable", f"{what} can run pods", generation)
+        )
     elif health:
         ready = condition("Ready", False, "NodeUnavailable", f"Node {name} is {health}", generation)
     else:
@@ -263,9 +272,12 @@ def reconcile_usage(deps: Deps) -> int:
             kube.patch_module_status(ns, name, status)
             patched += 1
     by_node = usage_by_node(fleets, known)
-    nodes = {(n.get("metadata") or {}).get("name", ""): n for n in kube.list_nodes()}
+    compute_nodes = kube.list_compute_nodes()
+    # a ComputeNode that stands for a managed cluster: its Node is what the OCM hub says
+    listed = [*kube.list_nodes(), *hub_nodes(deps, compute_nodes)[0]]
+    nodes = {(n.get("metadata") or {}).get("name", ""): n for n in listed}
     _, others = pod_requests(kube.list_node_load())
-    for cn in kube.list_compute_nodes():
+    for cn in compute_nodes:
         meta = cn.get("metadata") or {}
         node_name = (cn.get("spec") or {}).get("nodeName") or meta.get("name", "")
         status = compute_node_status(

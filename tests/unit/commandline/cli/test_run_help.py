@@ -49,3 +49,17 @@ def test_the_defaults_shown_are_the_settings_defaults(monkeypatch: pytest.Monkey
             monkeypatch.setenv(f"FOGFLEET_{name.upper()}", default)
             assert getattr(Settings(), name) == value, name
             monkeypatch.delenv(f"FOGFLEET_{name.upper()}")
+
+
+def test_a_hub_without_this_clusters_name_is_refused_naming_the_variable(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    from pydantic import ValidationError
+
+    for name in Settings.model_fields:
+        monkeypatch.delenv(f"FOGFLEET_{name.upper()}", raising=False)
+    monkeypatch.setenv("FOGFLEET_HUB_KUBECONFIG", "/etc/fogfleet/hub/kubeconfig")
+    with pytest.raises(ValidationError, match="FOGFLEET_CLUSTER_NAME: needed with"):
+        Settings()
+    monkeypatch.setenv("FOGFLEET_CLUSTER_NAME", "site")
+    assert Settings().cluster_name == "site"
