@@ -28,6 +28,7 @@ class Hub:
 
     port: HubPort
     site: str
+    namespaces: tuple[str, ...] = ()  # the site's namespaces this operator serves (): all
 
 
 @dataclass

@@ -68,13 +68,13 @@ FEEDBACK: dict[str, str] = {
 }
 
 
-def work_selector(site: str, namespace: str, fleet_label: str | None = None) -> dict[str, str]:
-    """The labels of the works this site writes for a namespace (and one fleet of it)."""
-    labels = {
-        LABEL_MANAGED_BY: MANAGER,
-        LABEL_SITE: dns_label(site),
-        LABEL_SITE_NAMESPACE: namespace,
-    }
+def work_selector(
+    site: str, namespace: str | None = None, fleet_label: str | None = None
+) -> dict[str, str]:
+    """The labels of the works this site writes (for a namespace, and one fleet of it)."""
+    labels = {LABEL_MANAGED_BY: MANAGER, LABEL_SITE: dns_label(site)}
+    if namespace is not None:
+        labels[LABEL_SITE_NAMESPACE] = namespace
     if fleet_label is not None:
         labels[LABEL_FLEET] = fleet_label
     return labels

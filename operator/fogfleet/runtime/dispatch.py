@@ -19,7 +19,7 @@ from typing import Any, TypeVar
 
 from fogfleet.api.labels import LABEL_FLEET, LABEL_INSTANCE
 from fogfleet.controllers.deps import Deps
-from fogfleet.controllers.fleet.clusters import delete_remote
+from fogfleet.controllers.fleet.clusters import delete_remote, sweep_orphans
 from fogfleet.controllers.fleet.reconcile import reconcile
 from fogfleet.controllers.measure.links import LinkDeps, measure_links
 from fogfleet.controllers.measure.observed import ObservedDeps, observe
@@ -146,11 +146,16 @@ class Runtime:
             t0 = time.perf_counter()
             try:
                 await self.call(reconcile_usage, self.deps)
+                if self.deps.hub is not None:  # works of fleets deleted while we were away
+                    await self.call(self._sweep_orphans)
             except FogfleetError as exc:  # the next change or drift tick retries
                 log.warning("Updating the usage status of modules and nodes failed: %s", exc)
             took = time.perf_counter() - t0
             if took > SLOW_SECONDS:
                 log.info("The usage pass over modules and nodes took %.0f ms", took * 1e3)
+
+    def _sweep_orphans(self) -> int:
+        return sweep_orphans(self.deps, self.deps.kube.list_fleets(None), time.time())
 
     async def _scaling(self, scaling: Any) -> None:
         while True:

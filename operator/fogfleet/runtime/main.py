@@ -64,7 +64,8 @@ def _hub(settings: Settings, metrics: PrometheusMetrics) -> Hub | None:
     if not settings.hub_kubeconfig or not settings.cluster_name:
         return None
     log.info("Managed clusters are reached through the OCM hub as %s", settings.cluster_name)
-    return Hub(hub_client(settings.hub_kubeconfig, metrics), settings.cluster_name)
+    port = hub_client(settings.hub_kubeconfig, metrics)
+    return Hub(port, settings.cluster_name, tuple(settings.namespaces))
 
 
 def _standby_health(settings: Settings) -> http.server.HTTPServer | None:

@@ -12,8 +12,9 @@ from typing import Any
 
 import pytest
 
+from fogfleet.api.timestamps import parse_timestamp
 from fogfleet.controllers.deps import Deps, Hub
-from fogfleet.controllers.fleet.clusters import delete_remote
+from fogfleet.controllers.fleet.clusters import ORPHAN_GRACE_SECONDS, delete_remote, sweep_orphans
 from fogfleet.controllers.fleet.reconcile import reconcile
 from fogfleet.controllers.measure.usage import reconcile_usage
 from fogfleet.errors import DependencyUnavailable
@@ -249,3 +250,19 @@ def test_the_fleets_deletion_deletes_its_works_and_only_its(
     gone = delete_remote(cloud_deps, "warehouse", "warehouse")
     assert gone == len(hub.deleted) > 0
     assert list(hub.works) == [(CLUSTER, "another-sites-work")]
+
+
+def test_works_of_a_fleet_deleted_while_the_operator_was_away_are_swept_once_old_enough(
+    cloud_kube: Any, cloud_deps: Deps, hub: FakeHub
+) -> None:
+    run(cloud_kube, cloud_deps)
+    for work in hub.works.values():
+        work["metadata"]["creationTimestamp"] = "2026-11-30T12:00:00Z"
+    created = parse_timestamp("2026-11-30T12:00:00Z") or 0.0
+    fleets = cloud_kube.list_fleets(None)
+    assert sweep_orphans(cloud_deps, fleets, created + 3600) == 0  # its fleet is there
+    assert sweep_orphans(cloud_deps, [], created + ORPHAN_GRACE_SECONDS / 2) == 0  # too young
+    served = dataclasses.replace(cloud_deps.hub, namespaces=("elsewhere",))
+    assert sweep_orphans(dataclasses.replace(cloud_deps, hub=served), [], created + 3600) == 0
+    n = len(hub.works)
+    assert sweep_orphans(cloud_deps, [], created + 3600) == n > 0 and not hub.works

@@ -19,20 +19,33 @@ import logging
 from collections.abc import Callable, Iterable, Mapping
 from typing import Any
 
+from fogfleet.api.labels import LABEL_FLEET, LABEL_SITE_NAMESPACE
+from fogfleet.api.timestamps import parse_timestamp
 from fogfleet.controllers.deps import Deps
 from fogfleet.controllers.fleet.engine import Kind, sync
 from fogfleet.controllers.state import FleetState
 from fogfleet.errors import DependencyUnavailable
+from fogfleet.render.deployments import label_value
 from fogfleet.render.manifestwork import deployment_of, managed_cluster_of, work_of, work_selector
 from fogfleet.render.names import work_name
 from fogfleet.snapshot.clusters import cluster_nodes, managed_clusters_of
 from fogfleet.snapshot.objects import bound_nodes
 
-__all__ = ["delete_remote", "hub_nodes", "remote_deployments", "split_remote", "sync_remote"]
+__all__ = [
+    "ORPHAN_GRACE_SECONDS",
+    "delete_remote",
+    "hub_nodes",
+    "remote_deployments",
+    "split_remote",
+    "sweep_orphans",
+    "sync_remote",
+]
 
 log = logging.getLogger(__name__)
 Obj = dict[str, Any]
 NO_HUB = "the operator has no OCM hub (FOGFLEET_HUB_KUBECONFIG is not set)"
+# a work younger than this is never swept: its fleet may be newer than the list of fleets
+ORPHAN_GRACE_SECONDS = 120.0
 
 
 def hub_nodes(deps: Deps, compute_nodes: Iterable[Mapping[str, Any]]) -> tuple[list[Obj], str]:
@@ -146,5 +159,43 @@ def delete_remote(deps: Deps, namespace: str, fleet_label: str) -> int:
     for cluster in clusters:
         for work in hub.port.list_works(cluster, selector):
             hub.port.delete_work(cluster, str(work["metadata"]["name"]))
+            gone += 1
+    return gone
+
+
+def sweep_orphans(deps: Deps, fleets: Iterable[Mapping[str, Any]], now: float) -> int:
+    """Delete the works this site wrote for fleets that are gone (deleted while the operator
+    was not running: nothing else deletes them), in the namespaces it serves, once older than
+    ``ORPHAN_GRACE_SECONDS``; how many (``fleets``: every fleet it serves, as listed)."""
+    if deps.hub is None:
+        return 0
+    hub = deps.hub
+    live = {
+        (
+            (f.get("metadata") or {}).get("namespace") or "default",
+            label_value(f["metadata"]["name"]),
+        )
+        for f in fleets
+    }
+    site = work_selector(hub.site, "")
+    del site[LABEL_SITE_NAMESPACE]
+    gone = 0
+    for cluster in sorted(set(managed_clusters_of(deps.kube.list_compute_nodes()).values())):
+        for work in hub.port.list_works(cluster, site):
+            meta = work.get("metadata") or {}
+            labels = meta.get("labels") or {}
+            namespace, fleet = labels.get(LABEL_SITE_NAMESPACE), labels.get(LABEL_FLEET)
+            created = parse_timestamp(meta.get("creationTimestamp"))
+            if (
+                not namespace
+                or (hub.namespaces and namespace not in hub.namespaces)
+                or (namespace, fleet) in live
+                or created is None
+                or now - created < ORPHAN_GRACE_SECONDS
+            ):
+                continue
+            log.info("Deleting ManifestWork %s/%s: its RobotFleet %s/%s is gone",
+                     cluster, meta.get("name"), namespace, fleet)  # fmt: skip
+            hub.port.delete_work(cluster, str(meta["name"]))
             gone += 1
     return gone
