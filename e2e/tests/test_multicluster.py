@@ -352,6 +352,12 @@ def test_an_agents_hub_credentials_reach_its_own_cluster_only(
 
 # ---------------------------------------------------------------- fogfleet places into the cloud
 CLOUD_NODE = "e2e-cloud"  # the ComputeNode that stands for the cloud cluster
+CLAIMS = {  # what the cloud says of itself (ClusterClaims on it, reported to the hub)
+    "privacy-level.fogfleet.io": "1",
+    "cost-per-core-hour.fogfleet.io": "0.05",
+    "wan-latency-millis.fogfleet.io": "20",
+    "wan-bandwidth-mbps.fogfleet.io": "50",
+}
 SITE_NAME = "site"  # the site's ManagedCluster name: what the operator labels its works with
 MODULE_DEFAULTS = {
     "template": {"image": "ghcr.io/fogfleet/ros2-module:0.1.0", "imagePullPolicy": "Never"},
@@ -371,8 +377,9 @@ def _module(namespace: str, name: str, **spec: Any) -> dict[str, Any]:
 
 def _cloud_fleet(namespace: str) -> list[dict[str, Any]]:
     """One bed robot and the cloud cluster as a ComputeNode; a mapping module too large for
-    the robot (2 cores), a localisation that reads the robot's lidar, and a recorder whose
-    data may not leave the robot (minPrivacy 2: the cloud's privacy level is 0)."""
+    the robot (2 cores) whose data needs privacy 1, which only the cloud's claim grants (a
+    cloud's default is 0), a localisation that reads the robot's lidar, and a recorder whose
+    data may not leave the robot (minPrivacy 2)."""
     robot = next(
         d for d in example_in("warehouse-lite", namespace) if d["metadata"]["name"] == "bed-robot-1"
     )
@@ -381,13 +388,8 @@ def _cloud_fleet(namespace: str) -> list[dict[str, Any]]:
         "apiVersion": "fogfleet.io/v1alpha1",
         "kind": "ComputeNode",
         "metadata": {"name": CLOUD_NODE},
-        "spec": {
-            "tier": "cloud",
-            "hardwareType": "cloud-vm",
-            "managedCluster": "cloud",
-            "costPerCoreHour": 0.05,
-            "network": [{"type": "wan", "latencyMillis": 20, "bandwidthMbps": 50}],
-        },
+        # privacy, price and WAN link: the cloud's own ClusterClaims (CLAIMS)
+        "spec": {"tier": "cloud", "hardwareType": "cloud-vm", "managedCluster": "cloud"},
     }
     light = {"executionPattern": "periodic", "realtime": "none", "safety": "irrelevant"}
     modules = [
@@ -403,6 +405,7 @@ def _cloud_fleet(namespace: str) -> list[dict[str, Any]]:
             namespace, "mapping",
             taxonomy=light,
             resources={"cpu": "2", "memory": "256Mi"},
+            requirements={"minPrivacy": 1},
             profile=[{"hardwareType": "default", "cpu": "2", "meanMillis": 300, "stdMillis": 20}],
             topics={"subscribes": [{"name": "pose", "sizeBytes": "1Ki", "rateHz": 1}]},
         ),
@@ -475,12 +478,26 @@ def test_a_module_too_large_for_the_site_runs_in_the_cloud_and_goes_with_its_fle
     site_operator: Operator,
 ) -> None:
     hub, _ = joined
+    claims = [
+        {"apiVersion": "cluster.open-cluster-management.io/v1alpha1", "kind": "ClusterClaim",
+         "metadata": {"name": name}, "spec": {"value": value}}
+        for name, value in CLAIMS.items()
+    ]  # fmt: skip
+    hub.kubectl("apply", "-f", "-", input=json.dumps({"apiVersion": "v1", "kind": "List",
+                                                      "items": claims}))  # fmt: skip
+
+    def reported() -> dict[str, str]:
+        mc = json.loads(hub.kubectl("get", "managedcluster", "cloud", "-o", "json"))
+        return {c["name"]: c["value"] for c in mc["status"].get("clusterClaims", [])}
+
+    kube.wait_for("the cloud's claims on the hub", lambda: reported().items() >= CLAIMS.items())
     applied = time.monotonic()
     kube.apply(_cloud_fleet(namespace))
     wait_ready(kube, namespace, "mapped", timeout=240)
     ready = time.monotonic() - applied
 
-    # the plan: mapping in the cloud; the lidar reader and the private recorder on the robot
+    # the plan: mapping in the cloud (its privacy claimed there); the lidar reader and the
+    # private recorder on the robot
     placement = {
         p["module"]: p["node"] for p in fleet(kube, namespace, "mapped")["status"]["placement"]
     }

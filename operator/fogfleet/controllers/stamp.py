@@ -26,6 +26,7 @@ from collections.abc import Iterable, Mapping
 from typing import Any
 
 from fogfleet.render.deployments import hash_annotation
+from fogfleet.snapshot.clusters import ANNOTATION_CLAIMS
 from fogfleet.snapshot.objects import bound_nodes, node_health, scaling_status
 
 __all__ = [
@@ -64,13 +65,15 @@ def pools_signature(module: Mapping[str, Any]) -> tuple[Any, ...]:
 
 
 def node_signature(node: Mapping[str, Any]) -> tuple[Any, ...]:
-    """What of a Node planning reads: its health and allocatable CPU, memory and GPUs."""
+    """What of a Node planning reads: its health and allocatable CPU, memory and GPUs (and
+    of a managed cluster's, its claims: ``snapshot.clusters``)."""
     alloc = (node.get("status") or {}).get("allocatable") or {}
     return (
         node_health(node),
         alloc.get("cpu"),
         alloc.get("memory"),
         alloc.get("nvidia.com/gpu"),
+        ((node.get("metadata") or {}).get("annotations") or {}).get(ANNOTATION_CLAIMS),
     )
 
 

@@ -20,6 +20,7 @@ from fogfleet.domain.profiling import with_profiled
 from fogfleet.domain.tenancy import Held, with_held
 from fogfleet.errors import InvalidSpec
 
+from .clusters import with_claims
 from .objects import node_health
 
 __all__ = ["Inputs", "gather"]
@@ -61,6 +62,7 @@ def gather(
         if cn is None:
             continue
         node = by_node.get(cn.node_name)
+        cn = with_claims(cn, node)  # a managed cluster's claims fill what it leaves out
         why = node_health(node)
         if why:
             unavailable[cn.metadata.name] = why

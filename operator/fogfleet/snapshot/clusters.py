@@ -9,19 +9,46 @@ renews its lease; OCM's ``ManagedClusterConditionAvailable``), allocatable what 
 reports of the cluster's nodes (``status.allocatable``). When the hub cannot be read the node
 is NotReady, with why: the instances placed there are then stranded, kept and not moved back
 until the cluster returns (``controllers.fleet.apply``), as on a Node that stops reporting.
+
+What the ComputeNode leaves out, the cluster may say of itself with OCM ClusterClaims (created
+on the managed cluster, reported in ``ManagedCluster.status.clusterClaims``): its privacy level
+and price (tinyKube's cloud: privacy 0, a price per core) and its WAN link (``CLAIMS``).
+``with_claims`` fills them in; what the ComputeNode says wins.
 """
 
 from __future__ import annotations
 
+import json
+import logging
 from collections.abc import Iterable, Mapping
 from typing import Any
 
+from pydantic import ValidationError
+
 from fogfleet.api.labels import ANNOTATION_MANAGED_CLUSTER
+from fogfleet.api.v1alpha1.computenode import ComputeNode, ComputeNodeSpec
 
-__all__ = ["AVAILABLE", "cluster_node", "cluster_nodes", "managed_clusters_of"]
+__all__ = [
+    "ANNOTATION_CLAIMS",
+    "AVAILABLE",
+    "CLAIMS",
+    "cluster_node",
+    "cluster_nodes",
+    "managed_clusters_of",
+    "with_claims",
+]
 
+log = logging.getLogger(__name__)
 Obj = dict[str, Any]
 AVAILABLE = "ManagedClusterConditionAvailable"
+# ClusterClaim -> what it fills in a ComputeNode's spec that leaves it out
+CLAIMS = {
+    "privacy-level.fogfleet.io": "privacyLevel",
+    "cost-per-core-hour.fogfleet.io": "costPerCoreHour",
+    "wan-latency-millis.fogfleet.io": "latencyMillis",
+    "wan-bandwidth-mbps.fogfleet.io": "bandwidthMbps",
+}
+ANNOTATION_CLAIMS = "fogfleet.io/cluster-claims"  # on the Node made here: the claims (JSON)
 
 
 def managed_clusters_of(compute_nodes: Iterable[Mapping[str, Any]]) -> dict[str, str]:
@@ -56,10 +83,18 @@ def cluster_node(name: str, cluster: str, managed: Mapping[str, Any] | None, hub
             "True" if status == "True" else status, reason, str(available.get("message") or "")
         )
     alloc = ((managed or {}).get("status") or {}).get("allocatable") or {}
+    claims = {
+        str(c.get("name")): str(c.get("value"))
+        for c in ((managed or {}).get("status") or {}).get("clusterClaims") or []
+        if c.get("name") in CLAIMS
+    }
+    annotations = {ANNOTATION_MANAGED_CLUSTER: cluster}
+    if claims:
+        annotations[ANNOTATION_CLAIMS] = json.dumps(claims, sort_keys=True)
     return {
         "apiVersion": "v1",
         "kind": "Node",
-        "metadata": {"name": name, "annotations": {ANNOTATION_MANAGED_CLUSTER: cluster}},
+        "metadata": {"name": name, "annotations": annotations},
         "status": {"conditions": [ready], "allocatable": dict(alloc), "capacity": dict(alloc)},
     }
 
@@ -75,3 +110,36 @@ def cluster_nodes(
         cluster_node(name, cluster, managed.get(cluster), hub_error)
         for name, cluster in sorted(managed_clusters_of(compute_nodes).items())
     ]
+
+
+def _number(text: str) -> int | float | str:
+    """A claim's value (text) as the number it says, else as it is (refused by the spec)."""
+    try:
+        value = float(text)
+    except ValueError:
+        return text
+    return int(value) if value.is_integer() else value
+
+
+def with_claims(cn: ComputeNode, node: Mapping[str, Any] | None) -> ComputeNode:
+    """``cn`` with what its cluster's claims say where its spec says nothing (``CLAIMS``): the
+    privacy level, the price per core-hour, and a WAN uplink of the claimed latency and
+    bandwidth when it has no uplink. A claim that does not make a valid spec is ignored."""
+    annotations = ((node or {}).get("metadata") or {}).get("annotations") or {}
+    if not cn.spec.managed_cluster or ANNOTATION_CLAIMS not in annotations:
+        return cn
+    claims = {CLAIMS[k]: _number(v) for k, v in json.loads(annotations[ANNOTATION_CLAIMS]).items()}
+    spec = cn.spec.model_dump(by_alias=True, exclude_unset=True, mode="json")
+    for field in ("privacyLevel", "costPerCoreHour"):
+        if field in claims and field not in spec:
+            spec[field] = claims[field]
+    if not cn.spec.network and {"latencyMillis", "bandwidthMbps"} <= claims.keys():
+        link = {k: claims[k] for k in ("latencyMillis", "bandwidthMbps")}
+        spec["network"] = [{"type": "wan", **link}]
+    try:
+        filled = ComputeNodeSpec.model_validate(spec)
+    except ValidationError as exc:
+        log.warning("ComputeNode %s: ignoring its cluster's claims %s: %s",
+                    cn.metadata.name, claims, exc.errors()[0].get("msg"))  # fmt: skip
+        return cn
+    return cn.model_copy(update={"spec": filled})

@@ -175,8 +175,11 @@ class ComputeNodeSpec(FogModel):
     """An Open Cluster Management ManagedCluster this node stands for: a cluster of its own
     (a cloud), reached over the WAN. The operator places the instances planned here through
     ManifestWorks on the OCM hub (FOGFLEET_HUB_KUBECONFIG) and reads their readiness back from
-    the works' status feedback; capacity (when omitted) is the ManagedCluster's allocatable,
-    and the node is available while the ManagedCluster is (docs/multicluster.md)."""
+    the works' status feedback. Capacity (when omitted) is the ManagedCluster's allocatable;
+    privacyLevel, costPerCoreHour and a WAN uplink (when omitted) come from the cluster's
+    ClusterClaims (privacy-level.fogfleet.io, cost-per-core-hour.fogfleet.io,
+    wan-latency-millis.fogfleet.io, wan-bandwidth-mbps.fogfleet.io); the node is available while
+    the ManagedCluster is (docs/multicluster.md)."""
 
     @property
     def privacy(self) -> int:
