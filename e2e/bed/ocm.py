@@ -29,6 +29,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Protocol
 
+import yaml
+
 from e2e.bed.base import BIN_DIR, HOST, REPO_ROOT, TOOLS_DIR, HarnessError, free_port, log, wait_for
 from e2e.bed.base import kubectl as run_kubectl
 from e2e.bed.cloud import CLOUD_DIR, CloudCluster
@@ -79,6 +81,8 @@ BOOTSTRAP_ROLE = "open-cluster-management:bootstrap"
 JOIN_TIMEOUT_S = 120
 HUB_RBAC = REPO_ROOT / "manifests" / "ocm-hub" / "rbac.yaml"  # what a site's operator may do there
 SITE_ACCOUNT = ("fogfleet-hub", "fogfleet-site")  # its ServiceAccount there
+HUB_KEEPER = REPO_ROOT / "manifests" / "ocm-hub" / "keeper.yaml"  # the hub keeper, on the hub
+KEEPER_ACCOUNT = ("fogfleet-hub", "fogfleet-hub-keeper")
 # how often an agent renews its ManagedCluster's Lease; the hub calls a cluster unavailable
 # after 5 of them unrenewed (OCM's rule), so 10 s here: 50 s
 LEASE_SECONDS = 10
@@ -176,17 +180,42 @@ def _token_kubeconfig(cloud: CloudCluster, user: str, token: str, server: str, n
     return path
 
 
+def _account_kubeconfig(
+    cloud: CloudCluster, documents: Sequence[Mapping[str, object]], account: tuple[str, str],
+    server: str, name: str,
+) -> Path:  # fmt: skip
+    """Apply ``documents`` on the hub, and a kubeconfig of its ServiceAccount ``account``
+    (namespace, name) naming the hub at ``server``."""
+    items = {"apiVersion": "v1", "kind": "List", "items": list(documents)}
+    _kubectl(cloud.kubeconfig, "apply", "-f", "-", input=json.dumps(items))
+    namespace, sa = account
+    token = _kubectl(
+        cloud.kubeconfig, "create", "token", sa, "-n", namespace, "--duration=24h"
+    ).strip()
+    return _token_kubeconfig(cloud, sa, token, server, name)
+
+
+def _documents(path: Path) -> list[dict[str, object]]:
+    return [d for d in yaml.safe_load_all(path.read_text()) if d]
+
+
 def site_operator_kubeconfig(cloud: CloudCluster) -> Path:
     """The hub kubeconfig the site's fogfleet operator gets (FOGFLEET_HUB_KUBECONFIG): the
     ServiceAccount of ``manifests/ocm-hub/rbac.yaml``, applied as a user applies it, naming
     the hub across the WAN. It reads ManagedClusters and writes ManifestWorks in the cloud's
     namespace, and nothing else."""
-    namespace, account = SITE_ACCOUNT
-    _kubectl(cloud.kubeconfig, "apply", "-f", str(HUB_RBAC))
-    token = _kubectl(
-        cloud.kubeconfig, "create", "token", account, "-n", namespace, "--duration=24h"
-    ).strip()
-    return _token_kubeconfig(cloud, account, token, cloud.from_site, "site-operator")
+    return _account_kubeconfig(
+        cloud, _documents(HUB_RBAC), SITE_ACCOUNT, cloud.from_site, "site-operator"
+    )
+
+
+def keeper_kubeconfig(cloud: CloudCluster) -> Path:
+    """The hub keeper's kubeconfig: the ServiceAccount and rights of
+    ``manifests/ocm-hub/keeper.yaml`` (its Deployment is left out: the bed runs the keeper as a
+    process beside the hub, as it runs OCM's own), naming the hub directly."""
+    namespace = [d for d in _documents(HUB_RBAC) if d["kind"] == "Namespace"]
+    rights = namespace + [d for d in _documents(HUB_KEEPER) if d["kind"] != "Deployment"]
+    return _account_kubeconfig(cloud, rights, KEEPER_ACCOUNT, cloud.api_server, "hub-keeper")
 
 
 def _argv(

@@ -14,6 +14,8 @@ import http.client
 import json
 import ssl
 import statistics
+import subprocess
+import sys
 import threading
 import time
 import urllib.parse
@@ -31,7 +33,7 @@ from e2e.bed.cluster import condition_status
 from e2e.bed.fakenodes import SIMULATED_TAINT
 from e2e.bed.harness import Cluster
 from e2e.bed.kube import Kube
-from e2e.bed.operator_fixtures import Operator, example_in, fleet, wait_ready
+from e2e.bed.operator_fixtures import Operator, deployments, example_in, fleet, wait_ready
 
 pytestmark = [
     pytest.mark.e2e,
@@ -471,13 +473,9 @@ def _cloud_pods(hub: cloud.CloudCluster, namespace: str) -> list[dict[str, Any]]
     return json.loads(found)["items"] if found else []
 
 
-def test_a_module_too_large_for_the_site_runs_in_the_cloud_and_goes_with_its_fleet(
-    joined: tuple[cloud.CloudCluster, ocm.Joined],
-    kube: Kube,
-    namespace: str,
-    site_operator: Operator,
-) -> None:
-    hub, _ = joined
+def _run_in_the_cloud(hub: cloud.CloudCluster, kube: Kube, namespace: str) -> float:
+    """The cloud's claims on it, then ``_cloud_fleet`` applied and Ready: how long from the
+    apply."""
     claims = [
         {"apiVersion": "cluster.open-cluster-management.io/v1alpha1", "kind": "ClusterClaim",
          "metadata": {"name": name}, "spec": {"value": value}}
@@ -494,7 +492,17 @@ def test_a_module_too_large_for_the_site_runs_in_the_cloud_and_goes_with_its_fle
     applied = time.monotonic()
     kube.apply(_cloud_fleet(namespace))
     wait_ready(kube, namespace, "mapped", timeout=240)
-    ready = time.monotonic() - applied
+    return time.monotonic() - applied
+
+
+def test_a_module_too_large_for_the_site_runs_in_the_cloud_and_goes_with_its_fleet(
+    joined: tuple[cloud.CloudCluster, ocm.Joined],
+    kube: Kube,
+    namespace: str,
+    site_operator: Operator,
+) -> None:
+    hub, _ = joined
+    ready = _run_in_the_cloud(hub, kube, namespace)
 
     # the plan: mapping in the cloud (its privacy claimed there); the lidar reader and the
     # private recorder on the robot
@@ -533,3 +541,79 @@ def test_a_module_too_large_for_the_site_runs_in_the_cloud_and_goes_with_its_fle
     assert _works(hub, namespace) == []
     print(f"\nReady {ready:.1f}s after the apply, from OCM's feedback; the cloud's pods gone "
           f"{gone:.1f}s after the fleet")  # fmt: skip
+
+
+# the keeper's setting on the bed: how long the site must be gone (a user's default: 600 s)
+SITE_GONE_S = 10
+
+
+@pytest.fixture
+def hub_keeper(
+    joined: tuple[cloud.CloudCluster, ocm.Joined], tmp_path: Path, diagnostics: list[Any]
+) -> Iterator[subprocess.Popen[bytes]]:
+    """``fogfleet hub-keeper`` beside the hub, with the rights of manifests/ocm-hub/keeper.yaml."""
+    hub, _ = joined
+    kubeconfig = ocm.keeper_kubeconfig(hub)
+    log = tmp_path / "keeper.log"
+    argv = [sys.executable, "-m", "fogfleet", "hub-keeper", "--kubeconfig", str(kubeconfig),
+            "--site-gone-seconds", str(SITE_GONE_S), "--period", "2"]  # fmt: skip
+    with log.open("wb") as out:
+        proc = subprocess.Popen(argv, stdout=out, stderr=subprocess.STDOUT, start_new_session=True)
+    diagnostics.append(lambda: ("hub keeper log", log.read_text()[-6000:]))
+    yield proc
+    proc.terminate()
+    proc.wait(timeout=30)
+
+
+def _cloud_deployment(hub: cloud.CloudCluster, namespace: str) -> dict[str, Any]:
+    found = json.loads(hub.kubectl("get", "deployments", "-n", namespace, "-o", "json"))["items"]
+    assert len(found) == 1, found
+    deployment: dict[str, Any] = found[0]
+    return deployment
+
+
+@pytest.mark.long
+@pytest.mark.timeout(900)
+def test_a_site_gone_longer_than_set_has_its_cloud_instances_scaled_to_zero_and_back(
+    joined: tuple[cloud.CloudCluster, ocm.Joined],
+    kube: Kube,
+    namespace: str,
+    site_operator: Operator,
+    hub_keeper: subprocess.Popen[bytes],
+) -> None:
+    hub, _ = joined
+    _run_in_the_cloud(hub, kube, namespace)
+    at_site = sorted(d["metadata"]["name"] for d in deployments(kube, namespace))
+    works = sorted(w["metadata"]["name"] for w in _works(hub, namespace))
+
+    def site_available() -> str | None:
+        mc = json.loads(hub.kubectl("get", "managedcluster", "site", "-o", "json"))
+        return condition_status(mc, "ManagedClusterConditionAvailable")
+
+    def running_in_the_cloud() -> int:
+        return sum(p["status"].get("phase") == "Running" for p in _cloud_pods(hub, namespace))
+
+    cloud.set_wan(cloud.WanSettings(cut=True))
+    try:
+        t0 = time.monotonic()
+        kube.wait_for("the hub to lose the site", lambda: site_available() != "True",
+                      timeout=5 * ocm.LEASE_SECONDS + 60)  # fmt: skip
+        lost = time.monotonic() - t0
+        kube.wait_for("the cloud's instance scaled to zero", lambda: running_in_the_cloud() == 0,
+                      timeout=SITE_GONE_S + 60)  # fmt: skip
+        parked = time.monotonic() - t0
+        assert _cloud_deployment(hub, namespace)["spec"]["replicas"] == 0
+        # nothing deleted: the works, the cloud's Deployment and the site's Deployments stay
+        assert sorted(w["metadata"]["name"] for w in _works(hub, namespace)) == works
+        assert sorted(d["metadata"]["name"] for d in deployments(kube, namespace)) == at_site
+    finally:
+        cloud.set_wan(cloud.WanSettings())
+    t1 = time.monotonic()
+    kube.wait_for("the site Available again", lambda: site_available() == "True", timeout=120)
+    kube.wait_for("the cloud's instance back", lambda: running_in_the_cloud() == 1, timeout=120)
+    back = time.monotonic() - t1
+    wait_ready(kube, namespace, "mapped", timeout=120)
+    assert sorted(w["metadata"]["name"] for w in _works(hub, namespace)) == works
+    print(f"\nthe hub lost the site {lost:.0f}s into the cut; its cloud instance scaled to zero "
+          f"{parked:.0f}s into it (gone after {SITE_GONE_S}s); back {back:.0f}s after the cut "
+          "ended")  # fmt: skip

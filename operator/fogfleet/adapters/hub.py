@@ -19,7 +19,7 @@ from typing import Any
 
 from kubernetes import client
 
-from fogfleet.adapters.kube import KubeClient, load_config, map_errors
+from fogfleet.adapters.kube import MERGE, KubeClient, load_config, map_errors
 from fogfleet.adapters.ports import ClientMetrics
 from fogfleet.errors import DependencyUnavailable
 
@@ -29,6 +29,7 @@ Obj = dict[str, Any]
 HUB_TIMEOUT = (3.0, 5.0)  # connect, read seconds
 HUB_BACKOFF = 10.0  # seconds of failing at once after a request that got no answer
 CLUSTERS = "/apis/cluster.open-cluster-management.io/v1/managedclusters"
+ALL_WORKS = "/apis/work.open-cluster-management.io/v1/manifestworks"
 WORKS = "/apis/work.open-cluster-management.io/v1/namespaces/{ns}/manifestworks"
 
 
@@ -73,6 +74,20 @@ class HubClient(KubeClient):
 
     def apply_work(self, body: Obj) -> Obj:
         return self._server_side_apply("ManifestWork", WORKS, body)
+
+    def list_all_works(self, selector: Mapping[str, str]) -> list[Obj]:
+        """Every cluster's works (the hub keeper's: it runs on the hub)."""
+        return self._list(ALL_WORKS, "list the hub's ManifestWorks", selector)
+
+    def patch_work(self, cluster: str, name: str, patch: Mapping[str, Any]) -> None:
+        with map_errors(f"patch ManifestWork {cluster}/{name}"):
+            self._call(
+                "PATCH",
+                f"{WORKS.format(ns=cluster)}/{name}",
+                body=dict(patch),
+                content_type=MERGE,
+                missing_ok=True,
+            )
 
     def delete_work(self, cluster: str, name: str) -> None:
         with map_errors(f"delete ManifestWork {cluster}/{name}"):

@@ -43,10 +43,13 @@ from fogfleet.render.deployments import node_affinity
 from fogfleet.render.names import work_name
 
 __all__ = [
+    "ANNOTATION_PARKED",
     "FEEDBACK",
     "WORK_API",
     "deployment_of",
     "managed_cluster_of",
+    "parked",
+    "unparked",
     "work_of",
     "work_selector",
 ]
@@ -55,6 +58,9 @@ Obj = dict[str, Any]
 WORK_API = "work.open-cluster-management.io/v1"
 # the cluster's field manager of what the work applies (OCM requires the work-agent prefix)
 FIELD_MANAGER = f"work-agent-{MANAGER}"
+
+# on a work the hub keeper parked (controllers.keeper): the replicas its Deployment had
+ANNOTATION_PARKED = "fogfleet.io/parked-replicas"
 
 # feedback name -> the Deployment's field it reports (OCM's JSONPaths rule): what the site's
 # readiness check (controllers.status._deployment_done) reads
@@ -158,6 +164,11 @@ def work_of(deployment: Mapping[str, Any], cluster: str, site: str) -> Obj:
     }
 
 
+def _manifests(work: Mapping[str, Any]) -> list[Obj]:
+    found: list[Obj] = ((work.get("spec") or {}).get("workload") or {}).get("manifests") or []
+    return found
+
+
 def _feedback(work: Mapping[str, Any], name: str) -> dict[str, int]:
     """The Deployment ``name``'s fed-back values (integers) in the work's status."""
     manifests = ((work.get("status") or {}).get("resourceStatus") or {}).get("manifests") or []
@@ -177,8 +188,7 @@ def _feedback(work: Mapping[str, Any], name: str) -> dict[str, int]:
 def deployment_of(work: Mapping[str, Any]) -> Obj | None:
     """The Deployment a work of ours carries, as the site would hold it: bound to its
     ComputeNode, its status what the cluster's agent fed back (None: not one of ours)."""
-    manifests = ((work.get("spec") or {}).get("workload") or {}).get("manifests") or []
-    sent = next((m for m in manifests if m.get("kind") == "Deployment"), None)
+    sent = next((m for m in _manifests(work) if m.get("kind") == "Deployment"), None)
     work_meta = work.get("metadata") or {}
     annotations = dict(work_meta.get("annotations") or {})
     node = annotations.get(ANNOTATION_NODE)
@@ -191,7 +201,47 @@ def deployment_of(work: Mapping[str, Any]) -> Obj | None:
         meta["deletionTimestamp"] = work_meta["deletionTimestamp"]
     pod = dep["spec"]["template"]["spec"]
     pod["affinity"] = {**(pod.get("affinity") or {}), **node_affinity([str(node)])}
+    if ANNOTATION_PARKED in annotations:  # parked: it wants what it had, and is not there
+        dep["spec"]["replicas"] = int(annotations[ANNOTATION_PARKED])
     fed = _feedback(work, str(meta["name"]))
     meta["generation"] = fed.pop("generation", 0)
     dep["status"] = fed
     return dep
+
+
+def _with_replicas(work: Mapping[str, Any], replicas: int) -> list[Obj]:
+    manifests = copy.deepcopy(_manifests(work))
+    for m in manifests:
+        if m.get("kind") == "Deployment":
+            m.setdefault("spec", {})["replicas"] = replicas
+    return manifests
+
+
+def _replicas(work: Mapping[str, Any]) -> int:
+    dep: Obj = next((m for m in _manifests(work) if m.get("kind") == "Deployment"), {})
+    return int((dep.get("spec") or {}).get("replicas", 1))
+
+
+def parked(work: Mapping[str, Any]) -> Obj | None:
+    """The merge patch that scales a work's Deployment to zero and remembers its replicas
+    (None: already parked)."""
+    annotations = (work.get("metadata") or {}).get("annotations") or {}
+    if ANNOTATION_PARKED in annotations:
+        return None
+    return {
+        "metadata": {"annotations": {ANNOTATION_PARKED: str(_replicas(work))}},
+        "spec": {"workload": {"manifests": _with_replicas(work, 0)}},
+    }
+
+
+def unparked(work: Mapping[str, Any]) -> Obj | None:
+    """The merge patch that gives a parked work's Deployment its replicas back (None: not
+    parked)."""
+    annotations = (work.get("metadata") or {}).get("annotations") or {}
+    if ANNOTATION_PARKED not in annotations:
+        return None
+    replicas = int(annotations[ANNOTATION_PARKED])
+    return {
+        "metadata": {"annotations": {ANNOTATION_PARKED: None}},
+        "spec": {"workload": {"manifests": _with_replicas(work, replicas)}},
+    }

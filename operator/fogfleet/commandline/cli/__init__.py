@@ -36,6 +36,15 @@ def cmd_run(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_hub_keeper(args: argparse.Namespace) -> int:
+    import logging
+
+    from fogfleet.runtime.keeper import run_keeper
+
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(message)s")
+    return run_keeper(args.kubeconfig, args.site_gone_seconds, args.period)
+
+
 def cmd_twin(args: argparse.Namespace) -> int:
     from fogfleet.twin.app import run_twin
 
@@ -288,6 +297,24 @@ def _add_other_commands(sub: argparse._SubParsersAction[argparse.ArgumentParser]
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     sp.set_defaults(func=cmd_run)
+
+    sp = sub.add_parser(
+        "hub-keeper",
+        help="scale a gone site's cloud instances to zero, and back (runs beside the OCM hub)",
+        description="Beside the Open Cluster Management hub: park the ManifestWorks of every "
+        "site whose ManagedCluster has not been Available for --site-gone-seconds (their "
+        "Deployments scaled to zero), and give them their replicas back when it is "
+        "(docs/multicluster.md).",
+    )
+    sp.add_argument("--kubeconfig", help="the hub's (default: $KUBECONFIG or in-cluster)")
+    sp.add_argument(
+        "--site-gone-seconds",
+        type=positive(float),
+        default=600.0,
+        help="how long a site must be gone before its cloud instances are parked",
+    )
+    sp.add_argument("--period", type=positive(float), default=10.0, help="seconds between passes")
+    sp.set_defaults(func=cmd_hub_keeper)
 
     sp = sub.add_parser(
         "twin", help="serve simulated workload metrics of fogfleet's pods on 127.0.0.1"
