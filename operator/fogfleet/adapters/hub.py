@@ -19,7 +19,7 @@ from typing import Any
 
 from kubernetes import client
 
-from fogfleet.adapters.kube import MERGE, KubeClient, load_config, map_errors
+from fogfleet.adapters.kube import KubeClient, load_config, map_errors
 from fogfleet.adapters.ports import ClientMetrics
 from fogfleet.errors import DependencyUnavailable
 
@@ -80,14 +80,8 @@ class HubClient(KubeClient):
         return self._list(ALL_WORKS, "list the hub's ManifestWorks", selector)
 
     def patch_work(self, cluster: str, name: str, patch: Mapping[str, Any]) -> None:
-        with map_errors(f"patch ManifestWork {cluster}/{name}"):
-            self._call(
-                "PATCH",
-                f"{WORKS.format(ns=cluster)}/{name}",
-                body=dict(patch),
-                content_type=MERGE,
-                missing_ok=True,
-            )
+        what = f"patch ManifestWork {cluster}/{name}"
+        self._merge_patch_at(what, f"{WORKS.format(ns=cluster)}/{name}", patch)
 
     def delete_work(self, cluster: str, name: str) -> None:
         with map_errors(f"delete ManifestWork {cluster}/{name}"):

@@ -432,14 +432,12 @@ class KubeClient:
         ``path`` is ``<namespace>/<plural>/<name>...`` or ``/<plural>/<name>...`` for a
         cluster-scoped kind."""
         where = path if path.startswith("/") else f"/namespaces/{path}"
+        self._merge_patch_at(what, f"/apis/{GROUP}/{VERSION}{where}", body)
+
+    def _merge_patch_at(self, what: str, url_path: str, body: Mapping[str, Any]) -> None:
+        """A JSON merge patch of the object at ``url_path`` (a missing object is not an error)."""
         with map_errors(what):
-            self._call(
-                "PATCH",
-                f"/apis/{GROUP}/{VERSION}{where}",
-                body=dict(body),
-                content_type=MERGE,
-                missing_ok=True,
-            )
+            self._call("PATCH", url_path, body=dict(body), content_type=MERGE, missing_ok=True)
 
     def patch_module_status(self, namespace: str, name: str, status: Mapping[str, Any]) -> None:
         self._merge_patch(

@@ -304,6 +304,12 @@ class CountingPlanner:
 
 
 @pytest.fixture
+def merge_patch() -> Any:
+    """RFC 7386 JSON merge patch (target, patch), as the API server applies it."""
+    return _merge
+
+
+@pytest.fixture
 def kube() -> FakeKube:
     k = FakeKube()
     k.load_warehouse()

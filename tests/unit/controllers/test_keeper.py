@@ -21,16 +21,6 @@ def _stamp(t: float) -> str:
     return time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime(t))
 
 
-def _merge(target: Obj, patch: Mapping[str, Any]) -> None:
-    for key, value in patch.items():
-        if value is None:
-            target.pop(key, None)
-        elif isinstance(value, Mapping) and isinstance(target.get(key), dict):
-            _merge(target[key], value)
-        else:
-            target[key] = copy.deepcopy(value)
-
-
 def _site(available: bool) -> Obj:
     status = "True" if available else "Unknown"
     cond = {"type": "ManagedClusterConditionAvailable", "status": status,
@@ -51,8 +41,9 @@ def _work(site: str, replicas: int = 2) -> Obj:
 
 
 class Hub:
-    def __init__(self, site: Obj | None, works: list[Obj]) -> None:
+    def __init__(self, site: Obj | None, works: list[Obj], merge: Any) -> None:
         self.site = site
+        self.merge = merge
         self.works = {w["metadata"]["name"]: w for w in works}
         self.patches = 0
 
@@ -63,7 +54,7 @@ class Hub:
         return copy.deepcopy(list(self.works.values()))
 
     def patch_work(self, cluster: str, name: str, patch: Mapping[str, Any]) -> None:
-        _merge(self.works[name], patch)
+        self.merge(self.works[name], patch)
         self.patches += 1
 
 
@@ -71,8 +62,8 @@ def _replicas(work: Obj) -> int:
     return int(work["spec"]["workload"]["manifests"][1]["spec"]["replicas"])
 
 
-def test_a_site_gone_long_enough_is_parked_and_restored_when_it_returns() -> None:
-    hub = Hub(_site(available=False), [_work("site-a")])
+def test_a_site_gone_long_enough_is_parked_and_restored_when_it_returns(merge_patch: Any) -> None:
+    hub = Hub(_site(available=False), [_work("site-a")], merge_patch)
     assert keep(hub, T0 + 599, gone_after=600) == Kept()  # not gone long enough yet
     assert keep(hub, T0 + 600, gone_after=600) == Kept(parked=1)
     work = next(iter(hub.works.values()))
@@ -88,8 +79,10 @@ def test_a_site_gone_long_enough_is_parked_and_restored_when_it_returns() -> Non
     assert keep(hub, T0 + 900, gone_after=600) == Kept() and hub.patches == 2
 
 
-def test_only_the_gone_sites_works_are_parked_and_a_site_the_hub_forgot_is_gone() -> None:
-    hub = Hub(_site(available=False), [_work("site-a"), _work("site-b")])
+def test_only_the_gone_sites_works_are_parked_and_a_site_the_hub_forgot_is_gone(
+    merge_patch: Any,
+) -> None:
+    hub = Hub(_site(available=False), [_work("site-a"), _work("site-b")], merge_patch)
     assert len(hub.works) == 2  # one name per site
     kept = keep(hub, T0 + 10_000, gone_after=600)
     assert kept == Kept(parked=2)  # site-b has no ManagedCluster: gone since always
