@@ -29,6 +29,9 @@ class Hub:
     port: HubPort
     site: str
     namespaces: tuple[str, ...] = ()  # the site's namespaces this operator serves (): all
+    # the ManagedClusters as last read: what the site knows of a cluster it cannot reach now
+    # (its allocatable: the instances there are then stranded, not planned anew elsewhere)
+    seen: dict[str, Obj] = field(default_factory=dict)
 
 
 @dataclass

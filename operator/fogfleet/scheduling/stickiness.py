@@ -121,9 +121,13 @@ def fingerprint(problem: Problem, settings: SchedulerSettings) -> str:
     return h.hexdigest()[:16]
 
 
-def mask_unavailable(problem: Problem, unavailable: Mapping[int, str]) -> tuple[Problem, set[int]]:
+def mask_unavailable(
+    problem: Problem, unavailable: Mapping[int, str], pinned: Collection[int] = ()
+) -> tuple[Problem, set[int]]:
     """Drop unavailable nodes (NotReady, cordoned, missing) from every gene space; the
-    instances of a robot that is down keep the node they run on and nothing else.
+    instances of a robot that is down keep the node they run on and nothing else, and so do
+    those running on an unavailable node of ``pinned`` (a cluster of its own: cut off, what
+    runs there runs on, so a copy elsewhere would be a duplicate).
 
     Returns the narrowed problem and the *stranded* instances: those that could run before
     but now have no node left (e.g. the on-board modules of a robot that is down).
@@ -133,6 +137,7 @@ def mask_unavailable(problem: Problem, unavailable: Mapping[int, str]) -> tuple[
     allowed = problem.allowed.copy()
     cols = sorted(unavailable)
     allowed[:, cols] = False
+    allowed[np.isin(problem.current, [j for j in cols if j in pinned])] = False
     current = problem.current.copy()
     current[np.isin(current, cols)] = -1
     # a robot that is down (cut off, stopped) takes its data with it: its instances elsewhere

@@ -104,12 +104,20 @@ class Built:
 def build(snapshot: FleetSnapshot, what_if: WhatIf | None = None) -> Built:
     """``snapshot`` (changed by ``what_if``) into its planning problem: built, its released
     robots' instances freed (``stickiness.release_robots``), its unavailable nodes masked out
-    (``stickiness.mask_unavailable``: an instance whose robot is down keeps its node)."""
+    (``stickiness.mask_unavailable``: an instance whose robot is down keeps its node, and one
+    in a managed cluster that is unavailable stays there, stranded)."""
     snapshot = with_what_if(snapshot, what_if)
     built = built_problem(snapshot)
     released = [j for j, n in enumerate(built.nodes) if n.name in snapshot.released]
     problem = release_robots(built, released) if released else built
-    masked, stranded = mask_unavailable(problem, unavailable_in(snapshot, problem))
+    # a managed cluster cut off runs on what it runs (OCM's pull model): pinned, not re-planned
+    clusters = {
+        j
+        for j, nd in enumerate(problem.nodes)
+        if nd.name in snapshot.catalog.nodes
+        and snapshot.catalog.nodes[nd.name].spec.managed_cluster
+    }
+    masked, stranded = mask_unavailable(problem, unavailable_in(snapshot, problem), clusters)
     return Built(built, problem.current, masked, frozenset(stranded))
 
 

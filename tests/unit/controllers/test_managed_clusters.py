@@ -266,3 +266,28 @@ def test_works_of_a_fleet_deleted_while_the_operator_was_away_are_swept_once_old
     assert sweep_orphans(dataclasses.replace(cloud_deps, hub=served), [], created + 3600) == 0
     n = len(hub.works)
     assert sweep_orphans(cloud_deps, [], created + 3600) == n > 0 and not hub.works
+
+
+def test_a_cluster_cut_off_keeps_its_instances_and_none_is_started_at_the_site_instead(
+    cloud_kube: Any, cloud_deps: Deps, hub: FakeHub
+) -> None:
+    """The cloud runs on while the site cannot see it (OCM's pull model): an instance there
+    is stranded, not planned anew at the site, even with room there (no duplicate)."""
+    cloud_kube.fleets[KEY]["spec"]["nodes"] = ["edge-1", "edge-2", CLOUD]
+    cloud_kube.fleets[KEY]["metadata"]["generation"] = 2
+    run(cloud_kube, cloud_deps)
+    remote = set(_modules_of(hub))
+    assert remote, "nothing planned into the cloud"
+    cloud_kube.run_pods()
+    hub.feed()
+    run(cloud_kube, cloud_deps)
+    works, site = dict(hub.works), set(cloud_kube.deployments)
+    hub.down = True
+    cloud_deps.full_reconcile_seconds = 0
+    run(cloud_kube, cloud_deps)
+    assert set(cloud_kube.deployments) == site, "a cloud instance was started at the site"
+    assert hub.works == works
+    hub.down = False
+    cloud_kube.run_pods()
+    assert run(cloud_kube, cloud_deps).ready
+    assert set(_modules_of(hub)) == remote and set(cloud_kube.deployments) == site

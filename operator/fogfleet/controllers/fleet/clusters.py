@@ -50,20 +50,22 @@ ORPHAN_GRACE_SECONDS = 120.0
 
 def hub_nodes(deps: Deps, compute_nodes: Iterable[Mapping[str, Any]]) -> tuple[list[Obj], str]:
     """A Node for each ComputeNode that stands for a managed cluster, and why the hub was not
-    read ("" when it was, or when no ComputeNode needs it)."""
+    read ("" when it was, or when no ComputeNode needs it). A cluster the hub cannot be asked
+    about keeps the allocatable last read: its instances are stranded where they run."""
     compute_nodes = list(compute_nodes)
     if not managed_clusters_of(compute_nodes):
         return [], ""
-    managed: dict[str, Obj] = {}
-    error = NO_HUB if deps.hub is None else ""
-    if deps.hub is not None:
-        try:
-            managed = {
-                str(mc["metadata"]["name"]): mc for mc in deps.hub.port.list_managed_clusters()
-            }
-        except DependencyUnavailable as exc:
-            error = str(exc)
-    return cluster_nodes(compute_nodes, managed, error), error
+    if deps.hub is None:
+        return cluster_nodes(compute_nodes, {}, NO_HUB), NO_HUB
+    hub, error = deps.hub, ""
+    try:
+        managed = {str(mc["metadata"]["name"]): mc for mc in hub.port.list_managed_clusters()}
+        hub.seen.update(managed)  # never empty meanwhile: other fleets' passes read it
+        for gone in set(hub.seen) - set(managed):
+            hub.seen.pop(gone, None)
+    except DependencyUnavailable as exc:
+        error = str(exc)
+    return cluster_nodes(compute_nodes, dict(hub.seen), error), error
 
 
 def remote_deployments(
