@@ -29,7 +29,7 @@ from fogfleet.render.deployments import label_value
 from fogfleet.render.manifestwork import deployment_of, managed_cluster_of, work_of, work_selector
 from fogfleet.render.names import work_name
 from fogfleet.snapshot.clusters import cluster_nodes, managed_clusters_of
-from fogfleet.snapshot.objects import bound_nodes
+from fogfleet.snapshot.objects import bound_nodes, fleet_key
 
 __all__ = [
     "ORPHAN_GRACE_SECONDS",
@@ -172,15 +172,8 @@ def sweep_orphans(deps: Deps, fleets: Iterable[Mapping[str, Any]], now: float) -
     if deps.hub is None:
         return 0
     hub = deps.hub
-    live = {
-        (
-            (f.get("metadata") or {}).get("namespace") or "default",
-            label_value(f["metadata"]["name"]),
-        )
-        for f in fleets
-    }
-    site = work_selector(hub.site, "")
-    del site[LABEL_SITE_NAMESPACE]
+    live = {(namespace, label_value(name)) for namespace, name in map(fleet_key, fleets)}
+    site = work_selector(hub.site)
     gone = 0
     for cluster in sorted(set(managed_clusters_of(deps.kube.list_compute_nodes()).values())):
         for work in hub.port.list_works(cluster, site):
