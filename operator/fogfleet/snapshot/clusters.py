@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import json
 import logging
-from collections.abc import Iterable, Mapping
+from collections.abc import Collection, Iterable, Mapping
 from typing import Any
 
 from pydantic import ValidationError
@@ -35,6 +35,7 @@ __all__ = [
     "cluster_node",
     "cluster_nodes",
     "managed_clusters_of",
+    "placed_in",
     "with_claims",
 ]
 
@@ -99,17 +100,48 @@ def cluster_node(name: str, cluster: str, managed: Mapping[str, Any] | None, hub
     }
 
 
+def _recorded(compute_node: Mapping[str, Any]) -> Obj | None:
+    """A ManagedCluster as the ComputeNode's status last recorded it (its allocatable): what
+    an operator that has not read the hub since it started knows of the cluster."""
+    status = compute_node.get("status") or {}
+    cpu, memory = status.get("allocatableCpu"), status.get("allocatableMemory")
+    return {"status": {"allocatable": {"cpu": cpu, "memory": memory}}} if cpu and memory else None
+
+
 def cluster_nodes(
     compute_nodes: Iterable[Mapping[str, Any]],
     managed: Mapping[str, Mapping[str, Any]],
     hub_error: str,
 ) -> list[Obj]:
     """A Node for every ComputeNode that stands for a managed cluster (``managed``: the hub's
-    ManagedClusters by name)."""
-    return [
-        cluster_node(name, cluster, managed.get(cluster), hub_error)
-        for name, cluster in sorted(managed_clusters_of(compute_nodes).items())
-    ]
+    ManagedClusters by name; when the hub did not answer and one was never read, what the
+    ComputeNode's status recorded of it)."""
+    out = []
+    for cn in compute_nodes:
+        name = str((cn.get("metadata") or {}).get("name", ""))
+        cluster = managed_clusters_of([cn]).get(name)
+        if cluster is None:
+            continue
+        known = managed.get(cluster) or (_recorded(cn) if hub_error else None)
+        out.append(cluster_node(name, cluster, known, hub_error))
+    return sorted(out, key=lambda n: str(n["metadata"]["name"]))
+
+
+def placed_in(status: Mapping[str, Any], nodes: Collection[str]) -> dict[tuple[str, str, int], str]:
+    """(robot, module, replica) -> node of a fleet's ``status.placement`` entries on ``nodes``:
+    where the fleet last said its instances run in the clusters (an operator that cannot read
+    the hub's works plans with it, so as to start none of them a second time at the site)."""
+    out: dict[tuple[str, str, int], str] = {}
+    for entry in status.get("placement") or []:
+        node = entry.get("node")
+        if node in nodes:
+            ident = (
+                str(entry.get("robot") or ""),
+                str(entry["module"]),
+                int(entry.get("replica") or 0),
+            )
+            out[ident] = str(node)
+    return out
 
 
 def _number(text: str) -> int | float | str:

@@ -291,3 +291,22 @@ def test_a_cluster_cut_off_keeps_its_instances_and_none_is_started_at_the_site_i
     cloud_kube.run_pods()
     assert run(cloud_kube, cloud_deps).ready
     assert set(_modules_of(hub)) == remote and set(cloud_kube.deployments) == site
+
+
+def test_an_operator_restarted_during_a_cut_starts_no_cloud_instance_at_the_site(
+    cloud_kube: Any, cloud_deps: Deps, make_deps: Any, hub: FakeHub
+) -> None:
+    """It has read neither the works nor the ManagedCluster: the fleet's status says where
+    its instances run, and the ComputeNode's status what the cluster holds."""
+    cloud_kube.fleets[KEY]["spec"]["nodes"] = ["edge-1", "edge-2", CLOUD]
+    run(cloud_kube, cloud_deps)
+    cloud_kube.run_pods()
+    hub.feed()
+    run(cloud_kube, cloud_deps)
+    reconcile_usage(cloud_deps)  # the ComputeNode's status records the cluster's allocatable
+    site = set(cloud_kube.deployments)
+    hub.down = True
+    restarted: Deps = dataclasses.replace(make_deps(), hub=Hub(hub, "site-a"))
+    restarted.full_reconcile_seconds = 0
+    run(cloud_kube, restarted)
+    assert set(cloud_kube.deployments) == site, "a cloud instance was started at the site"

@@ -33,6 +33,7 @@ from fogfleet.render.deployments import Owner, label_value
 from fogfleet.render.wiring import is_ros_object
 from fogfleet.snapshot import FleetSnapshot
 from fogfleet.snapshot.catalog import Inputs, gather
+from fogfleet.snapshot.clusters import managed_clusters_of, placed_in
 from fogfleet.snapshot.objects import (
     current_placement,
     parse_fleet,
@@ -213,7 +214,7 @@ def fleet_snapshot(
         catalog=parsed.catalog,
         unavailable=parsed.inputs.unavailable,
         broken=parsed.inputs.broken,
-        current=current_placement(inputs.deployments),
+        current=_current(inputs),
         pools=parsed.pools,
         corrections=inputs.corrections,
         measured_links=inputs.measured,
@@ -221,6 +222,17 @@ def fleet_snapshot(
         held=inputs.held,
         status=inputs.obj.old_status,
     )
+
+
+def _current(inputs: FleetInputs) -> dict[tuple[str, str, int], str]:
+    """Where the fleet's instances run: its Deployments' nodes, and while the hub's works
+    cannot be read, where its status last put those in managed clusters."""
+    current = current_placement(inputs.deployments)
+    if inputs.hub_error:
+        clusters = managed_clusters_of(inputs.compute_nodes)
+        for ident, node in placed_in(inputs.obj.old_status, clusters).items():
+            current.setdefault(ident, node)
+    return current
 
 
 def record_references(
