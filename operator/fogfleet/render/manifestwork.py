@@ -169,6 +169,11 @@ def _manifests(work: Mapping[str, Any]) -> list[Obj]:
     return found
 
 
+def _deployment(manifests: list[Obj]) -> Obj | None:
+    """The Deployment among a work's manifests (ours carry one)."""
+    return next((m for m in manifests if m.get("kind") == "Deployment"), None)
+
+
 def _feedback(work: Mapping[str, Any], name: str) -> dict[str, int]:
     """The Deployment ``name``'s fed-back values (integers) in the work's status."""
     manifests = ((work.get("status") or {}).get("resourceStatus") or {}).get("manifests") or []
@@ -188,7 +193,7 @@ def _feedback(work: Mapping[str, Any], name: str) -> dict[str, int]:
 def deployment_of(work: Mapping[str, Any]) -> Obj | None:
     """The Deployment a work of ours carries, as the site would hold it: bound to its
     ComputeNode, its status what the cluster's agent fed back (None: not one of ours)."""
-    sent = next((m for m in _manifests(work) if m.get("kind") == "Deployment"), None)
+    sent = _deployment(_manifests(work))
     work_meta = work.get("metadata") or {}
     annotations = dict(work_meta.get("annotations") or {})
     node = annotations.get(ANNOTATION_NODE)
@@ -211,14 +216,14 @@ def deployment_of(work: Mapping[str, Any]) -> Obj | None:
 
 def _with_replicas(work: Mapping[str, Any], replicas: int) -> list[Obj]:
     manifests = copy.deepcopy(_manifests(work))
-    for m in manifests:
-        if m.get("kind") == "Deployment":
-            m.setdefault("spec", {})["replicas"] = replicas
+    dep = _deployment(manifests)
+    if dep is not None:
+        dep.setdefault("spec", {})["replicas"] = replicas
     return manifests
 
 
 def _replicas(work: Mapping[str, Any]) -> int:
-    dep: Obj = next((m for m in _manifests(work) if m.get("kind") == "Deployment"), {})
+    dep = _deployment(_manifests(work)) or {}
     return int((dep.get("spec") or {}).get("replicas", 1))
 
 

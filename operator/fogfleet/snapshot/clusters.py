@@ -27,6 +27,7 @@ from pydantic import ValidationError
 
 from fogfleet.api.labels import ANNOTATION_MANAGED_CLUSTER
 from fogfleet.api.v1alpha1.computenode import ComputeNode, ComputeNodeSpec
+from fogfleet.api.v1alpha1.placement import placement_entries_of
 
 __all__ = [
     "ANNOTATION_CLAIMS",
@@ -54,12 +55,17 @@ ANNOTATION_CLAIMS = "fogfleet.io/cluster-claims"  # on the Node made here: the c
 
 def managed_clusters_of(compute_nodes: Iterable[Mapping[str, Any]]) -> dict[str, str]:
     """ComputeNode name -> the ManagedCluster it stands for (raw objects, unvalidated)."""
-    out: dict[str, str] = {}
-    for cn in compute_nodes:
-        cluster = (cn.get("spec") or {}).get("managedCluster")
-        if isinstance(cluster, str) and cluster:
-            out[str((cn.get("metadata") or {}).get("name", ""))] = cluster
-    return out
+    return {_name(cn): cluster for cn in compute_nodes if (cluster := _cluster_of(cn))}
+
+
+def _name(compute_node: Mapping[str, Any]) -> str:
+    return str((compute_node.get("metadata") or {}).get("name", ""))
+
+
+def _cluster_of(compute_node: Mapping[str, Any]) -> str | None:
+    """The ManagedCluster a raw ComputeNode stands for (None: it is a Node of the site)."""
+    cluster = (compute_node.get("spec") or {}).get("managedCluster")
+    return cluster if isinstance(cluster, str) and cluster else None
 
 
 def _ready(status: str, reason: str, message: str) -> Obj:
@@ -117,22 +123,21 @@ def cluster_nodes(
     ManagedClusters by name; when the hub did not answer and one was never read, what the
     ComputeNode's status recorded of it)."""
     out = []
-    for cn in compute_nodes:
-        name = str((cn.get("metadata") or {}).get("name", ""))
-        cluster = managed_clusters_of([cn]).get(name)
-        if cluster is None:
-            continue
-        known = managed.get(cluster) or (_recorded(cn) if hub_error else None)
-        out.append(cluster_node(name, cluster, known, hub_error))
-    return sorted(out, key=lambda n: str(n["metadata"]["name"]))
+    for cn in sorted(compute_nodes, key=_name):
+        cluster = _cluster_of(cn)
+        if cluster is not None:
+            known = managed.get(cluster) or (_recorded(cn) if hub_error else None)
+            out.append(cluster_node(_name(cn), cluster, known, hub_error))
+    return out
 
 
 def placed_in(status: Mapping[str, Any], nodes: Collection[str]) -> dict[tuple[str, str, int], str]:
-    """(robot, module, replica) -> node of a fleet's ``status.placement`` entries on ``nodes``:
-    where the fleet last said its instances run in the clusters (an operator that cannot read
-    the hub's works plans with it, so as to start none of them a second time at the site)."""
+    """(robot, module, replica) -> node of a fleet's placement entries on ``nodes`` (its
+    status.placement or placementCompact): where the fleet last said its instances run in the
+    clusters (an operator that cannot read the hub's works plans with it, so as to start none
+    of them a second time at the site)."""
     out: dict[tuple[str, str, int], str] = {}
-    for entry in status.get("placement") or []:
+    for entry in placement_entries_of(status):
         node = entry.get("node")
         if node in nodes:
             ident = (
