@@ -293,6 +293,12 @@ def test_messages_cross_the_wan_between_the_routers_and_wait_out_a_cut(
         in_cloud.close()
 
 
+def _site_available(hub: cloud.CloudCluster) -> str | None:
+    """The site's ManagedClusterConditionAvailable, as the hub says it."""
+    mc = json.loads(hub.kubectl("get", "managedcluster", "site", "-o", "json"))
+    return condition_status(mc, "ManagedClusterConditionAvailable")
+
+
 @pytest.mark.long
 def test_a_wan_cut_leaves_the_sites_work_running_and_it_catches_up_after(
     joined: tuple[cloud.CloudCluster, ocm.Joined], kube: Kube, namespace: str
@@ -307,15 +313,11 @@ def test_a_wan_cut_leaves_the_sites_work_running_and_it_catches_up_after(
 
     kube.wait_for("the ConfigMap on the site", lambda: site_value() == "the hub")
 
-    def site_available() -> str | None:
-        mc = json.loads(hub.kubectl("get", "managedcluster", "site", "-o", "json"))
-        return condition_status(mc, "ManagedClusterConditionAvailable")
-
     cloud.set_wan(cloud.WanSettings(cut=True))
     try:
         t0 = time.monotonic()
         # OCM's rule: unavailable after 5 lease periods unrenewed (ocm.LEASE_SECONDS each)
-        kube.wait_for("the hub to lose the site", lambda: site_available() != "True",
+        kube.wait_for("the hub to lose the site", lambda: _site_available(hub) != "True",
               timeout=5 * ocm.LEASE_SECONDS + 60)  # fmt: skip
         lost = time.monotonic() - t0
         changed = _work("e2e-cut", "across-a-cut", namespace)
@@ -326,7 +328,7 @@ def test_a_wan_cut_leaves_the_sites_work_running_and_it_catches_up_after(
     finally:
         cloud.set_wan(cloud.WanSettings())
     t1 = time.monotonic()
-    kube.wait_for("the site Available again", lambda: site_available() == "True", timeout=120)
+    kube.wait_for("the site Available again", lambda: _site_available(hub) == "True", timeout=120)
     kube.wait_for("the change applied at the site", lambda: site_value() == "the hub, later", 120)
     print(f"\nhub lost the site {lost:.0f}s into the cut; back {time.monotonic() - t1:.0f}s "
           "after it ended; the site's work ran on throughout")  # fmt: skip
@@ -586,17 +588,13 @@ def test_a_site_gone_longer_than_set_has_its_cloud_instances_scaled_to_zero_and_
     at_site = sorted(d["metadata"]["name"] for d in deployments(kube, namespace))
     works = sorted(w["metadata"]["name"] for w in _works(hub, namespace))
 
-    def site_available() -> str | None:
-        mc = json.loads(hub.kubectl("get", "managedcluster", "site", "-o", "json"))
-        return condition_status(mc, "ManagedClusterConditionAvailable")
-
     def running_in_the_cloud() -> int:
         return sum(p["status"].get("phase") == "Running" for p in _cloud_pods(hub, namespace))
 
     cloud.set_wan(cloud.WanSettings(cut=True))
     try:
         t0 = time.monotonic()
-        kube.wait_for("the hub to lose the site", lambda: site_available() != "True",
+        kube.wait_for("the hub to lose the site", lambda: _site_available(hub) != "True",
                       timeout=5 * ocm.LEASE_SECONDS + 60)  # fmt: skip
         lost = time.monotonic() - t0
         kube.wait_for("the cloud's instance scaled to zero", lambda: running_in_the_cloud() == 0,
@@ -609,7 +607,7 @@ def test_a_site_gone_longer_than_set_has_its_cloud_instances_scaled_to_zero_and_
     finally:
         cloud.set_wan(cloud.WanSettings())
     t1 = time.monotonic()
-    kube.wait_for("the site Available again", lambda: site_available() == "True", timeout=120)
+    kube.wait_for("the site Available again", lambda: _site_available(hub) == "True", timeout=120)
     kube.wait_for("the cloud's instance back", lambda: running_in_the_cloud() == 1, timeout=120)
     back = time.monotonic() - t1
     wait_ready(kube, namespace, "mapped", timeout=120)

@@ -7,6 +7,7 @@ import copy
 from collections.abc import Mapping
 from typing import Any
 
+from fogfleet.api.timestamps import timestamp
 from fogfleet.controllers.keeper import Kept, gone_since, keep
 from fogfleet.render.deployments import node_affinity
 from fogfleet.render.manifestwork import ANNOTATION_PARKED, deployment_of, work_of
@@ -15,16 +16,10 @@ Obj = dict[str, Any]
 T0 = 1_800_000_000.0  # the site's lease stopped (epoch seconds)
 
 
-def _stamp(t: float) -> str:
-    import time
-
-    return time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime(t))
-
-
 def _site(available: bool) -> Obj:
     status = "True" if available else "Unknown"
     cond = {"type": "ManagedClusterConditionAvailable", "status": status,
-            "lastTransitionTime": _stamp(T0)}  # fmt: skip
+            "lastTransitionTime": timestamp(T0)}  # fmt: skip
     return {"metadata": {"name": "site-a"}, "status": {"conditions": [cond]}}
 
 
