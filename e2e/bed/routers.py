@@ -15,7 +15,6 @@ Needs the venv's Python (eclipse-zenoh is a dev dependency); the harness starts 
 from __future__ import annotations
 
 import argparse
-import json
 import signal
 import sys
 import threading
@@ -28,18 +27,12 @@ __all__ = ["config", "main"]
 def config(mode: str, listen: Sequence[str] = (), connect: Sequence[str] = ()) -> Any:
     """A Zenoh config of the bed: ``mode`` (router, peer, client), the endpoints given, no
     scouting. Every Zenoh session of the bed (routers, tests' clients) is opened with it."""
-    import zenoh
+    from fogfleet.workload.relay import zenoh_config
 
     for endpoint in (*listen, *connect):
         if not endpoint.startswith("tcp/127."):
             raise ValueError(f"{endpoint}: the bed's Zenoh endpoints are tcp on loopback")
-    cfg = zenoh.Config()
-    cfg.insert_json5("mode", json.dumps(mode))
-    cfg.insert_json5("listen/endpoints", json.dumps(list(listen)))
-    cfg.insert_json5("connect/endpoints", json.dumps(list(connect)))
-    cfg.insert_json5("scouting/multicast/enabled", "false")
-    cfg.insert_json5("scouting/gossip/enabled", "false")
-    return cfg
+    return zenoh_config(mode, listen, connect)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -125,6 +125,15 @@ class Settings(BaseSettings):
         "ManifestWorks it writes (needed with HUB_KUBECONFIG)",
     )
 
+    site_router: Annotated[str, Field(pattern=r"^(tcp|tls|quic)/[^/\s]+:[0-9]{1,5}$")] | None = (
+        Field(
+            None,
+            description="the site's Zenoh router (tcp/HOST:PORT) that each robot's relay dials: "
+            "the ROS 2 topics of instances in managed clusters cross through it (unset: none "
+            "cross; needs HUB_KUBECONFIG)",
+        )
+    )
+
     def scheduler_defaults(self) -> dict[str, int]:
         """Scheduler fields (SchedulerSettings names) that fleets inherit when they omit them."""
         pairs = {

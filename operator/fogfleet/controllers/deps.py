@@ -32,6 +32,9 @@ class Hub:
     # the ManagedClusters as last read: what the site knows of a cluster it cannot reach now
     # (its allocatable: the instances there are then stranded, not planned anew elsewhere)
     seen: dict[str, Obj] = field(default_factory=dict)
+    # the site's Zenoh router, which the robots' relays dial (FOGFLEET_SITE_ROUTER; "": none,
+    # and no ROS 2 message crosses to the clusters: render.relays)
+    router: str = ""
 
 
 @dataclass

@@ -52,7 +52,7 @@ from fogfleet.domain.problem import Instance, Problem
 from fogfleet.render.dnn import ROLE_HEAD, ROLE_TAIL, split_body
 from fogfleet.render.names import container_name, deployment_name
 from fogfleet.render.podtemplate import module_pod_spec, scrape_port
-from fogfleet.render.ros import RosWiring, module_env, stay_on_robot
+from fogfleet.render.ros import RosWiring, module_env, node_affinity, stay_on_robot
 
 __all__ = [
     "ANNOTATION_MODULE",
@@ -131,17 +131,6 @@ def identity_of(deployment: Mapping[str, Any]) -> tuple[str, str, int] | None:
     except ValueError:
         return None
     return ann.get(ANNOTATION_ROBOT, ""), ann[ANNOTATION_MODULE], replica
-
-
-def node_affinity(node_names: Sequence[str]) -> dict[str, Any]:
-    term = {
-        "matchExpressions": [{"key": HOSTNAME_KEY, "operator": "In", "values": list(node_names)}]
-    }
-    return {
-        "nodeAffinity": {
-            "requiredDuringSchedulingIgnoredDuringExecution": {"nodeSelectorTerms": [term]}
-        }
-    }
 
 
 def spread_replicas(pod_spec: dict[str, Any], fleet: str, module: str) -> dict[str, Any]:

@@ -63,6 +63,7 @@ __all__ = [
     "object_name",
     "pod_deployment",
     "profiling_job_name",
+    "relay_name",
     "robot_network_policy_name",
     "scaled_object_name",
     "shared_network_policy_name",
@@ -147,6 +148,12 @@ def discovery_service_name(fleet: str, robot: str) -> str:
     """``<fleet>-<robot>-dds``: the Service and the Deployment of the robot's discovery
     server (a DNS-1035 label of at most 57 characters)."""
     return object_name("dds", fleet, robot, kind=_DISCOVERY)
+
+
+def relay_name(fleet: str, robot: str) -> str:
+    """``<fleet>-<robot>-relay``: the Deployment of the robot's relay to the managed clusters
+    (render.relays), of at most 57 characters."""
+    return object_name("relay", fleet, robot, kind=DEPLOYMENT)
 
 
 def network_policy_name(fleet: str) -> str:

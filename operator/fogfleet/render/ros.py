@@ -20,7 +20,7 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
-from fogfleet.api.labels import DEDICATED_TAINT_KEY, LABEL_COMPONENT, LABEL_ROBOT
+from fogfleet.api.labels import DEDICATED_TAINT_KEY, HOSTNAME_KEY, LABEL_COMPONENT, LABEL_ROBOT
 from fogfleet.api.names import label_value
 from fogfleet.api.v1alpha1.fallback import Fallback
 from fogfleet.api.v1alpha1.robotfleet import RosSettings
@@ -48,6 +48,8 @@ from fogfleet.render.names import (
     shared_network_policy_name,
 )
 
+Obj = dict[str, Any]
+
 __all__ = [
     "COMPONENT_DISCOVERY",
     "METRICS_PORT",
@@ -57,8 +59,11 @@ __all__ = [
     "discovery_servers",
     "fleet_network_policies",
     "module_env",
+    "node_affinity",
+    "on_the_robot",
     "pod_security",
     "render_discovery",
+    "ros_env",
     "service_address",
     "stay_on_robot",
 ]
@@ -189,6 +194,25 @@ def module_spec_json(
     return json.dumps(body, separators=(",", ":"), sort_keys=True)
 
 
+def ros_env(wiring: RosWiring, robot: str) -> dict[str, str]:
+    """The ROS 2 wiring of a fleet pod that serves ``robot`` ("": every robot): its RMW,
+    domain, discovery range and its robot's discovery server (none when the wiring is off)."""
+    ros = wiring.settings
+    if not ros.enabled:
+        return {}
+    env = {
+        "RMW_IMPLEMENTATION": ros.rmw_implementation,
+        "ROS_DOMAIN_ID": str(ros.domain_id),
+        "ROS_AUTOMATIC_DISCOVERY_RANGE": ros.discovery_range.value,
+        # no shared memory between pods: Fast DDS would try it on one node and fail
+        "FASTDDS_BUILTIN_TRANSPORTS": "UDPv4",
+    }
+    server = wiring.server_for(robot)
+    if server:
+        env["ROS_DISCOVERY_SERVER"] = server
+    return env
+
+
 def module_env(
     wiring: RosWiring | None,
     *,
@@ -245,23 +269,54 @@ def module_env(
         env[ENV_VARIANT] = module.metadata.name
     if node_rows:
         del env[ENV_NODE], env[ENV_CPU], env[ENV_HARDWARE_TYPE]
-    if wiring is not None and wiring.settings.enabled:
-        ros = wiring.settings
-        env |= {
-            "RMW_IMPLEMENTATION": ros.rmw_implementation,
-            "ROS_DOMAIN_ID": str(ros.domain_id),
-            "ROS_AUTOMATIC_DISCOVERY_RANGE": ros.discovery_range.value,
-            # no shared memory between pods: Fast DDS would try it on one node and fail
-            "FASTDDS_BUILTIN_TRANSPORTS": "UDPv4",
-        }
-        server = wiring.server_for(robot)
-        if server:
-            env["ROS_DISCOVERY_SERVER"] = server
+    if wiring is not None:
+        env |= ros_env(wiring, robot)
     out: list[dict[str, Any]] = _env(env)
     if node_rows:
         node_ref = {"fieldRef": {"apiVersion": "v1", "fieldPath": "spec.nodeName"}}
         out.insert(4, {"name": ENV_NODE, "valueFrom": node_ref})
     return out
+
+
+def node_affinity(node_names: Sequence[str]) -> dict[str, Any]:
+    term = {
+        "matchExpressions": [{"key": HOSTNAME_KEY, "operator": "In", "values": list(node_names)}]
+    }
+    return {
+        "nodeAffinity": {
+            "requiredDuringSchedulingIgnoredDuringExecution": {"nodeSelectorTerms": [term]}
+        }
+    }
+
+
+def on_the_robot(
+    meta: Mapping[str, Any], selector: Mapping[str, str], node_name: str, container: Obj
+) -> Obj:
+    """A Deployment of one pod of fogfleet's own on a robot's node (``node_name``): the robot's
+    discovery server, its relay (``render.relays``). Restricted pod security, no token, /tmp."""
+    pod_sc, _ = pod_security()
+    return {
+        "apiVersion": "apps/v1",
+        "kind": "Deployment",
+        "metadata": dict(meta),
+        "spec": {
+            "replicas": 1,
+            "selector": {"matchLabels": dict(selector)},
+            "strategy": {"type": "Recreate"},
+            "template": {
+                "metadata": {"labels": dict(selector)},
+                "spec": {
+                    "affinity": node_affinity([node_name]),
+                    "automountServiceAccountToken": False,
+                    "enableServiceLinks": False,
+                    "securityContext": pod_sc,
+                    "containers": [container],
+                    "volumes": [{"name": "tmp", "emptyDir": {"sizeLimit": "16Mi"}}],
+                    "tolerations": [dict(PLANNED_TOLERATION), *map(dict, ROBOT_TOLERATIONS)],
+                },
+            },
+        },
+    }
 
 
 def render_discovery(
@@ -295,7 +350,7 @@ def render_discovery(
             "ports": [{"name": "dds-udp", "port": port, "targetPort": port, "protocol": "UDP"}],
         },
     }
-    pod_sc, container_sc = pod_security()
+    _, container_sc = pod_security()
     container = {
         "name": "discovery-server",
         "image": settings.discovery_server_image,
@@ -313,44 +368,7 @@ def render_discovery(
         "securityContext": container_sc,
         "volumeMounts": [{"name": "tmp", "mountPath": "/tmp"}],
     }
-    deployment = {
-        "apiVersion": "apps/v1",
-        "kind": "Deployment",
-        "metadata": meta,
-        "spec": {
-            "replicas": 1,
-            "selector": {"matchLabels": selector},
-            "strategy": {"type": "Recreate"},
-            "template": {
-                "metadata": {"labels": selector},
-                "spec": {
-                    "affinity": {
-                        "nodeAffinity": {
-                            "requiredDuringSchedulingIgnoredDuringExecution": {
-                                "nodeSelectorTerms": [
-                                    {
-                                        "matchExpressions": [
-                                            {
-                                                "key": "kubernetes.io/hostname",
-                                                "operator": "In",
-                                                "values": [node_name],
-                                            }
-                                        ]
-                                    }
-                                ]
-                            }
-                        }
-                    },
-                    "automountServiceAccountToken": False,
-                    "enableServiceLinks": False,
-                    "securityContext": pod_sc,
-                    "containers": [container],
-                    "volumes": [{"name": "tmp", "emptyDir": {"sizeLimit": "16Mi"}}],
-                    "tolerations": [dict(PLANNED_TOLERATION), *map(dict, ROBOT_TOLERATIONS)],
-                },
-            },
-        },
-    }
+    deployment = on_the_robot(meta, selector, node_name, container)
     return service, deployment
 
 

@@ -19,6 +19,7 @@ from fogfleet.api.v1alpha1.robotfleet import RosSettings
 from fogfleet.api.v1alpha1.softwaremodule import SoftwareModule
 from fogfleet.domain.problem import Problem
 from fogfleet.render.deployments import Owner, owner_references, with_spec_hash
+from fogfleet.render.relays import COMPONENT_RELAY
 from fogfleet.render.ros import (
     COMPONENT_DISCOVERY,
     RosWiring,
@@ -33,9 +34,10 @@ Obj = dict[str, Any]
 
 
 def is_ros_object(obj: Mapping[str, Any]) -> bool:
-    """Whether ``obj`` is part of a fleet's discovery wiring (a server's Service or Deployment)."""
+    """Whether ``obj`` is part of a fleet's ROS 2 wiring: a discovery server's Service or
+    Deployment, or a robot's relay to the managed clusters."""
     labels = (obj.get("metadata") or {}).get("labels") or {}
-    return labels.get(LABEL_COMPONENT) == COMPONENT_DISCOVERY
+    return labels.get(LABEL_COMPONENT) in (COMPONENT_DISCOVERY, COMPONENT_RELAY)
 
 
 @dataclass(frozen=True)

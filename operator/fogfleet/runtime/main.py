@@ -65,7 +65,8 @@ def _hub(settings: Settings, metrics: PrometheusMetrics) -> Hub | None:
         return None
     log.info("Managed clusters are reached through the OCM hub as %s", settings.cluster_name)
     port = hub_client(settings.hub_kubeconfig, metrics)
-    return Hub(port, settings.cluster_name, tuple(settings.namespaces))
+    router = settings.site_router or ""
+    return Hub(port, settings.cluster_name, tuple(settings.namespaces), router=router)
 
 
 def _standby_health(settings: Settings) -> http.server.HTTPServer | None:

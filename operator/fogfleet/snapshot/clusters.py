@@ -33,10 +33,12 @@ __all__ = [
     "ANNOTATION_CLAIMS",
     "AVAILABLE",
     "CLAIMS",
+    "ROUTER_CLAIM",
     "cluster_node",
     "cluster_nodes",
     "managed_clusters_of",
     "placed_in",
+    "relay_routers",
     "with_claims",
 ]
 
@@ -51,6 +53,9 @@ CLAIMS = {
     "wan-bandwidth-mbps.fogfleet.io": "bandwidthMbps",
 }
 ANNOTATION_CLAIMS = "fogfleet.io/cluster-claims"  # on the Node made here: the claims (JSON)
+# ClusterClaim: the Zenoh router of the cluster that the relays beside its instances dial
+# (render.relays; a Zenoh endpoint such as tcp/zenoh-router.fogfleet-system:7447)
+ROUTER_CLAIM = "relay-router.fogfleet.io"
 
 
 def managed_clusters_of(compute_nodes: Iterable[Mapping[str, Any]]) -> dict[str, str]:
@@ -93,7 +98,7 @@ def cluster_node(name: str, cluster: str, managed: Mapping[str, Any] | None, hub
     claims = {
         str(c.get("name")): str(c.get("value"))
         for c in ((managed or {}).get("status") or {}).get("clusterClaims") or []
-        if c.get("name") in CLAIMS
+        if c.get("name") in CLAIMS or c.get("name") == ROUTER_CLAIM
     }
     annotations = {ANNOTATION_MANAGED_CLUSTER: cluster}
     if claims:
@@ -104,6 +109,19 @@ def cluster_node(name: str, cluster: str, managed: Mapping[str, Any] | None, hub
         "metadata": {"name": name, "annotations": annotations},
         "status": {"conditions": [ready], "allocatable": dict(alloc), "capacity": dict(alloc)},
     }
+
+
+def relay_routers(nodes: Iterable[Mapping[str, Any]]) -> dict[str, str]:
+    """Managed cluster -> the Zenoh router its ClusterClaim ``ROUTER_CLAIM`` names, from the
+    Nodes made here (``cluster_node``); a cluster that claims none is left out."""
+    out = {}
+    for node in nodes:
+        annotations = (node.get("metadata") or {}).get("annotations") or {}
+        cluster = annotations.get(ANNOTATION_MANAGED_CLUSTER)
+        router = json.loads(annotations.get(ANNOTATION_CLAIMS) or "{}").get(ROUTER_CLAIM)
+        if cluster and router:
+            out[str(cluster)] = str(router)
+    return out
 
 
 def _recorded(compute_node: Mapping[str, Any]) -> Obj | None:
@@ -165,7 +183,8 @@ def with_claims(cn: ComputeNode, node: Mapping[str, Any] | None) -> ComputeNode:
     annotations = ((node or {}).get("metadata") or {}).get("annotations") or {}
     if not cn.spec.managed_cluster or ANNOTATION_CLAIMS not in annotations:
         return cn
-    claims = {CLAIMS[k]: _number(v) for k, v in json.loads(annotations[ANNOTATION_CLAIMS]).items()}
+    said = json.loads(annotations[ANNOTATION_CLAIMS]).items()
+    claims = {CLAIMS[k]: _number(v) for k, v in said if k in CLAIMS}
     spec = cn.spec.model_dump(by_alias=True, exclude_unset=True, mode="json")
     for field in ("privacyLevel", "costPerCoreHour"):
         if field in claims and field not in spec:

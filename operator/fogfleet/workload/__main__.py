@@ -1,5 +1,5 @@
-"""``python -m fogfleet.workload module | dnn | probe | discovery-server`` (the ROS 2 workload
-image's entry points)."""
+"""``python -m fogfleet.workload module | dnn | probe | discovery-server | relay`` (the ROS 2
+workload image's entry points)."""
 
 from __future__ import annotations
 
@@ -17,6 +17,7 @@ from fogfleet.contract.env import (
     ENV_ROLE,
     METRICS_PORT,
 )
+from fogfleet.contract.relay import ENV_RELAY_ROUTER, ENV_RELAY_ROUTES, routes_from_json
 
 from .dnn.whole import Whole
 from .fallback import Role
@@ -89,12 +90,20 @@ def main(argv: list[str] | None = None) -> int:
     d.add_argument("--listen", default="0.0.0.0")
     d.add_argument("--port", type=int, default=11811)
     d.add_argument("--tcp-port", type=int, default=None, help="also listen on TCP (probes)")
+    r = sub.add_parser(
+        "relay",
+        help=f"carry the routes in ${ENV_RELAY_ROUTES} between this ROS 2 graph and the Zenoh "
+        f"router in ${ENV_RELAY_ROUTER} (a cut edge of the plan across the WAN)",
+    )
+    r.add_argument("--log-interval", type=_log_seconds, default=None, metavar="SECONDS")
     ns = parser.parse_args(argv)
     if ns.cmd == "discovery-server":
         from .discovery import run_discovery_server
 
         run_discovery_server(ns.listen, ns.port, ns.tcp_port)
         return 0
+    if ns.cmd == "relay":
+        return _relay(ns.log_interval)
     try:
         spec = WorkloadSpec.from_env(os.environ)
     except ValueError as exc:
@@ -190,6 +199,23 @@ def _dnn(
 
     folder = models_folder(os.environ)
     run_dnn(spec, spec.role.value, folder, host, port, seconds, None, link_mbit, whole)
+    return 0
+
+
+def _relay(every: float | None) -> int:
+    """The relay's run (``workload.relay``), from its environment."""
+    try:
+        routes = routes_from_json(os.environ.get(ENV_RELAY_ROUTES, ""))
+        router = os.environ.get(ENV_RELAY_ROUTER, "")
+        if not router.startswith(("tcp/", "tls/", "quic/", "udp/")):
+            raise ValueError(f"{ENV_RELAY_ROUTER}: a Zenoh endpoint, tcp/HOST:PORT, not {router!r}")
+        seconds = every if every is not None else log_interval(os.environ)
+    except ValueError as exc:
+        print(f"fogfleet-workload: {exc}", file=sys.stderr)
+        return 2
+    from .relay import run_relay
+
+    run_relay(routes, router, log_interval=seconds)
     return 0
 
 

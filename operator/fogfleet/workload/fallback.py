@@ -23,10 +23,9 @@ from dataclasses import dataclass, field
 from enum import StrEnum
 
 from fogfleet.contract.dnn import ROLE_HEAD, ROLE_TAIL
+from fogfleet.contract.relay import remote_topic
 
 __all__ = ["FirstResponse", "Role", "Source", "Takeover", "remote_topic"]
-
-REMOTE_SUFFIX = "remote"
 
 
 class Role(StrEnum):
@@ -42,11 +41,6 @@ class Role(StrEnum):
 class Source(StrEnum):
     REMOTE = "remote"
     STANDBY = "standby"
-
-
-def remote_topic(name: str) -> str:
-    """Where a remote instance publishes output ``name`` (a ROS 2 name under ``name``)."""
-    return f"{name.rstrip('/')}/{REMOTE_SUFFIX}"
 
 
 @dataclass

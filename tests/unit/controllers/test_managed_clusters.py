@@ -12,14 +12,18 @@ from typing import Any
 
 import pytest
 
+from fogfleet.api.labels import LABEL_COMPONENT, LABEL_ROBOT
 from fogfleet.api.timestamps import parse_timestamp
+from fogfleet.contract.relay import ENV_RELAY_ROUTER
 from fogfleet.controllers.deps import Deps, Hub
 from fogfleet.controllers.fleet.clusters import ORPHAN_GRACE_SECONDS, delete_remote, sweep_orphans
 from fogfleet.controllers.fleet.reconcile import reconcile
 from fogfleet.controllers.measure.usage import reconcile_usage
 from fogfleet.errors import DependencyUnavailable
 from fogfleet.render.manifestwork import FEEDBACK
+from fogfleet.render.relays import COMPONENT_RELAY, RELAY_CONTAINER
 from fogfleet.render.wiring import is_ros_object
+from fogfleet.snapshot.clusters import ROUTER_CLAIM
 
 KEY = ("warehouse", "warehouse")
 CLOUD = "cloud-1"  # the ComputeNode
@@ -310,3 +314,44 @@ def test_an_operator_restarted_during_a_cut_starts_no_cloud_instance_at_the_site
     restarted.full_reconcile_seconds = 0
     run(cloud_kube, restarted)
     assert set(cloud_kube.deployments) == site, "a cloud instance was started at the site"
+
+
+def test_the_cut_edges_get_relays_at_both_ends_and_lose_them_without_routers(
+    cloud_kube: Any, cloud_deps: Deps, hub: FakeHub
+) -> None:
+    """With the site's router and the cloud's claimed one: every work's pod has a relay beside
+    the module, each robot with an instance in the cloud a relay on its node; a second pass
+    writes nothing; without the routers the relays go."""
+    cloud_deps.hub = dataclasses.replace(cloud_deps.hub, router="tcp/198.18.0.1:7447")
+    claim = {"name": ROUTER_CLAIM, "value": "tcp/10.96.0.20:7447"}
+    hub.clusters[CLUSTER]["status"]["clusterClaims"] = [claim]
+    run(cloud_kube, cloud_deps)
+    assert hub.works
+    robots = set()
+    for work in hub.works.values():
+        dep = work["spec"]["workload"]["manifests"][1]
+        containers = dep["spec"]["template"]["spec"]["containers"]
+        relay = {e["name"]: e["value"] for e in containers[-1]["env"]}
+        assert containers[-1]["name"] == RELAY_CONTAINER
+        assert relay[ENV_RELAY_ROUTER] == "tcp/10.96.0.20:7447"
+        robots.add(dep["metadata"]["annotations"]["fogfleet.io/robot"])
+    relays = {
+        d["metadata"]["labels"][LABEL_ROBOT]: d
+        for d in cloud_kube.deployments.values()
+        if d["metadata"]["labels"].get(LABEL_COMPONENT) == COMPONENT_RELAY
+    }
+    assert set(relays) == robots - {""}
+    cloud_deps.full_reconcile_seconds = 0
+    applied = len(hub.applied)
+    assert run(cloud_kube, cloud_deps).applied == 0 and len(hub.applied) == applied
+    cloud_deps.hub = dataclasses.replace(cloud_deps.hub, router="")
+    hub.clusters[CLUSTER]["status"]["clusterClaims"] = []
+    run(cloud_kube, cloud_deps)
+    for work in hub.works.values():
+        containers = work["spec"]["workload"]["manifests"][1]["spec"]["template"]["spec"]
+        assert RELAY_CONTAINER not in [c["name"] for c in containers["containers"]]
+    assert not [
+        d
+        for d in cloud_kube.deployments.values()
+        if d["metadata"]["labels"].get(LABEL_COMPONENT) == COMPONENT_RELAY
+    ]

@@ -28,6 +28,7 @@ from fogfleet.render.names import (
     deployment_name,
     discovery_service_name,
     pod_deployment,
+    relay_name,
     robot_network_policy_name,
 )
 from fogfleet.render.ros import fleet_network_policies, render_discovery
@@ -112,6 +113,8 @@ def render_names(triples: list[tuple[str, str, str]]) -> Names:
             names.add("Service", service["metadata"]["name"], (fleet, robot), valid_service)
             server_name = server["metadata"]["name"]
             names.add("Deployment", server_name, ("dds", fleet, robot), valid_deployment)
+            relay = relay_name(fleet, robot)
+            names.add("Deployment", relay, ("relay", fleet, robot), valid_deployment)
             assert all(LABEL_VALUE.fullmatch(v) for v in service["spec"]["selector"].values())
         for policy in fleet_network_policies(
             fleet=fleet, namespace="ns", selector=labels, robots=sorted(robots),

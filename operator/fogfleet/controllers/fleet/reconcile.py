@@ -43,7 +43,7 @@ from fogfleet.controllers.fleet.observe import (
     with_held_now,
 )
 from fogfleet.controllers.fleet.plan import Planned, plan_step
-from fogfleet.controllers.fleet.render import render_step, wiring_step
+from fogfleet.controllers.fleet.render import relay_step, render_step, wiring_step
 from fogfleet.controllers.fleet.status import plan_events
 from fogfleet.controllers.fleet.status_step import (
     keep_last_plan,
@@ -144,6 +144,8 @@ def _full_pass(
     objects = wiring_step(inputs, parsed, planned)
     wiring = apply_services(deps, obj.key[0], obj.selector, objects)
     desired = render_step(inputs, parsed, planned, wiring)
+    router = deps.hub.router if deps.hub is not None else ""
+    objects, desired = relay_step(inputs, planned, objects, wiring, desired, router)
     applied, pruned = apply_step(
         deps,
         *obj.key,

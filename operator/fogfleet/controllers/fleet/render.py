@@ -8,16 +8,21 @@ discovery servers.
 
 from __future__ import annotations
 
+from dataclasses import replace
 from typing import Any
 
+from fogfleet.api.labels import LABEL_MANAGED_BY, MANAGER
+from fogfleet.controllers.fleet.clusters import split_remote
 from fogfleet.controllers.fleet.observe import FleetInputs, Parsed
 from fogfleet.controllers.fleet.plan import Planned
 from fogfleet.domain.fallback import fleet_fallbacks
-from fogfleet.render.deployments import render_fleet
+from fogfleet.render.deployments import owner_references, render_fleet, with_spec_hash
+from fogfleet.render.relays import site_relays, with_relay
 from fogfleet.render.ros import RosWiring
 from fogfleet.render.wiring import RosObjects, ros_objects
+from fogfleet.snapshot.clusters import managed_clusters_of, relay_routers
 
-__all__ = ["render_step", "wiring_step"]
+__all__ = ["relay_step", "render_step", "wiring_step"]
 
 Obj = dict[str, Any]
 
@@ -54,3 +59,43 @@ def render_step(
         plan_id=decision.plan_id,
         wiring=wiring,
     )
+
+
+def relay_step(
+    inputs: FleetInputs,
+    planned: Planned,
+    objects: RosObjects | None,
+    wiring: RosWiring | None,
+    desired: list[Obj],
+    site_router: str,
+) -> tuple[RosObjects | None, list[Obj]]:
+    """The plan's cut edges across the WAN (``render.relays``): the instances bound for managed
+    clusters with their relay sidecars (``desired``, in its order), and each robot's relay at
+    the site among the wiring objects (``site_router``: what they dial; "": none)."""
+    clusters = managed_clusters_of(inputs.compute_nodes)
+    if objects is None or wiring is None or not clusters:
+        return objects, desired
+    _, remote = split_remote(desired, clusters)
+    routers = relay_routers(inputs.nodes)
+    image = objects.settings.discovery_server_image
+    sent = {
+        id(d): with_spec_hash(with_relay(d, routers.get(cluster), image))
+        for cluster, deployments in remote.items()
+        for d in deployments
+    }
+    if not sent:
+        return objects, desired
+    problem, obj = planned.problem, inputs.obj
+    nodes = {n.name: n.node_name for n in problem.nodes}
+    robots = {i.robot for i in problem.instances if i.robot in nodes}
+    meta = {
+        "fleet": problem.fleet,
+        "namespace": problem.namespace,
+        "labels": {**obj.selector, LABEL_MANAGED_BY: MANAGER},
+        "ownerReferences": owner_references(obj.owner),
+    }
+    far = [d for deployments in remote.values() for d in deployments]
+    relays = site_relays(far, wiring, {r: nodes[r] for r in robots}, site_router, meta)
+    relays = [with_spec_hash(r) for r in relays]
+    desired = [sent.get(id(d), d) for d in desired]
+    return replace(objects, servers=[*objects.servers, *relays]), desired
