@@ -81,6 +81,11 @@ def _exists(kind: str, name: str) -> bool:
     return Path("/sys/class/net", name).exists()
 
 
+def bridge_exists() -> bool:
+    """Whether the bridge is there (the bed runs real nodes)."""
+    return Path(f"/sys/class/net/{BRIDGE}").exists()
+
+
 def ensure_bridge() -> None:
     """The host side: bridge ffbr0 with 198.18.0.1/24 (idempotent)."""
     if not _exists("link", BRIDGE):

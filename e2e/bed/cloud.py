@@ -47,6 +47,7 @@ from e2e.bed.base import (
     port_is_free,
     wait_for,
 )
+from e2e.bed.bednet import BRIDGE_IP, bridge_exists
 from e2e.bed.cluster import is_ok, probe
 from e2e.bed.controlplane import (
     ALLOW_PATHS,
@@ -119,6 +120,12 @@ class CloudCluster:
         """The Zenoh endpoint of the site's router (what the site's modules connect to)."""
         return f"tcp/{HOST}:{self.ports[SITE_ROUTER]}"
 
+    @property
+    def site_router_for_pods(self) -> str:
+        """The site's router as the real nodes' pods reach it: on the bed's bridge (what the
+        site's operator gives the robots' relays, FOGFLEET_SITE_ROUTER)."""
+        return f"tcp/{BRIDGE_IP}:{self.ports[SITE_ROUTER]}"
+
     def kubectl(self, *args: str, input: str | None = None, check: bool = True) -> str:
         return kubectl(BIN_DIR / "kubectl", self.kubeconfig, *args, input=input, check=check).stdout
 
@@ -178,6 +185,7 @@ def _argv(ports: Mapping[str, int], etcd_url: str, prefix: str) -> dict[str, lis
             sys.executable,
             str(HERE / "routers.py"),
             f"--listen=tcp/{HOST}:{ports[SITE_ROUTER]}",
+            *([f"--listen=tcp/{BRIDGE_IP}:{ports[SITE_ROUTER]}"] if bridge_exists() else []),
             f"--connect=tcp/{HOST}:{ports[WAN_ZENOH]}",
         ],
         KWOK: kwok_argv(KUBECONFIG, CLOUD_DIR, PKI, ports[KWOK], KWOK_LEASE_SECONDS),

@@ -4,12 +4,14 @@
     python e2e/bed/routers.py --listen tcp/127.0.0.1:P [--connect tcp/127.0.0.1:Q]
 
 The cloud's router listens; the site's dials it across the WAN (``wan.py``), as a site behind
-NAT dials out. eclipse-zenoh runs the router in-process (``zenoh.open`` in ``router`` mode);
-``zenohd`` would do the same from Rust. Scouting is off, multicast and gossip alike: routers
-and clients find each other only by the endpoints given, so nothing is sent to a multicast
-group and nothing listens beyond loopback. Runs until SIGTERM.
+NAT dials out, and listens for the robots' relays (``fogfleet.workload.relay``) on loopback and
+on the bed's bridge, where the real nodes' pods reach it. eclipse-zenoh runs the router
+in-process (``zenoh.open`` in ``router`` mode); ``zenohd`` would do the same from Rust.
+Scouting is off, multicast and gossip alike: routers and clients find each other only by the
+endpoints given, so nothing is sent to a multicast group and nothing listens beyond loopback
+and the bridge. Runs until SIGTERM.
 
-Needs the venv's Python (eclipse-zenoh is a dev dependency); the harness starts it so.
+Needs the venv's Python (eclipse-zenoh comes with the [ros] extra); the harness starts it so.
 """
 
 from __future__ import annotations
@@ -21,7 +23,11 @@ import threading
 from collections.abc import Sequence
 from typing import Any
 
-__all__ = ["config", "main"]
+__all__ = ["BRIDGE_ENDPOINT", "config", "main"]
+
+# the bed's bridge (bednet.BRIDGE_IP; this script runs without the e2e package on its path):
+# the site's router listens there too, for the robots' relays in the real nodes' pods
+BRIDGE_ENDPOINT = "tcp/198.18.0.1:"
 
 
 def config(mode: str, listen: Sequence[str] = (), connect: Sequence[str] = ()) -> Any:
@@ -30,8 +36,9 @@ def config(mode: str, listen: Sequence[str] = (), connect: Sequence[str] = ()) -
     from fogfleet.workload.relay import zenoh_config
 
     for endpoint in (*listen, *connect):
-        if not endpoint.startswith("tcp/127."):
-            raise ValueError(f"{endpoint}: the bed's Zenoh endpoints are tcp on loopback")
+        if not endpoint.startswith(("tcp/127.", BRIDGE_ENDPOINT)):
+            raise ValueError(f"{endpoint}: the bed's Zenoh endpoints are tcp on loopback or on "
+                             "the bed's bridge")  # fmt: skip
     return zenoh_config(mode, listen, connect)
 
 

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import pytest
 
-from e2e.bed import base, cloud, ocm, tools
+from e2e.bed import base, bednet, cloud, ocm, routers, tools
 
 
 def _listen_addresses(argv: list[str]) -> list[str]:
@@ -19,11 +19,21 @@ def _listen_addresses(argv: list[str]) -> list[str]:
     return found
 
 
-def test_the_cloud_control_plane_listens_on_loopback_and_stores_apart_from_the_site() -> None:
+def test_the_cloud_control_plane_listens_on_loopback_and_stores_apart_from_the_site(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    monkeypatch.setattr(cloud, "bridge_exists", lambda: True)
     ports = {name: 40000 + i for i, name in enumerate((*cloud.COMPONENTS, cloud.WAN_ZENOH))}
     argv = cloud._argv(ports, "http://127.0.0.1:2379", f"{cloud.ETCD_PREFIX}/1")
     for name, args in argv.items():
         addresses = _listen_addresses(args)
+        # the site's router also listens on the bed's bridge, for the relays in the pods
+        if name == cloud.SITE_ROUTER:
+            bridge = f"{bednet.BRIDGE_IP}:{ports[name]}"
+            assert bridge in addresses and routers.BRIDGE_ENDPOINT + str(ports[name]) == (
+                f"tcp/{bridge}"
+            )
+            addresses.remove(bridge)
         assert addresses and all(a.startswith("127.0.0.1") for a in addresses), name
     # the site reaches the cloud's API and router only across the WAN
     assert argv[cloud.SITE_ROUTER][-1] == f"--connect=tcp/127.0.0.1:{ports[cloud.WAN_ZENOH]}"

@@ -34,9 +34,10 @@ from typing import TYPE_CHECKING, Any
 
 import pytest
 
-from e2e.bed import harness, realnodes
+from e2e.bed import cloud, harness, ocm, realnodes
 from e2e.bed.kube import Kube, UnsafeKubeconfig, guard_kubeconfig
 from e2e.bed.operator_fixtures import Operator, install_crds
+from e2e.tests import cloudbed
 
 if TYPE_CHECKING:
     from e2e.tests.scaling_rig import Rig
@@ -250,6 +251,29 @@ def operator(
     kube.kubectl("delete", "robotfleets", "--all", "-n", namespace, "--wait=true",
                  "--timeout=60s", check=False, timeout=90)  # fmt: skip
     op.stop()
+
+
+@pytest.fixture(scope="module")
+def joined(cluster: harness.Cluster) -> Iterator[tuple[cloud.CloudCluster, ocm.Joined]]:
+    """The cloud cluster joined to the bed by OCM (``cloudbed.joined_cloud``), for one test
+    module: each multicluster module joins it afresh and stops it after."""
+    with cloudbed.joined_cloud(cluster) as both:
+        yield both
+
+
+@pytest.fixture
+def site_operator(
+    joined: tuple[cloud.CloudCluster, ocm.Joined],
+    kube: Kube,
+    crds: None,
+    namespace: str,
+    tmp_path: Path,
+    diagnostics: list[Diagnostic],
+) -> Iterator[Operator]:
+    """``fogfleet run`` at the site with the hub's kubeconfig (across the WAN) and the site's
+    Zenoh router, and none of the cloud cluster's credentials (``cloudbed.site_operator``)."""
+    with cloudbed.site_operator(joined[0], kube, namespace, tmp_path, diagnostics) as op:
+        yield op
 
 
 @pytest.fixture

@@ -28,12 +28,17 @@ import yaml
 
 from e2e.bed import cloud, ocm, routers
 from e2e.bed.base import BIN_DIR, kubectl
-from e2e.bed.bed import ensure_cloud
 from e2e.bed.cluster import condition_status
 from e2e.bed.fakenodes import SIMULATED_TAINT
-from e2e.bed.harness import Cluster
 from e2e.bed.kube import Kube
-from e2e.bed.operator_fixtures import Operator, deployments, example_in, fleet, wait_ready
+from e2e.bed.operator_fixtures import Operator, deployments, fleet, wait_ready
+from e2e.tests.cloudbed import (
+    CLOUD_NODE,
+    cloud_pods,
+    run_in_the_cloud,
+    site_available,
+    works_of,
+)
 
 pytestmark = [
     pytest.mark.e2e,
@@ -44,16 +49,6 @@ pytestmark = [
 
 # issue 47's target: both clusters joined and Available within 60 s of the control planes
 JOIN_BOUND_S = 60.0
-
-
-@pytest.fixture(scope="module")
-def joined(cluster: Cluster) -> Iterator[tuple[cloud.CloudCluster, ocm.Joined]]:
-    # a cloud left by an earlier session is started again, so that the join is measured
-    ocm.stop()
-    cloud.stop()
-    yield ensure_cloud(cluster)
-    ocm.stop()
-    cloud.stop()
 
 
 def test_the_site_and_the_cloud_are_joined_and_available_on_the_hub(
@@ -293,12 +288,6 @@ def test_messages_cross_the_wan_between_the_routers_and_wait_out_a_cut(
         in_cloud.close()
 
 
-def _site_available(hub: cloud.CloudCluster) -> str | None:
-    """The site's ManagedClusterConditionAvailable, as the hub says it."""
-    mc = json.loads(hub.kubectl("get", "managedcluster", "site", "-o", "json"))
-    return condition_status(mc, "ManagedClusterConditionAvailable")
-
-
 @pytest.mark.long
 def test_a_wan_cut_leaves_the_sites_work_running_and_it_catches_up_after(
     joined: tuple[cloud.CloudCluster, ocm.Joined], kube: Kube, namespace: str
@@ -317,7 +306,7 @@ def test_a_wan_cut_leaves_the_sites_work_running_and_it_catches_up_after(
     try:
         t0 = time.monotonic()
         # OCM's rule: unavailable after 5 lease periods unrenewed (ocm.LEASE_SECONDS each)
-        kube.wait_for("the hub to lose the site", lambda: _site_available(hub) != "True",
+        kube.wait_for("the hub to lose the site", lambda: site_available(hub) != "True",
               timeout=5 * ocm.LEASE_SECONDS + 60)  # fmt: skip
         lost = time.monotonic() - t0
         changed = _work("e2e-cut", "across-a-cut", namespace)
@@ -328,7 +317,7 @@ def test_a_wan_cut_leaves_the_sites_work_running_and_it_catches_up_after(
     finally:
         cloud.set_wan(cloud.WanSettings())
     t1 = time.monotonic()
-    kube.wait_for("the site Available again", lambda: _site_available(hub) == "True", timeout=120)
+    kube.wait_for("the site Available again", lambda: site_available(hub) == "True", timeout=120)
     kube.wait_for("the change applied at the site", lambda: site_value() == "the hub, later", 120)
     print(f"\nhub lost the site {lost:.0f}s into the cut; back {time.monotonic() - t1:.0f}s "
           "after it ended; the site's work ran on throughout")  # fmt: skip
@@ -354,149 +343,6 @@ def test_an_agents_hub_credentials_reach_its_own_cluster_only(
     assert can("get", "secrets", "cloud") == "no"
 
 
-# ---------------------------------------------------------------- fogfleet places into the cloud
-CLOUD_NODE = "e2e-cloud"  # the ComputeNode that stands for the cloud cluster
-CLAIMS = {  # what the cloud says of itself (ClusterClaims on it, reported to the hub)
-    "privacy-level.fogfleet.io": "1",
-    "cost-per-core-hour.fogfleet.io": "0.05",
-    "wan-latency-millis.fogfleet.io": "20",
-    "wan-bandwidth-mbps.fogfleet.io": "50",
-}
-SITE_NAME = "site"  # the site's ManagedCluster name: what the operator labels its works with
-MODULE_DEFAULTS = {
-    "template": {"image": "ghcr.io/fogfleet/ros2-module:0.1.0", "imagePullPolicy": "Never"},
-    "cycleTimeMillis": 1000,
-    "activationPercent": 100,
-}
-
-
-def _module(namespace: str, name: str, **spec: Any) -> dict[str, Any]:
-    return {
-        "apiVersion": "fogfleet.io/v1alpha1",
-        "kind": "SoftwareModule",
-        "metadata": {"name": name, "namespace": namespace},
-        "spec": {**MODULE_DEFAULTS, **spec},
-    }
-
-
-def _cloud_fleet(namespace: str) -> list[dict[str, Any]]:
-    """One bed robot and the cloud cluster as a ComputeNode; a mapping module too large for
-    the robot (2 cores) whose data needs privacy 1, which only the cloud's claim grants (a
-    cloud's default is 0), a localisation that reads the robot's lidar, and a recorder whose
-    data may not leave the robot (minPrivacy 2)."""
-    robot = next(
-        d for d in example_in("warehouse-lite", namespace) if d["metadata"]["name"] == "bed-robot-1"
-    )
-    robot["metadata"].pop("labels", None)
-    cloud_node = {
-        "apiVersion": "fogfleet.io/v1alpha1",
-        "kind": "ComputeNode",
-        "metadata": {"name": CLOUD_NODE},
-        # privacy, price and WAN link: the cloud's own ClusterClaims (CLAIMS)
-        "spec": {"tier": "cloud", "hardwareType": "cloud-vm", "managedCluster": "cloud"},
-    }
-    light = {"executionPattern": "periodic", "realtime": "none", "safety": "irrelevant"}
-    modules = [
-        _module(
-            namespace, "localization",
-            taxonomy={"executionPattern": "continuous", "realtime": "soft", "safety": "relevant"},
-            resources={"cpu": "20m", "memory": "128Mi"},
-            requirements={"devices": ["lidar"]},
-            profile=[{"hardwareType": "default", "cpu": "50m", "meanMillis": 20, "stdMillis": 2}],
-            topics={"publishes": [{"name": "pose", "sizeBytes": "1Ki", "rateHz": 1}]},
-        ),
-        _module(
-            namespace, "mapping",
-            taxonomy=light,
-            resources={"cpu": "2", "memory": "256Mi"},
-            requirements={"minPrivacy": 1},
-            profile=[{"hardwareType": "default", "cpu": "2", "meanMillis": 300, "stdMillis": 20}],
-            topics={"subscribes": [{"name": "pose", "sizeBytes": "1Ki", "rateHz": 1}]},
-        ),
-        _module(
-            namespace, "private-recorder",
-            taxonomy=light,
-            resources={"cpu": "10m", "memory": "64Mi"},
-            requirements={"minPrivacy": 2},
-            profile=[{"hardwareType": "default", "cpu": "20m", "meanMillis": 50, "stdMillis": 5}],
-            topics={"subscribes": [{"name": "pose", "sizeBytes": "1Ki", "rateHz": 1}]},
-        ),
-    ]  # fmt: skip
-    fleet = {
-        "apiVersion": "fogfleet.io/v1alpha1",
-        "kind": "RobotFleet",
-        "metadata": {"name": "mapped", "namespace": namespace},
-        "spec": {
-            "robots": ["bed-robot-1"],
-            "nodes": [CLOUD_NODE],
-            "modules": [{"name": m["metadata"]["name"]} for m in modules],
-            "scheduler": {"algorithm": "nsga2", "seed": 1},
-        },
-    }
-    return [robot, cloud_node, *modules, fleet]
-
-
-@pytest.fixture
-def site_operator(
-    joined: tuple[cloud.CloudCluster, ocm.Joined],
-    kube: Kube,
-    crds: None,
-    namespace: str,
-    tmp_path: Path,
-    diagnostics: list[Any],
-) -> Iterator[Operator]:
-    """``fogfleet run`` at the site with the hub's kubeconfig of ``manifests/ocm-hub`` (across
-    the WAN) and none of the cloud cluster's."""
-    hub, _ = joined
-    env = {
-        "FOGFLEET_HUB_KUBECONFIG": str(ocm.site_operator_kubeconfig(hub)),
-        "FOGFLEET_CLUSTER_NAME": SITE_NAME,
-    }
-    op = Operator(kube.kubeconfig, [namespace], tmp_path / "operator.log", env)
-    diagnostics.append(lambda: ("operator log", op.logs(150)))
-    op.start().wait_live()
-    yield op
-    kube.kubectl("delete", "robotfleets", "--all", "-n", namespace, "--wait=true",
-                 "--timeout=60s", check=False, timeout=90)  # fmt: skip
-    kube.kubectl("delete", "computenode", CLOUD_NODE, "--ignore-not-found", check=False)
-    op.stop()
-
-
-def _works(hub: cloud.CloudCluster, namespace: str) -> list[dict[str, Any]]:
-    """The works the site's operator wrote on the hub for ``namespace``, in every cluster."""
-    selector = f"fogfleet.io/site={SITE_NAME},fogfleet.io/namespace={namespace}"
-    found = hub.kubectl("get", "manifestworks", "-A", "-o", "json", "-l", selector)
-    items: list[dict[str, Any]] = json.loads(found)["items"]
-    return items
-
-
-def _cloud_pods(hub: cloud.CloudCluster, namespace: str) -> list[dict[str, Any]]:
-    found = hub.kubectl("get", "pods", "-n", namespace, "-o", "json", check=False)
-    return json.loads(found)["items"] if found else []
-
-
-def _run_in_the_cloud(hub: cloud.CloudCluster, kube: Kube, namespace: str) -> float:
-    """The cloud's claims on it, then ``_cloud_fleet`` applied and Ready: how long from the
-    apply."""
-    claims = [
-        {"apiVersion": "cluster.open-cluster-management.io/v1alpha1", "kind": "ClusterClaim",
-         "metadata": {"name": name}, "spec": {"value": value}}
-        for name, value in CLAIMS.items()
-    ]  # fmt: skip
-    hub.kubectl("apply", "-f", "-", input=json.dumps({"apiVersion": "v1", "kind": "List",
-                                                      "items": claims}))  # fmt: skip
-
-    def reported() -> dict[str, str]:
-        mc = json.loads(hub.kubectl("get", "managedcluster", "cloud", "-o", "json"))
-        return {c["name"]: c["value"] for c in mc["status"].get("clusterClaims", [])}
-
-    kube.wait_for("the cloud's claims on the hub", lambda: reported().items() >= CLAIMS.items())
-    applied = time.monotonic()
-    kube.apply(_cloud_fleet(namespace))
-    wait_ready(kube, namespace, "mapped", timeout=240)
-    return time.monotonic() - applied
-
-
 def test_a_module_too_large_for_the_site_runs_in_the_cloud_and_goes_with_its_fleet(
     joined: tuple[cloud.CloudCluster, ocm.Joined],
     kube: Kube,
@@ -504,7 +350,7 @@ def test_a_module_too_large_for_the_site_runs_in_the_cloud_and_goes_with_its_fle
     site_operator: Operator,
 ) -> None:
     hub, _ = joined
-    ready = _run_in_the_cloud(hub, kube, namespace)
+    ready = run_in_the_cloud(hub, kube, namespace)
 
     # the plan: mapping in the cloud (its privacy claimed there); the lidar reader and the
     # private recorder on the robot
@@ -514,7 +360,7 @@ def test_a_module_too_large_for_the_site_runs_in_the_cloud_and_goes_with_its_fle
     assert placement == {"localization": "bed-robot-1", "mapping": CLOUD_NODE,
                          "private-recorder": "bed-robot-1"}, placement  # fmt: skip
     # Ready from OCM's feedback alone: the operator has no credentials of the cloud cluster
-    works = _works(hub, namespace)
+    works = works_of(hub, namespace)
     assert [w["metadata"]["namespace"] for w in works] == ["cloud"], works
     carried = [m for w in works for m in w["spec"]["workload"]["manifests"]]
     modules = {m["metadata"].get("labels", {}).get("fogfleet.io/module") for m in carried}
@@ -525,7 +371,7 @@ def test_a_module_too_large_for_the_site_runs_in_the_cloud_and_goes_with_its_fle
     owners = [[r["kind"] for r in d["metadata"].get("ownerReferences", [])] for d in there]
     assert owners == [["AppliedManifestWork"]], owners
     assert there[0]["status"].get("availableReplicas") == 1
-    pods = _cloud_pods(hub, namespace)
+    pods = cloud_pods(hub, namespace)
     assert [p["spec"]["nodeName"] in cloud.NODES for p in pods] == [True], pods
     site_mapping = kube.kubectl("get", "deployments", "-n", namespace, "-l",
                                 "fogfleet.io/module=mapping", "-o", "name")  # fmt: skip
@@ -537,10 +383,10 @@ def test_a_module_too_large_for_the_site_runs_in_the_cloud_and_goes_with_its_fle
     # the fleet's deletion removes the cloud's pods (issue 47: within 30 s)
     started = time.monotonic()
     kube.kubectl("delete", "robotfleet", "mapped", "-n", namespace, "--wait=false")
-    kube.wait_for("the cloud's pods gone", lambda: not _cloud_pods(hub, namespace), timeout=60)
+    kube.wait_for("the cloud's pods gone", lambda: not cloud_pods(hub, namespace), timeout=60)
     gone = time.monotonic() - started
     assert gone <= 30.0, f"the cloud's pods went {gone:.1f}s after the fleet's deletion"
-    assert _works(hub, namespace) == []
+    assert works_of(hub, namespace) == []
     print(f"\nReady {ready:.1f}s after the apply, from OCM's feedback; the cloud's pods gone "
           f"{gone:.1f}s after the fleet")  # fmt: skip
 
@@ -584,17 +430,17 @@ def test_a_site_gone_longer_than_set_has_its_cloud_instances_scaled_to_zero_and_
     hub_keeper: subprocess.Popen[bytes],
 ) -> None:
     hub, _ = joined
-    _run_in_the_cloud(hub, kube, namespace)
+    run_in_the_cloud(hub, kube, namespace)
     at_site = sorted(d["metadata"]["name"] for d in deployments(kube, namespace))
-    works = sorted(w["metadata"]["name"] for w in _works(hub, namespace))
+    works = sorted(w["metadata"]["name"] for w in works_of(hub, namespace))
 
     def running_in_the_cloud() -> int:
-        return sum(p["status"].get("phase") == "Running" for p in _cloud_pods(hub, namespace))
+        return sum(p["status"].get("phase") == "Running" for p in cloud_pods(hub, namespace))
 
     cloud.set_wan(cloud.WanSettings(cut=True))
     try:
         t0 = time.monotonic()
-        kube.wait_for("the hub to lose the site", lambda: _site_available(hub) != "True",
+        kube.wait_for("the hub to lose the site", lambda: site_available(hub) != "True",
                       timeout=5 * ocm.LEASE_SECONDS + 60)  # fmt: skip
         lost = time.monotonic() - t0
         kube.wait_for("the cloud's instance scaled to zero", lambda: running_in_the_cloud() == 0,
@@ -602,16 +448,16 @@ def test_a_site_gone_longer_than_set_has_its_cloud_instances_scaled_to_zero_and_
         parked = time.monotonic() - t0
         assert _cloud_deployment(hub, namespace)["spec"]["replicas"] == 0
         # nothing deleted: the works, the cloud's Deployment and the site's Deployments stay
-        assert sorted(w["metadata"]["name"] for w in _works(hub, namespace)) == works
+        assert sorted(w["metadata"]["name"] for w in works_of(hub, namespace)) == works
         assert sorted(d["metadata"]["name"] for d in deployments(kube, namespace)) == at_site
     finally:
         cloud.set_wan(cloud.WanSettings())
     t1 = time.monotonic()
-    kube.wait_for("the site Available again", lambda: _site_available(hub) == "True", timeout=120)
+    kube.wait_for("the site Available again", lambda: site_available(hub) == "True", timeout=120)
     kube.wait_for("the cloud's instance back", lambda: running_in_the_cloud() == 1, timeout=120)
     back = time.monotonic() - t1
     wait_ready(kube, namespace, "mapped", timeout=120)
-    assert sorted(w["metadata"]["name"] for w in _works(hub, namespace)) == works
+    assert sorted(w["metadata"]["name"] for w in works_of(hub, namespace)) == works
     print(f"\nthe hub lost the site {lost:.0f}s into the cut; its cloud instance scaled to zero "
           f"{parked:.0f}s into it (gone after {SITE_GONE_S}s); back {back:.0f}s after the cut "
           "ended")  # fmt: skip

@@ -32,6 +32,7 @@ __all__ = [
     "IN",
     "KEY_PREFIX",
     "OUT",
+    "RELAY_METRICS_PORT",
     "SHARED",
     "STRING",
     "Route",
@@ -43,6 +44,8 @@ __all__ = [
 
 ENV_RELAY_ROUTES = "FOGFLEET_RELAY_ROUTES"  # the routes as JSON (routes_json)
 ENV_RELAY_ROUTER = "FOGFLEET_RELAY_ROUTER"  # the Zenoh router the relay is a client of
+# the relay's metrics and probes (a cloud instance's sidecar shares the module's pod: not 9100)
+RELAY_METRICS_PORT = 9103
 KEY_PREFIX = "fogfleet"
 SHARED = "_shared"  # the robot segment of a shared instance's keys
 ANY_ROBOT = "*"

@@ -64,6 +64,7 @@ __all__ = [
     "pod_deployment",
     "profiling_job_name",
     "relay_name",
+    "relay_network_policy_name",
     "robot_network_policy_name",
     "scaled_object_name",
     "shared_network_policy_name",
@@ -154,6 +155,11 @@ def relay_name(fleet: str, robot: str) -> str:
     """``<fleet>-<robot>-relay``: the Deployment of the robot's relay to the managed clusters
     (render.relays), of at most 57 characters."""
     return object_name("relay", fleet, robot, kind=DEPLOYMENT)
+
+
+def relay_network_policy_name(fleet: str) -> str:
+    """``<fleet>-relay``, the NetworkPolicy that lets the fleet's relays dial the site's router."""
+    return object_name("relay", fleet)
 
 
 def network_policy_name(fleet: str) -> str:

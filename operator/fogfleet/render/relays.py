@@ -25,6 +25,7 @@ from the rendered Deployments, which carry the module's topics and robot in thei
 from __future__ import annotations
 
 import copy
+import ipaddress
 import json
 from collections.abc import Iterable, Mapping, Sequence
 from typing import Any
@@ -34,6 +35,7 @@ from fogfleet.api.names import label_value
 from fogfleet.contract.env import (
     ENV_FLEET,
     ENV_LOG_INTERVAL,
+    ENV_METRICS_PORT,
     ENV_MODULE_SPEC,
     ENV_ROBOT,
     ENV_ROLE,
@@ -44,18 +46,20 @@ from fogfleet.contract.relay import (
     ENV_RELAY_ROUTES,
     IN,
     OUT,
+    RELAY_METRICS_PORT,
     Route,
     key_of,
     remote_topic,
     routes_json,
 )
-from fogfleet.render.names import relay_name
+from fogfleet.render.names import relay_name, relay_network_policy_name
 from fogfleet.render.ros import RosWiring, on_the_robot, pod_security, ros_env
 
 __all__ = [
     "COMPONENT_RELAY",
     "RELAY_CONTAINER",
     "cloud_routes",
+    "relay_network_policy",
     "site_relays",
     "site_routes",
     "with_relay",
@@ -70,6 +74,7 @@ RESOURCES = {
     "limits": {"cpu": "200m", "memory": "192Mi"},
 }
 LOG_EVERY_SECONDS = "60"  # the relay's counts in its log, once a minute
+RELAY_PORT_NAME = "relay-metrics"
 
 
 def _topic(name: str) -> str:
@@ -133,11 +138,19 @@ def _relay_container(image: str, env: Mapping[str, str], routes: list[Route], ro
     _, container_sc = pod_security()
     values = {**env, ENV_RELAY_ROUTES: routes_json(routes), ENV_RELAY_ROUTER: router}
     values[ENV_LOG_INTERVAL] = LOG_EVERY_SECONDS
+    values[ENV_METRICS_PORT] = str(RELAY_METRICS_PORT)
+    # open once every route is declared: ready; alive while it answers
+    probe = {"tcpSocket": {"port": RELAY_PORT_NAME}, "periodSeconds": 10}
     return {
         "name": RELAY_CONTAINER,
         "image": image,
         "args": ["relay"],
         "env": [{"name": k, "value": v} for k, v in values.items()],
+        "ports": [
+            {"name": RELAY_PORT_NAME, "containerPort": RELAY_METRICS_PORT, "protocol": "TCP"}
+        ],
+        "livenessProbe": dict(probe),
+        "readinessProbe": {**probe, "periodSeconds": 5},
         "resources": copy.deepcopy(RESOURCES),
         "securityContext": container_sc,
         "volumeMounts": [{"name": "tmp", "mountPath": "/tmp"}],
@@ -172,6 +185,46 @@ def site_relays(
         container = _relay_container(image, ros_env(wiring, robot), routes, router)
         out.append(on_the_robot(obj_meta, selector, robot_nodes[robot], container))
     return out
+
+
+def _endpoint(router: str) -> tuple[str, int]:
+    """(host, port) of a Zenoh endpoint ``proto/HOST:PORT`` (an IPv6 host in brackets)."""
+    host, _, port = router.split("/", 1)[-1].rpartition(":")
+    return host.strip("[]"), int(port)
+
+
+def relay_network_policy(router: str, meta: Mapping[str, Any]) -> Obj:
+    """The NetworkPolicy that lets the fleet's relays at the site dial ``router`` (the fleet's
+    own policies, ``render.ros.fleet_network_policies``, let its pods reach only each other):
+    TCP to the router's address and port; a router named by DNS, to its port anywhere and to
+    the cluster's DNS."""
+    host, port = _endpoint(router)
+    to: Obj = {"ports": [{"protocol": "TCP", "port": port}]}
+    egress = [to]
+    try:
+        address = ipaddress.ip_address(host)
+    except ValueError:  # a name: resolved by the cluster's DNS, wherever it points
+        egress.append({"ports": [{"protocol": p, "port": 53} for p in ("UDP", "TCP")]})
+    else:
+        to["to"] = [{"ipBlock": {"cidr": f"{address}/{address.max_prefixlen}"}}]
+    labels = dict(meta["labels"])
+    obj_meta: Obj = {
+        "name": relay_network_policy_name(str(meta["fleet"])),
+        "namespace": str(meta["namespace"]),
+        "labels": labels,
+    }
+    if meta.get("ownerReferences"):
+        obj_meta["ownerReferences"] = [dict(o) for o in meta["ownerReferences"]]
+    return {
+        "apiVersion": "networking.k8s.io/v1",
+        "kind": "NetworkPolicy",
+        "metadata": obj_meta,
+        "spec": {
+            "podSelector": {"matchLabels": {**labels, LABEL_COMPONENT: COMPONENT_RELAY}},
+            "policyTypes": ["Egress"],
+            "egress": egress,
+        },
+    }
 
 
 def with_relay(deployment: Mapping[str, Any], router: str | None, image: str) -> Obj:

@@ -17,7 +17,12 @@ from fogfleet.contract.env import (
     ENV_ROLE,
     METRICS_PORT,
 )
-from fogfleet.contract.relay import ENV_RELAY_ROUTER, ENV_RELAY_ROUTES, routes_from_json
+from fogfleet.contract.relay import (
+    ENV_RELAY_ROUTER,
+    ENV_RELAY_ROUTES,
+    RELAY_METRICS_PORT,
+    routes_from_json,
+)
 
 from .dnn.whole import Whole
 from .fallback import Role
@@ -96,6 +101,10 @@ def main(argv: list[str] | None = None) -> int:
         f"router in ${ENV_RELAY_ROUTER} (a cut edge of the plan across the WAN)",
     )
     r.add_argument("--log-interval", type=_log_seconds, default=None, metavar="SECONDS")
+    r.add_argument("--host", default=os.environ.get(ENV_METRICS_HOST, "0.0.0.0"))
+    r.add_argument(
+        "--port", type=int, default=int(os.environ.get(ENV_METRICS_PORT, RELAY_METRICS_PORT))
+    )
     ns = parser.parse_args(argv)
     if ns.cmd == "discovery-server":
         from .discovery import run_discovery_server
@@ -103,7 +112,7 @@ def main(argv: list[str] | None = None) -> int:
         run_discovery_server(ns.listen, ns.port, ns.tcp_port)
         return 0
     if ns.cmd == "relay":
-        return _relay(ns.log_interval)
+        return _relay(ns.log_interval, (ns.host, ns.port))
     try:
         spec = WorkloadSpec.from_env(os.environ)
     except ValueError as exc:
@@ -202,7 +211,7 @@ def _dnn(
     return 0
 
 
-def _relay(every: float | None) -> int:
+def _relay(every: float | None, metrics: tuple[str, int]) -> int:
     """The relay's run (``workload.relay``), from its environment."""
     try:
         routes = routes_from_json(os.environ.get(ENV_RELAY_ROUTES, ""))
@@ -215,7 +224,7 @@ def _relay(every: float | None) -> int:
         return 2
     from .relay import run_relay
 
-    run_relay(routes, router, log_interval=seconds)
+    run_relay(routes, router, log_interval=seconds, metrics=metrics)
     return 0
 
 

@@ -25,6 +25,8 @@ import time
 from collections.abc import Sequence
 from typing import Any
 
+from prometheus_client import CollectorRegistry, Counter, start_http_server
+
 from fogfleet.contract.relay import IN, OUT, Route
 
 from .probe import message_class
@@ -33,15 +35,22 @@ __all__ = ["Counts", "run_relay", "zenoh_config"]
 
 
 class Counts:
-    """Messages relayed per route and direction (the relay's log line and the tests read it)."""
+    """Messages relayed per route: the relay's log line, and ``fogfleet_relayed_messages_total``
+    (``topic``, ``direction``) on its metrics port, whose listener is also its probes'."""
 
     def __init__(self) -> None:
         self.lock = threading.Lock()
         self.sent: dict[str, int] = {}
+        self.registry = CollectorRegistry()
+        self.relayed = Counter(
+            "fogfleet_relayed_messages", "Messages relayed between DDS and Zenoh",
+            ["topic", "direction"], registry=self.registry,
+        )  # fmt: skip
 
     def add(self, route: Route) -> None:
         with self.lock:
             self.sent[route.topic] = self.sent.get(route.topic, 0) + 1
+        self.relayed.labels(route.topic, route.direction).inc()
 
     def snapshot(self) -> dict[str, int]:
         with self.lock:
@@ -97,19 +106,28 @@ def run_relay(
     duration: float | None = None,
     log_interval: float = 0.0,
     counts: Counts | None = None,
+    metrics: tuple[str, int] | None = None,
 ) -> Counts:
     """Relay ``routes`` through the Zenoh ``router`` until SIGTERM (or ``duration`` seconds, for
-    tests); returns how many messages went each way, per topic."""
+    tests); returns how many messages went each way, per topic. ``metrics``: (host, port) it
+    serves its counts on once every route is declared (its probes' listener)."""
     import rclpy
     import zenoh
     from rclpy.executors import SingleThreadedExecutor
 
     counts = counts or Counts()
     stop = threading.Event()
+    config = zenoh_config("client", connect=[router])
+    # wait for the router however long it takes, and find it again after it restarts: a relay
+    # that started first, or outlived its router, carries on instead of crashing into a
+    # restart back-off
+    config.insert_json5("connect/timeout_ms", "-1")
+    config.insert_json5("connect/exit_on_failure", "false")
+    print(f"relay: dialling {router}", flush=True)
+    session = zenoh.open(config)  # SIGTERM's default action ends a relay still waiting here
     if threading.current_thread() is threading.main_thread():
         for sig in (signal.SIGTERM, signal.SIGINT):
             signal.signal(sig, lambda *_: stop.set())
-    session = zenoh.open(zenoh_config("client", connect=[router]))
     context = rclpy.Context()
     rclpy.init(context=context)
     node = rclpy.create_node(name, context=context)
@@ -117,6 +135,9 @@ def run_relay(
     executor.add_node(node)
     try:
         held = _bridge(node, session, routes, counts)
+        if metrics is not None:
+            server, _ = start_http_server(metrics[1], metrics[0], registry=counts.registry)
+            held.append(server)
         what = ", ".join(f"{r.topic} {r.direction} {r.key}" for r in routes)
         print(f"relay: {len(routes)} routes through {router}: {what}", flush=True)
         deadline = None if duration is None else time.monotonic() + duration
@@ -126,6 +147,9 @@ def run_relay(
             if log_interval and time.monotonic() >= next_log:
                 print(f"relay: relayed {counts.snapshot()}", flush=True)
                 next_log += log_interval
+        for thing in held:
+            if hasattr(thing, "shutdown"):
+                thing.shutdown()
         del held
     finally:
         executor.shutdown()

@@ -20,8 +20,9 @@ import pytest
 
 pytest.importorskip("rclpy", reason="the [ros] extra is part of `make venv`")
 
-from tests.integration.workload.ports import free_port
+from tests.integration.workload.ports import fogfleet_metrics, free_port
 
+from fogfleet.contract.env import ENV_METRICS_HOST, ENV_METRICS_PORT
 from fogfleet.contract.relay import (
     ENV_RELAY_ROUTER,
     ENV_RELAY_ROUTES,
@@ -39,7 +40,7 @@ SITE_DOMAIN, CLOUD_DOMAIN = 71, 72  # the two graphs: a robot's at the site, a c
 SCAN, POSE, CAMERA = "/scan", "/pose", "/camera"  # CAMERA is on no route: it must not cross
 
 
-def _relay(domain: int, routes: list[Route], router: str) -> subprocess.Popen[str]:
+def _relay(domain: int, routes: list[Route], router: str, port: int) -> subprocess.Popen[str]:
     env = {k: v for k, v in os.environ.items() if not k.startswith(("ROS_", "FOGFLEET_"))}
     env |= {
         "ROS_DOMAIN_ID": str(domain),
@@ -48,6 +49,8 @@ def _relay(domain: int, routes: list[Route], router: str) -> subprocess.Popen[st
         "FASTDDS_BUILTIN_TRANSPORTS": "UDPv4",
         ENV_RELAY_ROUTES: routes_json(routes),
         ENV_RELAY_ROUTER: router,
+        ENV_METRICS_HOST: "127.0.0.1",
+        ENV_METRICS_PORT: str(port),
     }
     return subprocess.Popen(
         [sys.executable, "-m", "fogfleet.workload", "relay", "--log-interval", "0"],
@@ -116,7 +119,11 @@ def test_only_the_routed_topics_cross_and_each_way_once(router: str) -> None:
     keys: list[str] = []
     spy = zenoh.open(zenoh_config("client", connect=[router]))
     spy_sub = spy.declare_subscriber("fogfleet/**", lambda s: keys.append(str(s.key_expr)))
-    relays = [_relay(SITE_DOMAIN, site_routes, router), _relay(CLOUD_DOMAIN, cloud_routes, router)]
+    ports = [free_port(), free_port()]
+    relays = [
+        _relay(SITE_DOMAIN, site_routes, router, ports[0]),
+        _relay(CLOUD_DOMAIN, cloud_routes, router, ports[1]),
+    ]
     site, in_cloud = _Graph(SITE_DOMAIN), _Graph(CLOUD_DOMAIN)
     answers: dict[str, float] = {}
     cameras_in_cloud: list[str] = []
@@ -147,6 +154,12 @@ def test_only_the_routed_topics_cross_and_each_way_once(router: str) -> None:
         assert set(answers) <= set(sent), "an answer to a scan never sent"
         assert not cameras_in_cloud, "a topic on no route reached the cloud's graph"
         assert set(keys) == {scan_key, pose_key}, keys
+        # what each relay carried, on its metrics port (its probes' listener too)
+        site_counts = fogfleet_metrics(ports[0])
+        out = site_counts['fogfleet_relayed_messages_total{direction="out",topic="/scan"}']
+        assert out >= len(answers)
+        assert 'fogfleet_relayed_messages_total{direction="in",topic="/pose"}' in site_counts
+        assert not any(CAMERA in k for k in site_counts)
     finally:
         site.close()
         in_cloud.close()

@@ -341,6 +341,7 @@ def test_the_cut_edges_get_relays_at_both_ends_and_lose_them_without_routers(
         if d["metadata"]["labels"].get(LABEL_COMPONENT) == COMPONENT_RELAY
     }
     assert set(relays) == robots - {""}
+    assert ("warehouse", "warehouse-relay") in cloud_kube.network_policies
     cloud_deps.full_reconcile_seconds = 0
     applied = len(hub.applied)
     assert run(cloud_kube, cloud_deps).applied == 0 and len(hub.applied) == applied
@@ -355,3 +356,4 @@ def test_the_cut_edges_get_relays_at_both_ends_and_lose_them_without_routers(
         for d in cloud_kube.deployments.values()
         if d["metadata"]["labels"].get(LABEL_COMPONENT) == COMPONENT_RELAY
     ]
+    assert ("warehouse", "warehouse-relay") not in cloud_kube.network_policies

@@ -15,6 +15,7 @@ from fogfleet.contract.relay import (
     ENV_RELAY_ROUTES,
     IN,
     OUT,
+    RELAY_METRICS_PORT,
     Route,
     routes_from_json,
 )
@@ -22,6 +23,7 @@ from fogfleet.render.relays import (
     COMPONENT_RELAY,
     RELAY_CONTAINER,
     cloud_routes,
+    relay_network_policy,
     site_relays,
     site_routes,
     with_relay,
@@ -113,11 +115,11 @@ def test_a_topic_the_cloud_publishes_comes_in_and_never_goes_back_out() -> None:
     /plan in only (the subscriber hears the publisher through the cloud's router)."""
     planner = _deployment("robot-1", ["goal"], ["plan"])
     follower = _deployment("robot-1", ["plan"], ["cmd"])
-    routes = site_routes([follower, planner], ["robot-1"], NS)["robot-1"]
-    assert [r for r in routes if r.topic == "/plan"] == [
-        Route("/plan", _key("robot-1", "plan"), IN)
-    ]
-    assert len({r.topic for r in routes}) == len(routes)
+    for remote in ([follower, planner], [planner, follower]):
+        routes = site_routes(remote, ["robot-1"], NS)["robot-1"]
+        plan = [r for r in routes if r.topic == "/plan"]
+        assert plan == [Route("/plan", _key("robot-1", "plan"), IN)]
+        assert len({r.topic for r in routes}) == len(routes)
 
 
 def _env(container: Obj) -> dict[str, str]:
@@ -169,6 +171,11 @@ def test_each_robot_with_an_instance_in_the_cloud_gets_a_relay_on_its_own_node()
     assert env["ROS_DISCOVERY_SERVER"] == "10.0.0.1:11811", "in its robot's discovery network"
     assert env[ENV_RELAY_ROUTER] == ROUTER
     assert pod["containers"][0]["args"] == ["relay"]
+    # probed on its metrics port, which it opens once its routes are declared
+    (port,) = pod["containers"][0]["ports"]
+    assert port["containerPort"] == RELAY_METRICS_PORT == int(env["FOGFLEET_METRICS_PORT"])
+    for probe in ("livenessProbe", "readinessProbe"):
+        assert pod["containers"][0][probe]["tcpSocket"]["port"] == port["name"]
 
 
 @pytest.mark.parametrize(
@@ -178,3 +185,22 @@ def test_no_site_relay_without_a_router_or_with_the_wiring_off(router: str, ros:
     far = [_deployment("robot-1", ["scan"], ["map"])]
     wiring = RosWiring(ros, WIRING.servers)
     assert site_relays(far, wiring, {"robot-1": "pi-1"}, router, META) == []
+
+
+def test_the_relays_may_dial_the_router_and_nothing_else_new() -> None:
+    policy = relay_network_policy(ROUTER, META)
+    assert policy["metadata"]["name"] == "fleet-relay"
+    spec = policy["spec"]
+    assert spec["podSelector"]["matchLabels"][LABEL_COMPONENT] == COMPONENT_RELAY
+    assert spec["policyTypes"] == ["Egress"]
+    assert spec["egress"] == [
+        {
+            "ports": [{"protocol": "TCP", "port": 7447}],
+            "to": [{"ipBlock": {"cidr": "198.18.0.1/32"}}],
+        }
+    ]
+    named = relay_network_policy("tcp/zenoh.fogfleet-system:7447", META)["spec"]["egress"]
+    assert named[0] == {"ports": [{"protocol": "TCP", "port": 7447}]}
+    assert {p["port"] for p in named[1]["ports"]} == {53}, "the router's name is resolved"
+    v6 = relay_network_policy("tcp/[fd00::1]:7447", META)["spec"]["egress"][0]
+    assert v6["to"] == [{"ipBlock": {"cidr": "fd00::1/128"}}]

@@ -29,6 +29,7 @@ from fogfleet.render.names import (
     discovery_service_name,
     pod_deployment,
     relay_name,
+    relay_network_policy_name,
     robot_network_policy_name,
 )
 from fogfleet.render.ros import fleet_network_policies, render_discovery
@@ -122,6 +123,8 @@ def render_names(triples: list[tuple[str, str, str]]) -> Names:
         ):  # fmt: skip
             what = (fleet, json.dumps(policy["spec"], sort_keys=True))
             names.add("NetworkPolicy", policy["metadata"]["name"], what, valid_label_name)
+        relays = relay_network_policy_name(fleet)
+        names.add("NetworkPolicy", relays, (fleet, "relay"), valid_label_name)
         instances = [Instance(r, m, 0) for r in robots for m in modules]
         instances += [Instance("", m, k) for m in modules for k in (0, 1)]
         for inst in instances:
@@ -152,8 +155,9 @@ def test_fleet_a_b_robot_c_and_fleet_a_robot_b_c_have_their_own_discovery_server
     names = render_names([("a-b", "c", "m"), ("a", "b-c", "m")])
     assert len(names.by_kind["Service"]) == 2
     assert len([n for n, w in names.by_kind["Deployment"].items() if w[0] == "dds"]) == 2
-    # and a NetworkPolicy for each robot: robot isolation stays (4 policies per fleet)
-    assert len(names.by_kind["NetworkPolicy"]) == 8
+    # and a NetworkPolicy for each robot: robot isolation stays (4 policies per fleet, and
+    # the relays' to the site's router)
+    assert len(names.by_kind["NetworkPolicy"]) == 10
 
 
 def test_a_fleet_whose_name_begins_with_a_digit_gets_services_the_api_server_takes() -> None:
@@ -174,6 +178,7 @@ def test_names_that_cannot_be_read_two_ways_stay_as_they_were() -> None:
     assert set(names.by_kind["Service"]) == {"warehouse-robot-1-dds"}
     assert set(names.by_kind["NetworkPolicy"]) == {
         "warehouse-pods", "warehouse-shared", "warehouse-metrics", "warehouse-robot-1-net",
+        "warehouse-relay",
     }  # fmt: skip
     assert set(names.by_kind["HPA"]) == {"warehouse-object-detector-hpa"}
     assert set(names.by_kind["ScaledObject"]) == {"warehouse-object-detector-scaler"}

@@ -17,7 +17,7 @@ from fogfleet.controllers.fleet.observe import FleetInputs, Parsed
 from fogfleet.controllers.fleet.plan import Planned
 from fogfleet.domain.fallback import fleet_fallbacks
 from fogfleet.render.deployments import owner_references, render_fleet, with_spec_hash
-from fogfleet.render.relays import site_relays, with_relay
+from fogfleet.render.relays import relay_network_policy, site_relays, with_relay
 from fogfleet.render.ros import RosWiring
 from fogfleet.render.wiring import RosObjects, ros_objects
 from fogfleet.snapshot.clusters import managed_clusters_of, relay_routers
@@ -96,6 +96,9 @@ def relay_step(
     }
     far = [d for deployments in remote.values() for d in deployments]
     relays = site_relays(far, wiring, {r: nodes[r] for r in robots}, site_router, meta)
-    relays = [with_spec_hash(r) for r in relays]
     desired = [sent.get(id(d), d) for d in desired]
-    return replace(objects, servers=[*objects.servers, *relays]), desired
+    if not relays:
+        return objects, desired
+    servers = [*objects.servers, *map(with_spec_hash, relays)]
+    policy = with_spec_hash(relay_network_policy(site_router, meta))
+    return replace(objects, servers=servers, policies=[*objects.policies, policy]), desired
