@@ -10,10 +10,10 @@ side's Zenoh router; the site's router dials the cloud's. A relay carries exactl
 * ``in``: a Zenoh subscriber whose samples are published raw (``Publisher.publish(bytes)``).
 
 Nothing is decoded, so the relay works for any message type the image has, and costs a copy.
-Both sides are best effort with a short queue, as the modules' own topics are
-(``workload.module``): a message held by a cut WAN arrives late or not at all, and the module's
-cycle meter counts it so. It is a bridge, not an engine: rmw_zenoh or eProsima's DDS Router
-replace it where a user has them (docs/multicluster.md).
+It hears best effort and tells reliably, each with a short queue, so it matches every
+publisher and every subscriber of its topics; across Zenoh a message held by a cut WAN arrives
+late or not at all, and the module's cycle meter counts it so. It is a bridge, not an engine:
+rmw_zenoh or eProsima's DDS Router replace it where a user has them (docs/multicluster.md).
 """
 
 from __future__ import annotations
@@ -76,7 +76,10 @@ def _bridge(node: Any, session: Any, routes: Sequence[Route], counts: Counts) ->
     """Declare every route's two ends; returns what must stay referenced while it runs."""
     from rclpy.qos import QoSProfile, ReliabilityPolicy
 
-    qos = QoSProfile(depth=5, reliability=ReliabilityPolicy.BEST_EFFORT)
+    # what matches every endpoint: a best-effort subscriber hears reliable and best-effort
+    # publishers alike, a reliable publisher reaches reliable and best-effort subscribers
+    hear = QoSProfile(depth=5, reliability=ReliabilityPolicy.BEST_EFFORT)
+    tell = QoSProfile(depth=5, reliability=ReliabilityPolicy.RELIABLE)
     held: list[Any] = []
     for route in routes:
         kind = message_class(route.type)
@@ -87,9 +90,9 @@ def _bridge(node: Any, session: Any, routes: Sequence[Route], counts: Counts) ->
                 put.put(data)
                 counts.add(route)
 
-            held += [put, node.create_subscription(kind, route.topic, forward, qos, raw=True)]
+            held += [put, node.create_subscription(kind, route.topic, forward, hear, raw=True)]
         elif route.direction == IN:
-            publisher = node.create_publisher(kind, route.topic, qos)
+            publisher = node.create_publisher(kind, route.topic, tell)
 
             def deliver(sample: Any, route: Route = route, publisher: Any = publisher) -> None:
                 publisher.publish(sample.payload.to_bytes())

@@ -109,6 +109,7 @@ def test_only_the_routed_topics_cross_and_each_way_once(router: str) -> None:
     """The robot's /scan reaches the cloud instance, its answer on /pose comes back, and /camera,
     on no route, never reaches the cloud's graph nor the router."""
     import zenoh
+    from rclpy.qos import QoSProfile, ReliabilityPolicy
     from std_msgs.msg import String
 
     scan_key = key_of("ns", "fleet", "r1", SCAN)
@@ -136,6 +137,10 @@ def test_only_the_routed_topics_cross_and_each_way_once(router: str) -> None:
         site.node.create_subscription(
             String, POSE, lambda m: answers.setdefault(m.data, time.monotonic()), site.qos
         )
+        # a subscriber that asks for reliable delivery (as many ROS 2 stacks do) hears it too
+        reliable: list[str] = []
+        strict = QoSProfile(depth=5, reliability=ReliabilityPolicy.RELIABLE)
+        site.node.create_subscription(String, POSE, lambda m: reliable.append(m.data), strict)
         scan = site.node.create_publisher(String, SCAN, site.qos)
         camera = site.node.create_publisher(String, CAMERA, site.qos)
         sent: dict[str, float] = {}
@@ -153,6 +158,7 @@ def test_only_the_routed_topics_cross_and_each_way_once(router: str) -> None:
         print(f"\nrelayed round trip on one host: median {rtts[len(rtts) // 2] * 1e3:.1f} ms")
         assert set(answers) <= set(sent), "an answer to a scan never sent"
         assert not cameras_in_cloud, "a topic on no route reached the cloud's graph"
+        assert set(answers) <= set(reliable), "a reliable subscriber missed what the relay told"
         assert set(keys) == {scan_key, pose_key}, keys
         # what each relay carried, on its metrics port (its probes' listener too)
         site_counts = fogfleet_metrics(ports[0])
