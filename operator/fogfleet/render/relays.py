@@ -30,7 +30,7 @@ import json
 from collections.abc import Iterable, Mapping, Sequence
 from typing import Any
 
-from fogfleet.api.labels import LABEL_COMPONENT, LABEL_ROBOT
+from fogfleet.api.labels import LABEL_COMPONENT, LABEL_ROBOT, ROLE_REMOTE
 from fogfleet.api.names import label_value
 from fogfleet.contract.env import (
     ENV_FLEET,
@@ -68,7 +68,6 @@ __all__ = [
 Obj = dict[str, Any]
 COMPONENT_RELAY = "ros-relay"
 RELAY_CONTAINER = "fogfleet-relay"
-ROLE_REMOTE = "remote"
 RESOURCES = {
     "requests": {"cpu": "20m", "memory": "96Mi"},
     "limits": {"cpu": "200m", "memory": "192Mi"},
