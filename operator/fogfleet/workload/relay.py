@@ -138,9 +138,9 @@ def run_relay(
     executor.add_node(node)
     try:
         held = _bridge(node, session, routes, counts)
+        server = None
         if metrics is not None:
             server, _ = start_http_server(metrics[1], metrics[0], registry=counts.registry)
-            held.append(server)
         what = ", ".join(f"{r.topic} {r.direction} {r.key}" for r in routes)
         print(f"relay: {len(routes)} routes through {router}: {what}", flush=True)
         deadline = None if duration is None else time.monotonic() + duration
@@ -150,9 +150,8 @@ def run_relay(
             if log_interval and time.monotonic() >= next_log:
                 print(f"relay: relayed {counts.snapshot()}", flush=True)
                 next_log += log_interval
-        for thing in held:
-            if hasattr(thing, "shutdown"):
-                thing.shutdown()
+        if server is not None:
+            server.shutdown()
         del held
     finally:
         executor.shutdown()
