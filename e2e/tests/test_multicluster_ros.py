@@ -127,6 +127,7 @@ def test_the_cut_edge_crosses_the_wan_through_the_relays_and_nothing_else_does(
     site_operator: Operator,
     tmp_path: Path,
     diagnostics: list[Any],
+    monkeypatch: pytest.MonkeyPatch,
 ) -> None:
     """The robot's pose, published by the localisation in its pod on the real robot node,
     reaches the mapping's graph in the cloud through the robot's relay, the site's router, the
@@ -137,6 +138,8 @@ def test_the_cut_edge_crosses_the_wan_through_the_relays_and_nothing_else_does(
     from rclpy.qos import QoSProfile, ReliabilityPolicy
     from std_msgs.msg import String
 
+    # the test's own ROS 2 graph (the cloud's, played here) keeps DDS on localhost
+    monkeypatch.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
     hub, _ = joined
     run_in_the_cloud(hub, kube, namespace)
     _relay_on_the_robot(kube, namespace)

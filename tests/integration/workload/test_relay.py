@@ -105,9 +105,13 @@ class _Graph:
         rclpy.try_shutdown(context=self.context)
 
 
-def test_only_the_routed_topics_cross_and_each_way_once(router: str) -> None:
+def test_only_the_routed_topics_cross_and_each_way_once(
+    router: str, monkeypatch: pytest.MonkeyPatch
+) -> None:
     """The robot's /scan reaches the cloud instance, its answer on /pose comes back, and /camera,
     on no route, never reaches the cloud's graph nor the router."""
+    # this process's own two graphs keep DDS on localhost too
+    monkeypatch.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
     import zenoh
     from rclpy.qos import QoSProfile, ReliabilityPolicy
     from std_msgs.msg import String
