@@ -165,8 +165,15 @@ bench-real: venv cluster-tools images ## The paper's real experiment on the pape
 bench-split: venv cluster-tools images ## A split network vs the whole network on the edge and on the robot, on the default bed's real nodes at a fast and a slow link (3 blocks x 3 arms, 20 s settle + 30 s windows; ~20 min); writes bench-split.json and docs/benchmarks/split.md
 	$(BIN)/python -m e2e.bench.split --docs docs/benchmarks/split.md
 
-bench-real-report: venv ## Tables, docs/benchmarks/real-nodes.md and its plot from bench-real.json
-	$(BIN)/python -m e2e.bench.real.report --json bench-real.json --docs docs/benchmarks/real-nodes.md --plot docs/benchmarks/real-nodes-perception.svg
+bench-real-report: venv ## Tables, docs/benchmarks/real-nodes.md and its plot from bench-real.json, with the simulator judged under the declared and the fitted model
+	$(BIN)/python -m e2e.bench.real.report --json bench-real.json --docs docs/benchmarks/real-nodes.md --plot docs/benchmarks/real-nodes-perception.svg --model docs/benchmarks/real-nodes-model.json
+
+bench-real-pilot: venv cluster-tools images ## The simulator's pilot on the paper bed: nsga2 x2, k8s-default x2, k8s-requests x1 (~25 min); writes bench-real-pilot.json for bench-real-fit
+	$(BIN)/python -m e2e.bench.real --arms nsga2=2,k8s-default=2,k8s-requests=1 --json bench-real-pilot.json
+
+PILOT ?= docs/benchmarks/real-nodes-pilot.json
+bench-real-fit: venv ## The simulator's execution model (the cycle's cost, the kernel's spreading) fitted on the pilot alone (PILOT=file): docs/benchmarks/real-nodes-model.json
+	$(BIN)/python -m e2e.bench.real.fit --pilot $(PILOT) --out docs/benchmarks/real-nodes-model.json
 
 demo: venv bed-builds ## Plan + simulate the warehouse fleet, then leave it running on the local bed with the operator installed in-cluster by Helm; prints what to type next
 	$(BIN)/fogfleet plan manifests/examples/warehouse
@@ -184,4 +191,4 @@ clean: ## Remove the virtualenv and caches in the repo
 	rm -rf $(VENV) .pytest_cache .mypy_cache .ruff_cache
 
 
-.PHONY: cloud-tools bed-builds test-faults dashboard-check kubectl help venv lint unit integration docs-check test checkov images crds crds-check demo-offline bench-replan bench-scale-plan bench-plan-budget bench-plan-page bench-why-live bench-cluster bench-scale bench-real bench-real-report bench-split cluster-tools cluster-up cluster-down cluster-status e2e e2e-kind e2e-k3d chart-lint bench demo clean
+.PHONY: cloud-tools bed-builds test-faults dashboard-check kubectl help venv lint unit integration docs-check test checkov images crds crds-check demo-offline bench-replan bench-scale-plan bench-plan-budget bench-plan-page bench-why-live bench-cluster bench-scale bench-real bench-real-report bench-real-pilot bench-real-fit bench-split cluster-tools cluster-up cluster-down cluster-status e2e e2e-kind e2e-k3d chart-lint bench demo clean

@@ -3,6 +3,7 @@
 
     python -m e2e.bench.real.report [--json bench-real.json]
         [--docs docs/benchmarks/real-nodes.md] [--plot docs/benchmarks/real-nodes-perception.svg]
+        [--model docs/benchmarks/real-nodes-model.json]
 
 ``summarise`` (``e2e.bench.real.summary``) turns the runs into the document's "summary";
 ``table`` prints it for a terminal, ``markdown`` writes it for docs/, ``plot_svg``
@@ -20,6 +21,7 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
+from e2e.bench.real.modelpage import model_lines
 from e2e.bench.real.plot import arm_order, completed, plot_svg, rate
 from e2e.bench.real.protocol import PERCEPTION, PRIMARY, REQUESTS
 from e2e.bench.real.summary import (
@@ -33,6 +35,7 @@ from e2e.bench.real.summary import (
     simulator_agrees,
     summarise,
 )
+from fogfleet.sim import ExecutionModel
 
 __all__ = ["main", "markdown", "plot_svg", "simulator_agrees", "summarise", "table"]
 
@@ -352,8 +355,9 @@ def _load_rows(doc: Doc) -> Rows:
     return rows
 
 
-def markdown(doc: Doc, *, plot_name: str) -> str:
-    """The docs/benchmarks section of the run in ``doc``, every figure generated from it."""
+def markdown(doc: Doc, *, plot_name: str, model: Sequence[str] = ()) -> str:
+    """The docs/benchmarks section of the run in ``doc``, every figure generated from it
+    (``model``: the section that judges a fitted execution model on it, ``modelpage``)."""
     module_header, module_rows = _module_header_rows(doc)
     targets = [f"- {verdict}: {label}" for verdict, label in _target_rows(doc)]
     return "\n".join(
@@ -393,6 +397,7 @@ def markdown(doc: Doc, *, plot_name: str) -> str:
             "",
             _md_table(module_header, module_rows),
             "",
+            *model,
             "## The bed's load over the windows (medians)",
             "",
             _md_table(LOAD_HEADER, _load_rows(doc)),
@@ -408,11 +413,25 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument(
         "--plot", type=Path, help="write the SVG here (default with --docs: <docs>-perception.svg)"
     )
+    ap.add_argument(
+        "--model",
+        type=Path,
+        help="a fitted execution model (`python -m e2e.bench.real.fit`): the page judges it "
+        "beside the declared model",
+    )
     ns = ap.parse_args(argv)
     if not ns.json.is_file():
         ap.error(f"{ns.json}: no such file (`make bench-real` writes it)")
     doc = json.loads(ns.json.read_text())
     print(table(doc))
+    model: list[str] = []
+    if ns.model is not None:
+        try:
+            fitted = ExecutionModel.from_json(json.loads(ns.model.read_text(encoding="utf-8")))
+        except (OSError, ValueError) as exc:
+            ap.error(f"--model {ns.model}: {exc}")
+        model = model_lines(doc, fitted, ns.model.name)
+        print("\n" + "\n".join(model))
     plot: Path | None = ns.plot
     if plot is None and ns.docs is not None:
         plot = ns.docs.with_name(f"{ns.docs.stem}-perception.svg")
@@ -423,7 +442,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     if ns.docs is not None and plot is not None:
         name = Path(os.path.relpath(plot.resolve(), ns.docs.resolve().parent)).as_posix()
         ns.docs.parent.mkdir(parents=True, exist_ok=True)
-        ns.docs.write_text(markdown(doc, plot_name=name))
+        ns.docs.write_text(markdown(doc, plot_name=name, model=model))
         print(f"wrote {ns.docs}")
     return 0
 

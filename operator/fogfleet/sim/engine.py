@@ -17,6 +17,18 @@ two events (an execution start or end) the shares are constant, so completion ti
 (processor sharing, no time step). Equal weights give max-min fairness; measured on the bed's
 real nodes (``make bench-real``), an unweighted model put plain Deployments' small-request
 modules far ahead of where CFS puts them.
+
+**How the kernel spreads a shortage** (issue 49, ``spread``). Processor sharing stretches every
+running cycle alike, so a node short of CPU by a fifth makes every cycle on it late. The
+kernel does not: it favours a task that wakes after sleeping over the tasks that have run
+without a break (CFS's sleeper credit; EEVDF keeps the lag a sleeping task is owed), and a module
+paced at its row's rate sleeps between its slices while it keeps pace and spins without a
+break once it falls behind. The job that has just begun executing therefore keeps its pace,
+and the shortage lands on the cycles already running late. ``spread`` is the fraction of the
+capacity given that way, latest job first, each up to its demand (``newest_first``); the rest is
+shared as above. 0 is processor sharing alone (the declared model); the real-node benchmark
+fits it on a pilot (``e2e.bench.real.fit``). Shares stay constant between events, so the
+simulation stays exact.
 """
 
 from __future__ import annotations
@@ -27,7 +39,7 @@ from dataclasses import dataclass, field
 
 from .episodes import Episodes
 
-__all__ = ["Track", "run_independent", "run_shared", "water_fill"]
+__all__ = ["Track", "newest_first", "run_independent", "run_shared", "water_fill"]
 
 _EPS = 1e-12
 
@@ -126,18 +138,44 @@ def water_fill(
     return shares
 
 
-def run_shared(tracks: list[Track], capacity: float, horizon: float) -> float:
-    """Processor sharing of ``capacity`` cores among the tracks' executions.
+def newest_first(demands: list[float], capacity: float, woke: list[float]) -> list[float]:
+    """Shares of ``capacity`` cores given to the jobs in the order they began executing,
+    the latest first, each up to its demand (ties: the later job in the list first)."""
+    shares = [0.0] * len(demands)
+    rest = capacity
+    for k in sorted(range(len(demands)), key=lambda k: (woke[k], k), reverse=True):
+        shares[k] = min(demands[k], rest)
+        rest -= shares[k]
+    return shares
+
+
+def _shares(
+    dem: list[float], capacity: float, wts: list[float], woke: list[float], spread: float
+) -> list[float]:
+    """The running jobs' shares of a node short of CPU (module docstring)."""
+    fair = water_fill(dem, capacity, wts)
+    if spread <= 0.0:
+        return fair
+    first = newest_first(dem, capacity, woke)
+    return [(1.0 - spread) * a + spread * b for a, b in zip(fair, first, strict=True)]
+
+
+def run_shared(tracks: list[Track], capacity: float, horizon: float, spread: float = 0.0) -> float:
+    """Processor sharing of ``capacity`` cores among the tracks' executions, with ``spread``
+    of it given newest cycle first (module docstring).
 
     Event loop: a heap of pending execution starts (at most one per track) and the running jobs
     (few, kept in plain lists); the shares are recomputed only when the job set changes.
     Returns the busy core-seconds within the horizon.
     """
+    if not 0.0 <= spread <= 1.0:
+        raise ValueError(f"spread must lie in [0, 1], got {spread}")
     heap = [(t, k) for k, tr in enumerate(tracks) if (t := tr.first_arrival()) < math.inf]
     heapq.heapify(heap)
     jobs: list[int] = []  # running track indices
     dem: list[float] = []  # their demands, cores
     wts: list[float] = []  # their weights
+    woke: list[float] = []  # when each began executing its cycle
     rem: list[float] = []  # remaining work, seconds at full share
     rate: list[float] = []  # progress per second (share / demand)
     load = 0.0  # sum of shares, cores
@@ -147,7 +185,7 @@ def run_shared(tracks: list[Track], capacity: float, horizon: float) -> float:
         best = math.inf
         first = -1
         for idx, r in enumerate(rem):
-            dt = r / rate[idx]
+            dt = r / rate[idx] if rate[idx] > 0.0 else math.inf  # newest_first may give 0
             if dt < best:
                 best, first = dt, idx
         t_arr = heap[0][0] if heap else math.inf
@@ -170,18 +208,20 @@ def run_shared(tracks: list[Track], capacity: float, horizon: float) -> float:
             jobs = [jobs[idx] for idx in keep]
             dem = [dem[idx] for idx in keep]
             wts = [wts[idx] for idx in keep]
+            woke = [woke[idx] for idx in keep]
             rem = [rem[idx] for idx in keep]
         else:
             _, k = heapq.heappop(heap)
             jobs.append(k)
             dem.append(tracks[k].demand)
             wts.append(tracks[k].weight)
+            woke.append(now)
             rem.append(tracks[k].work[tracks[k].n])
         if sum(dem) <= capacity:
             rate = [1.0] * len(dem)
             load = sum(dem)
         else:
-            shares = water_fill(dem, capacity, wts)
+            shares = _shares(dem, capacity, wts, woke, spread)
             rate = [a / d for a, d in zip(shares, dem, strict=True)]
             load = capacity
     return busy

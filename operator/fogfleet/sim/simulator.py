@@ -82,6 +82,7 @@ def simulate(
     *,
     all_active: bool = False,
     aligned_start: bool = False,
+    spread: float = 0.0,
 ) -> SimResult:
     """Simulate ``placement`` (node index per instance, -1 = not run) under ``allocation``.
 
@@ -92,11 +93,15 @@ def simulate(
     An instance already active at t = 0 has been running before the horizon, so the phase of
     its cycles is uniform: its first cycle starts at U(0, cycle) (otherwise all instances with
     the same period would run in lockstep). ``aligned_start`` starts them all at 0 instead, for
-    hand-checkable runs. Deterministic per ``seed``. Raises ValueError for a malformed plan or
-    one that puts an instance where it has no execution profile.
+    hand-checkable runs. ``spread`` is the share of a short node's CPU that goes to the cycle
+    that started last (``engine``: how the kernel spreads a shortage; 0, processor sharing
+    alone, is the declared model). Deterministic per ``seed``. Raises ValueError for a
+    malformed plan or one that puts an instance where it has no execution profile.
     """
     if not duration_s > 0.0:
         raise ValueError("duration_s must be positive")
+    if not 0.0 <= spread <= 1.0:
+        raise ValueError(f"spread must lie in [0, 1], got {spread}")
     placement = np.array(placement, dtype=np.int64)  # own copy: it is frozen into the result
     _check(problem, placement, allocation)
     n_i, n_n = problem.n_instances, problem.n_nodes
@@ -141,7 +146,7 @@ def simulate(
         if demand <= cap * (1 + 1e-9):
             busy[j] = sum(run_independent(tracks[i]) for i in on_node)
         else:
-            busy[j] = run_shared([tracks[i] for i in on_node], cap, duration_s)
+            busy[j] = run_shared([tracks[i] for i in on_node], cap, duration_s, spread)
 
     return _summarise(problem, placement, tracks, active, busy, duration_s, seed)
 

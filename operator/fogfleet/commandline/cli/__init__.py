@@ -248,6 +248,13 @@ def _add_file_commands(sub: argparse._SubParsersAction[argparse.ArgumentParser])
         default=600,
         help="seconds of measurements with --from-prometheus (default 600)",
     )
+    sp.add_argument(
+        "--model",
+        metavar="FILE.json",
+        help="simulate under a fitted execution model (the cycle's cost per module and "
+        "hardware type, the kernel's spreading of a short node's CPU), as `make bench-real-fit` "
+        "writes one; the declared profile and processor sharing without it",
+    )
     sp.add_argument("--json", action="store_true")
     sp.set_defaults(func=cmd_simulate)
 

@@ -14,18 +14,15 @@ from __future__ import annotations
 
 from typing import Any
 
-import numpy as np
-
 from fogfleet.adapters.prometheus import PrometheusClient
 from fogfleet.api.loader import Catalog
 from fogfleet.api.v1alpha1.robotfleet import RobotFleet
 from fogfleet.controllers.measure.observed import declared_rows, read_observations
 from fogfleet.controllers.measure.observed import describe as say
 from fogfleet.domain.observed import correction
-from fogfleet.domain.problem import Allocation, Problem
-from fogfleet.domain.rows import Learnt, carry_noise
+from fogfleet.domain.rows import Learnt
 
-__all__ = ["learnt_corrections", "under_corrections"]
+__all__ = ["learnt_corrections"]
 
 
 def learnt_corrections(
@@ -52,29 +49,6 @@ def learnt_corrections(
         for hw, got in learnt.items():
             out[(name, hw)] = got
     return out
-
-
-def under_corrections(
-    problem: Problem, allocation: Allocation, corrections: dict[tuple[str, str], Learnt]
-) -> Allocation:
-    """``allocation`` (a plan's CPU amounts and its rows) with the execution times each
-    instance really has on each node: its rows as the correction of its module there makes
-    them (``Learnt.row``; on a type where its noise is not known, the noise it shows
-    elsewhere, as the planner takes it: ``rows.carry_noise``)."""
-    scale = np.ones((problem.n_instances, problem.n_nodes))
-    noise = np.zeros((problem.n_instances, problem.n_nodes))
-    carried = carry_noise(corrections, (node.hardware_type for node in problem.nodes))
-    for i, inst in enumerate(problem.instances):
-        for j, node in enumerate(problem.nodes):
-            got = carried.get((inst.module, node.hardware_type), Learnt())
-            scale[i, j], noise[i, j] = got.factor, got.noise
-    return Allocation(
-        allocation.cpu_request,
-        allocation.cpu_use,
-        allocation.exe_mean * scale,
-        np.hypot(allocation.exe_std * scale, noise),
-        allocation.has_limit,
-    )
 
 
 def describe(learnt: dict[tuple[str, str], tuple[Learnt, float]]) -> Any:

@@ -14,6 +14,7 @@ from typing import Any
 from fogfleet.commandline.exits import BAD_INPUT, OK
 from fogfleet.domain.miss_rates import format_miss_rate, worst_module
 from fogfleet.domain.rows import Learnt
+from fogfleet.errors import InvalidSpec
 from fogfleet.scheduling.objectives import module_miss_rates
 
 from .common import (
@@ -36,7 +37,24 @@ __all__ = ["REFERENCES", "cmd_simulate"]
 REFERENCES = ("k8s-default", "onboard")
 
 
+def _model(path: str | None) -> Any:
+    """The execution model of ``--model`` (the declared one without it)."""
+    from fogfleet.sim import DECLARED, ExecutionModel
+
+    if path is None:
+        return DECLARED
+    try:
+        return ExecutionModel.from_json(json.loads(Path(path).read_text(encoding="utf-8")))
+    except OSError as exc:
+        raise InvalidSpec(path, "", exc.strerror or "cannot be read") from exc
+    except ValueError as exc:  # JSONDecodeError included
+        raise InvalidSpec(path, "", str(exc)) from exc
+
+
 def cmd_simulate(args: argparse.Namespace) -> int:
+    if args.model and args.from_prometheus:
+        raise InvalidSpec("--model", "", "give --model or --from-prometheus, not both")
+    args.execution_model = _model(args.model)
     catalog = catalog_of(args.paths)
     # --scheduler all compares schedulers on the site as the fleets' own schedulers plan it
     site = None if args.scheduler == "all" else args.scheduler
@@ -69,7 +87,6 @@ def _simulate_fleet(
     """One fleet's plans simulated: each scheduler's (the site's own where it is the one the
     site ran), a recorded one, and the re-plans from measured profiles; and what could not
     be placed (the planner's: errors; a reference's: results)."""
-    from fogfleet.sim import simulate
     from fogfleet.snapshot import problem_of
 
     fleet, problem = plan.snapshot.fleet, plan.built
@@ -106,7 +123,7 @@ def _simulate_fleet(
             else:
                 infeasible.append(f"{name}: {why}")
     if factors:  # what re-planning with the measured profiles would give
-        from .observed import under_corrections
+        from fogfleet.sim.model import under_corrections
 
         real = problem_of(dataclasses.replace(plan.snapshot, corrections=factors))
         for name in names:
@@ -121,13 +138,14 @@ def _simulate_fleet(
             for k, (x, a) in placements.items()
         }
     result: dict[str, Any] = {}
+    model = args.execution_model
     for name, (placement, allocation) in placements.items():
-        sim = simulate(
+        sim = model.simulate(
             problem,
             placement,
             allocation,
-            duration_s=args.duration,
-            seed=args.seed if args.seed is not None else 0,
+            args.duration,
+            args.seed if args.seed is not None else 0,
             all_active=args.all_active,
         )
         unplaced = unplaced_modules(problem, placement)
