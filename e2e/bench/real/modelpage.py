@@ -14,11 +14,11 @@ from collections.abc import Mapping, Sequence
 from typing import Any
 
 from e2e.bench.real.plot import completed
-from e2e.bench.real.replay import replay
+from e2e.bench.real.replay import cpu_known, replay
 from e2e.bench.real.summary import AGREEMENT_ARMS, simulator_agrees
 from fogfleet.sim import ExecutionModel
 
-__all__ = ["KINDS", "Cell", "cells", "misses", "model_lines"]
+__all__ = ["KINDS", "Cell", "cells", "inexact", "misses", "model_lines"]
 
 Doc = Mapping[str, Any]
 KINDS = ("measured", "declared", "fitted")
@@ -54,6 +54,12 @@ def cells(doc: Doc, model: ExecutionModel) -> dict[str, dict[str, Cell]]:
     }
 
 
+def inexact(doc: Doc) -> list[str]:
+    """The judged arms with a run whose replay lacks the CPU it ran with (``cpu_known``)."""
+    runs = [r for r in filter(completed, doc.get("runs") or []) if not cpu_known(r)]
+    return [a for a in AGREEMENT_ARMS if any(r["scheduler"] == a for r in runs)]
+
+
 def misses(table: Mapping[str, Mapping[str, Cell]], kind: str) -> list[tuple[str, str]]:
     """The (arm, module) cells where ``kind``'s median misses the measured one."""
     return [
@@ -77,8 +83,15 @@ def model_lines(doc: Doc, model: ExecutionModel, model_file: str) -> list[str]:
     simulator misses the measured median by more than max(25 % relative, 0.5 points))."""
     table = cells(doc, model)
     header = ["module", "arm", *KINDS]
+    guessed = inexact(doc)
     rows = [
-        [module, arm, _pct(cell["measured"]), _verdict(cell, "declared"), _verdict(cell, "fitted")]
+        [
+            module,
+            arm + (" †" if arm in guessed else ""),
+            _pct(cell["measured"]),
+            _verdict(cell, "declared"),
+            _verdict(cell, "fitted"),
+        ]
         for module, by_arm in table.items()
         for arm, cell in by_arm.items()
     ]
@@ -103,6 +116,17 @@ def model_lines(doc: Doc, model: ExecutionModel, model_file: str) -> list[str]:
         "",
         _md_table(header, rows),
         "",
+        *(
+            [
+                "† Some of this arm's runs re-planned from learnt rows, and their replays may "
+                "not run the CPU each instance then had: runs before 2026-12-01 did not record "
+                "it (`cpu`), and a CPU chosen from learnt rows may be no rung of the declared "
+                "ladder (`e2e.bench.real.replay.cpu_known`).",
+                "",
+            ]
+            if guessed
+            else []
+        ),
         *(
             f"- {kind}: {judged - len(m)} of {judged} cells "
             "within max(25 % relative, 0.5 points); missed: "

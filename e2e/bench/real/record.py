@@ -34,6 +34,7 @@ class RunResult:
     simulated: dict[str, float] | None = None  # per module
     simulated_cycles: dict[str, int] | None = None
     placement: dict[str, str] | None = None  # robot/module -> node
+    cpu: dict[str, str] | None = None  # robot/module -> the CPU the plan gave it (its status)
     ready_s: float | None = None  # apply -> fleet Ready
     corrected: tuple[str, ...] = ()  # what the closed loop learnt in the warm-up
     cpu_seconds: dict[str, float] | None = None  # per part of the bed, over the window
@@ -48,6 +49,7 @@ class RunResult:
             "windowSeconds": self.window_s,
             "failed": self.failed,
             "placement": self.placement,
+            "cpu": self.cpu,
             "readySeconds": None if self.ready_s is None else round(self.ready_s, 1),
             "corrected": list(self.corrected),
             "cpuSeconds": self.cpu_seconds,

@@ -197,6 +197,11 @@ def one_run(
         result.placement = {
             p["robot"] + "/" + p["module"]: p["node"] for p in obj["status"]["placement"]
         } | {f"{robot}/{module}": PENDING for module, robot in pending}
+        result.cpu = {
+            p["robot"] + "/" + p["module"]: p["cpu"]
+            for p in obj["status"]["placement"]
+            if p.get("cpu")
+        }
         placement, allocation = scenario.placement_of(obj)  # a Pending instance: not run
         sim = simulate(
             scenario.problem, placement, allocation, protocol.window_s, seed=run.seed,

@@ -13,12 +13,13 @@ import pytest
 from e2e.bench.real.fit import fit, main, parse_correction, pooled_corrections
 from e2e.bench.real.modelpage import cells, misses, model_lines
 from e2e.bench.real.plot import completed
-from e2e.bench.real.replay import replay, scenario_of
+from e2e.bench.real.replay import cpu_known, replay, scenario_of
 from fogfleet.domain.rows import Learnt
 from fogfleet.sim import DECLARED, ExecutionModel
 
 HELD_OUT = Path(__file__).resolve().parents[3] / "docs" / "benchmarks" / "real-nodes.json"
 ROBOT_BOUND = ("nav-localization", "nav-controller")
+ROBOTS = ("paper-robot-1", "paper-robot-2")
 
 
 def _run(arm: str, seed: int, corrected: list[str] | None = None) -> dict[str, Any]:
@@ -112,3 +113,17 @@ def test_the_page_marks_each_cell_a_model_misses() -> None:
     assert any(line.startswith("- fitted: 6 of 6 cells") for line in lines)
     row = next(line for line in lines if line.startswith("| human-pose-estimation |"))
     assert row.count("✗") == 1  # the declared model's cell
+
+
+def test_a_replay_says_whether_it_ran_the_cpu_the_run_recorded() -> None:
+    # nsga2's first plan gives nav-controller 67m, the one rung of its declared ladder on a
+    # robot; a closed loop that re-planned it onto 133m from learnt rows ran a CPU the
+    # declared ladder cannot replay
+    first = _run("nsga2", 1, ["nav-controller on pi4 x1.00 + 6.0 ms noise (1000 cycles)"])
+    assert not cpu_known(first)  # re-planned, and nothing recorded
+    same = first | {"cpu": {f"{r}/nav-controller": "67m" for r in ROBOTS}}
+    assert cpu_known(same)
+    other = first | {"cpu": {f"{r}/nav-controller": "133m" for r in ROBOTS}}
+    assert not cpu_known(other)
+    assert cpu_known(_run("nsga2", 1))  # never re-planned: the first plan's CPU
+    assert cpu_known(_run("k8s-default", 1, ["anything"]))  # plain Deployments: nominal

@@ -18,9 +18,7 @@ STAGGERED = [Job("a", exe=0.1, cpu=2, cycle=0.24), Job("b", exe=0.1, cpu=2, cycl
 
 def _staggered(spread: float) -> tuple[list[float], list[int]]:
     p = build([2], STAGGERED)
-    r = simulate(
-        p, np.array([0, 0]), p.limits, aligned_start=True, duration_s=0.2, spread=spread
-    )
+    r = simulate(p, np.array([0, 0]), p.limits, aligned_start=True, duration_s=0.2, spread=spread)
     return [r.module_p95_cycle_s["a"], r.module_p95_cycle_s["b"]], list(r.instance_missed)
 
 
@@ -89,9 +87,7 @@ def test_the_cycles_noise_makes_some_cycles_miss() -> None:
 
 
 def test_a_model_reads_back_what_it_wrote_and_names_a_missing_field() -> None:
-    model = ExecutionModel(
-        {("nav-controller", "pi4"): Learnt(1.07, 0.0081, 1186)}, 0.3, "pilot x"
-    )
+    model = ExecutionModel({("nav-controller", "pi4"): Learnt(1.07, 0.0081, 1186)}, 0.3, "pilot x")
     back = ExecutionModel.from_json(model.as_json())
     assert back.spread == 0.3
     assert back.source == "pilot x"

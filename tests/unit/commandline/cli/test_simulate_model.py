@@ -41,8 +41,9 @@ def test_a_malformed_model_is_refused_with_the_field(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     assert main([*ARGV, "--model", _model(tmp_path, {"corrections": []})]) == 2
-    assert "model.json: execution model: missing or malformed field 'spread'" in (
-        capsys.readouterr()[1]
+    assert (
+        "model.json: execution model: missing or malformed field 'spread'"
+        in (capsys.readouterr()[1])
     )
     assert main([*ARGV, "--model", _model(tmp_path, {"spread": 2})]) == 2
     assert "spread must lie in [0, 1], got 2.0" in capsys.readouterr()[1]
