@@ -236,13 +236,21 @@ def ensure_up(*, nodes: bool = True, profile: str = realnodes.DEFAULT_PROFILE) -
         return Cluster.from_state(_read_state() or {})  # with its real nodes and versions
 
 
-def ensure_cloud(site: Cluster) -> tuple[cloud.CloudCluster, ocm.Joined]:
+def ensure_cloud(
+    site: Cluster, *, real_node: bool = False
+) -> tuple[cloud.CloudCluster, ocm.Joined]:
     """The cloud cluster beside the running bed ``site``, joined to it by OCM (``cloud``,
-    ``ocm``); a cloud that already runs joined is left alone."""
+    ``ocm``), with its real node (``cloud.start_node``) when ``real_node`` and the site runs
+    real nodes; a cloud that already runs joined is left alone."""
+    from e2e.bed import images
+
     with locked():
         ensure_built(["ocm"])
         c = cloud.start(f"http://{HOST}:{site.ports['etcd']}")
-        return c, ocm.join(c, site.kubeconfig, load_versions()["OCM_VERSION"])
+        joined = ocm.join(c, site.kubeconfig, load_versions()["OCM_VERSION"])
+        if real_node and site.real_nodes:
+            cloud.start_node(c, images.cloud_archives())
+        return c, joined
 
 
 def leftovers() -> list[str]:

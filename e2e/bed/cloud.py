@@ -15,7 +15,11 @@ the bed's, which Open Cluster Management joins to it (``ocm``).
   (``routers.py``, ROS 2's data across the WAN); the cloud's own agent reaches its API directly.
 - **Its machines**: kwok's nodes (``NODES``, tier ``cloud``), with a kube-scheduler that binds
   pods to them, so that the cloud has a capacity OCM reports and Deployments that become
-  Available; nothing runs inside them (the bed's real containers run at the site).
+  Available; nothing runs inside them. On a bed with real nodes, ``start_node`` adds one real
+  node (``NODE``): containerd and a kubelet in a network namespace of the bed's bridge, a
+  member of the cloud's cluster (its CA, its API through a gateway on the bridge), with the
+  workload image, so that a cloud instance's pod really runs in the cloud; its relay sidecar
+  reaches the cloud's router on the bridge, and from there the site only across the WAN.
 
 Everything listens on 127.0.0.1; its processes are the bed's (``processes``: stopped by pid,
 logs beside the others), and ``bed.down`` stops them with the rest.
@@ -26,14 +30,17 @@ from __future__ import annotations
 import json
 import os
 import signal
+import socket
 import ssl
 import sys
 import time
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
+from functools import partial
 from pathlib import Path
 from typing import Any
 
+from e2e.bed import realnodes
 from e2e.bed.base import (
     BIN_DIR,
     HERE,
@@ -69,7 +76,9 @@ __all__ = [
     "running",
     "set_wan",
     "start",
+    "start_node",
     "stop",
+    "stop_node",
 ]
 
 CLOUD_DIR = STATE_DIR / "cloud"
@@ -94,6 +103,16 @@ WAN_DELAY_MS, WAN_RATE_MBIT = 20.0, 50.0
 NODES = tuple(f"cloud-vm-{i}" for i in (1, 2))
 NODE_CPU, NODE_MEMORY_GI, NODE_HARDWARE = 16, 64, "fsv2-16"
 KWOK_LEASE_SECONDS = 40  # kwok renews every 10 s: nothing here tests a cloud node's failure
+# The cloud's one real node (``start_node``): a small VM of the cloud region, on the bed's
+# bridge at an index no site profile uses, with room for one cloud instance and its sidecar
+NODE = realnodes.RealNode(
+    "cloud-node-1",
+    50,
+    {"fogfleet.io/tier": "cloud", "fogfleet.io/hardware-type": "cloud-vm"},
+    1500,
+    1536 * 2**20,
+)
+NODE_GATEWAY = "cloud-node-gateway"  # the cloud's API on the bridge, for its real node
 START_TIMEOUT_S = 180
 
 
@@ -114,6 +133,12 @@ class CloudCluster:
     def cloud_router(self) -> str:
         """The Zenoh endpoint of the cloud's router (what the cloud's modules connect to)."""
         return f"tcp/{HOST}:{self.ports[CLOUD_ROUTER]}"
+
+    @property
+    def cloud_router_for_pods(self) -> str:
+        """The cloud's router as the cloud's real node's pods reach it: on the bed's bridge
+        (the ClusterClaim ``relay-router.fogfleet.io`` of a cloud that runs them)."""
+        return f"tcp/{BRIDGE_IP}:{self.ports[CLOUD_ROUTER]}"
 
     @property
     def site_router(self) -> str:
@@ -161,7 +186,7 @@ def running() -> CloudCluster | None:
 
 def _make_pki() -> None:
     make_ca(PKI, "fogfleet-cloud-ca")
-    sans = [f"IP:{HOST}", "DNS:localhost"]
+    sans = [f"IP:{HOST}", "DNS:localhost", f"IP:{BRIDGE_IP}"]  # the bridge: the real node's
     issue_cert("admin", "/O=system:masters/CN=fogfleet-cloud-admin", sans, pki=PKI)
 
 
@@ -180,6 +205,7 @@ def _argv(ports: Mapping[str, int], etcd_url: str, prefix: str) -> dict[str, lis
             sys.executable,
             str(HERE / "routers.py"),
             f"--listen=tcp/{HOST}:{ports[CLOUD_ROUTER]}",
+            *([f"--listen=tcp/{BRIDGE_IP}:{ports[CLOUD_ROUTER]}"] if bridge_exists() else []),
         ],
         SITE_ROUTER: [
             sys.executable,
@@ -299,9 +325,39 @@ def set_wan(settings: WanSettings) -> None:
         f"{settings.rate_mbit:g} Mbit/s")  # fmt: skip
 
 
+def start_node(cloud: CloudCluster, images: Sequence[Path]) -> None:
+    """The cloud's real node (``NODE``, module docstring) started with ``images`` and Ready
+    in the cloud's cluster; a node already Ready there is left alone."""
+    kubectl_ = partial(kubectl, BIN_DIR / "kubectl", KUBECONFIG)
+    port = cloud.ports[APISERVER]
+    if _alive(NODE.process_name) is not None and _alive(NODE_GATEWAY) is not None:
+        return
+    t0 = time.monotonic()
+    _start(NODE_GATEWAY, [sys.executable, str(HERE / "gateway.py"),
+                          f"{BRIDGE_IP}:{port}={HOST}:{port}"])  # fmt: skip
+    wait_for(f"the cloud's gateway on {BRIDGE_IP}:{port}", partial(_answers, BRIDGE_IP, port), 20)
+    member = realnodes.Membership(f"https://{BRIDGE_IP}:{port}", PKI, services=False)
+    realnodes.start([NODE], member, images)
+    realnodes.wait_ready(kubectl_, [NODE.name])
+    log(f"cloud cluster: real node {NODE.name} Ready in {time.monotonic() - t0:.1f}s")
+
+
+def _answers(host: str, port: int) -> bool:
+    socket.create_connection((host, port), timeout=1).close()
+    return True
+
+
+def stop_node() -> None:
+    """Stop the cloud's real node and its gateway (nothing of the site's nodes)."""
+    if _alive(NODE.process_name) is not None or NODE.dir.exists():
+        realnodes.stop_one(NODE)
+    _stop(NODE_GATEWAY)
+
+
 def stop() -> None:
     """Stop the cloud cluster's processes (by pid) and remove its state. Its objects in the
     bed's etcd go with the bed's data directory."""
+    stop_node()
     for name in reversed(COMPONENTS):
         _stop(name)
     STATE_FILE.unlink(missing_ok=True)

@@ -54,6 +54,7 @@ from e2e.bed.base import (
     run,
 )
 from e2e.bed.bed import down, ensure_cloud, ensure_up, status
+from e2e.bed.cloud import NODE
 from e2e.bed.cluster import COMPONENTS, Cluster, running
 from e2e.bed.fakenodes import NODES_FILE, create_nodes, generated_nodes, node_object
 from e2e.bed.gomodule import GoToolchain
@@ -201,8 +202,10 @@ def main(argv: list[str] | None = None) -> int:
             print(f"prometheus in cluster: {cluster.in_cluster_prometheus_url}")
             print(f"cluster dns: {cluster.dns_service_ip}")
         if ns.cloud:
-            cloud, joined = ensure_cloud(cluster)
+            cloud, joined = ensure_cloud(cluster, real_node=True)
             print(f"cloud api server: {cloud.api_server} (OCM hub)")
+            if cluster.real_nodes:
+                print(f"cloud real node: {NODE.name} (router {cloud.cloud_router_for_pods})")
             print(f"cloud kubeconfig: {cloud.kubeconfig}")
             print(f"managed clusters: {', '.join(joined.clusters)} (Available)")
         print(f"export KUBECONFIG={cluster.kubeconfig}")

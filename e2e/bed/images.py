@@ -314,6 +314,13 @@ def bed_archives() -> list[Path]:
     return archives
 
 
+def cloud_archives() -> list[Path]:
+    """What the cloud's real node gets: the sandbox image and the workload's (a cloud instance
+    runs the module and its relay sidecar, both from the workload image)."""
+    (workload,) = [r for r in RECIPES if r.name == "ros2-module"]
+    return [pause_archive(), build(workload)]
+
+
 def _prune(keep: set[str]) -> None:
     """Drop archives of older recipes (one version of each image stays cached)."""
     for path in IMAGES_DIR.glob("*.tar"):

@@ -108,8 +108,9 @@ def main(config_path: str) -> int:
         # iptables sees bridged packets only with this on (per network namespace).
         Path("/proc/sys/net/bridge/bridge-nf-call-iptables").write_text("1\n")
     runtime, agents = cfg["cgroups"]["runtime"], cfg["cgroups"]["agents"]
-    order = [("containerd", runtime), ("kubelet", agents), ("kube-proxy", agents)]
-    order += [(name, agents) for name in ("kube-router",) if name in cfg["processes"]]
+    order = [("containerd", runtime), ("kubelet", agents)]
+    # the cluster's services, where the node runs them (the cloud's real node does not)
+    order += [(name, agents) for name in ("kube-proxy", "kube-router") if name in cfg["processes"]]
     procs: dict[str, subprocess.Popen[bytes]] = {}
     restarts: dict[str, float] = {}
     pids_file = Path(config_path).parent / "pids.json"

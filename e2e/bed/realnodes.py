@@ -151,6 +151,19 @@ class RealNode:
         return cgroups.node_path(self.name)
 
 
+@dataclass(frozen=True)
+class Membership:
+    """The cluster a real node joins: its API as the node reaches it, the directory of the CA
+    that signs the node's certificates (and whose clients its kubelet trusts), and whether
+    the cluster's services run beside the kubelet (kube-proxy, kube-router's firewall and
+    cluster DNS: the site's). The cloud's node (``cloud``) runs containerd and the kubelet
+    only."""
+
+    api_server: str
+    pki: Path = STATE_DIR / "pki"
+    services: bool = True
+
+
 def _quantity_millis(text: str) -> int:
     return int(text[:-1]) if text.endswith("m") else int(float(text) * 1000)
 
@@ -291,7 +304,7 @@ def _cni_config(node: RealNode) -> dict[str, Any]:
     }
 
 
-def _kubelet_config(node: RealNode, pki: Path) -> dict[str, Any]:
+def _kubelet_config(node: RealNode, pki: Path, member: Membership) -> dict[str, Any]:
     reserved_cpu = max(0, _machine_cpu_millis() - node.cpu_millis)
     reserved_mem = max(0, _machine_memory_bytes() - node.memory_bytes)
     return {
@@ -305,7 +318,7 @@ def _kubelet_config(node: RealNode, pki: Path) -> dict[str, Any]:
         "authentication": {
             "anonymous": {"enabled": False},
             "webhook": {"enabled": True},
-            "x509": {"clientCAFile": str(STATE_DIR / "pki" / "ca.crt")},
+            "x509": {"clientCAFile": str(member.pki / "ca.crt")},
         },
         "authorization": {"mode": "Webhook"},
         "tlsCertFile": str(pki / "kubelet-serving.crt"),
@@ -319,7 +332,7 @@ def _kubelet_config(node: RealNode, pki: Path) -> dict[str, Any]:
         "enforceNodeAllocatable": [],
         "failSwapOn": False,
         # cluster DNS (clusterservices.py); the host's resolv.conf stays out of every pod
-        "clusterDNS": [bednet.DNS_SERVICE_IP],
+        "clusterDNS": [bednet.DNS_SERVICE_IP] if member.services else [],
         "clusterDomain": CLUSTER_DOMAIN,
         "resolvConf": "",
         "containerRuntimeEndpoint": f"unix://{node.socket}",
@@ -356,38 +369,42 @@ def _kube_proxy_config(node: RealNode, kubeconfig_path: Path) -> dict[str, Any]:
     }
 
 
-def _write_node_files(node: RealNode, api_server: str) -> Path:
+def _write_node_files(node: RealNode, member: Membership) -> Path:
     d = node.dir
     for sub in ("pki", "logs", "containerd", *BIND_PATHS):
         (d / sub).mkdir(parents=True, exist_ok=True)
     pki = d / "pki"
-    ca_pki = STATE_DIR / "pki"
-    # certificates are issued in the bed's PKI dir, then moved to the node's
-    serving = issue_cert(f"{node.name}-serving", f"/CN={node.name}", [f"IP:{node.net.ip}"])
+    ca_pki, api_server, ca = member.pki, member.api_server, member.pki / "ca.crt"
+    # certificates are issued in the cluster's PKI dir, then moved to the node's
+    serving = issue_cert(
+        f"{node.name}-serving", f"/CN={node.name}", [f"IP:{node.net.ip}"], pki=ca_pki
+    )
     client = issue_cert(
         f"{node.name}-client",
         f"/O=system:nodes/CN=system:node:{node.name}",
         [],
         usage="clientAuth",
+        pki=ca_pki,
     )
     for src, dst in ((serving, "kubelet-serving"), (client, "kubelet-client")):
         shutil.move(str(src), pki / f"{dst}.crt")
         shutil.move(str(src.with_suffix(".key")), pki / f"{dst}.key")
     (d / "kubelet.kubeconfig").write_text(
         kubeconfig(api_server, f"system:node:{node.name}", pki / "kubelet-client.crt",
-                   pki / "kubelet-client.key")
+                   pki / "kubelet-client.key", ca=ca)
     )  # fmt: skip
-    (d / "kube-proxy.kubeconfig").write_text(
-        kubeconfig(api_server, "system:kube-proxy", ca_pki / "kube-proxy.crt",
-                   ca_pki / "kube-proxy.key")
-    )  # fmt: skip
-    (d / "kube-router.kubeconfig").write_text(
-        kubeconfig(api_server, KUBE_ROUTER_USER, ca_pki / "kube-router.crt",
-                   ca_pki / "kube-router.key")
-    )  # fmt: skip
+    if member.services:
+        (d / "kube-proxy.kubeconfig").write_text(
+            kubeconfig(api_server, "system:kube-proxy", ca_pki / "kube-proxy.crt",
+                       ca_pki / "kube-proxy.key", ca=ca)
+        )  # fmt: skip
+        (d / "kube-router.kubeconfig").write_text(
+            kubeconfig(api_server, KUBE_ROUTER_USER, ca_pki / "kube-router.crt",
+                       ca_pki / "kube-router.key", ca=ca)
+        )  # fmt: skip
     (d / "containerd.toml").write_text(_containerd_config(node))
     _write_json(d / "cni-conf" / "10-fogfleet-bed.conflist", _cni_config(node))
-    _write_json(d / "kubelet.json", _kubelet_config(node, pki))
+    _write_json(d / "kubelet.json", _kubelet_config(node, pki, member))
     _write_json(d / "kube-proxy.json", _kube_proxy_config(node, d / "kube-proxy.kubeconfig"))
     (d / "resolv.conf").write_text("# fogfleet bed: no DNS server (nothing leaves the bed)\n")
     labels = ",".join(f"{k}={v}" for k, v in sorted(node.labels.items()))
@@ -449,6 +466,9 @@ def _write_node_files(node: RealNode, api_server: str) -> Path:
             },
         },
     }
+    if not member.services:
+        for name in ("kube-proxy", "kube-router"):
+            del cfg["processes"][name]
     return _write_json(d / "nodehost.json", cfg)
 
 
@@ -498,10 +518,12 @@ def _check_host() -> None:
         raise HarnessError("real nodes need root (network namespaces, cgroups, containerd)")
 
 
-def start(nodes: Sequence[RealNode], api_server: str, images: Sequence[Path]) -> None:
-    """Start every real node, import the images into each, and wait until all are Ready."""
+def start(nodes: Sequence[RealNode], api_server: str | Membership, images: Sequence[Path]) -> None:
+    """Start every real node as a member of the cluster at ``api_server`` (the site's, or a
+    ``Membership``), and import the images into each."""
     if not nodes:
         return
+    member = api_server if isinstance(api_server, Membership) else Membership(api_server)
     _check_host()
     _ensure_mountpoints()
     nets = [n.net for n in nodes]
@@ -510,7 +532,7 @@ def start(nodes: Sequence[RealNode], api_server: str, images: Sequence[Path]) ->
         cgroups.create(node.name, node.cpu_millis, node.memory_bytes)
         bednet.add_node(node.net, nets)
         spec = set_link(node)
-        _write_node_files(node, api_server)
+        _write_node_files(node, member)
         boot(node)
         log(f"{node.name}: containerd up, link {spec.describe()} in {time.monotonic() - t0:.1f}s")
     import_everywhere(nodes, images)
@@ -601,6 +623,17 @@ def stop(nodes: Sequence[RealNode]) -> None:
     bednet.teardown()
     _remove_mountpoints()
     shutil.rmtree(NODES_DIR, ignore_errors=True)
+
+
+def stop_one(node: RealNode) -> None:
+    """Stop one node and remove what is its alone (processes, link, cgroups, namespace, veth,
+    route, directory), leaving the bed's bridge and its other nodes running."""
+    _stop(node.process_name, grace=30)
+    stop_link(node.net.netns)
+    cgroups.kill_all(node.cgroup)
+    cgroups.remove(node.cgroup)
+    bednet.remove_node(node.net)
+    shutil.rmtree(node.dir, ignore_errors=True)
 
 
 def wait_ready(kubectl: Any, names: Sequence[str], timeout: float = NODE_READY_TIMEOUT) -> None:

@@ -2,11 +2,12 @@
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import pytest
 
-from e2e.bed import base, bednet, cloud, ocm, routers, tools
+from e2e.bed import base, bednet, cloud, ocm, realnodes, routers, tools
 
 
 def _listen_addresses(argv: list[str]) -> list[str]:
@@ -27,8 +28,9 @@ def test_the_cloud_control_plane_listens_on_loopback_and_stores_apart_from_the_s
     argv = cloud._argv(ports, "http://127.0.0.1:2379", f"{cloud.ETCD_PREFIX}/1")
     for name, args in argv.items():
         addresses = _listen_addresses(args)
-        # the site's router also listens on the bed's bridge, for the relays in the pods
-        if name == cloud.SITE_ROUTER:
+        # the routers also listen on the bed's bridge, for the relays in the pods (the site's
+        # real nodes', and the cloud's real node's)
+        if name in (cloud.SITE_ROUTER, cloud.CLOUD_ROUTER):
             bridge = f"{bednet.BRIDGE_IP}:{ports[name]}"
             assert bridge in addresses and routers.BRIDGE_ENDPOINT + str(ports[name]) == (
                 f"tcp/{bridge}"
@@ -92,3 +94,39 @@ def test_a_fatal_probe_error_ends_the_wait_at_once() -> None:
     with pytest.raises(Gone):
         base.wait_for("a process", probe, timeout=30, interval=0.0, fatal=(Gone,))
     assert len(calls) == 2
+
+
+def test_the_clouds_real_node_joins_the_cloud_with_its_own_ca_and_runs_the_kubelet_only(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    node, pki = cloud.NODE, tmp_path / "cloud-pki"
+    pki.mkdir()
+    (pki / "ca.crt").write_text("the cloud's CA")
+    member = realnodes.Membership("https://198.18.0.1:40000", pki, services=False)
+    kubelet = realnodes._kubelet_config(node, tmp_path, member)
+    assert kubelet["authentication"]["x509"]["clientCAFile"] == str(pki / "ca.crt")
+    assert kubelet["clusterDNS"] == []  # the site's DNS is not the cloud's
+    site = realnodes._kubelet_config(node, tmp_path, realnodes.Membership("https://x"))
+    assert site["clusterDNS"] == [bednet.DNS_SERVICE_IP]
+    issued: list[Path] = []
+
+    def issue(
+        name: str, subject: str, sans: list[str], usage: str = "", pki: Path = Path()
+    ) -> Path:
+        issued.append(pki)
+        cert = tmp_path / f"{name}.crt"
+        cert.write_text("")
+        cert.with_suffix(".key").write_text("")
+        return cert
+
+    monkeypatch.setattr(realnodes, "issue_cert", issue)
+    monkeypatch.setattr(realnodes.RealNode, "dir", property(lambda n: tmp_path / n.name))
+    cfg = json.loads(realnodes._write_node_files(node, member).read_text())
+    assert issued == [pki, pki]  # its serving and client certificates: the cloud's CA signs
+    assert sorted(cfg["processes"]) == ["containerd", "kubelet"]
+    kubeconfig = (tmp_path / node.name / "kubelet.kubeconfig").read_text()
+    assert "https://198.18.0.1:40000" in kubeconfig
+    # on the bridge apart from every site profile's nodes
+    site_nodes = [n for p in realnodes.PROFILES for n in realnodes.profile_nodes(p)]
+    assert node.net.ip not in {n.net.ip for n in site_nodes}
+    assert node.net.pod_cidr not in {n.net.pod_cidr for n in site_nodes}

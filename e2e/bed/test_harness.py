@@ -232,7 +232,7 @@ def test_cluster_dns_serves_cluster_local_on_the_bridge_only(tmp_path: Path) -> 
     assert endpoints["endpoints"][0]["addresses"] == [bednet.BRIDGE_IP]
     assert endpoints["ports"][0]["port"] == 29090
     node = realnodes.RealNode("n", 1, {}, 400, 2**30)
-    kubelet = realnodes._kubelet_config(node, tmp_path)
+    kubelet = realnodes._kubelet_config(node, tmp_path, realnodes.Membership("https://x"))
     assert kubelet["clusterDNS"] == [bednet.DNS_SERVICE_IP] and kubelet["resolvConf"] == ""
     assert kubelet["clusterDomain"] == "cluster.local"
 

@@ -30,13 +30,16 @@ from fogfleet.snapshot.clusters import ROUTER_CLAIM
 
 
 @contextlib.contextmanager
-def joined_cloud(cluster: Cluster) -> Iterator[tuple[cloud.CloudCluster, ocm.Joined]]:
+def joined_cloud(
+    cluster: Cluster, *, real_node: bool = False
+) -> Iterator[tuple[cloud.CloudCluster, ocm.Joined]]:
     """The cloud joined to the site ``cluster`` (a cloud left by an earlier session is
-    started again, so that the join is measured); stopped after."""
+    started again, so that the join is measured), with its real node if ``real_node``;
+    stopped after."""
     ocm.stop()
     cloud.stop()
     try:
-        yield ensure_cloud(cluster)
+        yield ensure_cloud(cluster, real_node=real_node)
     finally:
         ocm.stop()
         cloud.stop()
@@ -152,10 +155,11 @@ def cloud_pods(hub: cloud.CloudCluster, namespace: str) -> list[dict[str, Any]]:
     return json.loads(found)["items"] if found else []
 
 
-def claim_the_cloud(hub: cloud.CloudCluster, kube: Kube) -> None:
-    """The cloud's ClusterClaims (``CLAIMS``, and the router its pods' relays dial: on the bed
-    the host's, since nothing runs in the cloud's kwok nodes), once the hub reports them."""
-    said = {**CLAIMS, ROUTER_CLAIM: hub.cloud_router}
+def claim_the_cloud(hub: cloud.CloudCluster, kube: Kube, router: str | None = None) -> None:
+    """The cloud's ClusterClaims (``CLAIMS``, and the router its pods' relays dial: the
+    host's loopback one by default, for pods played on the host; ``hub.cloud_router_for_pods``
+    for pods in the cloud's real node), once the hub reports them."""
+    said = {**CLAIMS, ROUTER_CLAIM: router or hub.cloud_router}
     claims = [
         {"apiVersion": "cluster.open-cluster-management.io/v1alpha1", "kind": "ClusterClaim",
          "metadata": {"name": name}, "spec": {"value": value}}
@@ -199,6 +203,25 @@ def site_operator(
                  "--timeout=60s", check=False, timeout=90)  # fmt: skip
     kube.kubectl("delete", "computenode", CLOUD_NODE, "--ignore-not-found", check=False)
     op.stop()
+
+
+@contextlib.contextmanager
+def only_the_real_node(hub: cloud.CloudCluster) -> Iterator[None]:
+    """The cloud's kwok machines cordoned, so that its scheduler binds new pods to its real
+    node (``cloud.NODE``); uncordoned after."""
+    hub.kubectl("cordon", *cloud.NODES)
+    try:
+        yield
+    finally:
+        hub.kubectl("uncordon", *cloud.NODES, check=False)
+
+
+def real_node_logs(namespace: str) -> str:
+    """The last lines of every container log of ``namespace``'s pods on the cloud's real
+    node (read from the node's log directory: the cloud's API server holds no kubelet client
+    certificate, so ``kubectl logs`` cannot reach it)."""
+    found = sorted((cloud.NODE.dir / "pod-logs").glob(f"{namespace}_*/*/*.log"))
+    return "\n".join(f"{p.parent.name}: {p.read_text(errors='replace')[-1500:]}" for p in found)
 
 
 def work_deployment(hub: cloud.CloudCluster, namespace: str, module: str) -> dict[str, Any]:

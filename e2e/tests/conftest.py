@@ -254,10 +254,14 @@ def operator(
 
 
 @pytest.fixture(scope="module")
-def joined(cluster: harness.Cluster) -> Iterator[tuple[cloud.CloudCluster, ocm.Joined]]:
+def joined(
+    cluster: harness.Cluster, request: pytest.FixtureRequest
+) -> Iterator[tuple[cloud.CloudCluster, ocm.Joined]]:
     """The cloud cluster joined to the bed by OCM (``cloudbed.joined_cloud``), for one test
-    module: each multicluster module joins it afresh and stops it after."""
-    with cloudbed.joined_cloud(cluster) as both:
+    module: each multicluster module joins it afresh and stops it after. A module that sets
+    ``CLOUD_REAL_NODE = True`` gets the cloud's real node too (``cloud.start_node``)."""
+    real_node = bool(getattr(request.module, "CLOUD_REAL_NODE", False))
+    with cloudbed.joined_cloud(cluster, real_node=real_node) as both:
         yield both
 
 
@@ -321,6 +325,16 @@ def _dump(kube: Kube, namespace: str | None, extra: list[Diagnostic]) -> str:
         section(
             f"events in {namespace}",
             run("get", "events", "-n", namespace, "--sort-by=.lastTimestamp", "-o", "wide"),
+        )
+        # the fleets' conditions first: the yaml below is cut long before a fleet's status
+        conditions = (
+            '{range .items[*]}{.metadata.name}{"\\n"}{range .status.conditions[*]}'
+            '{"  "}{.type}={.status} {.reason} ({.lastTransitionTime}): {.message}{"\\n"}'
+            "{end}{end}"
+        )
+        section(
+            f"fleets' conditions in {namespace}",
+            run("get", "robotfleets", "-n", namespace, "-o", f"jsonpath={conditions}"),
         )
         kinds = run("api-resources", "--verbs=list", "--namespaced", "-o", "name").split()
         skip = {"events", "events.events.k8s.io"}

@@ -2,12 +2,16 @@
 
 The robot's modules run in their pods on the bed's real robot node; the site's operator gives
 each robot with an instance in the cloud a relay pod beside them, and each cloud instance a
-relay sidecar. The bed's cloud nodes are kwok, so the cloud's pod is played on the host
-(``cloudbed.cloud_pod_on_the_host``): its containers as the work carries them, in a ROS 2
-graph of their own. What holds: the plan's cut edge crosses the WAN through the relays and the
+relay sidecar. What holds: the plan's cut edge crosses the WAN through the relays and the
 routers, paying the WAN's delay, and nothing else of the fleet crosses; a WAN cut hands the
 cloud's instance to the robot's on-board standby within a second, and deletes or duplicates
 nothing on either side.
+
+The WAN cut runs the cloud's instance in its pod on the cloud's real node (``cloud.NODE``: the
+module and its relay sidecar under the cloud's own kubelet, bound by the cloud's scheduler from
+the work OCM applied). The cut edge's latency is measured in this test's own ROS 2 graph, so
+there the cloud's pod is played on the host (``cloudbed.cloud_pod_on_the_host``): its relay
+sidecar as the work carries it, beside the test's subscriber.
 """
 
 from __future__ import annotations
@@ -39,8 +43,11 @@ from e2e.tests.cloudbed import (
     ROBOT,
     claim_the_cloud,
     cloud_pod_on_the_host,
+    cloud_pods,
     container_env,
     module,
+    only_the_real_node,
+    real_node_logs,
     robot_and_cloud,
     run_in_the_cloud,
     work_deployment,
@@ -60,6 +67,7 @@ pytestmark = [
     pytest.mark.bed("a second control plane, OCM, the Zenoh routers and the WAN"),
     pytest.mark.timeout(600),
 ]
+CLOUD_REAL_NODE = True  # the ``joined`` fixture starts the cloud's real node for this module
 
 CLOUD_GRAPH_DOMAIN = 74  # the cloud pod's ROS 2 graph, played on the host (DDS on localhost)
 POSES = 30  # six seconds of the localisation's poses
@@ -250,14 +258,19 @@ def test_a_wan_cut_hands_the_cloud_instance_to_the_robots_standby_within_a_secon
     tmp_path: Path,
     diagnostics: list[Any],
 ) -> None:
-    """The detector runs in the cloud (its pod on the host, as the work carries it) and its
-    standby on the robot relays its objects. The WAN is cut: the standby takes over within the
+    """The detector runs in the cloud, in its pod on the cloud's real node, and its standby
+    on the robot relays its objects. The WAN is cut: the standby takes over within the
     silence window plus two cycles, under a second; while the WAN is down nothing is deleted
     or written twice, at the site or on the hub; once it returns, the standby hands back."""
     hub, _ = joined
-    claim_the_cloud(hub, kube)
-    kube.apply(_guarded_fleet(namespace))
-    wait_ready(kube, namespace, "guarded", timeout=240)
+    claim_the_cloud(hub, kube, router=hub.cloud_router_for_pods)
+    with only_the_real_node(hub):
+        kube.apply(_guarded_fleet(namespace))
+        wait_ready(kube, namespace, "guarded", timeout=240)
+    (in_pod,) = cloud_pods(hub, namespace)
+    assert in_pod["spec"]["nodeName"] == cloud.NODE.name, in_pod["spec"].get("nodeName")
+    ready = {c["name"]: c["ready"] for c in in_pod["status"]["containerStatuses"]}
+    assert len(ready) == 2 and RELAY_CONTAINER in ready and all(ready.values()), ready
     placed = {
         p["module"]: p["node"] for p in fleet(kube, namespace, "guarded")["status"]["placement"]
     }
@@ -270,7 +283,7 @@ def test_a_wan_cut_hands_the_cloud_instance_to_the_robots_standby_within_a_secon
     diagnostics += [
         lambda: ("the standby's log", _logs(kube, namespace, standby["metadata"]["name"])),
         lambda: ("the robot's relay", _relay_log(kube, namespace)),
-        lambda: ("the cloud's pod", _host_logs(tmp_path)),
+        lambda: ("the cloud's pod", real_node_logs(namespace)),
     ]
 
     def relaying() -> bool:
@@ -283,34 +296,34 @@ def test_a_wan_cut_hands_the_cloud_instance_to_the_robots_standby_within_a_secon
             and now.get("fogfleet_messages_published_total", 0.0) > 20
         )
 
-    with cloud_pod_on_the_host(detector, CLOUD_GRAPH_DOMAIN + 1, tmp_path):
-        kube.wait_for("the standby relaying the cloud's objects", relaying, 120, interval=1)
-        at_site = sorted(d["metadata"]["name"] for d in deployments(kube, namespace))
-        works = sorted(w["metadata"]["name"] for w in works_of(hub, namespace))
-        in_the_cloud = _cloud_deployments(hub, namespace)
-        before = scrape(url)
-        cut = time.monotonic()
-        cloud.set_wan(cloud.WanSettings(cut=True))
-        try:
-            kube.wait_for(
-                "the standby in charge", lambda: scrape(url).get("fogfleet_fallback_active") == 1.0,
-                30, interval=0.1,
-            )  # fmt: skip
-            seen = time.monotonic() - cut
-            time.sleep(15)  # the operator reconciles with the hub out of reach meanwhile
-            # nothing deleted, nothing started twice: at the site (the hub is not answering)
-            assert sorted(d["metadata"]["name"] for d in deployments(kube, namespace)) == at_site
-            # and in the cloud (its API is reached here directly, not across the WAN)
-            assert _cloud_deployments(hub, namespace) == in_the_cloud
-            after = scrape(url)
-        finally:
-            cloud.set_wan(cloud.WanSettings())
-        back = time.monotonic()
+    assert container_env(detector, RELAY_CONTAINER)[ENV_RELAY_ROUTER] == hub.cloud_router_for_pods
+    kube.wait_for("the standby relaying the cloud's objects", relaying, 120, interval=1)
+    at_site = sorted(d["metadata"]["name"] for d in deployments(kube, namespace))
+    works = sorted(w["metadata"]["name"] for w in works_of(hub, namespace))
+    in_the_cloud = _cloud_deployments(hub, namespace)
+    before = scrape(url)
+    cut = time.monotonic()
+    cloud.set_wan(cloud.WanSettings(cut=True))
+    try:
         kube.wait_for(
-            "the standby handing back to the cloud's detector",
-            lambda: scrape(url).get("fogfleet_fallback_active") == 0.0, 90, interval=1,
+            "the standby in charge", lambda: scrape(url).get("fogfleet_fallback_active") == 1.0,
+            30, interval=0.1,
         )  # fmt: skip
-        handed_back = time.monotonic() - back
+        seen = time.monotonic() - cut
+        time.sleep(15)  # the operator reconciles with the hub out of reach meanwhile
+        # nothing deleted, nothing started twice: at the site (the hub is not answering)
+        assert sorted(d["metadata"]["name"] for d in deployments(kube, namespace)) == at_site
+        # and in the cloud (its API is reached here directly, not across the WAN)
+        assert _cloud_deployments(hub, namespace) == in_the_cloud
+        after = scrape(url)
+    finally:
+        cloud.set_wan(cloud.WanSettings())
+    back = time.monotonic()
+    kube.wait_for(
+        "the standby handing back to the cloud's detector",
+        lambda: scrape(url).get("fogfleet_fallback_active") == 0.0, 90, interval=1,
+    )  # fmt: skip
+    handed_back = time.monotonic() - back
     # and on the hub: the same works, none new
     assert sorted(w["metadata"]["name"] for w in works_of(hub, namespace)) == works
     gap = after["fogfleet_fallback_takeover_gap_seconds"]
