@@ -109,8 +109,8 @@ def model_lines(doc: Doc, model: ExecutionModel, model_file: str) -> list[str]:
         "(`python -m e2e.bench.real.fit`); the runs on this page are held out from it. "
         "It adds to the declared model:",
         "",
-        f"- spread {model.spread:.1f}: the share of a short node's CPU that goes to the cycle "
-        "that started last (the kernel's spreading of a shortage, `fogfleet.sim.engine`);",
+        f"- spread {model.spread:.1f}: the share of a short node's CPU that goes to the job "
+        "that began executing last (the kernel's spreading of a shortage, `fogfleet.sim.engine`);",
         "- the cycle's cost per (module, hardware type) the closed loop measured in the pilot:",
         *corrections,
         "",

@@ -162,7 +162,7 @@ def _shares(
 
 def run_shared(tracks: list[Track], capacity: float, horizon: float, spread: float = 0.0) -> float:
     """Processor sharing of ``capacity`` cores among the tracks' executions, with ``spread``
-    of it given newest cycle first (module docstring).
+    of it given to the job that began executing last first (module docstring).
 
     Event loop: a heap of pending execution starts (at most one per track) and the running jobs
     (few, kept in plain lists); the shares are recomputed only when the job set changes.

@@ -10,7 +10,7 @@ processor sharing. What runs differs in two ways (issue 49, measured on the real
   a module's noise was never measured with the noise it shows elsewhere, as the planner takes
   it (``rows.carry_noise``);
 - **the kernel spreads a shortage** instead of stretching every cycle alike: ``spread``, the
-  share of a short node's CPU that goes newest cycle first (``engine``).
+  share of a short node's CPU that goes to the job that began executing last (``engine``).
 
 ``ExecutionModel()`` is the declared model. A fitted one is written as JSON
 (``as_json``/``from_json``) so that a benchmark page can say which model it ran.

@@ -93,8 +93,8 @@ def simulate(
     An instance already active at t = 0 has been running before the horizon, so the phase of
     its cycles is uniform: its first cycle starts at U(0, cycle) (otherwise all instances with
     the same period would run in lockstep). ``aligned_start`` starts them all at 0 instead, for
-    hand-checkable runs. ``spread`` is the share of a short node's CPU that goes to the cycle
-    that started last (``engine``: how the kernel spreads a shortage; 0, processor sharing
+    hand-checkable runs. ``spread`` is the share of a short node's CPU that goes to the job
+    that began executing last (``engine``: how the kernel spreads a shortage; 0, processor sharing
     alone, is the declared model). Deterministic per ``seed``. Raises ValueError for a
     malformed plan or one that puts an instance where it has no execution profile.
     """
