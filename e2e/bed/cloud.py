@@ -327,7 +327,7 @@ def set_wan(settings: WanSettings) -> None:
 
 def start_node(cloud: CloudCluster, images: Sequence[Path]) -> None:
     """The cloud's real node (``NODE``, module docstring) started with ``images`` and Ready
-    in the cloud's cluster; a node already Ready there is left alone."""
+    in the cloud's cluster; a node whose processes already run is left alone."""
     kubectl_ = partial(kubectl, BIN_DIR / "kubectl", KUBECONFIG)
     port = cloud.ports[APISERVER]
     if _alive(NODE.process_name) is not None and _alive(NODE_GATEWAY) is not None:
