@@ -223,6 +223,13 @@ def insecure_tls() -> ssl.SSLContext:
     return ctx
 
 
+def answers(host: str, port: int) -> bool:
+    """Whether something accepts a TCP connection on ``host:port`` (OSError if not: a
+    ``wait_for`` check)."""
+    socket.create_connection((host, port), timeout=1).close()
+    return True
+
+
 def port_is_free(port: int) -> bool:
     with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
         # as the Go servers do: a port in TIME_WAIT from a previous run counts as free

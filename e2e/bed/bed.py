@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import json
 import shutil
-import socket
 import sys
 import time
 from collections.abc import Mapping
@@ -23,6 +22,7 @@ from e2e.bed.base import (
     STATE_DIR,
     VERSIONS_FILE,
     HarnessError,
+    answers,
     http_get,
     load_versions,
     locked,
@@ -91,7 +91,7 @@ def _start_real_nodes(cluster: Cluster, real: list[realnodes.RealNode]) -> None:
     for port in relayed:
         wait_for(
             f"the bed gateway on {bednet.BRIDGE_IP}:{port}",
-            partial(_answers, bednet.BRIDGE_IP, port),
+            partial(answers, bednet.BRIDGE_IP, port),
             20,
         )
     _kubernetes_endpoints(cluster)
@@ -109,14 +109,10 @@ def _start_real_nodes(cluster: Cluster, real: list[realnodes.RealNode]) -> None:
                  partial(coredns_ready, cluster.ports), 60)  # fmt: skip
     except HarnessError as exc:
         raise HarnessError(f"{exc}; CoreDNS's log tail:\n{log_tail(COREDNS)}") from exc
-    realnodes.start(real, f"https://{bednet.BRIDGE_IP}:{cluster.ports['kube-apiserver']}", images)
+    api_server = f"https://{bednet.BRIDGE_IP}:{cluster.ports['kube-apiserver']}"
+    realnodes.start(real, realnodes.Membership(api_server), images)
     IMPORTED.write_text(json.dumps(sorted(a.name for a in images)) + "\n")
     log(f"real nodes started in {time.monotonic() - t0:.1f}s")
-
-
-def _answers(host: str, port: int) -> bool:
-    socket.create_connection((host, port), timeout=1).close()
-    return True
 
 
 def coredns_ready(ports: Mapping[str, int]) -> bool:

@@ -30,7 +30,6 @@ from __future__ import annotations
 import json
 import os
 import signal
-import socket
 import ssl
 import sys
 import time
@@ -47,6 +46,7 @@ from e2e.bed.base import (
     HOST,
     STATE_DIR,
     HarnessError,
+    answers,
     free_port,
     insecure_tls,
     kubectl,
@@ -335,16 +335,11 @@ def start_node(cloud: CloudCluster, images: Sequence[Path]) -> None:
     t0 = time.monotonic()
     _start(NODE_GATEWAY, [sys.executable, str(HERE / "gateway.py"),
                           f"{BRIDGE_IP}:{port}={HOST}:{port}"])  # fmt: skip
-    wait_for(f"the cloud's gateway on {BRIDGE_IP}:{port}", partial(_answers, BRIDGE_IP, port), 20)
+    wait_for(f"the cloud's gateway on {BRIDGE_IP}:{port}", partial(answers, BRIDGE_IP, port), 20)
     member = realnodes.Membership(f"https://{BRIDGE_IP}:{port}", PKI, services=False)
     realnodes.start([NODE], member, images)
     realnodes.wait_ready(kubectl_, [NODE.name])
     log(f"cloud cluster: real node {NODE.name} Ready in {time.monotonic() - t0:.1f}s")
-
-
-def _answers(host: str, port: int) -> bool:
-    socket.create_connection((host, port), timeout=1).close()
-    return True
 
 
 def stop_node() -> None:

@@ -518,12 +518,11 @@ def _check_host() -> None:
         raise HarnessError("real nodes need root (network namespaces, cgroups, containerd)")
 
 
-def start(nodes: Sequence[RealNode], api_server: str | Membership, images: Sequence[Path]) -> None:
-    """Start every real node as a member of the cluster at ``api_server`` (the site's, or a
-    ``Membership``), and import the images into each."""
+def start(nodes: Sequence[RealNode], member: Membership, images: Sequence[Path]) -> None:
+    """Start every real node as a member of the cluster ``member`` names, and import the images
+    into each."""
     if not nodes:
         return
-    member = api_server if isinstance(api_server, Membership) else Membership(api_server)
     _check_host()
     _ensure_mountpoints()
     nets = [n.net for n in nodes]
