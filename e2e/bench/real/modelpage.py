@@ -9,13 +9,13 @@ from a pilot (``fit``); the runs judged here are held out from it. Pure, but for
 
 from __future__ import annotations
 
-import statistics
-from collections.abc import Mapping, Sequence
+from collections.abc import Mapping
 from typing import Any
 
 from e2e.bench.real.plot import completed
 from e2e.bench.real.replay import cpu_known, replay
-from e2e.bench.real.summary import AGREEMENT_ARMS, simulator_agrees
+from e2e.bench.real.summary import AGREEMENT_ARMS, median, simulator_agrees
+from e2e.bench.real.tables import md_table, pct
 from fogfleet.sim import ExecutionModel
 
 __all__ = ["KINDS", "Cell", "cells", "inexact", "misses", "model_lines"]
@@ -23,10 +23,6 @@ __all__ = ["KINDS", "Cell", "cells", "inexact", "misses", "model_lines"]
 Doc = Mapping[str, Any]
 KINDS = ("measured", "declared", "fitted")
 Cell = dict[str, float | None]  # kind -> median
-
-
-def _median(values: Sequence[float]) -> float | None:
-    return statistics.median(values) if values else None
 
 
 def cells(doc: Doc, model: ExecutionModel) -> dict[str, dict[str, Cell]]:
@@ -46,7 +42,7 @@ def cells(doc: Doc, model: ExecutionModel) -> dict[str, dict[str, Cell]]:
                     row[kind].append(float(value))
     return {
         module: {
-            arm: {k: _median(v) for k, v in arms[arm].items()}
+            arm: {k: median(v) for k, v in arms[arm].items()}
             for arm in AGREEMENT_ARMS
             if arm in arms
         }
@@ -70,12 +66,8 @@ def misses(table: Mapping[str, Mapping[str, Cell]], kind: str) -> list[tuple[str
     ]
 
 
-def _pct(x: float | None) -> str:
-    return "-" if x is None else f"{100 * x:.2f} %"
-
-
 def _verdict(cell: Cell, kind: str) -> str:
-    return _pct(cell[kind]) + ("" if simulator_agrees(cell["measured"], cell[kind]) else " ✗")
+    return pct(cell[kind]) + ("" if simulator_agrees(cell["measured"], cell[kind]) else " ✗")
 
 
 def model_lines(doc: Doc, model: ExecutionModel, model_file: str) -> list[str]:
@@ -88,7 +80,7 @@ def model_lines(doc: Doc, model: ExecutionModel, model_file: str) -> list[str]:
         [
             module,
             arm + (" †" if arm in guessed else ""),
-            _pct(cell["measured"]),
+            pct(cell["measured"]),
             _verdict(cell, "declared"),
             _verdict(cell, "fitted"),
         ]
@@ -114,7 +106,7 @@ def model_lines(doc: Doc, model: ExecutionModel, model_file: str) -> list[str]:
         "- the cycle's cost per (module, hardware type) the closed loop measured in the pilot:",
         *corrections,
         "",
-        _md_table(header, rows),
+        md_table(header, rows),
         "",
         *(
             [
@@ -135,10 +127,3 @@ def model_lines(doc: Doc, model: ExecutionModel, model_file: str) -> list[str]:
         ),
         "",
     ]
-
-
-def _md_table(header: list[str], rows: list[list[str]]) -> str:
-    def line(cells: list[str]) -> str:
-        return "| " + " | ".join(cells) + " |"
-
-    return "\n".join([line(header), "|" + "---|" * len(header), *map(line, rows)])

@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import os
 import statistics
 from collections.abc import Mapping, Sequence
@@ -35,6 +34,7 @@ from e2e.bench.real.summary import (
     simulator_agrees,
     summarise,
 )
+from e2e.bench.real.tables import md_table, pct, text_table
 from fogfleet.sim import ExecutionModel
 
 __all__ = ["main", "markdown", "plot_svg", "simulator_agrees", "summarise", "table"]
@@ -46,10 +46,6 @@ Rows = list[list[str]]
 
 # --------------------------------------------------------------------------------------------
 # rows, shared by the terminal and the Markdown tables
-
-
-def _pct(x: float | None) -> str:
-    return "-" if x is None or math.isnan(x) else f"{100 * x:.2f} %"
 
 
 def _summary(doc: Doc) -> Mapping[str, Any]:
@@ -100,9 +96,9 @@ def _run_rows(doc: Doc) -> Rows:
             str(r.get("seed", "-")),
             str(r.get("position", "-")),
             str(r.get("block", "-")),
-            _pct(rate(r, "perception")),
-            _pct(rate(r, "perception", "simulated")),
-            _pct(rate(r, "allModules")),
+            pct(rate(r, "perception")),
+            pct(rate(r, "perception", "simulated")),
+            pct(rate(r, "allModules")),
             _perception_nodes(r),
             str(r.get("failed") or ""),
         ]
@@ -131,9 +127,9 @@ def _arm_rows(doc: Doc) -> Rows:
                 arm,
                 str(p.get("runs", 0)),
                 str(failed),
-                _pct(p.get("median")),
-                _pct(s["simulatedPerception"].get(arm)),
-                _pct(a.get("median")),
+                pct(p.get("median")),
+                pct(s["simulatedPerception"].get(arm)),
+                pct(a.get("median")),
             ]
         )
     return rows
@@ -146,8 +142,8 @@ def _comparison_line(doc: Doc, control: str = CONTROL) -> str:
     lo, hi = p["ci95"]
     pv = "-" if p["pValue"] is None else f"{p['pValue']:.4g}"
     return (
-        f"{_primary(doc)}: reduction of median {TREATED} vs {control} {_pct(p['reduction'])} "
-        f"(95 % bootstrap CI {_pct(lo)} to {_pct(hi)}), one-sided Mann-Whitney p = {pv}"
+        f"{_primary(doc)}: reduction of median {TREATED} vs {control} {pct(p['reduction'])} "
+        f"(95 % bootstrap CI {pct(lo)} to {pct(hi)}), one-sided Mann-Whitney p = {pv}"
     )
 
 
@@ -172,7 +168,7 @@ def _module_header_rows(doc: Doc) -> tuple[list[str], Rows]:
     arms = [a for a in arm_order(doc.get("runs") or []) if any(a in m for m in modules.values())]
     header = ["module"] + [f"{a} {k}" for a in arms for k in ("measured", "simulated")]
     rows = [
-        [name] + [_pct(by_arm.get(a, {}).get(k)) for a in arms for k in ("measured", "simulated")]
+        [name] + [pct(by_arm.get(a, {}).get(k)) for a in arms for k in ("measured", "simulated")]
         for name, by_arm in modules.items()
     ]
     return header, rows
@@ -180,20 +176,6 @@ def _module_header_rows(doc: Doc) -> tuple[list[str], Rows]:
 
 # --------------------------------------------------------------------------------------------
 # renderings
-
-
-def _text_table(header: list[str], rows: Rows) -> str:
-    widths = [max(len(r[k]) for r in [header, *rows]) for k in range(len(header))]
-    lines = ["  ".join(c.ljust(w) for c, w in zip(r, widths, strict=True)).rstrip() for r in rows]
-    head = "  ".join(h.ljust(w) for h, w in zip(header, widths, strict=True)).rstrip()
-    return "\n".join([head, "-" * len(head), *lines])
-
-
-def _md_table(header: list[str], rows: Rows) -> str:
-    def line(cells: list[str]) -> str:
-        return "| " + " | ".join(c.replace("|", "\\|") for c in cells) + " |"
-
-    return "\n".join([line(header), "|" + "---|" * len(header), *map(line, rows)])
 
 
 # a run recorded before e2e/ split into bed, tests and bench (issue 34) names the old module
@@ -275,14 +257,14 @@ def table(doc: Doc) -> str:
             *_stopped(doc),
             *_parts(doc),
             "",
-            _text_table(RUN_HEADER, _run_rows(doc)),
+            text_table(RUN_HEADER, _run_rows(doc)),
             "",
-            _text_table(ARM_HEADER, _arm_rows(doc)),
+            text_table(ARM_HEADER, _arm_rows(doc)),
             "",
             *_comparison_lines(doc),
             *(f"{verdict}  {label}" for verdict, label in _target_rows(doc)),
             "",
-            _text_table(module_header, module_rows),
+            text_table(module_header, module_rows),
         ]
     )
 
@@ -380,7 +362,7 @@ def markdown(doc: Doc, *, plot_name: str, model: Sequence[str] = ()) -> str:
             "",
             "## Per arm",
             "",
-            _md_table(ARM_HEADER, _arm_rows(doc)),
+            md_table(ARM_HEADER, _arm_rows(doc)),
             "",
             *(f"**{line}**\n" for line in _comparison_lines(doc)),
             "## Targets",
@@ -391,16 +373,16 @@ def markdown(doc: Doc, *, plot_name: str, model: Sequence[str] = ()) -> str:
             "",
             "## Runs",
             "",
-            _md_table(RUN_HEADER, _run_rows(doc)),
+            md_table(RUN_HEADER, _run_rows(doc)),
             "",
             "## Modules: measured vs simulated (medians)",
             "",
-            _md_table(module_header, module_rows),
+            md_table(module_header, module_rows),
             "",
             *model,
             "## The bed's load over the windows (medians)",
             "",
-            _md_table(LOAD_HEADER, _load_rows(doc)),
+            md_table(LOAD_HEADER, _load_rows(doc)),
             "",
         ]
     )

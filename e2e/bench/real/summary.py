@@ -25,6 +25,7 @@ __all__ = [
     "SEED",
     "TARGETS",
     "TREATED",
+    "median",
     "simulator_agrees",
     "summarise",
 ]
@@ -57,7 +58,7 @@ def _safe(x: float | None) -> float | None:
     return None if x is None or math.isnan(x) or math.isinf(x) else float(x)
 
 
-def _median(values: Sequence[float]) -> float | None:
+def median(values: Sequence[float]) -> float | None:
     return statistics.median(values) if values else None
 
 
@@ -81,7 +82,7 @@ def _endpoint(
     for arm in arms:
         values = _values(runs, arm, endpoint)
         n = sum(1 for r in runs if r["scheduler"] == arm and completed(r))
-        block[arm] = {"median": _safe(_median(values)), "runs": n}
+        block[arm] = {"median": _safe(median(values)), "runs": n}
         if primary:
             block[arm]["values"] = values
     return block
@@ -107,7 +108,7 @@ def _modules(
             names |= set(((r.get(kind) or {}).get("modules") or {}).keys())
     return {
         m: {
-            arm: {k: _safe(_median(_values(runs, arm, m, k))) for k in ("measured", "simulated")}
+            arm: {k: _safe(median(_values(runs, arm, m, k))) for k in ("measured", "simulated")}
             for arm in arms
         }
         for m in sorted(names)
@@ -177,7 +178,7 @@ def summarise(runs: Sequence[Run], *, primary: str = PRIMARY) -> dict[str, Any]:
     )
     summary["modules"] = _modules(runs, arms)
     summary["simulatedPerception"] = {
-        a: _safe(_median(_values(runs, a, "perception", "simulated"))) for a in arms
+        a: _safe(median(_values(runs, a, "perception", "simulated"))) for a in arms
     }
     scheduled = frozenset(str(r["scheduler"]) for r in runs)
     summary["targets"] = _targets(summary, primary, summary["perception"], scheduled)
