@@ -6,14 +6,15 @@ kube-scheduler could not bind) and, since 2026-12-01, the CPU the plan gave each
 kube-scheduler arms and on-board run the modules' nominal allocation (plain Deployments, no
 limits; k8s-requests with its honest requests), the planner's arms the plan's rows at the
 recorded CPU, at the first rung of the declared ladder where a run recorded none.
-``replay`` rebuilds both and simulates the run's window with the run's seed and every module
+``replay`` reads both back as the run itself did (``Scenario.placement_of`` on the status
+the run recorded) and simulates the run's window with the run's seed and every module
 active, as ``run.one_run`` did, so that ``DECLARED`` gives back the figures the run recorded
 (``test_fit`` checks it on the committed document) and a fitted ``sim.ExecutionModel`` gives
 what it predicts for the same run.
 
 A closed-loop run may have run a re-plan's CPU that is no rung of the declared ladder (its
 rows were the learnt ones), or recorded none (before 2026-12-01): its replay then runs the
-nearest it can, and ``cpu_known`` says whether a run's replay is exact.
+first rung, and ``cpu_known`` says whether a run's replay is exact.
 """
 
 from __future__ import annotations
@@ -22,13 +23,10 @@ import functools
 from collections.abc import Mapping
 from typing import Any
 
-import numpy as np
-
 from e2e.bench.real.measure import counting_unrun, simulated_rates
 from e2e.bench.real.protocol import ONBOARD, PENDING, REQUESTS
 from e2e.bench.real.scenario import Scenario
 from fogfleet.api.v1alpha1.base import parse_cpu
-from fogfleet.commandline.cli.planning import rung_of
 from fogfleet.domain.problem import Allocation
 from fogfleet.sim import ExecutionModel
 
@@ -50,20 +48,25 @@ def scenario_of(arm: str) -> Scenario:
     return honest if arm == REQUESTS else base
 
 
-def _placement(run: Run, scenario: Scenario) -> tuple[Any, list[tuple[str, str]]]:
-    problem = scenario.problem
-    placement = np.full(problem.n_instances, -1, dtype=np.int64)
-    pending: list[tuple[str, str]] = []
+def _ran(run: Run, scenario: Scenario) -> tuple[Any, Allocation, list[tuple[str, str]]]:
+    """The placement and allocation ``run`` ran with, read back as the run itself read them
+    (``Scenario.placement_of`` on the status it recorded), and its Pending instances."""
+    arm = str(run["scheduler"])
     recorded: Mapping[str, str] = run["placement"]
-    for i, inst in enumerate(problem.instances):
+    cpu: Mapping[str, str] = run.get("cpu") or {}
+    entries, pending = [], []
+    for inst in scenario.problem.instances:
         key = f"{inst.robot}/{inst.module}"
         if key not in recorded:
             raise ValueError(f"run {run.get('position')}: placement has no {key}")
         if recorded[key] == PENDING:
             pending.append((inst.module, inst.robot))
         else:
-            placement[i] = problem.node_index(recorded[key])
-    return placement, pending
+            entries.append({"robot": inst.robot, "module": inst.module,
+                            "node": recorded[key], "cpu": cpu.get(key)})  # fmt: skip
+    status = {"scheduler": arm, "withLimits": arm not in NOMINAL, "placement": entries}
+    placement, allocation = scenario.placement_of({"status": status})
+    return placement, allocation, pending
 
 
 def cpu_known(run: Run) -> bool:
@@ -77,8 +80,7 @@ def cpu_known(run: Run) -> bool:
     if not recorded:
         return False
     scenario = scenario_of(arm)
-    placement, _ = _placement(run, scenario)
-    allocation = _allocation(run, scenario, placement)
+    placement, allocation, _ = _ran(run, scenario)
     for i, inst in enumerate(scenario.problem.instances):
         cpu = recorded.get(f"{inst.robot}/{inst.module}")
         j = int(placement[i])
@@ -87,30 +89,17 @@ def cpu_known(run: Run) -> bool:
     return True
 
 
-def _allocation(run: Run, scenario: Scenario, placement: Any) -> Allocation:
-    problem = scenario.problem
-    if str(run["scheduler"]) in NOMINAL:
-        return problem.nominal
-    levels = np.zeros(problem.n_instances, dtype=np.int64)
-    recorded: Mapping[str, str] = run.get("cpu") or {}
-    for i, inst in enumerate(problem.instances):
-        cpu = recorded.get(f"{inst.robot}/{inst.module}")
-        if cpu is not None and placement[i] >= 0:
-            levels[i] = rung_of(problem, i, int(placement[i]), cpu)
-    return problem.with_levels(levels).limits
-
-
 def replay(run: Run, model: ExecutionModel) -> dict[str, float]:
     """Per module, the miss rate ``model`` gives the completed ``run`` (an instance left
     Pending misses every cycle it was due, as in the run's own record)."""
     arm = str(run["scheduler"])
     scenario = scenario_of(arm)
-    placement, pending = _placement(run, scenario)
+    placement, allocation, pending = _ran(run, scenario)
     window = float(run["windowSeconds"])
     sim = model.simulate(
         scenario.problem,
         placement,
-        _allocation(run, scenario, placement),
+        allocation,
         window,
         int(run["seed"]),
         all_active=True,

@@ -27,7 +27,6 @@ __all__ = [
     "placement_rows",
     "read_placement",
     "recorded_placement",
-    "rung_of",
     "unplaced_modules",
 ]
 MISS_RATE = ObjectiveName.MISS_RATE.value
@@ -216,13 +215,13 @@ def recorded_placement(problem: Any, doc: Any, source: str) -> tuple[Any, Any]:
                 raise InvalidSpec(
                     source, "placement", f"node {node!r} is not in the fleet"
                 ) from exc
-            levels[i] = rung_of(problem, i, int(placement[i]), entry.get("cpu"))
+            levels[i] = _rung_of(problem, i, int(placement[i]), entry.get("cpu"))
     if not with_limits:
         return placement, problem.nominal
     return placement, problem.with_levels(levels).limits
 
 
-def rung_of(problem: Any, i: int, j: int, cpu: Any) -> int:
+def _rung_of(problem: Any, i: int, j: int, cpu: Any) -> int:
     """The ladder rung whose CPU a recorded plan gave instance ``i`` on node ``j`` (0: the
     amount its deadline needs, or no record)."""
     if problem.ladder is None or cpu is None or not problem.allowed[i, j]:
