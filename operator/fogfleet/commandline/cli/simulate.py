@@ -54,7 +54,7 @@ def _model(path: str | None) -> Any:
 def cmd_simulate(args: argparse.Namespace) -> int:
     if args.model and args.from_prometheus:
         raise InvalidSpec("--model", "", "give --model or --from-prometheus, not both")
-    args.execution_model = _model(args.model)
+    model = _model(args.model)
     catalog = catalog_of(args.paths)
     # --scheduler all compares schedulers on the site as the fleets' own schedulers plan it
     site = None if args.scheduler == "all" else args.scheduler
@@ -65,7 +65,7 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     infeasible: list[str] = []  # the planner's: an error (exit 2)
     references: list[str] = []  # a baseline's beside it (--scheduler all): a result
     for plan in plans:
-        result, errors, refs = _simulate_fleet(plan, args)
+        result, errors, refs = _simulate_fleet(plan, args, model)
         results[plan.name] = result
         infeasible += [f"{plan.name} {e}" if len(plans) > 1 else e for e in errors]
         references += refs
@@ -82,11 +82,12 @@ def cmd_simulate(args: argparse.Namespace) -> int:
 
 
 def _simulate_fleet(
-    plan: Any, args: argparse.Namespace
+    plan: Any, args: argparse.Namespace, model: Any
 ) -> tuple[dict[str, Any], list[str], list[str]]:
-    """One fleet's plans simulated: each scheduler's (the site's own where it is the one the
-    site ran), a recorded one, and the re-plans from measured profiles; and what could not
-    be placed (the planner's: errors; a reference's: results)."""
+    """One fleet's plans simulated under ``model`` (``sim.ExecutionModel``): each scheduler's
+    (the site's own where it is the one the site ran), a recorded one, and the re-plans from
+    measured profiles; and what could not be placed (the planner's: errors; a reference's:
+    results)."""
     from fogfleet.snapshot import problem_of
 
     fleet, problem = plan.snapshot.fleet, plan.built
@@ -138,7 +139,6 @@ def _simulate_fleet(
             for k, (x, a) in placements.items()
         }
     result: dict[str, Any] = {}
-    model = args.execution_model
     for name, (placement, allocation) in placements.items():
         sim = model.simulate(
             problem,
