@@ -237,12 +237,11 @@ def all_pods(kube: Kube, namespace: str) -> list[Obj]:
 
 
 def install_crds(kube: Kube) -> None:
-    """Apply crds/ (server-side, ours win) and wait until the API server serves all three."""
+    """Apply crds/ (server-side, ours win) and wait until the API server serves each."""
     kube.kubectl("apply", "--server-side", "--force-conflicts", "-f", str(CRDS))
-    for name in ("robotfleets", "softwaremodules", "computenodes"):
-        kube.kubectl(
-            "wait", "--for=condition=Established", f"crd/{name}.fogfleet.io", "--timeout=60s"
-        )
+    for path in sorted(CRDS.glob("*.fogfleet.io.yaml")):
+        crd = f"crd/{path.name.removesuffix('.yaml')}"
+        kube.kubectl("wait", "--for=condition=Established", crd, "--timeout=60s")
 
 
 def add_module_to_fleet(kube: Kube, namespace: str, module: str, fleet: str = "warehouse") -> None:

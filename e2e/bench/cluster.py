@@ -61,7 +61,12 @@ from e2e.bed import harness  # noqa: E402
 from e2e.bed.cpu_meter import CpuMeter  # noqa: E402
 from e2e.bed.fakenodes import only_simulated_taint  # noqa: E402
 from e2e.bed.kube import Kube, guard_kubeconfig  # noqa: E402
-from e2e.bed.operator_fixtures import CRDS, Operator, example_docs, of_kind  # noqa: E402
+from e2e.bed.operator_fixtures import (  # noqa: E402
+    Operator,
+    example_docs,
+    install_crds,
+    of_kind,
+)
 from fogfleet.api.labels import LABEL_COMPONENT  # noqa: E402
 from fogfleet.render.ros import COMPONENT_DISCOVERY  # noqa: E402
 
@@ -539,11 +544,7 @@ def stats(values: Sequence[float]) -> Obj:
 
 
 def setup_cluster(kube: Kube, specs: Sequence[FleetSpec]) -> None:
-    kube.kubectl("apply", "--server-side", "--force-conflicts", "-f", str(CRDS))
-    for name in ("robotfleets", "softwaremodules", "computenodes"):
-        kube.kubectl(
-            "wait", "--for=condition=Established", f"crd/{name}.fogfleet.io", "--timeout=60s"
-        )
+    install_crds(kube)
     nodes = [n for s in specs for n in s.k8s_nodes()]
     cns = [c for s in specs for c in s.compute_nodes]
     log(f"adding {len(nodes)} bench Nodes and ComputeNodes")

@@ -107,8 +107,8 @@ class TimedSource:
 def _phases(kube: Kube, ns: str, fleet: str, robot: str) -> dict[str, float]:
     """The plugin's steps in this process: API reads, build, explanation (seconds)."""
     from fogfleet.commandline.kubectl.cluster import connect as plugin_connect
-    from fogfleet.commandline.kubectl.commands import why_of
     from fogfleet.commandline.kubectl.live import read_fleet
+    from fogfleet.snapshot.live import why_of
 
     source = TimedSource(plugin_connect(str(kube.kubeconfig), None)[0])
     t0 = time.perf_counter()

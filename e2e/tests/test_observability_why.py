@@ -31,8 +31,9 @@ pytestmark = [
 ]
 
 
-def _plugin(kube: Kube, namespace: str, *args: str) -> Any:
-    """``kubectl fogfleet ARGS -o json`` against the bed, parsed."""
+def _plugin(kube: Kube, namespace: str, *args: str, code: int = 0) -> Any:
+    """``kubectl fogfleet ARGS -o json`` against the bed, parsed (its stderr when it exits
+    ``code`` > 0); the plugin must not have explained by itself unless told ``--local``."""
     out = subprocess.run(
         [
             sys.executable,
@@ -52,7 +53,10 @@ def _plugin(kube: Kube, namespace: str, *args: str) -> Any:
         cwd=ROOT,
         check=False,
     )
-    assert out.returncode == 0, out.stderr
+    assert out.returncode == code, out.stderr
+    if code:
+        return out.stderr
+    assert "did not explain" not in out.stderr, out.stderr
     return json.loads(out.stdout)
 
 
@@ -80,6 +84,13 @@ def test_why_and_top_match_the_fleets_status(
         if module == "nav-controller":
             edges = [a for a in inst["alternatives"] if a["tier"] == "edge"]
             assert edges and {a["rule"] for a in edges} == {"taxonomy"}
+        # the operator answered from the plan it holds: the plugin's own computation agrees
+        local = _plugin(kube, namespace, "why", "warehouse", module, "--robot", robot, "--local")
+        assert {**doc, "measuredMissRate": None} == {**local, "measuredMissRate": None}
+    said = _plugin(kube, namespace, "why", "warehouse", "no-such-module", code=2)
+    assert "no instance of module no-such-module" in said and "did not explain" not in said
+    left = kube.kubectl_json("get", "explanationrequests", "-n", namespace)["items"]
+    assert not left, "the plugin deletes each request it made"
 
     # the bounded read of a large fleet (issue 46), against the real API server: the
     # Deployments' metadata name their node, and the fleet's own Pods are left out

@@ -32,6 +32,8 @@ EXPECTED_RULES = {
     ("fogfleet.io", "robotfleets/status"): {"get", "patch"},
     ("fogfleet.io", "softwaremodules/status"): {"get", "patch"},
     ("fogfleet.io", "computenodes/status"): {"get", "patch"},
+    ("fogfleet.io", "explanationrequests"): {"get", "list", "watch", "delete"},
+    ("fogfleet.io", "explanationrequests/status"): {"patch"},
     ("", "nodes"): {"get", "list", "watch"},
     ("", "pods"): {"get", "list", "watch"},
     ("apps", "deployments"): {"get", "list", "watch", "create", "patch", "update", "delete"},
@@ -45,12 +47,19 @@ EXPECTED_RULES = {
 }
 
 
+# who may ask the operator why: aggregated into the built-in edit and admin roles
+ASKERS = "fogfleet-operator-askers"
+ASKER_RULES = {("fogfleet.io", "explanationrequests"): {"create", "get", "list", "watch", "delete"}}
+
+
 def _install_objects() -> dict[str, dict[str, Any]]:
+    """The install's objects by kind; the askers' ClusterRole as ``ClusterRole/<name>``."""
     objs: dict[str, dict[str, Any]] = {}
     for path in sorted(INSTALL.glob("*.yaml")):
         for doc in yaml.safe_load_all(path.read_text()):
             if doc:
-                objs[doc["kind"]] = doc
+                name = doc["metadata"]["name"]
+                objs[f"ClusterRole/{name}" if name == ASKERS else doc["kind"]] = doc
     return objs
 
 
@@ -110,7 +119,7 @@ def test_install_has_namespace_account_rbac_and_operator() -> None:
     objs = _install_objects()
     assert set(objs) == {
         "Namespace", "ServiceAccount", "ClusterRole", "ClusterRoleBinding", "Deployment",
-        "Role", "RoleBinding", "NetworkPolicy",
+        "Role", "RoleBinding", "NetworkPolicy", f"ClusterRole/{ASKERS}",
     }  # fmt: skip
     assert objs["Namespace"]["metadata"]["name"] == "fogfleet-system"
     assert (
@@ -132,6 +141,13 @@ def test_cluster_role_is_least_privilege() -> None:
     rules = _install_objects()["ClusterRole"]["rules"]
     _assert_no_wildcards(rules)
     assert _grants(rules) == EXPECTED_RULES
+    askers = _install_objects()[f"ClusterRole/{ASKERS}"]
+    _assert_no_wildcards(askers["rules"])
+    assert _grants(askers["rules"]) == ASKER_RULES
+    labels = askers["metadata"]["labels"]
+    for role in ("edit", "admin"):  # not view: asking creates an object
+        assert labels[f"rbac.authorization.k8s.io/aggregate-to-{role}"] == "true"
+    assert "rbac.authorization.k8s.io/aggregate-to-view" not in labels
     # kopf peering is off: no peering resources, and nothing touches secrets.
     resources = {r for _, r in _grants(rules)}
     assert not any("peering" in r for r in resources)
@@ -295,6 +311,9 @@ def test_chart_clusterrole_template_has_the_same_rules_as_the_manifest() -> None
     block = text[text.index("rules:") : text.rindex("{{- end }}")]
     rules = yaml.safe_load(block)["rules"]
     assert _grants(rules) == EXPECTED_RULES
+    text = (CHART / "templates" / "clusterrole-askers.yaml").read_text()
+    block = text[text.index("rules:") : text.rindex("{{- end }}")]
+    assert _grants(yaml.safe_load(block)["rules"]) == ASKER_RULES
 
 
 def test_chart_crds_are_the_generated_crds() -> None:
@@ -364,8 +383,10 @@ def test_helm_template_renders_the_manifests_rbac_and_a_locked_down_pod(tmp_path
     by_kind: dict[str, list[dict[str, Any]]] = {}
     for doc in docs:
         by_kind.setdefault(doc["kind"], []).append(doc)
-    assert len(by_kind["CustomResourceDefinition"]) == 3
-    (role,) = by_kind["ClusterRole"]
+    assert len(by_kind["CustomResourceDefinition"]) == 4
+    role, askers = sorted(by_kind["ClusterRole"], key=lambda r: len(r["metadata"]["name"]))
+    assert askers["rules"] == _install_objects()[f"ClusterRole/{ASKERS}"]["rules"]
+    assert askers["metadata"]["name"] == ASKERS
     manifest_rules = _install_objects()["ClusterRole"]["rules"]
     assert role["rules"] == manifest_rules
     assert role["metadata"]["name"] == "fogfleet-operator"

@@ -40,11 +40,20 @@ def _watched(registry: kopf.OperatorRegistry) -> set[str]:
     }
 
 
-def test_with_the_watch_caches_kopf_watches_only_robotfleets() -> None:
+def test_with_the_watch_caches_kopf_watches_only_robotfleets_and_requests() -> None:
     """One watch per kind: the caches report SoftwareModules, ComputeNodes, Nodes and
-    Deployments; kopf would otherwise watch them a second time."""
+    Deployments; kopf would otherwise watch them a second time. ExplanationRequests are
+    answered by kopf's handler (no cache reads them)."""
     assert _watched(register(kopf.OperatorRegistry(), Settings(watch_cache=True))) == {
-        "robotfleets"
+        "robotfleets",
+        "explanationrequests",
     }
     without = _watched(register(kopf.OperatorRegistry(), Settings(watch_cache=False)))
-    assert without == {"robotfleets", "softwaremodules", "computenodes", "nodes", "deployments"}
+    assert without == {
+        "robotfleets",
+        "explanationrequests",
+        "softwaremodules",
+        "computenodes",
+        "nodes",
+        "deployments",
+    }

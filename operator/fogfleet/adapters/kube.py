@@ -16,6 +16,8 @@ Verbs used (the chart's ClusterRole must grant exactly these):
     fogfleet.io  softwaremodules/status      patch                  (scaling, usage)
     fogfleet.io  computenodes                get list watch
     fogfleet.io  computenodes/status         patch                  (usage, readiness)
+    fogfleet.io  explanationrequests         get list watch delete  (answered, then expired)
+    fogfleet.io  explanationrequests/status  patch                  (the answer)
     ""           nodes                       get list watch
     ""           pods                        list watch
     ""           events                      create
@@ -29,7 +31,9 @@ from __future__ import annotations
 import contextlib
 import json
 import logging
+import math
 import secrets
+import time
 import urllib.parse
 from collections.abc import Iterator, Mapping
 from typing import Any
@@ -45,6 +49,7 @@ from fogfleet.adapters.ports import ClientMetrics
 from fogfleet.api.labels import LABEL_FLEET, LABEL_MANAGED_BY, MANAGER
 from fogfleet.api.timestamps import timestamp
 from fogfleet.api.v1alpha1.computenode import ComputeNode
+from fogfleet.api.v1alpha1.explanation import ExplanationRequest
 from fogfleet.api.v1alpha1.robotfleet import RobotFleet
 from fogfleet.api.v1alpha1.softwaremodule import SoftwareModule
 from fogfleet.contract.quantity import parse_quantity
@@ -102,6 +107,11 @@ def _reason(exc: ApiException) -> str:
         return str(body.get("message") or exc.reason)
     except (ValueError, TypeError):
         return str(exc.reason)
+
+
+def _explanations(namespace: str, name: str = "") -> str:
+    path = f"/apis/{GROUP}/{VERSION}/namespaces/{namespace}/{ExplanationRequest.PLURAL}"
+    return f"{path}/{name}" if name else path
 
 
 def _selector(labels: Mapping[str, str]) -> str:
@@ -251,15 +261,23 @@ class KubeClient:
         return list(body.get("items") or []), version
 
     def watch(
-        self, path: str, selector: Mapping[str, str] | None, version: str, seconds: int
+        self,
+        path: str,
+        selector: Mapping[str, str] | None,
+        version: str,
+        seconds: int,
+        *,
+        fields: str | None = None,
     ) -> Iterator[Obj]:
-        """Watch events from ``version`` for up to ``seconds`` (with bookmarks)."""
+        """Watch events from ``version`` for up to ``seconds`` (with bookmarks); ``fields`` a
+        field selector."""
         query = {
             "watch": "true",
             "resourceVersion": version,
             "timeoutSeconds": seconds,
             "allowWatchBookmarks": "true",
             "labelSelector": _selector(selector) if selector else None,
+            "fieldSelector": fields,
         }
         with map_errors(f"watch {path}"):
             resp = self._request("GET", path, query=query, timeout=(5, seconds + 30))
@@ -468,6 +486,61 @@ class KubeClient:
             f"{namespace}/{RobotFleet.PLURAL}/{name}/status",
             {"status": dict(status)},
         )
+
+    def patch_explanation_status(
+        self, namespace: str, name: str, status: Mapping[str, Any]
+    ) -> None:
+        self._merge_patch(
+            f"answer ExplanationRequest {namespace}/{name}",
+            f"{namespace}/{ExplanationRequest.PLURAL}/{name}/status",
+            {"status": dict(status)},
+        )
+
+    def delete_explanation_request(self, namespace: str, name: str) -> None:
+        with map_errors(f"delete ExplanationRequest {namespace}/{name}"):
+            self._call("DELETE", _explanations(namespace, name), missing_ok=True)
+
+    def ask_explanation(
+        self, namespace: str, spec: Mapping[str, Any], seconds: float
+    ) -> Obj | None:
+        """Create an ExplanationRequest of ``spec``, wait up to ``seconds`` for the operator's
+        answer and delete the request: the request as answered, None when no answer came."""
+        body = {
+            "apiVersion": f"{GROUP}/{VERSION}",
+            "kind": "ExplanationRequest",
+            "metadata": {"generateName": "why-", "labels": {LABEL_MANAGED_BY: self.manager}},
+            "spec": {k: v for k, v in spec.items() if v is not None},
+        }
+        with map_errors(f"ask the operator (ExplanationRequest in {namespace})"):
+            created = self._call("POST", _explanations(namespace), body=body) or {}
+        meta = created.get("metadata") or {}
+        name = str(meta.get("name") or "")
+        try:
+            return self._answer_of(namespace, name, str(meta.get("resourceVersion") or ""), seconds)
+        finally:
+            self.delete_explanation_request(namespace, name)
+
+    def _answer_of(self, namespace: str, name: str, version: str, seconds: float) -> Obj | None:
+        """The request once its status has a phase (watched from ``version``), or None."""
+        deadline = time.monotonic() + seconds
+        while (left := deadline - time.monotonic()) > 0:
+            for event in self.watch(
+                _explanations(namespace),
+                None,
+                version,
+                max(1, math.ceil(left)),
+                fields=f"metadata.name={name}",
+            ):
+                obj = event.get("object") or {}
+                if event.get("type") == "BOOKMARK":
+                    version = str((obj.get("metadata") or {}).get("resourceVersion") or version)
+                    continue
+                if event.get("type") == "DELETED":
+                    return None
+                if (obj.get("status") or {}).get("phase"):
+                    return obj
+                version = str((obj.get("metadata") or {}).get("resourceVersion") or version)
+        return None
 
     def emit_event(
         self, involved: Mapping[str, Any], type_: str, reason: str, message: str

@@ -29,6 +29,7 @@ from pydantic import BaseModel
 from fogfleet.api.labels import LABEL_PART_OF, MANAGER
 from fogfleet.api.schema import QUANTITY_PATTERN, CrdGenerationError, convert, deep_update, node_at
 from fogfleet.api.v1alpha1.computenode import ComputeNode, ComputeNodeSpec
+from fogfleet.api.v1alpha1.explanation import ExplanationRequest
 from fogfleet.api.v1alpha1.fallback import Fallback
 from fogfleet.api.v1alpha1.objectives import ObjectiveName
 from fogfleet.api.v1alpha1.podtemplate import OWNED_POD_FIELDS
@@ -236,6 +237,24 @@ KINDS: tuple[KindInfo, ...] = (
             "spec.scheduler.weights": _map("objective"),
             **_CONDITIONS,
         },
+    ),
+    KindInfo(
+        model=ExplanationRequest,
+        kind="ExplanationRequest",
+        plural=ExplanationRequest.PLURAL,
+        singular="explanationrequest",
+        scope="Namespaced",
+        short_names=("why",),
+        columns=(
+            {"name": "Fleet", "type": "string", "jsonPath": ".spec.fleet"},
+            {"name": "Module", "type": "string", "jsonPath": ".spec.module"},
+            {"name": "Robot", "type": "string", "jsonPath": ".spec.robot"},
+            {"name": "Phase", "type": "string", "jsonPath": ".status.phase"},
+            {"name": "Message", "type": "string", "jsonPath": ".status.message", "priority": 1},
+            _AGE,
+        ),
+        # a question, asked once: the answer in its status is the answer to this spec
+        rules={"spec": ({"rule": "self == oldSelf", "message": "is immutable: ask again"},)},
     ),
 )
 

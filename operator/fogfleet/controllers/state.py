@@ -41,6 +41,7 @@ from fogfleet.domain.onboard import OnboardNeed
 from fogfleet.domain.problem import Problem
 from fogfleet.domain.takeovers import Mark, SeriesKey, Takeovers
 from fogfleet.scheduling.decision import Decision
+from fogfleet.snapshot.live import Live
 
 __all__ = [
     "DriftWatch",
@@ -193,6 +194,9 @@ class FleetState:
     # its Deployments in managed clusters as last read from the OCM hub (kept while the hub
     # cannot be read: controllers/fleet/clusters.py)
     remote: list[Obj] = field(default_factory=list)
+    # the plan that runs, as ExplanationRequests are answered from it (controllers/fleet/
+    # explain.py): set by a full pass that applied it, kept when a later pass fails
+    live: Live | None = None
 
 
 class FleetStore:

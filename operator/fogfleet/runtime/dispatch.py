@@ -31,6 +31,7 @@ from fogfleet.controllers.state import FleetKey, FleetState
 from fogfleet.controllers.status import pod_ready
 from fogfleet.errors import FogfleetError
 from fogfleet.render.deployments import hash_annotation, label_value
+from fogfleet.runtime.explanations import Explainer
 from fogfleet.runtime.queue import ReconcileQueue
 from fogfleet.snapshot.objects import profile_corrections
 
@@ -72,6 +73,7 @@ class Runtime:
             metrics=deps.metrics,
         )
         self.store = deps.store  # every fleet's state (its rollout progress among it)
+        self.explainer = Explainer(deps.kube, self.store)  # ExplanationRequests
         # the change filters: what was last seen of each related object
         self._generations: dict[tuple[str, str, str], Any] = {}
         self._nodes: dict[str, tuple[Any, ...]] = {}

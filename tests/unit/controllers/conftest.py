@@ -63,6 +63,7 @@ class FakeKube:
         self.events: list[tuple[str, str, str]] = []
         self.jobs: dict[tuple[str, str], Obj] = {}
         self.job_pods: dict[tuple[str, str], list[Obj]] = {}  # (ns, job) -> its pods
+        self.explanations: list[tuple[str, str, Obj]] = []  # answered requests' status
 
     # seeding
     def load_warehouse(self) -> None:
@@ -255,6 +256,17 @@ class FakeKube:
     def patch_fleet_status(self, namespace: str, name: str, status: Mapping[str, Any]) -> None:
         _merge(self.fleets[(namespace, name)].setdefault("status", {}), status)
         self.status_patches.append(copy.deepcopy(dict(status)))
+
+    def patch_explanation_status(
+        self, namespace: str, name: str, status: Mapping[str, Any]
+    ) -> None:
+        self.explanations.append((namespace, name, dict(status)))
+
+    def delete_explanation_request(self, namespace: str, name: str) -> None:
+        self.deleted.append(f"ExplanationRequest/{namespace}/{name}")
+
+    def list_deployment_metadata(self, namespace: str, selector: Mapping[str, str]) -> list[Obj]:
+        return self.list_deployments(namespace, selector)
 
     def patch_module_status(self, namespace: str, name: str, status: Mapping[str, Any]) -> None:
         _merge(self.modules[(namespace, name)].setdefault("status", {}), status)

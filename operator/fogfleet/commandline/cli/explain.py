@@ -8,9 +8,9 @@ import argparse
 import sys
 from typing import Any
 
-from fogfleet.commandline.kubectl.commands import why_doc
 from fogfleet.commandline.kubectl.output import render, why_table
 from fogfleet.scheduling.explain.alternatives import explain_module
+from fogfleet.snapshot.live import why_doc
 
 from .common import catalog_of, one_fleet, site_plans
 

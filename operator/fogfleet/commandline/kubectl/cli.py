@@ -10,17 +10,27 @@ import argparse
 import sys
 import time
 from collections.abc import Callable, Sequence
+from typing import Any
 
+from fogfleet.api.v1alpha1.explanation import (
+    MAX_INSTANCES,
+    ExplanationFailure,
+    ExplanationPhase,
+)
 from fogfleet.commandline.exits import OK, positive, run_command
+from fogfleet.errors import DependencyUnavailable, InvalidSpec
 from fogfleet.snapshot import room_note
+from fogfleet.snapshot.live import why_doc, why_of
 
-from .commands import diff_doc, plan_doc, top_doc, why_doc, why_of
+from .commands import diff_doc, plan_doc, top_doc
 from .live import Source, WhatIf, read_fleet
 from .output import FORMATS, diff_table, render, top_table, why_table
 
 __all__ = ["main", "parser"]
 
 Connect = Callable[[str | None, str | None], tuple[Source, str]]
+Doc = dict[str, Any]
+ASK_SECONDS = 5.0  # how long `why` waits for the operator's answer by default
 
 
 def parser() -> argparse.ArgumentParser:
@@ -40,7 +50,22 @@ def parser() -> argparse.ArgumentParser:
     sp.add_argument("module", help="the SoftwareModule")
     sp.add_argument("--robot", help="only this robot's instance")
     sp.add_argument(
-        "--limit", type=positive(int), default=50, help="instances explained at most (50)"
+        "--limit",
+        type=positive(int),
+        default=50,
+        help=f"instances explained at most (50; the operator answers up to {MAX_INSTANCES})",
+    )
+    sp.add_argument(
+        "--local",
+        action="store_true",
+        help="explain from the API's objects here, without asking the operator",
+    )
+    sp.add_argument(
+        "--wait",
+        type=positive(float),
+        default=ASK_SECONDS,
+        metavar="SECONDS",
+        help=f"how long to wait for the operator's answer ({ASK_SECONDS:g})",
     )
     sp = sub.add_parser(
         "top", parents=[common], help="measured vs predicted misses, CPU and split per module"
@@ -117,14 +142,15 @@ def _run(
     """Read the fleet, compute the command's document and print it."""
     source, namespace = connect(args.kubeconfig, args.context)
     ns = args.namespace or namespace
-    live = read_fleet(source, ns, args.fleet)
     if args.command == "why":
-        doc = why_doc(why_of(live, args.module, args.robot, args.limit))
+        doc, room = _why(source, ns, args)
         text = render(doc, args.output, why_table(doc) if args.output == "table" else "")
-        room = room_note(live.problem, live.snapshot.held)
         if room:  # as `fogfleet explain` says it: the fleet was planned into what others left
             print(f"Shared nodes of {doc['fleet']}: {room}", file=sys.stderr)
-    elif args.command == "top":
+        print(text)
+        return OK
+    live = read_fleet(source, ns, args.fleet)
+    if args.command == "top":
         doc = top_doc(live, clock())
         text = render(doc, args.output, top_table(doc) if args.output == "table" else "")
     else:
@@ -133,3 +159,29 @@ def _run(
         text = render(doc, args.output, diff_table(doc) if args.output == "table" else "")
     print(text)
     return OK
+
+
+def _why(source: Source, ns: str, args: argparse.Namespace) -> tuple[Doc, str]:
+    """The explanation and who else holds room on the fleet's nodes: the operator's answer
+    (``ExplanationRequest``, from the plan it holds), else computed here from the API's
+    objects, as the operator would (``--local``, or when it cannot answer: no such CRD, no
+    right to create requests, no plan of the fleet held, no answer within ``--wait``)."""
+    if not args.local and args.limit <= MAX_INSTANCES:
+        spec = {"fleet": args.fleet, "module": args.module, "robot": args.robot}
+        try:
+            asked = source.ask_explanation(ns, {**spec, "limit": args.limit}, args.wait)
+        except DependencyUnavailable as exc:
+            asked, why = None, str(exc)
+        else:
+            why = f"no answer within {args.wait:g} s"
+        status = (asked or {}).get("status") or {}
+        if status.get("phase") == ExplanationPhase.ANSWERED.value:
+            return dict(status.get("explanation") or {}), str(status.get("sharedNodes") or "")
+        if status.get("phase") == ExplanationPhase.FAILED.value:
+            why = str(status.get("message") or "")
+            if status.get("reason") == ExplanationFailure.INVALID_REQUEST.value:
+                raise InvalidSpec(f"RobotFleet/{args.fleet}", "", why)
+        print(f"The operator did not explain: {why}; explaining here.", file=sys.stderr)
+    live = read_fleet(source, ns, args.fleet)
+    doc = why_doc(why_of(live, args.module, args.robot, args.limit))
+    return doc, room_note(live.problem, live.snapshot.held)

@@ -17,80 +17,13 @@ from fogfleet.api.timestamps import parse_timestamp
 from fogfleet.domain.problem import Problem
 from fogfleet.errors import Infeasible
 from fogfleet.scheduling.decision import CorePlanner, decide, fingerprint, with_defaults
-from fogfleet.scheduling.explain.alternatives import ModuleWhy, explain_module
 from fogfleet.scheduling.objectives import REGISTRY, module_miss_rates, objective_values
 from fogfleet.snapshot import room_note
+from fogfleet.snapshot.live import Live
 
-from .live import Live
-
-__all__ = ["diff_doc", "plan_doc", "top_doc", "why_doc", "why_of"]
+__all__ = ["diff_doc", "plan_doc", "top_doc"]
 
 Doc = dict[str, Any]
-
-
-def why_of(live: Live, module: str, robot: str | None = None, limit: int = 50) -> ModuleWhy:
-    """``scheduling.explain.alternatives.explain_module`` on the running fleet, with the
-    measured miss rate."""
-    spec = live.fleet.spec.scheduler
-    w = explain_module(
-        live.problem,
-        live.placement,
-        live.with_limits,
-        module,
-        robot=robot,
-        objectives=[o.value for o in spec.objectives],
-        refused=live.refused,
-        unavailable=live.unavailable,
-        held=live.snapshot.held,
-        limit=limit,
-    )
-    return ModuleWhy(**{**w.__dict__, "measured_miss_rate": live.measured.get(module)})
-
-
-def why_doc(w: ModuleWhy) -> Doc:
-    """A ``ModuleWhy`` as the document ``-o json|yaml`` prints (camelCase, as kubectl)."""
-    return {
-        "fleet": w.fleet,
-        "module": w.module,
-        "predictedMissRate": w.predicted_miss_rate,
-        "measuredMissRate": w.measured_miss_rate,
-        "objectives": list(w.objectives),
-        "planObjectives": w.values,
-        "omittedInstances": w.omitted,
-        "instances": [
-            {
-                "instance": i.label,
-                "robot": i.robot,
-                "replica": i.replica,
-                "node": i.node,
-                "tier": i.tier,
-                "cpu": i.cpu,
-                "predictedMiss": i.predicted_miss,
-                "alternatives": [
-                    {
-                        "node": a.node,
-                        "tier": a.tier,
-                        "rule": a.rule,
-                        "reason": a.reason,
-                        **({"objectiveDeltas": a.deltas} if a.deltas else {}),
-                    }
-                    for a in i.alternatives
-                ],
-                **(
-                    {
-                        "split": {
-                            "action": i.split[0],
-                            "reason": i.split[1],
-                            "alternatives": [{"action": n, "reason": r} for n, r in i.split[2]],
-                        }
-                    }
-                    if i.split is not None
-                    else {}
-                ),
-            }
-            for i in w.instances
-        ],
-    }
 
 
 def top_doc(live: Live, now: float | None = None) -> Doc:

@@ -13,7 +13,6 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass
 from typing import Any, Protocol
 
 import numpy as np
@@ -22,21 +21,18 @@ from numpy.typing import NDArray
 from fogfleet.api.labels import ANNOTATION_NODE, LABEL_FLEET
 from fogfleet.api.names import label_value
 from fogfleet.api.v1alpha1.placement import placement_entries_of
-from fogfleet.api.v1alpha1.robotfleet import RobotFleet, SchedulerName
-from fogfleet.domain.problem import Problem
 from fogfleet.errors import InvalidSpec
 from fogfleet.render.deployments import identity_of
 from fogfleet.snapshot import (
-    FleetSnapshot,
     Listed,
     WhatIf,
     held_by_others,
     problem_of,
-    refused,
     snapshot_of,
     unavailable_in,
     with_what_if,
 )
+from fogfleet.snapshot.live import Live, deployed_placement
 from fogfleet.snapshot.room import status_claims
 
 __all__ = ["Live", "Source", "WhatIf", "read_fleet"]
@@ -59,37 +55,9 @@ class Source(Protocol):
         self, namespace: str, selector: Mapping[str, str]
     ) -> list[Obj]: ...
     def list_node_load(self, besides: tuple[str, str] | None = None) -> list[Obj]: ...
-
-
-@dataclass(frozen=True)
-class Live:
-    """A running fleet's snapshot, its problem, its deployed placement."""
-
-    snapshot: FleetSnapshot
-    problem: Problem  # unavailable nodes masked out
-    unavailable: dict[int, str]  # node index -> why
-    placement: I64  # deployed (I,), -1 where unknown
-
-    @property
-    def fleet(self) -> RobotFleet:
-        return self.snapshot.fleet
-
-    @property
-    def with_limits(self) -> bool:
-        return self.fleet.spec.scheduler.algorithm is not SchedulerName.ONBOARD
-
-    @property
-    def measured(self) -> Mapping[str, float]:
-        """Module -> measured miss rate."""
-        return self.snapshot.measured
-
-    @property
-    def status(self) -> Obj:
-        return dict(self.snapshot.status)
-
-    def refused(self, i: int) -> dict[int, Any]:
-        """Instance i's refusals by node (``domain.build.refusals``)."""
-        return dict(refused(self.snapshot, self.problem, i))
+    def ask_explanation(
+        self, namespace: str, spec: Mapping[str, Any], seconds: float
+    ) -> Obj | None: ...
 
 
 def read_fleet(source: Source, namespace: str, name: str, what_if: WhatIf | None = None) -> Live:
@@ -127,7 +95,7 @@ def read_fleet(source: Source, namespace: str, name: str, what_if: WhatIf | None
         snapshot=snapshot,
         problem=problem,
         unavailable=unavailable_in(snapshot, problem),
-        placement=_deployed(problem, snapshot),
+        placement=deployed_placement(problem, snapshot),
     )
 
 
@@ -147,17 +115,3 @@ def _names_its_node(deployment: Obj) -> bool:
     on-board standby, a k8s-default fleet's unbound Deployment)."""
     annotations = (deployment.get("metadata") or {}).get("annotations") or {}
     return ANNOTATION_NODE in annotations or identity_of(deployment) is None
-
-
-def _deployed(problem: Problem, snapshot: FleetSnapshot) -> I64:
-    """Where each instance runs (``FleetSnapshot.deployed``), by node index."""
-    index: dict[str, int] = {}
-    for j, nd in enumerate(problem.nodes):
-        index.setdefault(nd.node_name, j)
-        index.setdefault(nd.name, j)
-    out = np.full(problem.n_instances, -1, dtype=np.int64)
-    for i, inst in enumerate(problem.instances):
-        node = snapshot.deployed.get((inst.robot, inst.module, inst.replica))
-        if node is not None and node in index:
-            out[i] = index[node]
-    return out

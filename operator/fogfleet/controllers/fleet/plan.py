@@ -28,7 +28,7 @@ from fogfleet.domain.problem import Problem
 from fogfleet.domain.tenancy import Held, claims_of
 from fogfleet.errors import Infeasible
 from fogfleet.scheduling.decision import Decision, decide, fingerprint, with_defaults
-from fogfleet.snapshot import build, room_note
+from fogfleet.snapshot import FleetSnapshot, build, room_note
 
 __all__ = ["Planned", "plan_fleet", "plan_step"]
 
@@ -97,6 +97,7 @@ class Planned:
     stranded: frozenset[int]  # instances whose node is unavailable: left where they are
     decision: Decision | None  # None: kube-scheduler places (k8s-default)
     planned: bool  # decided now (else the cached decision)
+    snapshot: FleetSnapshot  # what it was planned from
 
     @property
     def baseline(self) -> bool:
@@ -108,7 +109,8 @@ def plan_step(
 ) -> Planned:
     """Build the fleet's planning problem, mask unavailable nodes and decide."""
     fleet = inputs.fleet
-    built = build(fleet_snapshot(inputs, parsed, _recovered(inputs, last)))
+    snapshot = fleet_snapshot(inputs, parsed, _recovered(inputs, last))
+    built = build(snapshot)
     record_references(
         state,
         fleet,
@@ -124,7 +126,7 @@ def plan_step(
         raise _naming_the_others(err, problem, inputs.held)
     if fleet.spec.scheduler.algorithm is SchedulerName.K8S_DEFAULT:
         state.claims, state.shared = {}, []  # its pods hold what they request (tenancy)
-        return Planned(problem, frozenset(stranded), None, False)
+        return Planned(problem, frozenset(stranded), None, False, snapshot)
     previous = last.problem if last is not None else None
     try:
         decision, planned = plan_fleet(deps, state, problem, fleet, before, previous)
@@ -135,7 +137,7 @@ def plan_step(
     with_limits = decision.schedule.with_limits
     state.claims = claims_of(problem, decision.placement, with_limits)
     state.shared = shared_nodes(problem, inputs.held, state.claims)
-    return Planned(problem, frozenset(stranded), decision, planned)
+    return Planned(problem, frozenset(stranded), decision, planned, snapshot)
 
 
 def shared_nodes(

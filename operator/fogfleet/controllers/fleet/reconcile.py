@@ -30,6 +30,7 @@ from typing import Any
 
 from fogfleet.controllers.deps import Deps
 from fogfleet.controllers.fleet.apply import apply_services, apply_step
+from fogfleet.controllers.fleet.explain import held_plan
 from fogfleet.controllers.fleet.node_events import hosted_modules, node_events
 from fogfleet.controllers.fleet.observe import (
     FleetInputs,
@@ -217,6 +218,7 @@ def _remember(
         room=room_note(planned.problem, inputs.held),
     )
     state.rendered = rendered
+    state.live = held_plan(inputs, planned)
     if state.links.takeovers is None:  # after a restart: what the status said they did
         state.links.takeovers = takeovers_from_status(inputs.obj.old_status)
     state.links.watch = link_watch(inputs.fleet, planned.problem, parsed.catalog)

@@ -8,6 +8,7 @@ import kopf
 from fogfleet import GROUP, VERSION
 from fogfleet.api.labels import LABEL_MANAGED_BY, MANAGER
 from fogfleet.api.v1alpha1.computenode import ComputeNode
+from fogfleet.api.v1alpha1.explanation import ExplanationRequest
 from fogfleet.api.v1alpha1.robotfleet import RobotFleet
 from fogfleet.api.v1alpha1.softwaremodule import SoftwareModule
 from fogfleet.settings import Settings
@@ -32,6 +33,9 @@ def register(registry: kopf.OperatorRegistry, settings: Settings) -> kopf.Operat
     # ... which kopf calls only while the object still exists (another finalizer holds it):
     # a fleet simply deleted is seen as its DELETED watch event
     kopf.on.event(*FLEETS, registry=registry)(robotfleet.fleet_event)
+    kopf.on.event(GROUP, VERSION, ExplanationRequest.PLURAL, registry=registry)(
+        related.explanation_event
+    )
     if settings.watch_cache:
         return registry  # one watch per kind: the runtime's caches report the other kinds
     kopf.on.event(GROUP, VERSION, SoftwareModule.PLURAL, registry=registry)(related.module_event)

@@ -1,7 +1,9 @@
-"""kopf handlers for what fleets depend on: SoftwareModules, ComputeNodes, Nodes, Deployments.
+"""kopf handlers for what fleets depend on: SoftwareModules, ComputeNodes, Nodes, Deployments;
+and for the questions asked of fleets: ExplanationRequests.
 
-Watch events only (nothing is written to these objects); the runtime filters out events that
-do not change planning inputs and debounces the rest into one re-plan per fleet.
+Watch events only (nothing is written to the first four); the runtime filters out events that
+do not change planning inputs and debounces the rest into one re-plan per fleet. A request is
+answered in its status (``controllers/fleet/explain.py``), beside the reconciles.
 """
 
 from __future__ import annotations
@@ -10,7 +12,13 @@ from typing import Any
 
 import kopf
 
-__all__ = ["compute_node_event", "deployment_event", "module_event", "node_event"]
+__all__ = [
+    "compute_node_event",
+    "deployment_event",
+    "explanation_event",
+    "module_event",
+    "node_event",
+]
 
 
 async def module_event(body: kopf.Body, type: str, memo: Any, **_: Any) -> None:
@@ -27,3 +35,7 @@ async def node_event(body: kopf.Body, type: str, memo: Any, **_: Any) -> None:
 
 async def deployment_event(body: kopf.Body, memo: Any, **_: Any) -> None:
     memo.runtime.deployment_event(body)
+
+
+async def explanation_event(body: kopf.Body, type: str, memo: Any, **_: Any) -> None:
+    await memo.runtime.explainer.event(body, type)

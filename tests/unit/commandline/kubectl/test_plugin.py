@@ -123,6 +123,9 @@ class FakeCluster:
     def list_node_load(self, besides: tuple[str, str] | None = None) -> list[Obj]:
         return []
 
+    def ask_explanation(self, namespace: str, spec: Mapping[str, Any], seconds: float) -> None:
+        return None  # no operator answers (test_why_asks.py has one)
+
 
 def _run(argv: list[str], capsys: pytest.CaptureFixture[str]) -> tuple[int, str, str]:
     code = main(
