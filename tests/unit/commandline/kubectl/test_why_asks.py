@@ -53,7 +53,8 @@ def test_the_operators_answer_is_printed_and_nothing_is_listed(capsys) -> None:
     assert "Shared nodes of warehouse/warehouse: edge-1: 2 cores" in err
     ns, spec, seconds = cluster.asked[0]
     assert (ns, seconds) == ("warehouse", 2.5)
-    assert spec == {"fleet": "warehouse", "module": "nav-controller", "robot": "robot-3", "limit": 7}
+    asked = {"fleet": "warehouse", "module": "nav-controller", "robot": "robot-3", "limit": 7}
+    assert spec == asked
     assert cluster.lists == 0
 
 
