@@ -46,12 +46,9 @@ from kubernetes.config.config_exception import ConfigException
 from fogfleet import GROUP, VERSION
 from fogfleet.adapters.informer import WatchExpired
 from fogfleet.adapters.ports import ClientMetrics
+from fogfleet.api.kinds import COMPUTENODES, EXPLANATIONREQUESTS, ROBOTFLEETS, SOFTWAREMODULES
 from fogfleet.api.labels import LABEL_FLEET, LABEL_MANAGED_BY, MANAGER
 from fogfleet.api.timestamps import timestamp
-from fogfleet.api.v1alpha1.computenode import ComputeNode
-from fogfleet.api.v1alpha1.explanation import ExplanationRequest
-from fogfleet.api.v1alpha1.robotfleet import RobotFleet
-from fogfleet.api.v1alpha1.softwaremodule import SoftwareModule
 from fogfleet.contract.quantity import parse_quantity
 from fogfleet.errors import DependencyUnavailable, InvalidSpec
 
@@ -110,7 +107,7 @@ def _reason(exc: ApiException) -> str:
 
 
 def _explanations(namespace: str, name: str = "") -> str:
-    path = f"/apis/{GROUP}/{VERSION}/namespaces/{namespace}/{ExplanationRequest.PLURAL}"
+    path = f"/apis/{GROUP}/{VERSION}/namespaces/{namespace}/{EXPLANATIONREQUESTS}"
     return f"{path}/{name}" if name else path
 
 
@@ -302,21 +299,21 @@ class KubeClient:
         with map_errors(f"read RobotFleet {namespace}/{name}"):
             return self._call(
                 "GET",
-                f"/apis/{GROUP}/{VERSION}/namespaces/{namespace}/{RobotFleet.PLURAL}/{name}",
+                f"/apis/{GROUP}/{VERSION}/namespaces/{namespace}/{ROBOTFLEETS}/{name}",
                 missing_ok=True,
             )
 
     def list_fleets(self, namespace: str | None = None) -> list[Obj]:
         where = f"/namespaces/{namespace}" if namespace else ""
-        return self._list(f"/apis/{GROUP}/{VERSION}{where}/{RobotFleet.PLURAL}", "list RobotFleets")
+        return self._list(f"/apis/{GROUP}/{VERSION}{where}/{ROBOTFLEETS}", "list RobotFleets")
 
     def list_compute_nodes(self) -> list[Obj]:
-        return self._list(f"/apis/{GROUP}/{VERSION}/{ComputeNode.PLURAL}", "list ComputeNodes")
+        return self._list(f"/apis/{GROUP}/{VERSION}/{COMPUTENODES}", "list ComputeNodes")
 
     def list_modules(self, namespace: str | None) -> list[Obj]:
         where = f"/namespaces/{namespace}" if namespace else ""
         return self._list(
-            f"/apis/{GROUP}/{VERSION}{where}/{SoftwareModule.PLURAL}",
+            f"/apis/{GROUP}/{VERSION}{where}/{SOFTWAREMODULES}",
             f"list SoftwareModules in {namespace or 'all namespaces'}",
         )
 
@@ -460,14 +457,14 @@ class KubeClient:
     def patch_module_status(self, namespace: str, name: str, status: Mapping[str, Any]) -> None:
         self._merge_patch(
             f"patch the status of SoftwareModule {namespace}/{name}",
-            f"{namespace}/{SoftwareModule.PLURAL}/{name}/status",
+            f"{namespace}/{SOFTWAREMODULES}/{name}/status",
             {"status": dict(status)},
         )
 
     def patch_compute_node_status(self, name: str, status: Mapping[str, Any]) -> None:
         self._merge_patch(
             f"patch the status of ComputeNode {name}",
-            f"/{ComputeNode.PLURAL}/{name}/status",
+            f"/{COMPUTENODES}/{name}/status",
             {"status": dict(status)},
         )
 
@@ -476,14 +473,14 @@ class KubeClient:
     ) -> None:
         self._merge_patch(
             f"annotate SoftwareModule {namespace}/{name}",
-            f"{namespace}/{SoftwareModule.PLURAL}/{name}",
+            f"{namespace}/{SOFTWAREMODULES}/{name}",
             {"metadata": {"annotations": dict(annotations)}},
         )
 
     def patch_fleet_status(self, namespace: str, name: str, status: Mapping[str, Any]) -> None:
         self._merge_patch(
             f"patch the status of RobotFleet {namespace}/{name}",
-            f"{namespace}/{RobotFleet.PLURAL}/{name}/status",
+            f"{namespace}/{ROBOTFLEETS}/{name}/status",
             {"status": dict(status)},
         )
 
@@ -492,7 +489,7 @@ class KubeClient:
     ) -> None:
         self._merge_patch(
             f"answer ExplanationRequest {namespace}/{name}",
-            f"{namespace}/{ExplanationRequest.PLURAL}/{name}/status",
+            f"{namespace}/{EXPLANATIONREQUESTS}/{name}/status",
             {"status": dict(status)},
         )
 

@@ -13,6 +13,8 @@ from typing import Annotated, ClassVar, Literal
 
 from pydantic import Field, model_validator
 
+from fogfleet.api.kinds import COMPUTENODES
+
 from .base import FogModel, NonNegInt, Number, Quantity, refuse_duplicates
 from .common import Condition, Name, ObjectMeta, Tier
 from .rules import CrossFieldRule, enforce
@@ -224,7 +226,7 @@ class ComputeNodeStatus(FogModel):
 class ComputeNode(FogModel):
     """A Kubernetes node as fogfleet sees it: tier, hardware type, devices, links, privacy."""
 
-    PLURAL: ClassVar[str] = "computenodes"
+    PLURAL: ClassVar[str] = COMPUTENODES
     """The resource name in API paths (``/apis/fogfleet.io/v1alpha1/.../computenodes``)."""
 
     api_version: Literal["fogfleet.io/v1alpha1"] = "fogfleet.io/v1alpha1"

@@ -15,39 +15,27 @@ The explanation is the document ``kubectl fogfleet why -o json`` prints
 
 from __future__ import annotations
 
-from enum import StrEnum
 from typing import Any, ClassVar, Literal
 
 from pydantic import Field
+
+from fogfleet.api.kinds import (
+    EXPLANATIONREQUESTS,
+    MAX_EXPLAINED,
+    ExplanationFailure,
+    ExplanationPhase,
+)
 
 from .base import FogModel
 from .common import Name, ObjectMeta
 
 __all__ = [
-    "MAX_INSTANCES",
     "ExplanationFailure",
     "ExplanationPhase",
     "ExplanationRequest",
     "ExplanationRequestSpec",
     "ExplanationRequestStatus",
 ]
-
-MAX_INSTANCES = 500  # instances one answer explains at most (the status stays well under 1 MiB)
-
-
-class ExplanationPhase(StrEnum):
-    """Where a request stands: answered, or refused with the reason in ``message``."""
-
-    ANSWERED = "Answered"
-    FAILED = "Failed"
-
-
-class ExplanationFailure(StrEnum):
-    """Why a request failed: the asker explains by itself in the first two cases."""
-
-    NO_PLAN_HELD = "NoPlanHeld"  # not planned yet, placed by kube-scheduler, not watched
-    FLEET_NOT_FOUND = "FleetNotFound"
-    INVALID_REQUEST = "InvalidRequest"  # no such module or robot in the fleet's plan
 
 
 class ExplanationRequestSpec(FogModel):
@@ -59,7 +47,7 @@ class ExplanationRequestSpec(FogModel):
     """The SoftwareModule whose instances are explained."""
     robot: Name | None = None
     """Only this robot's instance (default: every robot's, up to ``limit``)."""
-    limit: int = Field(default=50, ge=1, le=MAX_INSTANCES)
+    limit: int = Field(default=50, ge=1, le=MAX_EXPLAINED)
     """Instances explained at most; the rest are counted in ``omittedInstances``."""
 
 
@@ -89,7 +77,7 @@ class ExplanationRequestStatus(FogModel):
 class ExplanationRequest(FogModel):
     """A question to the operator: why does each instance of a module run where it does?"""
 
-    PLURAL: ClassVar[str] = "explanationrequests"
+    PLURAL: ClassVar[str] = EXPLANATIONREQUESTS
     """The resource name in API paths (``/apis/fogfleet.io/v1alpha1/.../explanationrequests``)."""
 
     api_version: Literal["fogfleet.io/v1alpha1"] = "fogfleet.io/v1alpha1"

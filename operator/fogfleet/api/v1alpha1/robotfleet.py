@@ -7,6 +7,8 @@ from typing import Annotated, ClassVar, Literal
 
 from pydantic import Field, model_validator
 
+from fogfleet.api.kinds import ROBOTFLEETS
+
 from .base import FogModel, Number, PosInt, parse_millis, refuse_duplicates
 from .common import Condition, LabelSelector, Name, ObjectMeta, Tier
 from .fallback import Fallback, FallbackMode
@@ -499,7 +501,7 @@ class RobotFleetStatus(FogModel):
 class RobotFleet(FogModel):
     """A robot fleet: its robots, their modules, the nodes they may use, and how to plan."""
 
-    PLURAL: ClassVar[str] = "robotfleets"
+    PLURAL: ClassVar[str] = ROBOTFLEETS
     """The resource name in API paths (``/apis/fogfleet.io/v1alpha1/.../robotfleets``)."""
 
     api_version: Literal["fogfleet.io/v1alpha1"] = "fogfleet.io/v1alpha1"

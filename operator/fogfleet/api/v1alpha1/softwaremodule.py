@@ -13,6 +13,8 @@ from typing import Annotated, ClassVar, Literal
 
 from pydantic import Field, model_validator
 
+from fogfleet.api.kinds import SOFTWAREMODULES
+
 from .base import (
     FogModel,
     NonNegInt,
@@ -459,7 +461,7 @@ class SoftwareModuleStatus(FogModel):
 class SoftwareModule(FogModel):
     """One containerised ROS 2 module of the robot software stack."""
 
-    PLURAL: ClassVar[str] = "softwaremodules"
+    PLURAL: ClassVar[str] = SOFTWAREMODULES
     """The resource name in API paths (``/apis/fogfleet.io/v1alpha1/.../softwaremodules``)."""
 
     api_version: Literal["fogfleet.io/v1alpha1"] = "fogfleet.io/v1alpha1"

@@ -10,25 +10,20 @@ import argparse
 import sys
 import time
 from collections.abc import Callable, Sequence
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from fogfleet.api.v1alpha1.explanation import (
-    MAX_INSTANCES,
-    ExplanationFailure,
-    ExplanationPhase,
-)
+from fogfleet.api.kinds import MAX_EXPLAINED, ExplanationFailure, ExplanationPhase
 from fogfleet.commandline.exits import OK, positive, run_command
 from fogfleet.errors import DependencyUnavailable, InvalidSpec
-from fogfleet.snapshot import room_note
-from fogfleet.snapshot.live import why_doc, why_of
 
-from .commands import diff_doc, plan_doc, top_doc
-from .live import Source, WhatIf, read_fleet
 from .output import FORMATS, diff_table, render, top_table, why_table
+
+if TYPE_CHECKING:  # the planner's code is imported where a command computes (see _run)
+    from .live import Source, WhatIf
 
 __all__ = ["main", "parser"]
 
-Connect = Callable[[str | None, str | None], tuple[Source, str]]
+Connect = Callable[[str | None, str | None], tuple["Source", str]]
 Doc = dict[str, Any]
 ASK_SECONDS = 5.0  # how long `why` waits for the operator's answer by default
 
@@ -53,7 +48,7 @@ def parser() -> argparse.ArgumentParser:
         "--limit",
         type=positive(int),
         default=50,
-        help=f"instances explained at most (50; the operator answers up to {MAX_INSTANCES})",
+        help=f"instances explained at most (50; the operator answers up to {MAX_EXPLAINED})",
     )
     sp.add_argument(
         "--local",
@@ -111,6 +106,8 @@ def _what_if(args: argparse.Namespace, p: argparse.ArgumentParser) -> WhatIf:
             p.error(f"--link {item}: expected ROBOT=MILLIS with MILLIS > 0")
     if not (args.without_node or args.add_robot or links):
         p.error("plan --what-if needs --without-node, --add-robot or --link")
+    from .live import WhatIf
+
     return WhatIf(tuple(args.without_node), args.add_robot, args.like, links)
 
 
@@ -149,6 +146,9 @@ def _run(
             print(f"Shared nodes of {doc['fleet']}: {room}", file=sys.stderr)
         print(text)
         return OK
+    from .commands import diff_doc, plan_doc, top_doc
+    from .live import read_fleet
+
     live = read_fleet(source, ns, args.fleet)
     if args.command == "top":
         doc = top_doc(live, clock())
@@ -166,7 +166,7 @@ def _why(source: Source, ns: str, args: argparse.Namespace) -> tuple[Doc, str]:
     (``ExplanationRequest``, from the plan it holds), else computed here from the API's
     objects, as the operator would (``--local``, or when it cannot answer: no such CRD, no
     right to create requests, no plan of the fleet held, no answer within ``--wait``)."""
-    if not args.local and args.limit <= MAX_INSTANCES:
+    if not args.local and args.limit <= MAX_EXPLAINED:
         spec = {"fleet": args.fleet, "module": args.module, "robot": args.robot}
         try:
             asked = source.ask_explanation(ns, {**spec, "limit": args.limit}, args.wait)
@@ -182,6 +182,11 @@ def _why(source: Source, ns: str, args: argparse.Namespace) -> tuple[Doc, str]:
             if status.get("reason") == ExplanationFailure.INVALID_REQUEST.value:
                 raise InvalidSpec(f"RobotFleet/{args.fleet}", "", why)
         print(f"The operator did not explain: {why}; explaining here.", file=sys.stderr)
+    from fogfleet.snapshot import room_note
+    from fogfleet.snapshot.live import why_doc, why_of
+
+    from .live import read_fleet
+
     live = read_fleet(source, ns, args.fleet)
     doc = why_doc(why_of(live, args.module, args.robot, args.limit))
     return doc, room_note(live.problem, live.snapshot.held)

@@ -20,13 +20,10 @@ import numpy as np
 from pydantic import ValidationError
 
 from fogfleet.adapters.ports import KubePort
+from fogfleet.api.kinds import ExplanationFailure, ExplanationPhase
 from fogfleet.api.loader import describe_validation_errors
 from fogfleet.api.timestamps import timestamp
-from fogfleet.api.v1alpha1.explanation import (
-    ExplanationFailure,
-    ExplanationPhase,
-    ExplanationRequest,
-)
+from fogfleet.api.v1alpha1.explanation import ExplanationRequest
 from fogfleet.controllers.fleet.observe import FleetInputs
 from fogfleet.controllers.fleet.plan import Planned
 from fogfleet.controllers.state import FleetStore
