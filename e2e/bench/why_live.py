@@ -15,20 +15,26 @@ Protocol (fixed before the first result):
   plans it and every module pod runs before anything is timed.
 - **Command:** ``kubectl fogfleet why FLEET scene-segmentation --robot <the middle robot>
   -o json``, as users run it: a new process with the bed's kubeconfig. It runs ``--runs``
-  times, and each time beside the same command of a ``--baseline`` checkout (its
+  times, and each time beside the same command with ``--local`` (the plugin explains by
+  itself from the API's objects instead of asking the operator: what it does when the
+  operator cannot answer) and beside the same command of a ``--baseline`` checkout (its
   ``operator/`` directory first on PYTHONPATH, e.g. a ``git worktree`` of an earlier commit),
-  in alternating order.
+  in alternating order. Revised after the first results of 2026-11-30 and before any result
+  of the operator's answer: the ``--local`` row was added when the plugin began to ask the
+  operator; a run of this checkout that the operator did not answer fails the benchmark.
 - **Endpoint:** the command's wall seconds, median over the runs.
-- **Also:** in this process, the same read and explanation split into the API reads (from
-  the first ``Source`` call until the last ends: the plugin reads side by side; and each
+- **Also:** in this process, the ``--local`` read and explanation split into the API reads
+  (from the first ``Source`` call until the last ends: the plugin reads side by side; and each
   method's own seconds), the snapshot and problem build, and the explanation, median over the
-  runs; and the process's import seconds (``--help``), which every command pays.
+  runs; the process's import seconds (``--help``), which every command pays; and the seconds
+  the operator took to answer each request (its log), median.
 """
 
 from __future__ import annotations
 
 import argparse
 import os
+import re
 import secrets
 import statistics
 import subprocess
@@ -56,7 +62,9 @@ from fogfleet.bench.record import write_record
 from fogfleet.bench.scheduling import format_table
 
 MODULE = "scene-segmentation"
+ANSWERED = re.compile(r"ExplanationRequest \S+ answered in (\d+) ms")
 Obj = dict[str, Any]
+LOCAL = "this checkout, --local"
 
 
 def _command(kube: Kube, ns: str, fleet: str, robot: str) -> list[str]:
@@ -66,8 +74,9 @@ def _command(kube: Kube, ns: str, fleet: str, robot: str) -> list[str]:
     ]
 
 
-def _wall(args: list[str], operator_dir: Path | None) -> float:
-    """Seconds of ``python ARGS`` in a new process (``operator_dir`` first on its path)."""
+def _wall(args: list[str], operator_dir: Path | None, answered: bool = False) -> float:
+    """Seconds of ``python ARGS`` in a new process (``operator_dir`` first on its path);
+    ``answered``: the operator must have answered (the plugin did not explain by itself)."""
     env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
     if operator_dir is not None:
         env["PYTHONPATH"] = str(operator_dir)
@@ -78,7 +87,15 @@ def _wall(args: list[str], operator_dir: Path | None) -> float:
     took = time.perf_counter() - t0
     if out.returncode != 0:
         raise RuntimeError(f"{' '.join(args[:4])} failed: {out.stderr[-400:]}")
+    if answered and "did not explain" in out.stderr:
+        raise RuntimeError(f"the operator did not answer: {out.stderr[-400:]}")
     return took
+
+
+def _answer_seconds(log_file: Path) -> list[float]:
+    """The seconds the operator took per answered request (``runtime.explanations``' log)."""
+    text = log_file.read_text(errors="replace") if log_file.exists() else ""
+    return [float(ms) / 1e3 for ms in ANSWERED.findall(text)]
 
 
 class TimedSource:
@@ -134,7 +151,7 @@ def _bench(args: argparse.Namespace, kube: Kube) -> list[Obj]:
     op = Operator(kube.kubeconfig, [ns], Path(tempfile.mkdtemp(prefix="fogfleet-why-")) / "op.log")
     robots = spec.fleet["spec"]["robots"]
     robot = robots[len(robots) // 2]
-    versions: list[tuple[str, Path | None]] = [("this checkout", None)]
+    versions: list[tuple[str, Path | None]] = [("this checkout", None), (LOCAL, None)]
     if args.baseline is not None:
         versions.append(("baseline", args.baseline))
     rows: dict[str, list[float]] = {name: [] for name, _ in versions}
@@ -155,16 +172,19 @@ def _bench(args: argparse.Namespace, kube: Kube) -> list[Obj]:
         imports = [_wall(["-m", "fogfleet.commandline.kubectl", "--help"], None)]
         for k in range(args.runs):
             for name, where in versions if k % 2 == 0 else versions[::-1]:
-                rows[name].append(_wall(command, where))
+                argv = [*command, "--local"] if name == LOCAL else command
+                rows[name].append(_wall(argv, where, answered=name == "this checkout"))
             phases.append(_phases(kube, ns, spec.fleet_name, robot))
             imports.append(_wall(["-m", "fogfleet.commandline.kubectl", "--help"], None))
     finally:
         teardown_cluster(kube, [ns])
         op.stop()
-    split = {
+    answers = _answer_seconds(op.log_path)
+    asked = {  # the asking command's: imports every command pays, the operator's answer
         "imports_s": round(statistics.median(imports), 2),
-        **{k: round(statistics.median(p.get(k, 0.0) for p in phases), 3) for k in phases[0]},
+        "answer_s": round(statistics.median(answers), 3) if answers else None,
     }
+    local = {k: round(statistics.median(p.get(k, 0.0) for p in phases), 3) for k in phases[0]}
     return [
         {
             "version": name if where is None else f"{name} ({where})",
@@ -175,7 +195,8 @@ def _bench(args: argparse.Namespace, kube: Kube) -> list[Obj]:
             "why_s_median": round(statistics.median(rows[name]), 2),
             "why_s_min": round(min(rows[name]), 2),
             "why_s_max": round(max(rows[name]), 2),
-            **(split if where is None else {}),  # the split is this checkout's, in-process
+            # in-process splits of this checkout's two ways
+            **(asked if name == "this checkout" else local if name == LOCAL else {}),
         }
         for name, where in versions
     ]
