@@ -158,8 +158,9 @@ def _bench(args: argparse.Namespace, kube: Kube) -> list[Obj]:
     phases: list[dict[str, float]] = []
     try:
         setup_cluster(kube, [spec])
-        op.start().wait_live()
+        # the namespace first: a namespace created while kopf starts may never be watched
         create_namespace(kube, ns)
+        op.start().wait_live()
         server_side_apply(kube, spec.modules_in(ns), "fogfleet-bench")
         watcher = Watcher(kube, ns, spec.pods)
         try:

@@ -11,6 +11,7 @@ Pure: it imports no Kubernetes, kopf or Prometheus client code.
     snapshot.py  FleetSnapshot, from listed objects or a folder's catalog
     problem.py   problem_of and its steps (build), what-ifs, refusals
     site.py      several fleets planned as one site, in numbered steps
+    live.py      a fleet with its deployed placement (Live), and why each instance runs there
 """
 
 from .objects import fleet_key
