@@ -161,10 +161,13 @@ BENCH_ABOUT = {
     ),
     "why-live": (
         "`kubectl fogfleet why` on a contended 1000-robot fleet (100 edges short of CPU) whose "
-        "8000 module pods run on kwok nodes, as users run it: a new process reading the API "
-        "server, median over the runs, beside a baseline checkout in alternating order; for "
-        "this checkout, in-process: its imports, the API reads, the problem build and the "
-        "explanation (e2e/bench/why_live.py; issue 46's target: under 2 s)."
+        "8000 module pods run on kwok nodes, as users run it: a new process that asks the "
+        "operator (an ExplanationRequest answered from the plan it holds), median over the "
+        "runs, beside the same command with --local (explained by the plugin from the API's "
+        "objects) and a baseline checkout, in alternating order; for this checkout, "
+        "in-process: its imports and the operator's answer seconds, and the --local read split "
+        "into the API reads, the problem build and the explanation (e2e/bench/why_live.py; "
+        "issue 46's target: under 2 s)."
     ),
     "replan": (
         "A robot joining and an edge failing at several fleet sizes: the whole-fleet plan "
