@@ -33,8 +33,9 @@ class ExplanationPhase(StrEnum):
 
 
 class ExplanationFailure(StrEnum):
-    """Why a request failed: the asker explains by itself in the first two cases."""
+    """Why a request failed: the asker explains by itself, but for an invalid request."""
 
     NO_PLAN_HELD = "NoPlanHeld"  # not planned yet, placed by kube-scheduler, not watched
     FLEET_NOT_FOUND = "FleetNotFound"
     INVALID_REQUEST = "InvalidRequest"  # no such module or robot in the fleet's plan
+    TOO_LARGE = "TooLarge"  # the answer would not fit in an object: the asker explains

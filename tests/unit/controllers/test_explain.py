@@ -109,3 +109,14 @@ def test_a_new_request_is_answered_once_and_an_old_answer_expires(kube, planned,
     asyncio.run(answered_then_expired())
     assert len(kube.explanations) == 1
     assert kube.deleted == ["ExplanationRequest/warehouse/why-abc"]
+
+
+def test_an_answer_too_large_for_an_object_is_failed_so_the_asker_explains(
+    kube, planned, monkeypatch
+):
+    monkeypatch.setattr(explain, "ANSWER_BYTES", 2048)
+    request = _request("scene-segmentation", robot=None)
+    status = explain.answer(kube, planned.store, request, NOW)
+    assert (status["phase"], status["reason"]) == ("Failed", "TooLarge")
+    assert "KiB" in status["message"] and "--robot" in status["message"]
+    assert "explanation" not in status

@@ -12,6 +12,7 @@ module) is Failed with the reason, and the plugin explains from the API's object
 
 from __future__ import annotations
 
+import json
 import math
 from dataclasses import replace
 from typing import Any
@@ -37,6 +38,9 @@ __all__ = ["REQUEST_TTL_SECONDS", "answer", "held_plan"]
 
 Obj = dict[str, Any]
 REQUEST_TTL_SECONDS = 600.0  # an answered request the asker left behind is deleted after this
+# the largest explanation written into a status: etcd takes requests up to 1.5 MiB, and a
+# module of every robot on a large site (50 instances x 100 nodes x 8 objectives) exceeds it
+ANSWER_BYTES = 512 * 1024
 
 
 def held_plan(inputs: FleetInputs, planned: Planned) -> Live | None:
@@ -83,11 +87,20 @@ def answer(kube: KubePort, store: FleetStore, body: Obj, now: float) -> Obj:
         why = why_of(live, spec.module, spec.robot, spec.limit)
     except InvalidSpec as exc:
         return _failed(ExplanationFailure.INVALID_REQUEST, exc.message, now)
+    doc = _finite(why_doc(why))
+    size = len(json.dumps(doc, separators=(",", ":")))
+    if size > ANSWER_BYTES:
+        return _failed(
+            ExplanationFailure.TOO_LARGE,
+            f"the answer would take {size // 1024} KiB, over the {ANSWER_BYTES // 1024} KiB "
+            "a request's status holds; ask for one robot (--robot) or fewer (--limit)",
+            now,
+        )
     return {
         "phase": ExplanationPhase.ANSWERED.value,
         "answeredTime": timestamp(now),
         "planGeneration": live.fleet.metadata.generation,
-        "explanation": _finite(why_doc(why)),
+        "explanation": doc,
         "sharedNodes": room_note(live.problem, live.snapshot.held) or None,
     }
 

@@ -63,6 +63,7 @@ def test_the_operators_answer_is_printed_and_nothing_is_listed(capsys) -> None:
     [
         (None, None, "no answer within 5 s"),
         ({"phase": "Failed", "reason": "NoPlanHeld", "message": "holds no plan"}, None, "no plan"),
+        ({"phase": "Failed", "reason": "TooLarge", "message": "take 900 KiB"}, None, "900 KiB"),
         (None, DependencyUnavailable("Cannot ask: forbidden; check the RBAC"), "forbidden"),
     ],
 )
