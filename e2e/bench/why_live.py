@@ -158,7 +158,8 @@ def _bench(args: argparse.Namespace, kube: Kube) -> list[Obj]:
     phases: list[dict[str, float]] = []
     try:
         setup_cluster(kube, [spec])
-        # the namespace first: a namespace created while kopf starts may never be watched
+        # the namespace first, as a user's exists before the operator serves it (kopf's
+        # namespace discovery can miss one created during its start: docs/limits.md)
         create_namespace(kube, ns)
         op.start().wait_live()
         server_side_apply(kube, spec.modules_in(ns), "fogfleet-bench")

@@ -57,3 +57,14 @@ def test_with_the_watch_caches_kopf_watches_only_robotfleets_and_requests() -> N
         "nodes",
         "deployments",
     }
+
+
+def test_namespaces_given_by_name_are_watched_by_name_not_discovered() -> None:
+    """kopf's discovery misses a namespace created between its listing and its watch's own
+    listing (docs/limits.md); by name, there is no such gap. Patterns still need discovery."""
+    from fogfleet.runtime.handlers.lifecycle import configure_kopf
+
+    for namespaces, by_name in (("warehouse,lab", True), ("team-*", False), ("", False)):
+        kopf_settings = kopf.OperatorSettings()
+        configure_kopf(kopf_settings, Settings(namespaces=namespaces))
+        assert kopf_settings.scanning.disabled is by_name, namespaces

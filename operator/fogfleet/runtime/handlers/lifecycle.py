@@ -10,7 +10,7 @@ import kopf
 from fogfleet import GROUP
 from fogfleet.settings import Settings
 
-__all__ = ["cleanup", "configure_kopf", "login", "startup"]
+__all__ = ["cleanup", "configure_kopf", "login", "startup", "watches_by_name"]
 
 
 async def startup(settings: kopf.OperatorSettings, memo: Any, **_: Any) -> None:
@@ -49,3 +49,14 @@ def configure_kopf(kopf_settings: kopf.OperatorSettings, settings: Settings) -> 
     kopf_settings.networking.request_timeout = 60
     kopf_settings.peering.standalone = settings.standalone
     kopf_settings.peering.name = settings.peering_name
+    kopf_settings.scanning.disabled = watches_by_name(settings.namespaces)
+
+
+def watches_by_name(namespaces: list[str]) -> bool:
+    """Whether kopf watches the served namespaces by name instead of discovering them: when
+    every one is a name, not a pattern. kopf's namespace discovery lists the namespaces, then
+    starts a watch whose own first listing it ignores, so a namespace created between the two
+    is never served (docs/limits.md); a watch in a namespace that does not exist yet simply
+    waits for it. Discovery also follows CRDs created after the start: fogfleet's are
+    installed before it (crds/, the chart's templates)."""
+    return bool(namespaces) and not any(set(ns) & set("*?[]!") for ns in namespaces)
