@@ -34,8 +34,13 @@ def test_a_fractional_core_takes_the_rows_wall_time_and_only_its_share_of_cpu() 
 def test_a_whole_core_burns_without_sleeping(monkeypatch: pytest.MonkeyPatch) -> None:
     naps: list[float] = []
     monkeypatch.setattr(time, "sleep", naps.append)
+    mine = time.thread_time()
     cpu, wall = _cpu_and_wall(burn, 0.1, 1.0)
-    assert naps == [] and cpu >= 0.095 and wall >= 0.1, (naps, cpu, wall)
+    # the burner counts its process's CPU: what another thread of this process used meanwhile
+    # (a thread an earlier test left, waking up) ends the burn that much sooner in wall time
+    # (test-stress once: 0.100012 s of CPU in 0.099958 s)
+    others = max(cpu - (time.thread_time() - mine), 0.0)
+    assert naps == [] and cpu >= 0.095 and wall + others >= 0.1, (naps, cpu, wall, others)
 
 
 @pytest.mark.integration
