@@ -6,20 +6,20 @@ nodes (``scheduling.synthetic_fleet``, the proportions ``make bench-scale`` uses
 robots 8000 instances on 1400 nodes) is planned by NSGA-II with the operator's default
 settings two ways, in the same run:
 
-- *cold start*: the population as before issue 46 (the seed plans, then uniform random
-  plans) and the stall window of ``max(10, genes / 10)`` generations;
-- *warm start*: the repaired seed plans with a few genes re-drawn
-  (``operators.warm_population``) and ``convergence.WARM_GENERATIONS`` generations, what
-  ``plan`` does from ``operators.WARM_START_GENES`` genes on.
+- *priced plan*: the warm start (the repaired seed plans with a few genes re-drawn,
+  ``operators.warm_population``, and ``convergence.WARM_GENERATIONS`` generations, what
+  ``plan`` does from ``operators.WARM_START_GENES`` genes on), then the levelled plans and
+  the robot bound's priced plan (``configurations.priced_plan``) in the archive;
+- *warm start (before)*: the same without the priced plan, the search before it.
 
 Both end with the peak levelling and the Pareto local search. Columns: seconds and CPU
 seconds (median of ``runs`` on the first seed, one run on the others), generations, the best
 scalarised S on the front (``exact.scalarised``: multi-robot-edge-cloud-scheduling III-B's
 objectives weighted as the MILP weighs them) and the chosen plan's, the LP relaxation's bound
 (``exact.lp_bound``, a lower bound on any plan's S) and both gaps to it, the robot bound
-(``exact.robot_bound``: robots' instances are whole, which the LP ignores; a tighter lower
+(``configurations.robot_bound``: robots' instances are whole, which the LP ignores; a tighter lower
 bound, 2-4 % above the LP's on this fleet) and the best plan's gap to it, and the process's
-peak resident memory after the row (the warm start runs first, so its figure is its own; the
+peak resident memory after the row (the priced plan runs first, so its figure is its own; the
 LP bound is solved after both plans).
 """
 
@@ -36,14 +36,15 @@ from fogfleet.api.v1alpha1.robotfleet import SchedulerSettings
 from fogfleet.bench.scheduling import synthetic_fleet
 from fogfleet.domain.build import build_problem
 from fogfleet.domain.problem import Problem
-from fogfleet.scheduling.exact import lp_bound, robot_bound, scalarised
+from fogfleet.scheduling.configurations import robot_bound
+from fogfleet.scheduling.exact import lp_bound, scalarised
 from fogfleet.scheduling.schedule import Schedule
 from fogfleet.scheduling.solver import nsga2
 
 __all__ = ["EDGES_PER_ROBOT", "VARIANTS", "scale_plan_rows"]
 
 EDGES_PER_ROBOT = 0.4  # as e2e/bench/scale.py and bench.replan
-VARIANTS = (("warm start", True), ("cold start (before)", False))
+VARIANTS = (("priced plan", True), ("warm start (before)", False))
 Row = dict[str, Any]
 
 
@@ -53,14 +54,14 @@ def _peak_rss_mb() -> int:
 
 
 def _timed(
-    problem: Problem, seed: int, warm: bool, runs: int
+    problem: Problem, seed: int, priced: bool, runs: int
 ) -> tuple[Schedule, list[float], list[float]]:
     """The last of ``runs`` plans, and each run's wall and CPU seconds (on a machine shared
     with other work the CPU seconds say more about the planner than the wall ones)."""
     times, cpu, last = [], [], None
     for _ in range(runs):
         t0, c0 = time.perf_counter(), time.process_time()
-        last = nsga2(problem, SchedulerSettings(seed=seed), warm_start=warm)
+        last = nsga2(problem, SchedulerSettings(seed=seed), warm_start=True, priced=priced)
         times.append(time.perf_counter() - t0)
         cpu.append(time.process_time() - c0)
     assert last is not None
@@ -76,8 +77,8 @@ def scale_plan_rows(
         cat, fleet = synthetic_fleet(robots, max(2, math.ceil(EDGES_PER_ROBOT * robots)), seed)
         problem = build_problem(fleet, cat)
         done: list[tuple[Row, Schedule]] = []
-        for name, warm in VARIANTS:
-            s, times, cpu = _timed(problem, seed, warm, runs if n == 0 else 1)
+        for name, priced in VARIANTS:
+            s, times, cpu = _timed(problem, seed, priced, runs if n == 0 else 1)
             plans = s.pareto_placements if s.pareto_placements is not None else [s.placement]
             row: Row = {
                 "robots": robots,

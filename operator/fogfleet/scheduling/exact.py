@@ -32,7 +32,7 @@ from fogfleet.api.v1alpha1.objectives import ObjectiveName
 from fogfleet.domain.problem import Problem
 from fogfleet.errors import Infeasible, InvalidSpec
 
-from .heuristics import Fit, uncontended_miss
+from .heuristics import uncontended_miss
 from .objectives import UPLINK_SHARE, evaluate
 
 if TYPE_CHECKING:
@@ -50,7 +50,7 @@ __all__ = [
     "describe_weights",
     "fleet_weights",
     "lp_bound",
-    "robot_bound",
+    "pair_costs",
     "scalarised",
     "scalarised_plans",
     "solve_exact",
@@ -70,9 +70,6 @@ LINEAR = (*DEFAULT_WEIGHTS, ObjectiveName.COST.value)  # what the MILP can weigh
 F64 = NDArray[np.float64]
 I64 = NDArray[np.int64]
 MAX_PAIRS = 5000  # binary variables the exact solver accepts (the warehouse fleet has ~250)
-MAX_ON_BOARD = 12  # a robot's instances whose on/off-board configurations robot_bound lists
-LAMBDA_STEPS = 41  # prices of off-board CPU robot_bound tries (any price gives a bound)
-MAX_THRESHOLDS = 64  # robot peaks it tries (fewer: each interval counts its lower end)
 
 
 @dataclass(frozen=True)
@@ -158,7 +155,7 @@ def solve_exact(
 
     nv = n_pairs + 1  # and z, the peak utilisation (reserve)
     res = milp(
-        _costs(problem, w, pi, pj),
+        pair_costs(problem, w, pi, pj),
         constraints=_constraints(problem, pi, pj),
         integrality=np.append(np.zeros(n_pairs) if relax else np.ones(n_pairs), 0),
         bounds=Bounds(np.zeros(nv), np.append(np.ones(n_pairs), np.inf)),
@@ -196,7 +193,7 @@ def lp_bound(
     lb, ub = np.asarray(lc.lb, dtype=np.float64), np.asarray(lc.ub, dtype=np.float64)
     eq = lb == ub
     res = linprog(
-        _costs(problem, w, pi, pj),
+        pair_costs(problem, w, pi, pj),
         A_ub=A[~eq],
         b_ub=ub[~eq],
         A_eq=A[eq],
@@ -210,107 +207,9 @@ def lp_bound(
     return float(res.fun)
 
 
-def robot_bound(problem: Problem, weights: Mapping[str, float] | None = None) -> float | None:
-    """A lower bound on every plan's S that knows a robot's instances are whole: the
-    Lagrangian (configuration) bound of issue 46, or None where it does not apply (an instance
-    allowed on a robot other than its home, more than ``MAX_ON_BOARD`` instances on a robot,
-    or weights the MILP cannot linearise).
-
-    Each robot picks one *configuration*, the set of its instances on board, within its
-    capacity and uplink share; its peak utilisation u is a constant of the configuration, so
-    z >= the largest u chosen (threshold t). Off board, z >= the requested CPU summed over the
-    edge and cloud nodes / their capacity (a peak is at least the mean), priced at lambda:
-    for every t and lambda in [0, w_reserve], S >= sum over robots of the cheapest
-    configuration with u <= t at lambda + (w_reserve - lambda) t (weak duality). The LP
-    relaxation may instead put a fraction of a 4-core module on a 6-core robot and hold every
-    node at one peak: on the 1000-robot bench fleet this bound is 2-4 % above ``lp_bound``, so
-    the LP's gap says more about the LP than about the plan."""
-    w = dict(DEFAULT_WEIGHTS if weights is None else weights)
-    if set(w) - set(LINEAR):
-        return None
-    robots = np.flatnonzero(problem.tier == 0)
-    home = problem.home
-    on_robot = problem.allowed[:, robots]
-    others = on_robot & (robots[None, :] != home[:, None])
-    sizes = np.bincount(home[home >= 0], minlength=problem.n_nodes)[robots]
-    if others.any() or sizes.max(initial=0) > MAX_ON_BOARD or not problem.allowed.any(axis=1).all():
-        return None
-    pi, pj = np.nonzero(problem.allowed)
-    c = _costs(problem, w, pi, pj)
-    w_z, c = float(c[-1]), c[:-1]
-    remote = problem.tier[pj] > 0
-    cap = problem.capacity
-    c_rem = float(cap[problem.tier > 0, 0].sum())
-    req = problem.limits.cpu_request[pi, pj] / max(c_rem, 1e-12)
-    lambdas = np.linspace(0.0, w_z, LAMBDA_STEPS) if w_z > 0 else np.zeros(1)
-    # V[l, i]: instance i's cheapest pair at price lambdas[l] (off board, or any for a shared one)
-    V = np.empty((len(lambdas), problem.n_instances))
-    starts = np.searchsorted(pi, np.arange(problem.n_instances))  # pi is sorted
-    # a shared replica: its cheapest pair (its share of z left out: still a bound); a robot's
-    # own instance: its cheapest off-board pair
-    c_off = np.where(home[pi] < 0, c, np.where(remote, c, np.inf))
-    req_off = np.where(home[pi] < 0, 0.0, req)
-    for k, lam in enumerate(lambdas):
-        V[k] = np.minimum.reduceat(c_off + lam * req_off, starts)
-    shared = np.flatnonzero(home < 0)
-    const = V[:, shared].sum(axis=1)  # (L,)
-    fit = Fit(problem, problem.limits)
-    cost_home = np.full(problem.n_instances, np.inf)
-    at_home = (home[pi] >= 0) & (pj == home[pi])
-    cost_home[pi[at_home]] = c[at_home]
-    best_t: list[tuple[F64, F64]] = []  # per robot group: (U (R, K), F (L, R, K))
-    for size in np.unique(sizes):
-        group = robots[sizes == size]
-        if size == 0:  # robots with none of the fleet's instances: nothing to choose (u >= 0)
-            best_t.append((np.zeros((len(group), 1)), np.zeros((len(lambdas), len(group), 1))))
-            continue
-        inst = np.stack([np.flatnonzero(home == h) for h in group])
-        configs = np.array(list(np.ndindex(*(2,) * int(size))), dtype=bool).reshape(-1, size)
-        dem = fit.demand_at(inst.ravel(), np.repeat(group, size)).reshape(len(group), size, 3)
-        load = fit.reserve[group][:, None, :] + np.einsum("ks,rsq->rkq", configs.astype(float), dem)
-        traffic = (~configs).astype(float) @ problem.traffic[inst].T  # (K, R)
-        capg = cap[group][:, None, :]
-        ok = (load <= capg * (1 + 1e-9) + 1e-9).all(axis=2)
-        ok &= UPLINK_SHARE * problem.uplink_bandwidth[group][:, None] + 1e-6 >= traffic.T
-        ok &= (configs[None, :, :] <= np.isfinite(cost_home[inst])[:, None, :]).all(axis=2)
-        off_ok = np.isfinite(V[0][inst])[:, None, :] | configs[None, :, :]
-        ok &= off_ok.all(axis=2)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            util = np.where(capg > 0, load / np.where(capg > 0, capg, 1.0), 0.0).max(axis=2)
-        on_cost = np.where(
-            configs, np.where(np.isfinite(cost_home[inst]), cost_home[inst], 0.0)[:, None, :], 0.0
-        ).sum(axis=2)
-        off = np.where(np.isfinite(V[:, inst]), V[:, inst], 0.0)  # (L, R, s)
-        F = on_cost[None] + np.einsum("ks,lrs->lrk", (~configs).astype(float), off)
-        F = np.where(ok[None], F, np.inf)
-        best_t.append((np.where(ok, util, np.inf), F))
-    U_all = np.concatenate([u.ravel() for u, _ in best_t])
-    cuts = np.unique(U_all[np.isfinite(U_all)])
-    t_min = max(float(np.max([u.min(axis=1).max(initial=0.0) for u, _ in best_t])), 0.0)
-    cuts = cuts[cuts >= t_min - 1e-12]
-    if len(cuts) > MAX_THRESHOLDS:
-        cuts = np.quantile(cuts, np.linspace(0, 1, MAX_THRESHOLDS), method="lower")
-    # per group, each robot's configurations by rising peak and the cheapest so far at each
-    # price: the cheapest with u < b is then one look-up per robot, not a pass over all
-    ladders = []
-    for u, F in best_t:
-        order = np.argsort(u, axis=1)  # (R, K)
-        by_peak = np.take_along_axis(F, order[None], axis=2)
-        ladders.append((np.take_along_axis(u, order, axis=1), np.minimum.accumulate(by_peak, 2)))
-    bound = np.inf
-    for a, b in zip(cuts, np.append(cuts[1:], np.inf), strict=True):
-        # every t in [a, b): configurations with u < b allowed, z >= a
-        total = const.copy()
-        for peaks, cheapest in ladders:
-            below = (peaks < b - 1e-12).sum(axis=1)  # (R,) configurations allowed
-            at = np.take_along_axis(cheapest, np.maximum(below - 1, 0)[None, :, None], 2)[..., 0]
-            total += np.where(below > 0, at, np.inf).sum(axis=1)
-        bound = min(bound, float((total + (w_z - lambdas) * a).max()))
-    return bound if np.isfinite(bound) else None
-
-
-def _costs(problem: Problem, w: Mapping[str, float], pi: I64, pj: I64) -> F64:
-    """The cost of each pair's binary in S, then z's (the reserve weight)."""
+def pair_costs(problem: Problem, w: Mapping[str, float], pi: I64, pj: I64) -> F64:
+    """The cost of each pair's binary in S, then z's (the reserve weight); also the
+    configurations' costs of ``configurations.robot_dual``."""
     alloc = problem.limits
     n_r = max(int((problem.tier == 0).sum()), 1)
     genes = np.flatnonzero(problem.allowed.any(axis=1))

@@ -6,7 +6,7 @@ S is ``exact.scalarised``: multi-robot-edge-cloud-scheduling III-B's objectives 
 missed cycles, F1 on-board use, F4 reserve, and cost) weighted as the exact scheduler weighs
 them for the fleet (``exact.fleet_weights``). The bound is the tighter of
 
-- the robot bound (``exact.robot_bound``: each robot's instances are whole; ~1.5 s at 1000
+- the robot bound (``configurations.robot_bound``: each robot's instances are whole; ~1.5 s at 1000
   robots x 8 modules, where it is 2-4 % above the LP's), where it applies, and
 - the LP relaxation's optimum (``exact.lp_bound``), for fleets of at most ``LP_PAIRS``
   (instance, node) pairs (at 1000 robots the LP takes CPU minutes).
@@ -31,7 +31,8 @@ from numpy.typing import NDArray
 from fogfleet.domain.problem import Problem
 from fogfleet.errors import Infeasible
 
-from .exact import lp_bound, robot_bound, scalarised_plans
+from .configurations import robot_bound
+from .exact import lp_bound, scalarised_plans
 
 __all__ = ["LP_PAIRS", "PlanGap", "plan_gap"]
 
@@ -46,7 +47,7 @@ class PlanGap:
 
     value: float  # the best S found
     bound: float
-    kind: str  # "robot" (exact.robot_bound) or "lp" (exact.lp_bound)
+    kind: str  # "robot" (configurations.robot_bound) or "lp" (exact.lp_bound)
     deployed: float  # the deployed plan's S
 
     @property

@@ -41,7 +41,15 @@ from numpy.typing import NDArray
 from .heuristics import Fit
 from .problem import FIT_TOLERANCE, PlacementProblem
 
-__all__ = ["MISS_TOLERANCE", "WORK_CELLS", "Work", "level", "levelled_plans", "with_levelled"]
+__all__ = [
+    "MISS_TOLERANCE",
+    "WORK_CELLS",
+    "Work",
+    "level",
+    "levelled_plans",
+    "pack_off_board",
+    "with_levelled",
+]
 
 I64 = NDArray[np.int64]
 F64 = NDArray[np.float64]
@@ -249,6 +257,18 @@ def _pack(fit: Fit, loads: _Loads, pool: I64, allowed: NDArray[np.bool_], top: f
         u[j] += fit.demand[i, j]
     loads.u = u
     return out
+
+
+def pack_off_board(fit: Fit, x: I64, pool: I64, allowed: NDArray[np.bool_]) -> I64 | None:
+    """``x`` with the instances ``pool`` (unplaced in ``x``) packed on their ``allowed`` nodes by
+    step 4's LPT rule, every node up to its capacity; None where one fits nowhere
+    (``configurations.priced_plan``)."""
+    x = np.asarray(x, dtype=np.int64).copy()
+    packed = _pack(fit, _Loads(fit, x), pool, allowed, 1.0 + FIT_TOLERANCE)
+    if packed is None:
+        return None
+    x[pool] = packed
+    return x
 
 
 def _offload(fit: Fit, loads: _Loads, x: I64, remote_ok: NDArray[np.bool_], top: float) -> None:

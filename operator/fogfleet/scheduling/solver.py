@@ -25,6 +25,7 @@ from .bookkeeping import (
     binary_tournament,
 )
 from .choice import choose, non_dominated
+from .configurations import with_priced
 from .convergence import WARM_GENERATIONS, StallWatch, stall_window
 from .degrade import degrade
 from .exact import describe_weights, fleet_weights, scalarised, solve_exact
@@ -155,6 +156,7 @@ def nsga2(
     paper: bool = False,
     local_search: bool | None = None,
     warm_start: bool | None = None,
+    priced: bool = True,
     clock: Clock = time.perf_counter,
 ) -> Schedule:
     """NSGA-II over the gene spaces with the limits allocation.
@@ -175,6 +177,9 @@ def nsga2(
     the durations (``time.perf_counter`` unless a test steers it). ``warm_start`` (default:
     from ``operators.WARM_START_GENES`` genes on) starts the population around the seed plans
     and runs ``convergence.WARM_GENERATIONS`` generations (unless ``stallGenerations`` is set).
+    ``priced`` adds the robot bound's priced plan (``configurations.with_priced``) to what the
+    local search starts from (``False``: the search before issue 46's priced plan, for
+    ``fogfleet bench scale-plan``).
     """
     t0 = clock()
     if local_search is None:
@@ -214,6 +219,14 @@ def nsga2(
         X, F = with_levelled(
             clean, X[idx], F[idx], lambda: budget.over("levelling", LOCAL_SEARCH_SHARE)
         )
+        if priced:
+            X, F = with_priced(
+                clean,
+                X,
+                F,
+                exact_weights(problem, settings),
+                lambda: budget.over("priced plan", LOCAL_SEARCH_SHARE),
+            )
         X, F, n_local = pareto_local_search(
             clean, X, F, stop=lambda: budget.over("local search", LOCAL_SEARCH_SHARE)
         )

@@ -9,7 +9,8 @@ from fogfleet.bench.scheduling import synthetic_fleet
 from fogfleet.domain.build import build_problem
 from fogfleet.domain.problem import Problem
 from fogfleet.errors import InvalidSpec
-from fogfleet.scheduling.exact import lp_bound, robot_bound, scalarised, solve_exact
+from fogfleet.scheduling.configurations import robot_bound
+from fogfleet.scheduling.exact import lp_bound, scalarised, solve_exact
 from fogfleet.scheduling.objectives import constraints
 
 

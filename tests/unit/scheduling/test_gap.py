@@ -11,7 +11,8 @@ from fogfleet.api.loader import load_paths
 from fogfleet.bench.scheduling import synthetic_fleet
 from fogfleet.domain.build import build_problem
 from fogfleet.domain.problem import Problem
-from fogfleet.scheduling.exact import DEFAULT_WEIGHTS, lp_bound, robot_bound, solve_exact
+from fogfleet.scheduling.configurations import robot_bound
+from fogfleet.scheduling.exact import DEFAULT_WEIGHTS, lp_bound, solve_exact
 from fogfleet.scheduling.gap import PlanGap, plan_gap
 
 ROOT = Path(__file__).resolve().parents[3]

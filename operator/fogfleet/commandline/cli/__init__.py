@@ -150,9 +150,10 @@ BENCH_ABOUT = {
     ),
     "scale-plan": (
         "The first whole-fleet plan of a large fleet (default 1000 robots x 8 modules on 400 "
-        "edges), NSGA-II warm-started from the repaired seed plans against the cold start "
-        "used before, in the same run: seconds, best and chosen scalarised S against the LP "
-        "relaxation's bound, peak memory."
+        "edges), NSGA-II warm-started with the robot bound's priced plan in its archive "
+        "against the same search without it (before), in the same run: seconds, best and "
+        "chosen scalarised S against the LP relaxation's bound and the robot bound, peak "
+        "memory."
     ),
     "budget": (
         "The same first plan with spec.scheduler.timeBudgetMillis at several budgets: the "
