@@ -15,7 +15,7 @@ shared capacity) separates the robots, so for every threshold t on the robots' p
 fraction of a 4-core module on a 6-core robot and hold every node at one peak, so on the
 1000-robot bench fleet the robot bound is 3-4 % above ``exact.lp_bound``.
 
-``priced_plan`` is the Lagrangian heuristic of the same dual: every robot takes its cheapest
+``priced_plans`` is the Lagrangian heuristic of the same dual: every robot takes its cheapest
 configuration at the price and threshold where the bound is attained, and what runs off
 board is packed on the edge and cloud nodes by the LPT rule of ``levelling`` (most
 constrained, then largest first, each on the node whose peak after it is lowest). The bound
@@ -37,11 +37,11 @@ from fogfleet.domain.problem import Problem
 
 from .exact import DEFAULT_WEIGHTS, LINEAR, pair_costs
 from .heuristics import Fit
-from .levelling import MISS_TOLERANCE, pack_off_board
+from .levelling import MISS_TOLERANCE, node_peaks, pack_off_board
 from .objectives import UPLINK_SHARE
 from .problem import PlacementProblem
 
-__all__ = ["RobotDual", "priced_plan", "robot_bound", "robot_dual", "with_priced"]
+__all__ = ["RobotDual", "priced_plans", "robot_bound", "robot_dual", "with_priced"]
 
 F64 = NDArray[np.float64]
 I64 = NDArray[np.int64]
@@ -50,6 +50,7 @@ MAX_ON_BOARD = 12  # a robot's instances whose on/off-board configurations robot
 LAMBDA_STEPS = 41  # prices of off-board CPU robot_dual tries (any price gives a bound)
 MAX_THRESHOLDS = 64  # robot peaks it tries (fewer: each interval counts its lower end)
 EPS = 1e-12
+ROUNDS = 2  # configurations chosen again under the off-board peak at most once
 
 
 @dataclass(frozen=True)
@@ -73,14 +74,24 @@ class RobotDual:
     below: float
     groups: tuple[_Group, ...]
 
-    def on_board(self, n_instances: int) -> I64 | None:
-        """Each instance's robot where the bound's configurations keep it on board, -2 where
-        they send it off board (or it is shared); None where a robot has no configuration."""
+    @property
+    def prices(self) -> int:
+        """How many prices the dual tried (the last is the reserve's weight)."""
+        return int(self.groups[0].costs.shape[0]) if self.groups else 1
+
+    def on_board(
+        self, n_instances: int, price: int | None = None, below: float | None = None
+    ) -> I64 | None:
+        """Each instance's robot where the configurations cheapest at ``price`` among those
+        with a peak under ``below`` (default: where the bound is attained) keep it on board,
+        -2 where they send it off board (or it is shared); None where a robot has none."""
+        price = self.price if price is None else price
+        below = self.below if below is None else below
         x = np.full(n_instances, -2, dtype=np.int64)
         for g in self.groups:
             if not g.instances.size:
                 continue
-            cost = np.where(g.peaks < self.below - EPS, g.costs[self.price], np.inf)
+            cost = np.where(g.peaks < below - EPS, g.costs[price], np.inf)
             best = np.argmin(cost, axis=1)
             if not np.isfinite(cost[np.arange(len(g.robots)), best]).all():
                 return None
@@ -96,11 +107,13 @@ def robot_bound(problem: Problem, weights: Mapping[str, float] | None = None) ->
     return None if dual is None else dual.bound
 
 
-def robot_dual(problem: Problem, weights: Mapping[str, float] | None = None) -> RobotDual | None:
+def robot_dual(
+    problem: Problem, weights: Mapping[str, float] | None = None, fit: Fit | None = None
+) -> RobotDual | None:
     """The robot bound of the module docstring with its price and threshold, or None where it
     does not apply: an instance allowed on a robot other than its home, more than
     ``MAX_ON_BOARD`` instances on a robot, an instance with no node, or weights the MILP
-    cannot linearise."""
+    cannot linearise. ``fit``: the search's own (limits allocation), to reuse its tables."""
     w = dict(DEFAULT_WEIGHTS if weights is None else weights)
     if set(w) - set(LINEAR):
         return None
@@ -132,7 +145,7 @@ def robot_dual(problem: Problem, weights: Mapping[str, float] | None = None) -> 
     cost_home = np.full(problem.n_instances, np.inf)
     at_home = (home[pi] >= 0) & (pj == home[pi])
     cost_home[pi[at_home]] = c[at_home]
-    fit = Fit(problem, problem.limits)
+    fit = Fit(problem, problem.limits) if fit is None else fit
     groups = tuple(
         _configurations(problem, fit, robots[sizes == size], int(size), V, cost_home)
         for size in np.unique(sizes)
@@ -211,20 +224,42 @@ def _attained(groups: tuple[_Group, ...], lambdas: F64, const: F64, w_z: float) 
     return RobotDual(bound=best[0], price=best[1], below=best[2], groups=groups)
 
 
-def priced_plan(problem: Problem, fit: Fit, dual: RobotDual) -> I64 | None:
-    """The Lagrangian heuristic of the module docstring: the bound's configurations, the rest
-    packed off board; None where a robot has no configuration or the packing fails."""
-    x = dual.on_board(problem.n_instances)
-    if x is None:
-        return None
-    pool = np.flatnonzero(x == -2)
+def priced_plans(problem: Problem, fit: Fit, dual: RobotDual) -> list[I64]:
+    """The Lagrangian heuristic of the module docstring: the configurations where the bound
+    is attained, the rest packed off board. Where the packing fails (the edges cannot hold
+    what the price sends them), a higher price keeps more on board (three prices tried, up to
+    the reserve's weight); where a plan's robots run hotter than its edge and cloud nodes,
+    the configurations are chosen again under the off-board peak. Each distinct plan found
+    is returned."""
+    top = dual.prices - 1
+    prices = sorted({dual.price, (dual.price + top) // 2, top})
     remote = problem.allowed & ~fit.robots[None, :]
     # off board on the nodes that miss about as little as the best of them (as levelling)
     q = np.where(remote, fit.q, np.inf)
     near = remote & (q <= q.min(axis=1, initial=np.inf)[:, None] + MISS_TOLERANCE)
     # a shared instance that may run only on robots goes where it may
     allowed = np.where(remote.any(axis=1)[:, None], near, problem.allowed)
-    return pack_off_board(fit, x, pool, allowed)
+    plans: list[I64] = []
+    seen: set[bytes] = set()
+    for price in prices:
+        below = dual.below
+        for _ in range(ROUNDS):
+            start = dual.on_board(problem.n_instances, price, below)
+            if start is None or start.tobytes() in seen:
+                break
+            seen.add(start.tobytes())
+            x = pack_off_board(fit, start, np.flatnonzero(start == -2), allowed)
+            if x is None:
+                break
+            plans.append(x)
+            peaks = node_peaks(fit, x)
+            off_peak = float(peaks[~fit.robots].max(initial=0.0))
+            if float(peaks[fit.robots].max(initial=0.0)) <= off_peak + EPS:
+                break
+            below = off_peak + EPS  # robots no hotter than the edges
+        if plans:
+            return plans
+    return plans
 
 
 def with_priced(
@@ -234,20 +269,19 @@ def with_priced(
     weights: Mapping[str, float],
     stop: Callable[[], bool] | None = None,
 ) -> tuple[I64, F64]:
-    """The archive (genes, objectives) plus the priced plan under ``weights`` when it is
+    """The archive (genes, objectives) plus the priced plans under ``weights`` that are
     feasible (nothing added without ``reserve``, or where the robot bound does not apply);
     ``stop`` (the planning budget) skips it."""
     if "reserve" not in pp.names or (stop is not None and stop()):
         return X, F
-    dual = robot_dual(pp.fleet, weights)
+    dual = robot_dual(pp.fleet, weights, pp.fit)
     if dual is None:
         return X, F
-    x = priced_plan(pp.fleet, pp.fit, dual)
-    if x is None:
+    plans = priced_plans(pp.fleet, pp.fit, dual)
+    if not plans:
         return X, F
-    genes = x[None, pp.genes]
+    genes = np.stack(plans)[:, pp.genes]
     out: dict[str, F64] = {}
     pp._evaluate(genes, out)
-    if np.maximum(out["G"], 0.0).sum() > 1e-9:
-        return X, F
-    return np.concatenate([X, genes]), np.concatenate([F, out["F"]])
+    ok = np.maximum(out["G"], 0.0).sum(axis=1) <= 1e-9
+    return np.concatenate([X, genes[ok]]), np.concatenate([F, out["F"][ok]])

@@ -47,6 +47,7 @@ __all__ = [
     "Work",
     "level",
     "levelled_plans",
+    "node_peaks",
     "pack_off_board",
     "with_levelled",
 ]
@@ -257,6 +258,11 @@ def _pack(fit: Fit, loads: _Loads, pool: I64, allowed: NDArray[np.bool_], top: f
         u[j] += fit.demand[i, j]
     loads.u = u
     return out
+
+
+def node_peaks(fit: Fit, x: I64) -> F64:
+    """Each node's peak utilisation under the plan ``x`` (its reserve included)."""
+    return _Loads(fit, np.asarray(x, dtype=np.int64)).peak()
 
 
 def pack_off_board(fit: Fit, x: I64, pool: I64, allowed: NDArray[np.bool_]) -> I64 | None:

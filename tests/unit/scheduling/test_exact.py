@@ -5,11 +5,8 @@ import itertools
 import numpy as np
 import pytest
 
-from fogfleet.bench.scheduling import synthetic_fleet
-from fogfleet.domain.build import build_problem
 from fogfleet.domain.problem import Problem
 from fogfleet.errors import InvalidSpec
-from fogfleet.scheduling.configurations import robot_bound
 from fogfleet.scheduling.exact import lp_bound, scalarised, solve_exact
 from fogfleet.scheduling.objectives import constraints
 
@@ -94,20 +91,3 @@ def test_the_exact_scheduler_weighs_cost_when_the_fleet_lists_it() -> None:
     assert "cost" in s.choice_reason and "DEFAULT_WEIGHTS" not in s.choice_reason
     weighted = SchedulerSettings(algorithm="exact", weights=[{"objective": "cost", "weight": 2}])
     assert plan(p, weighted).placement.tolist() == [1]
-
-
-def test_robot_bound_lies_between_the_lp_bound_and_the_optimum() -> None:
-    # three copies of the warehouse robot on two edges: the LP puts part of a 4-core module
-    # on each 6-core robot, which no plan can (issue 46: the LP's gap is partly its own)
-    cat, fleet = synthetic_fleet(3, 2, 2)
-    p = build_problem(fleet, cat)
-    whole = robot_bound(p)
-    assert whole is not None
-    optimum = scalarised(p, solve_exact(p).placement)
-    assert lp_bound(p) * 1.03 < whole <= optimum + 1e-9
-
-
-def test_robot_bound_is_a_bound_on_the_tiny_fleet(tiny: Problem) -> None:
-    whole = robot_bound(tiny)
-    assert whole is not None
-    assert lp_bound(tiny) - 1e-9 <= whole <= solve_exact(tiny).value + 1e-9

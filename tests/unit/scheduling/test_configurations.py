@@ -1,0 +1,106 @@
+"""scheduling.configurations: the robot bound and its priced plan (issue 46)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from fogfleet.api.v1alpha1.robotfleet import SchedulerSettings
+from fogfleet.bench.scheduling import synthetic_fleet
+from fogfleet.domain.build import build_problem
+from fogfleet.domain.problem import Problem
+from fogfleet.scheduling.configurations import priced_plans, robot_bound, robot_dual
+from fogfleet.scheduling.exact import lp_bound, scalarised, scalarised_plans, solve_exact
+from fogfleet.scheduling.heuristics import Fit
+from fogfleet.scheduling.objectives import constraints
+from fogfleet.scheduling.solver import nsga2
+
+
+def test_robot_bound_lies_between_the_lp_bound_and_the_optimum() -> None:
+    # three copies of the warehouse robot on two edges: the LP puts part of a 4-core module
+    # on each 6-core robot, which no plan can (issue 46: the LP's gap is partly its own)
+    cat, fleet = synthetic_fleet(3, 2, 2)
+    p = build_problem(fleet, cat)
+    whole = robot_bound(p)
+    assert whole is not None
+    optimum = scalarised(p, solve_exact(p).placement)
+    assert lp_bound(p) * 1.03 < whole <= optimum + 1e-9
+
+
+def test_robot_bound_is_a_bound_on_the_tiny_fleet(tiny: Problem) -> None:
+    whole = robot_bound(tiny)
+    assert whole is not None
+    assert lp_bound(tiny) - 1e-9 <= whole <= solve_exact(tiny).value + 1e-9
+
+
+def _priced(p: Problem) -> tuple[np.ndarray, float]:
+    dual = robot_dual(p)
+    assert dual is not None
+    plans = priced_plans(p, Fit(p, p.limits), dual)
+    assert plans
+    return plans[0], dual.bound
+
+
+def test_the_priced_plan_is_feasible_and_keeps_the_bounds_configurations() -> None:
+    cat, fleet = synthetic_fleet(30, 12, 1)
+    p = build_problem(fleet, cat)
+    dual = robot_dual(p)
+    assert dual is not None
+    x, bound = _priced(p)
+    assert (x >= 0).all() and p.allowed[np.arange(p.n_instances), x].all()
+    assert (constraints(p, x[None, :], p.limits) <= 1e-9).all()  # capacity, uplink
+    on_board = dual.on_board(p.n_instances)
+    assert on_board is not None
+    kept = on_board >= 0
+    assert kept.any() and (x[kept] == on_board[kept]).all()
+    # what the bound sent off board runs off board
+    assert (p.tier[x[~kept & (p.home >= 0)]] > 0).all()
+    assert bound <= scalarised(p, x) + 1e-9
+
+
+def test_the_priced_plan_is_near_the_optimum_where_the_optimum_is_known() -> None:
+    cat, fleet = synthetic_fleet(3, 2, 2)
+    p = build_problem(fleet, cat)
+    x, bound = _priced(p)
+    optimum = solve_exact(p).value
+    assert bound <= optimum + 1e-9 <= scalarised(p, x) + 1e-9
+    # two edges pack coarsely: measured 4.5 % above the optimum
+    assert scalarised(p, x) <= 1.05 * optimum
+
+
+def test_a_packing_that_fails_at_the_bounds_price_is_found_at_a_higher_one() -> None:
+    # 40 robots on 16 edges, seed 4: the bound is attained at about half the reserve's
+    # weight, where the robots send the edges more than they hold
+    cat, fleet = synthetic_fleet(40, 16, 4)
+    p = build_problem(fleet, cat)
+    dual = robot_dual(p)
+    assert dual is not None and dual.price < dual.prices - 1
+    plans = priced_plans(p, Fit(p, p.limits), dual)
+    assert plans
+    at_bound = dual.on_board(p.n_instances)
+    assert at_bound is not None
+    own = np.flatnonzero(p.home >= 0)
+    at_home = p.limits.cpu_request[own, p.home[own]]
+
+    def sent_off(x: np.ndarray) -> float:
+        """The robots' CPU that ``x`` sends off board (as requested at home)."""
+        return float(at_home[x[own] != p.home[own]].sum())
+
+    for x in plans:
+        assert (constraints(p, x[None, :], p.limits) <= 1e-9).all()
+        # the robots send the edges less than at the bound's price
+        assert sent_off(x) < sent_off(at_bound)
+
+
+def test_nsga2_ends_nearer_the_bound_with_the_priced_plan() -> None:
+    cat, fleet = synthetic_fleet(40, 16, 1)
+    p = build_problem(fleet, cat)
+    bound = robot_bound(p)
+    assert bound is not None
+    best = {}
+    for priced in (True, False):
+        s = nsga2(p, SchedulerSettings(seed=1), warm_start=True, priced=priced)
+        assert s.pareto_placements is not None
+        best[priced] = float(scalarised_plans(p, s.pareto_placements).min())
+    gap = {k: 100 * (v - bound) / bound for k, v in best.items()}
+    assert gap[True] < 1.0, gap  # measured 0.35 %
+    assert gap[False] > gap[True] + 0.5, gap  # measured 1.36 %
