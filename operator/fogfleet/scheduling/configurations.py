@@ -268,20 +268,21 @@ def with_priced(
     F: F64,
     weights: Mapping[str, float],
     stop: Callable[[], bool] | None = None,
-) -> tuple[I64, F64]:
+) -> tuple[I64, F64, float | None]:
     """The archive (genes, objectives) plus the priced plans under ``weights`` that are
-    feasible (nothing added without ``reserve``, or where the robot bound does not apply);
-    ``stop`` (the planning budget) skips it."""
+    feasible (nothing added without ``reserve``, or where the robot bound does not apply),
+    and the robot bound under ``weights`` (None where not computed); ``stop`` (the planning
+    budget) skips it."""
     if "reserve" not in pp.names or (stop is not None and stop()):
-        return X, F
+        return X, F, None
     dual = robot_dual(pp.fleet, weights, pp.fit)
     if dual is None:
-        return X, F
+        return X, F, None
     plans = priced_plans(pp.fleet, pp.fit, dual)
     if not plans:
-        return X, F
+        return X, F, dual.bound
     genes = np.stack(plans)[:, pp.genes]
     out: dict[str, F64] = {}
     pp._evaluate(genes, out)
     ok = np.maximum(out["G"], 0.0).sum(axis=1) <= 1e-9
-    return np.concatenate([X, genes[ok]]), np.concatenate([F, out["F"][ok]])
+    return np.concatenate([X, genes[ok]]), np.concatenate([F, out["F"][ok]]), dual.bound

@@ -221,7 +221,7 @@ def _gap(
         return None
     w = exact_weights(problem, settings)
     try:
-        return plan_gap(problem, chosen, w, schedule.pareto_placements)
+        return plan_gap(problem, chosen, w, schedule.pareto_placements, schedule.robot_bound)
     except Exception:  # a report: its bug must not keep a fleet from its plan
         log.exception("The plan's gap could not be computed (a bug: please report it)")
         return None

@@ -85,16 +85,18 @@ def plan_gap(
     placement: NDArray[np.integer],
     weights: Mapping[str, float],
     front: NDArray[np.integer] | None = None,
+    robot: float | None = None,
 ) -> PlanGap | None:
     """The gap of ``placement`` (limits allocation) and of the best plan of ``front`` (the
     search's Pareto front, (K, I)) under ``weights``; None where no bound applies or an
-    instance with a node is unplaced."""
+    instance with a node is unplaced. ``robot``: the robot bound under ``weights`` where the
+    search computed it already (``Schedule.robot_bound``)."""
     x = np.asarray(placement, dtype=np.int64)
     placeable = problem.allowed.any(axis=1)
     if (x[placeable] < 0).any():
         return None
     bounds: list[tuple[float, str]] = []
-    whole = robot_bound(problem, weights)
+    whole = robot_bound(problem, weights) if robot is None else robot
     if whole is not None:
         bounds.append((whole, "robot"))
     if int(problem.allowed.sum()) <= LP_PAIRS:

@@ -69,6 +69,9 @@ class Schedule:
     # the time budget cut the search short (not: it converged, or ran every generation)
     time_budget_reached: bool = False
     budget_cut: tuple[str, ...] = ()  # the stages it cut, in order ("evolution", "levelling")
+    # the robot bound under the fleet's exact weights, where the search priced a plan with it
+    # (``configurations.with_priced``): the plan's gap then needs no second computation
+    robot_bound: float | None = None
 
     @property
     def degraded_instances(self) -> int:

@@ -214,13 +214,14 @@ def nsga2(
     cv = np.maximum(G, 0.0).sum(axis=1)
     feasible = cv <= 1e-9
     n_local = 0
+    bound = None
     if feasible.any() and local_search:
         idx = np.flatnonzero(feasible)
         X, F = with_levelled(
             clean, X[idx], F[idx], lambda: budget.over("levelling", LOCAL_SEARCH_SHARE)
         )
         if priced:
-            X, F = with_priced(
+            X, F, bound = with_priced(
                 clean,
                 X,
                 F,
@@ -296,6 +297,7 @@ def nsga2(
         generations=generations,
         time_budget_reached=bool(budget.cut),
         budget_cut=tuple(budget.cut),
+        robot_bound=bound,
         evaluations=n_eval + n_local,
         duration_seconds=spent,
     )

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from fogfleet.api.v1alpha1.robotfleet import SchedulerSettings
 from fogfleet.bench.scheduling import synthetic_fleet
@@ -12,7 +13,7 @@ from fogfleet.scheduling.configurations import priced_plans, robot_bound, robot_
 from fogfleet.scheduling.exact import lp_bound, scalarised, scalarised_plans, solve_exact
 from fogfleet.scheduling.heuristics import Fit
 from fogfleet.scheduling.objectives import constraints
-from fogfleet.scheduling.solver import nsga2
+from fogfleet.scheduling.solver import exact_weights, nsga2
 
 
 def test_robot_bound_lies_between_the_lp_bound_and_the_optimum() -> None:
@@ -97,10 +98,14 @@ def test_nsga2_ends_nearer_the_bound_with_the_priced_plan() -> None:
     bound = robot_bound(p)
     assert bound is not None
     best = {}
+    settings = SchedulerSettings(seed=1)
     for priced in (True, False):
-        s = nsga2(p, SchedulerSettings(seed=1), warm_start=True, priced=priced)
+        s = nsga2(p, settings, warm_start=True, priced=priced)
         assert s.pareto_placements is not None
         best[priced] = float(scalarised_plans(p, s.pareto_placements).min())
+        # the bound the search priced with is the status gap's, so it is not computed twice
+        weighted = robot_bound(p, exact_weights(p, settings))
+        assert s.robot_bound == (pytest.approx(weighted) if priced else None)
     gap = {k: 100 * (v - bound) / bound for k, v in best.items()}
     assert gap[True] < 1.0, gap  # measured 0.35 %
     assert gap[False] > gap[True] + 0.5, gap  # measured 1.36 %
