@@ -217,17 +217,17 @@ def nsga2(
     bound = None
     if feasible.any() and local_search:
         idx = np.flatnonzero(feasible)
-        X, F = with_levelled(
-            clean, X[idx], F[idx], lambda: budget.over("levelling", LOCAL_SEARCH_SHARE)
-        )
         if priced:
             X, F, bound = with_priced(
                 clean,
-                X,
-                F,
+                X[idx],
+                F[idx],
                 exact_weights(problem, settings),
                 lambda: budget.over("priced plan", LOCAL_SEARCH_SHARE),
             )
+        else:
+            X, F = X[idx], F[idx]
+        X, F = with_levelled(clean, X, F, lambda: budget.over("levelling", LOCAL_SEARCH_SHARE))
         X, F, n_local = pareto_local_search(
             clean, X, F, stop=lambda: budget.over("local search", LOCAL_SEARCH_SHARE)
         )
