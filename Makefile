@@ -138,7 +138,7 @@ bench: venv ## Benchmarks of the pure core: scheduling (misses, MILP gap, decisi
 bench-replan: venv ## A robot joining and an edge failing at 100, 300 and 1000 robots: whole-fleet vs incremental re-plan (seconds, moves, miss rate; ~10 min)
 	$(BIN)/fogfleet bench replan --robots $(or $(SIZES),100,300,1000) --runs 3
 
-bench-scale-plan: venv ## The first whole-fleet plan of 1000 robots (8000 instances, 1400 nodes), warm vs cold start, gap to the LP bound on seeds 1-5, peak memory; writes bench-scale-plan.json (~25 min)
+bench-scale-plan: venv ## The first whole-fleet plan of 1000 robots (8000 instances, 1400 nodes), with and without the robot bound's priced plan, gaps to the LP bound and the robot bound on seeds 1-5, peak memory; writes bench-scale-plan.json (~25 min)
 	$(BIN)/fogfleet bench scale-plan --robots $(or $(SIZES),1000) --runs 3 --record bench-scale-plan.json
 
 bench-plan-budget: venv ## The first plan of 1000 robots at timeBudgetMillis 5, 8, 12 and 20 s (3 runs each): the planner's seconds against the budget, the stages it cut, the gap to the robot bound; writes bench-plan-budget.json (~5 min)
