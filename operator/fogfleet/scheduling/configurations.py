@@ -22,7 +22,8 @@ constrained, then largest first, each on the node whose peak after it is lowest)
 prices off-board CPU as if it spread perfectly; the packing pays only its imbalance. On the
 1000-robot bench fleet its plan is within 1-1.3 % of the bound, where NSGA-II's warm start
 alone ended 1.4-3.2 % above it (``fogfleet bench scale-plan``). ``with_priced`` adds it to
-the search's archive before the Pareto local search polishes the archive.
+the search's archive before the levelling (which a warm-started fleet with a priced plan
+skips, ``solver.nsga2``) and the Pareto local search that polishes the archive.
 """
 
 from __future__ import annotations
