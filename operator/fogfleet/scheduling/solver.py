@@ -50,7 +50,7 @@ ENUMERATE_LIMIT = 20_000  # plans; smaller search spaces are enumerated exactly
 # budget the plan depends only on the inputs and the seed. At 1000 robots the stages after the
 # evolution took ~40 % of the plan (levelling 3.2 s, local search 0.9 s, polish 1.0 s of 14 s).
 EVOLUTION_SHARE = 0.6
-LOCAL_SEARCH_SHARE = 0.9  # the levelling and the local search
+LOCAL_SEARCH_SHARE = 0.9  # the priced plans, the levelling and the local search
 POLISH_SHARE = 0.97
 OVER_BUDGET = 1.1  # a search past this multiple of its budget says why in its reason
 
