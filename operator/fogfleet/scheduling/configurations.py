@@ -109,12 +109,17 @@ def robot_bound(problem: Problem, weights: Mapping[str, float] | None = None) ->
 
 
 def robot_dual(
-    problem: Problem, weights: Mapping[str, float] | None = None, fit: Fit | None = None
+    problem: Problem,
+    weights: Mapping[str, float] | None = None,
+    fit: Fit | None = None,
+    stop: Callable[[], bool] | None = None,
 ) -> RobotDual | None:
     """The robot bound of the module docstring with its price and threshold, or None where it
     does not apply: an instance allowed on a robot other than its home, more than
     ``MAX_ON_BOARD`` instances on a robot, an instance with no node, or weights the MILP
-    cannot linearise. ``fit``: the search's own (limits allocation), to reuse its tables."""
+    cannot linearise. ``fit``: the search's own (limits allocation), to reuse its tables;
+    ``stop`` (the planning budget) is asked between the steps and ends it with None."""
+    halt = stop or (lambda: False)
     w = dict(DEFAULT_WEIGHTS if weights is None else weights)
     if set(w) - set(LINEAR):
         return None
@@ -142,16 +147,19 @@ def robot_dual(
     req_off = np.where(home[pi] < 0, 0.0, req)
     for k, lam in enumerate(lambdas):
         V[k] = np.minimum.reduceat(c_off + lam * req_off, starts)
+    if halt():
+        return None
     const = V[:, np.flatnonzero(home < 0)].sum(axis=1)  # (L,)
     cost_home = np.full(problem.n_instances, np.inf)
     at_home = (home[pi] >= 0) & (pj == home[pi])
     cost_home[pi[at_home]] = c[at_home]
     fit = Fit(problem, problem.limits) if fit is None else fit
-    groups = tuple(
-        _configurations(problem, fit, robots[sizes == size], int(size), V, cost_home)
-        for size in np.unique(sizes)
-    )
-    return _attained(groups, lambdas, const, w_z)
+    groups = []
+    for size in np.unique(sizes):
+        if halt():
+            return None
+        groups.append(_configurations(problem, fit, robots[sizes == size], int(size), V, cost_home))
+    return _attained(tuple(groups), lambdas, const, w_z, halt)
 
 
 def _configurations(
@@ -190,9 +198,12 @@ def _configurations(
     return _Group(group, inst, configs, np.where(ok, util, np.inf), np.where(ok[None], F, np.inf))
 
 
-def _attained(groups: tuple[_Group, ...], lambdas: F64, const: F64, w_z: float) -> RobotDual | None:
+def _attained(
+    groups: tuple[_Group, ...], lambdas: F64, const: F64, w_z: float, halt: Callable[[], bool]
+) -> RobotDual | None:
     """The bound: for each interval [a, b) of robot peaks, the best price; the least of
-    those over the intervals (every plan's z lies in one of them)."""
+    those over the intervals (every plan's z lies in one of them). None where ``halt``
+    says to stop."""
     U_all = np.concatenate([g.peaks.ravel() for g in groups])
     cuts = np.unique(U_all[np.isfinite(U_all)])
     t_min = max(float(np.max([g.peaks.min(axis=1).max(initial=0.0) for g in groups])), 0.0)
@@ -210,6 +221,8 @@ def _attained(groups: tuple[_Group, ...], lambdas: F64, const: F64, w_z: float) 
         )
     best: tuple[float, int, float] = (np.inf, 0, np.inf)
     for a, b in zip(cuts, np.append(cuts[1:], np.inf), strict=True):
+        if halt():
+            return None
         # every t in [a, b): configurations with u < b allowed, z >= a
         total = const.copy()
         for peaks, cheapest in ladders:
@@ -225,15 +238,19 @@ def _attained(groups: tuple[_Group, ...], lambdas: F64, const: F64, w_z: float) 
     return RobotDual(bound=best[0], price=best[1], below=best[2], groups=groups)
 
 
-def priced_plans(problem: Problem, fit: Fit, dual: RobotDual) -> list[I64]:
+def priced_plans(
+    problem: Problem, fit: Fit, dual: RobotDual, stop: Callable[[], bool] | None = None
+) -> list[I64]:
     """The Lagrangian heuristic of the module docstring: the configurations where the bound
     is attained, the rest packed off board. Where the packing fails (the edges cannot hold
     what the price sends them), a higher price keeps more on board (three prices tried, up to
     the reserve's weight); where a plan's robots run hotter than its edge and cloud nodes,
     the configurations are chosen again under the off-board peak. Each distinct plan found
-    is returned."""
+    is returned; ``stop`` (the planning budget) is asked first and before each packing."""
     top = dual.prices - 1
     prices = sorted({dual.price, (dual.price + top) // 2, top})
+    if stop is not None and stop():  # before the (I, N) tables below (~1 s at 1000 robots)
+        return []
     remote = problem.allowed & ~fit.robots[None, :]
     # off board on the nodes that miss about as little as the best of them (as levelling)
     q = np.where(remote, fit.q, np.inf)
@@ -249,6 +266,8 @@ def priced_plans(problem: Problem, fit: Fit, dual: RobotDual) -> list[I64]:
             if start is None or start.tobytes() in seen:
                 break
             seen.add(start.tobytes())
+            if stop is not None and stop():
+                return plans
             x = pack_off_board(fit, start, np.flatnonzero(start == -2), allowed)
             if x is None:
                 break
@@ -273,13 +292,14 @@ def with_priced(
     """The archive (genes, objectives) plus the priced plans under ``weights`` that are
     feasible (nothing added without ``reserve``, or where the robot bound does not apply),
     and the robot bound under ``weights`` (None where not computed); ``stop`` (the planning
-    budget) skips it."""
+    budget) skips or ends it (the bound and the packings ask it between their steps, so a
+    budget is overrun by one step at most)."""
     if "reserve" not in pp.names or (stop is not None and stop()):
         return X, F, None
-    dual = robot_dual(pp.fleet, weights, pp.fit)
+    dual = robot_dual(pp.fleet, weights, pp.fit, stop)
     if dual is None:
         return X, F, None
-    plans = priced_plans(pp.fleet, pp.fit, dual)
+    plans = priced_plans(pp.fleet, pp.fit, dual, stop)
     if not plans:
         return X, F, dual.bound
     genes = np.stack(plans)[:, pp.genes]

@@ -32,6 +32,15 @@ class Budget:
         """The ``clock()`` value at which a stage given ``share`` of the budget stops."""
         return self.start + share * self.seconds
 
+    def fits(self, stage: str, share: float, seconds: float) -> bool:
+        """Whether ``stage``, expected to take about ``seconds`` and not cut finely, ends
+        within ``share`` of the budget if it starts now; when not it is recorded as cut."""
+        if self.clock() + seconds <= self.ends(share):
+            return True
+        if stage not in self.cut:
+            self.cut.append(stage)
+        return False
+
     def over(self, stage: str, share: float) -> bool:
         """Whether ``stage``, given ``share`` of the budget, must stop now (recorded once)."""
         if self.clock() <= self.ends(share):

@@ -51,6 +51,10 @@ ENUMERATE_LIMIT = 20_000  # plans; smaller search spaces are enumerated exactly
 # evolution took ~40 % of the plan (levelling 3.2 s, local search 0.9 s, polish 1.0 s of 14 s).
 EVOLUTION_SHARE = 0.6
 LOCAL_SEARCH_SHARE = 0.9  # the priced plans, the levelling and the local search
+# the priced plans' seconds per allowed (instance, node) pair: at 1000 robots (2.4 M pairs)
+# the bound and the packing took 2-2.8 s on a 2-core machine, asked whether to stop only
+# between steps of up to ~1.2 s, so they start only where this much of the budget is left
+PRICED_SECONDS_PER_PAIR = 1e-6
 POLISH_SHARE = 0.97
 OVER_BUDGET = 1.1  # a search past this multiple of its budget says why in its reason
 
@@ -220,7 +224,10 @@ def nsga2(
         idx = np.flatnonzero(feasible)
         X, F = X[idx], F[idx]
         searched = len(X)
-        if priced:
+        pairs = int(problem.allowed.sum())
+        if priced and budget.fits(
+            "priced plan", LOCAL_SEARCH_SHARE, PRICED_SECONDS_PER_PAIR * pairs
+        ):
             X, F, bound = with_priced(
                 clean,
                 X,

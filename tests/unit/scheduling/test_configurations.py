@@ -9,10 +9,11 @@ from fogfleet.api.v1alpha1.robotfleet import SchedulerSettings
 from fogfleet.bench.scheduling import synthetic_fleet
 from fogfleet.domain.build import build_problem
 from fogfleet.domain.problem import Problem
-from fogfleet.scheduling.configurations import priced_plans, robot_bound, robot_dual
+from fogfleet.scheduling.configurations import priced_plans, robot_bound, robot_dual, with_priced
 from fogfleet.scheduling.exact import lp_bound, scalarised, scalarised_plans, solve_exact
 from fogfleet.scheduling.heuristics import Fit
 from fogfleet.scheduling.objectives import constraints
+from fogfleet.scheduling.problem import PlacementProblem
 from fogfleet.scheduling.solver import exact_weights, nsga2
 
 
@@ -109,3 +110,51 @@ def test_nsga2_ends_nearer_the_bound_with_the_priced_plan() -> None:
     gap = {k: 100 * (v - bound) / bound for k, v in best.items()}
     assert gap[True] < 1.0, gap  # measured 0.35 %
     assert gap[False] > gap[True] + 0.5, gap  # measured 1.36 %
+
+
+@pytest.mark.parametrize("calls", [1, 2, 3, 5])
+def test_a_budget_that_runs_out_ends_the_bound_and_adds_nothing(calls: int) -> None:
+    # the planning budget is asked between the bound's steps: once it says stop, the search
+    # gets no priced plan and no bound (the status gap computes its own)
+    cat, fleet = synthetic_fleet(40, 16, 1)
+    p = build_problem(fleet, cat)
+    pp = PlacementProblem(p, ("missRate", "onboard", "reserve"))
+    X = np.zeros((0, len(pp.genes)), dtype=np.int64)
+    F = np.zeros((0, 3))
+    asked = []
+
+    def stop() -> bool:
+        asked.append(1)
+        return len(asked) > calls
+
+    X2, F2, bound = with_priced(pp, X, F, exact_weights(p, SchedulerSettings()), stop)
+    assert len(asked) == calls + 1  # asked until it said stop, not after
+    assert bound is None and len(X2) == 0 and len(F2) == 0
+    # never stopped: plans and the bound
+    X3, _, whole = with_priced(pp, X, F, exact_weights(p, SchedulerSettings()), lambda: False)
+    assert len(X3) >= 1 and whole == pytest.approx(
+        robot_bound(p, exact_weights(p, SchedulerSettings()))
+    )
+
+
+class _Steps:
+    """A clock that advances ``step`` seconds at every reading."""
+
+    def __init__(self, step: float) -> None:
+        self.now, self.step = 0.0, step
+
+    def __call__(self) -> float:
+        self.now += self.step
+        return self.now
+
+
+@pytest.mark.parametrize(("budget_ms", "priced"), [(100, False), (1_000_000, True)])
+def test_the_priced_plan_starts_only_with_time_left_for_it(budget_ms: int, priced: bool) -> None:
+    # 40 robots: ~18 000 pairs, ~18 ms by the solver's estimate. A 100 ms budget read in
+    # 10 ms steps has less than that left at 90 % once the evolution stops past 60 %
+    cat, fleet = synthetic_fleet(40, 16, 1)
+    p = build_problem(fleet, cat)
+    settings = SchedulerSettings(seed=1, time_budget_millis=budget_ms)
+    s = nsga2(p, settings, warm_start=True, clock=_Steps(0.010))
+    assert ("priced plan" in s.budget_cut) is not priced
+    assert (s.robot_bound is not None) is priced
