@@ -133,3 +133,14 @@ def _warehouse() -> Problem:
 @pytest.fixture
 def warehouse() -> Problem:
     return _warehouse()
+
+
+class StepClock:
+    """A clock that moves ``step`` seconds at every reading (a planning budget's tests)."""
+
+    def __init__(self, step: float) -> None:
+        self.now, self.step = 0.0, step
+
+    def __call__(self) -> float:
+        self.now += self.step
+        return self.now

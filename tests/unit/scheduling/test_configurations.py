@@ -16,6 +16,8 @@ from fogfleet.scheduling.objectives import constraints
 from fogfleet.scheduling.problem import PlacementProblem
 from fogfleet.scheduling.solver import exact_weights, nsga2
 
+from .conftest import StepClock
+
 
 def test_robot_bound_lies_between_the_lp_bound_and_the_optimum() -> None:
     # three copies of the warehouse robot on two edges: the LP puts part of a 4-core module
@@ -137,17 +139,6 @@ def test_a_budget_that_runs_out_ends_the_bound_and_adds_nothing(calls: int) -> N
     )
 
 
-class _Steps:
-    """A clock that advances ``step`` seconds at every reading."""
-
-    def __init__(self, step: float) -> None:
-        self.now, self.step = 0.0, step
-
-    def __call__(self) -> float:
-        self.now += self.step
-        return self.now
-
-
 @pytest.mark.parametrize(("budget_ms", "priced"), [(100, False), (1_000_000, True)])
 def test_the_priced_plan_starts_only_with_time_left_for_it(budget_ms: int, priced: bool) -> None:
     # 40 robots: ~18 000 pairs, ~18 ms by the solver's estimate. A 100 ms budget read in
@@ -155,6 +146,6 @@ def test_the_priced_plan_starts_only_with_time_left_for_it(budget_ms: int, price
     cat, fleet = synthetic_fleet(40, 16, 1)
     p = build_problem(fleet, cat)
     settings = SchedulerSettings(seed=1, time_budget_millis=budget_ms)
-    s = nsga2(p, settings, warm_start=True, clock=_Steps(0.010))
+    s = nsga2(p, settings, warm_start=True, clock=StepClock(0.010))
     assert ("priced plan" in s.budget_cut) is not priced
     assert (s.robot_bound is not None) is priced

@@ -15,6 +15,8 @@ from fogfleet.scheduling.convergence import WARM_GENERATIONS
 from fogfleet.scheduling.exact import solve_exact
 from fogfleet.scheduling.solver import nsga2, plan
 
+from .conftest import StepClock
+
 FAST = {"population": 20, "generations": 10}
 
 
@@ -132,17 +134,6 @@ def test_a_budget_cut_plan_is_reproduced_by_its_generation_count() -> None:
     assert second.generations == first.generations
     assert not second.time_budget_reached  # every generation ran
     assert np.array_equal(np.asarray(first.placement), np.asarray(second.placement))
-
-
-class StepClock:
-    """A clock that moves ``step`` seconds at every reading."""
-
-    def __init__(self, step: float) -> None:
-        self.now, self.step = 0.0, step
-
-    def __call__(self) -> float:
-        self.now += self.step
-        return self.now
 
 
 def test_the_budget_cuts_every_stage_that_outlasts_its_share(warehouse: Problem) -> None:
