@@ -144,3 +144,18 @@ class StepClock:
     def __call__(self) -> float:
         self.now += self.step
         return self.now
+
+
+class GenerationClock:
+    """A clock that only moves when NSGA-II finishes a generation (through ``progress``), by
+    ``per_generation`` seconds: the budget cuts the search at the same generation on any
+    machine, however fast or loaded."""
+
+    def __init__(self, per_generation: float) -> None:
+        self.now, self.per_generation = 0.0, per_generation
+
+    def __call__(self) -> float:
+        return self.now
+
+    def tick(self, generation: int, total: int) -> None:
+        self.now += self.per_generation

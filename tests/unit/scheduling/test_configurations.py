@@ -14,9 +14,9 @@ from fogfleet.scheduling.exact import lp_bound, scalarised, scalarised_plans, so
 from fogfleet.scheduling.heuristics import Fit
 from fogfleet.scheduling.objectives import constraints
 from fogfleet.scheduling.problem import PlacementProblem
-from fogfleet.scheduling.solver import exact_weights, nsga2
+from fogfleet.scheduling.solver import exact_weights, nsga2, plan
 
-from .conftest import StepClock
+from .conftest import GenerationClock
 
 
 def test_robot_bound_lies_between_the_lp_bound_and_the_optimum() -> None:
@@ -141,11 +141,13 @@ def test_a_budget_that_runs_out_ends_the_bound_and_adds_nothing(calls: int) -> N
 
 @pytest.mark.parametrize(("budget_ms", "priced"), [(100, False), (1_000_000, True)])
 def test_the_priced_plan_starts_only_with_time_left_for_it(budget_ms: int, priced: bool) -> None:
-    # 40 robots: ~18 000 pairs, ~18 ms by the solver's estimate. A 100 ms budget read in
-    # 10 ms steps has less than that left at 90 % once the evolution stops past 60 %
+    # 40 robots: 4160 pairs, ~4.2 ms by the solver's estimate. A 100 ms budget whose clock
+    # moves 29 ms a generation cuts the evolution after the 3rd (87 ms) and then stands:
+    # 3 ms are left of the 90 % share, not enough to start it (though not past the share)
     cat, fleet = synthetic_fleet(40, 16, 1)
     p = build_problem(fleet, cat)
-    settings = SchedulerSettings(seed=1, time_budget_millis=budget_ms)
-    s = nsga2(p, settings, warm_start=True, clock=StepClock(0.010))
+    settings = SchedulerSettings(seed=1, time_budget_millis=budget_ms, generations=4)
+    clock = GenerationClock(per_generation=0.029)
+    s = plan(p, settings, clock.tick, clock=clock)
     assert ("priced plan" in s.budget_cut) is not priced
     assert (s.robot_bound is not None) is priced

@@ -15,7 +15,7 @@ from fogfleet.scheduling.convergence import WARM_GENERATIONS
 from fogfleet.scheduling.exact import solve_exact
 from fogfleet.scheduling.solver import nsga2, plan
 
-from .conftest import StepClock
+from .conftest import GenerationClock, StepClock
 
 FAST = {"population": 20, "generations": 10}
 
@@ -95,21 +95,6 @@ def test_nsga2_misses_less_than_k8s_default_on_a_tight_warehouse() -> None:
     k8s = plan(p, SchedulerSettings(algorithm="k8s-default", seed=1))
     assert s.feasible
     assert s.objectives["missRate"] < k8s.objectives["missRate"]
-
-
-class GenerationClock:
-    """A clock that only moves when NSGA-II finishes a generation (through ``progress``), by
-    ``per_generation`` seconds: the budget cuts the search at the same generation on any
-    machine, however fast or loaded."""
-
-    def __init__(self, per_generation: float) -> None:
-        self.now, self.per_generation = 0.0, per_generation
-
-    def __call__(self) -> float:
-        return self.now
-
-    def tick(self, generation: int, total: int) -> None:
-        self.now += self.per_generation
 
 
 def test_a_budget_cut_plan_is_reproduced_by_its_generation_count() -> None:
