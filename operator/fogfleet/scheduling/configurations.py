@@ -21,9 +21,10 @@ board is packed on the edge and cloud nodes by the LPT rule of ``levelling`` (mo
 constrained, then largest first, each on the node whose peak after it is lowest). The bound
 prices off-board CPU as if it spread perfectly; the packing pays only its imbalance. On the
 1000-robot bench fleet the search with it ends 0.4-1.5 % above the bound on seeds 1-5, where
-NSGA-II's warm start alone ended 1.3-3.2 % above it (``fogfleet bench scale-plan``). ``with_priced`` adds it to
-the search's archive before the levelling (which a warm-started fleet with a priced plan
-skips, ``solver.nsga2``) and the Pareto local search that polishes the archive.
+NSGA-II's warm start alone ended 1.3-3.2 % above it (``fogfleet bench scale-plan``).
+``with_priced`` adds it to the search's archive before the levelling (which a warm-started
+fleet with a priced plan skips, ``solver.nsga2``) and the Pareto local search that polishes
+the archive.
 """
 
 from __future__ import annotations
@@ -115,7 +116,7 @@ def robot_dual(
     stop: Callable[[], bool] | None = None,
 ) -> RobotDual | None:
     """The robot bound of the module docstring with its price and threshold, or None where it
-    does not apply: an instance allowed on a robot other than its home, more than
+    does not apply: no robot, an instance allowed on a robot other than its home, more than
     ``MAX_ON_BOARD`` instances on a robot, an instance with no node, or weights the MILP
     cannot linearise. ``fit``: the search's own (limits allocation), to reuse its tables;
     ``stop`` (the planning budget) is asked between the steps and ends it with None."""
@@ -128,7 +129,12 @@ def robot_dual(
     on_robot = problem.allowed[:, robots]
     others = on_robot & (robots[None, :] != home[:, None])
     sizes = np.bincount(home[home >= 0], minlength=problem.n_nodes)[robots]
-    if others.any() or sizes.max(initial=0) > MAX_ON_BOARD or not problem.allowed.any(axis=1).all():
+    if (
+        not len(robots)  # a selector that matched no robot: nothing to price
+        or others.any()
+        or sizes.max(initial=0) > MAX_ON_BOARD
+        or not problem.allowed.any(axis=1).all()
+    ):
         return None
     pi, pj = np.nonzero(problem.allowed)
     c = pair_costs(problem, w, pi, pj)

@@ -16,7 +16,7 @@ from fogfleet.scheduling.objectives import constraints
 from fogfleet.scheduling.problem import PlacementProblem
 from fogfleet.scheduling.solver import exact_weights, nsga2, plan
 
-from .conftest import GenerationClock
+from .conftest import GenerationClock, make_problem
 
 
 def test_robot_bound_lies_between_the_lp_bound_and_the_optimum() -> None:
@@ -151,3 +151,21 @@ def test_the_priced_plan_starts_only_with_time_left_for_it(budget_ms: int, price
     s = plan(p, settings, clock.tick, clock=clock)
     assert ("priced plan" in s.budget_cut) is not priced
     assert (s.robot_bound is not None) is priced
+
+
+def test_a_fleet_without_robots_has_no_bound_and_is_planned() -> None:
+    # a robotSelector that matches no robot: two shared instances on two edges
+    p = make_problem(
+        tiers=[1, 1],
+        cpu=[4.0, 4.0],
+        mem=[8.0, 8.0],
+        home=[-1, -1],
+        allowed=[[True, True]] * 2,
+        activation=[1.0, 1.0],
+        cycle=[1.0, 1.0],
+        request=[[1.0, 1.0]] * 2,
+        exe=[[0.1, 0.1]] * 2,
+    )
+    assert robot_dual(p) is None
+    s = nsga2(p, SchedulerSettings(seed=1), warm_start=True)
+    assert s.feasible and s.robot_bound is None
