@@ -43,11 +43,7 @@ class Budget:
 
     def over(self, stage: str, share: float) -> bool:
         """Whether ``stage``, given ``share`` of the budget, must stop now (recorded once)."""
-        if self.clock() <= self.ends(share):
-            return False
-        if stage not in self.cut:
-            self.cut.append(stage)
-        return True
+        return not self.fits(stage, share, 0.0)
 
 
 @dataclass(frozen=True)
