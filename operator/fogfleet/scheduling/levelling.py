@@ -268,7 +268,7 @@ def node_peaks(fit: Fit, x: I64) -> F64:
 def pack_off_board(fit: Fit, x: I64, pool: I64, allowed: NDArray[np.bool_]) -> I64 | None:
     """``x`` with the instances ``pool`` (unplaced in ``x``) packed on their ``allowed`` nodes by
     step 4's LPT rule, every node up to its capacity; None where one fits nowhere
-    (``configurations.priced_plan``)."""
+    (``configurations.priced_plans``)."""
     x = np.asarray(x, dtype=np.int64).copy()
     packed = _pack(fit, _Loads(fit, x), pool, allowed, 1.0 + FIT_TOLERANCE)
     if packed is None:
