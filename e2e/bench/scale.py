@@ -92,6 +92,7 @@ from e2e.bench.cluster import (  # noqa: E402
     teardown_cluster,
 )
 from e2e.portable.metrics import read as read_metrics  # noqa: E402
+from fogfleet.bench.record import machine  # noqa: E402
 
 Obj = dict[str, Any]
 EDGES_PER_ROBOT = 0.4
@@ -365,15 +366,17 @@ def bench_size(
     return row
 
 
-def format_rows(rows: list[Obj]) -> str:
+def table_cells(rows: list[Obj]) -> tuple[list[str], list[list[str]]]:
+    """The table's header and its cells, one line per size ("-" where a run measured nothing)."""
+
     def f(row: Obj, key: str, fmt: str = "{:.1f}") -> str:
         v = row.get(key)
         return fmt.format(v) if isinstance(v, int | float) and v == v else "-"
 
     header = [
         "robots", "pods", "plain s", "operator s", "first plan s", "(op-plan)/plain",
-        "Ready lag s", "join re-plan s", "join->Ready s", "moved", "settled: re-plan s",
-        "join->Ready s", "peak RSS MiB", "RSS after MiB", "API writes", "writes/s",
+        "Ready lag s", "join re-plan s", "join->Ready s", "moved", "settled re-plan s",
+        "settled join->Ready s", "peak RSS MiB", "RSS after MiB", "API writes", "writes/s",
     ]  # fmt: skip
     columns = [
         ("plainSeconds", "{:.1f}"),
@@ -392,8 +395,23 @@ def format_rows(rows: list[Obj]) -> str:
         ("apiWritesPerSecond", "{:.1f}"),
     ]
     lines = [[str(r["robots"]), str(r["pods"]), *(f(r, k, fm) for k, fm in columns)] for r in rows]
+    return header, lines
+
+
+def format_rows(rows: list[Obj]) -> str:
+    header, lines = table_cells(rows)
     errors = [f"{r['robots']} robots: {r['error']}" for r in rows if "error" in r]
     return "\n".join([table(lines, header), *errors])
+
+
+def page_rows(rows: list[Obj]) -> list[dict[str, str]]:
+    """The table as the benchmarks page renders a record's result (``fogfleet bench page``):
+    one mapping per size, with the repeats each median is over."""
+    header, lines = table_cells(rows)
+    return [
+        dict(zip(header, line, strict=True)) | {"runs": str(r.get("repeats", 1))}
+        for r, line in zip(rows, lines, strict=True)
+    ]
 
 
 CPU_PARTS = ("machine", *CONTROL_PLANE, "fogfleet", "benchmark")
@@ -509,9 +527,15 @@ def main(argv: list[str] | None = None) -> int:
             )
             for n in sizes
         ]
-    report = {
+    words = argv if argv is not None else sys.argv[1:]
+    report: Obj = {
+        # a benchmark record (fogfleet.bench.record): the page's table, when, where, how
+        "suite": "scale",
+        "date": datetime.datetime.now(datetime.UTC).strftime("%Y-%m-%d %H:%M UTC"),
+        "machine": machine(),
+        "command": " ".join(["python", "-m", "e2e.bench.scale", *words]),
+        "result": page_rows(rows),
         "started": started,
-        "command": " ".join([Path(sys.executable).name, "-m", "e2e.bench.scale", *sys.argv[1:]]),
         "edgesPerRobot": EDGES_PER_ROBOT,
         "nodeLeaseSeconds": beats.lease_seconds,
         "nodeMonitorGracePeriod": beats.grace_period,
