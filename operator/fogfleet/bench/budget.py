@@ -9,6 +9,11 @@ Columns per budget: the planner's seconds (``Schedule.duration_seconds``, what
 ``status.planningMillis`` reports), median and largest, and the largest over the budget
 (target: at most 1.1); the generations run and the stages the budget cut (in any run); the
 chosen plan's gap to the bound (``scheduling.gap``: S against the robot bound), median.
+
+Then the same robots on a tenth as many edge nodes (100 at 1000 robots, the contended fleet
+of ``bench why-live``), short of CPU: ``solver.plan`` finds no plan at full CPU and degrades
+(``scheduling.degrade``) within the same budget, at ``short_budgets``; its rows add the
+instances degraded (median; fewer is better) and have no gap (a degraded plan has none).
 """
 
 from __future__ import annotations
@@ -27,9 +32,11 @@ from fogfleet.scheduling.gap import PlanGap, plan_gap
 from fogfleet.scheduling.schedule import Schedule
 from fogfleet.scheduling.solver import exact_weights, plan
 
-__all__ = ["BUDGETS_MILLIS", "budget_rows"]
+__all__ = ["BUDGETS_MILLIS", "SHORT_BUDGETS_MILLIS", "budget_rows"]
 
 BUDGETS_MILLIS = (5000, 8000, 12000, 20000)  # 20 s: the default
+SHORT_BUDGETS_MILLIS = (8000, 20000)
+SHORT_EDGES_PER_ROBOT = 0.1
 Row = dict[str, Any]
 
 
@@ -38,9 +45,18 @@ def budget_rows(
     budgets: Sequence[int] = BUDGETS_MILLIS,
     runs: int = 3,
     seed: int = 1,
+    short_budgets: Sequence[int] = SHORT_BUDGETS_MILLIS,
 ) -> list[Row]:
-    """One row per budget (see the module docstring)."""
-    cat, fleet = synthetic_fleet(robots, max(2, math.ceil(EDGES_PER_ROBOT * robots)), seed)
+    """One row per fleet and budget (see the module docstring)."""
+    rows = _fleet_rows(robots, math.ceil(EDGES_PER_ROBOT * robots), budgets, runs, seed)
+    if short_budgets:
+        edges = math.ceil(SHORT_EDGES_PER_ROBOT * robots)
+        rows += _fleet_rows(robots, edges, short_budgets, runs, seed)
+    return rows
+
+
+def _fleet_rows(robots: int, edges: int, budgets: Sequence[int], runs: int, seed: int) -> list[Row]:
+    cat, fleet = synthetic_fleet(robots, max(2, edges), seed)
     problem = build_problem(fleet, cat)
     done: dict[int, list[Schedule]] = {b: [] for b in budgets}
     for run in range(runs):
@@ -50,7 +66,8 @@ def budget_rows(
             done[budget].append(plan(problem, settings))
     settings = SchedulerSettings(seed=seed)
     w = exact_weights(problem, settings)
-    first = plan_gap(problem, done[budgets[0]][0].placement, w)
+    one = done[budgets[0]][0]
+    first = None if one.degraded else plan_gap(problem, one.placement, w)
     rows: list[Row] = []
     for budget in budgets:
         plans = done[budget]
@@ -58,11 +75,12 @@ def budget_rows(
         cut = sorted({stage for s in plans for stage in s.budget_cut})
         chosen = [scalarised(problem, s.placement, w) for s in plans]
         gaps = [PlanGap(v, first.bound, first.kind, v) for v in chosen] if first is not None else []
+        degraded = [s.degraded_instances for s in plans]
         rows.append(
             {
                 "robots": robots,
+                "edges": max(2, edges),
                 "instances": problem.n_instances,
-                "nodes": problem.n_nodes,
                 "seed": seed,
                 "budget_s": budget / 1000,
                 "runs": len(plans),
@@ -71,6 +89,8 @@ def budget_rows(
                 "over_budget_max": round(max(seconds) / (budget / 1000), 2),
                 "generations": statistics.median(s.generations for s in plans),
                 "budget_cut": ", ".join(cut) or "-",
+                "feasible": all(s.feasible for s in plans),
+                "degraded": statistics.median(degraded),
                 "gap_pct": round(statistics.median(g.percent for g in gaps), 2) if gaps else None,
                 "bound": first.kind if first is not None else None,
             }

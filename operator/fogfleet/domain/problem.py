@@ -225,17 +225,19 @@ class Problem:
     def _rung(self, levels: NDArray[np.int64] | None) -> Allocation:
         lad = self.ladder
         assert lad is not None
-        k = np.zeros((self.n_instances, self.n_nodes), dtype=np.int64)
-        if levels is not None:
-            k = np.minimum(levels[:, None], lad.depth)
-        i, j = np.indices(k.shape)
         # a degraded instance is guaranteed (requests) the rung's CPU and may burst to the
         # pick (limits): alone on its node it runs as fast as its deadline needs; when the
         # node is busy, it shares what is left (the contention model slows it down)
-        request = np.where(self.allowed, lad.cpu[i, j, k], 0.0)
-        use = np.where(self.allowed, lad.cpu[i, j, 0], 0.0)
-        mean = np.where(self.allowed, lad.mean[i, j, 0], np.inf)
-        std = np.where(self.allowed, lad.std[i, j, 0], 0.0)
+        use = np.where(self.allowed, lad.cpu[:, :, 0], 0.0)
+        request = use
+        down = np.flatnonzero(levels > 0) if levels is not None else np.zeros(0, np.int64)
+        if levels is not None and down.size:  # only the rows that take a rung differ
+            k = np.minimum(levels[down, None], lad.depth[down])
+            rung = np.take_along_axis(lad.cpu[down], k[:, :, None], axis=2)[:, :, 0]
+            request = use.copy()
+            request[down] = np.where(self.allowed[down], rung, 0.0)
+        mean = np.where(self.allowed, lad.mean[:, :, 0], np.inf)
+        std = np.where(self.allowed, lad.std[:, :, 0], 0.0)
         return Allocation(freeze(request), freeze(use), freeze(mean), freeze(std), True)
 
     @cached_property

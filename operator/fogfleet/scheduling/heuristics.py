@@ -138,6 +138,41 @@ class Fit:
         return self.pref_rows(np.arange(self.problem.n_instances), self.q)
 
     @cached_property
+    def pairs(self) -> tuple[I64, I64]:
+        """The allowed (instance, node) pairs, by instance then node (``np.nonzero``)."""
+        rows, cols = np.nonzero(self.problem.allowed)
+        return rows.astype(np.int64), cols.astype(np.int64)
+
+    # The pair tables hold the (I, N) tables' values on the allowed pairs. A search builds the
+    # whole tables anyway and they are read from them; a packing alone (``degrade.packs``, a
+    # greedy plan per try) computes them on the pairs only: at 1000 robots ~400 of 1400
+    # columns, without the (I, N, 3) demand table (270 MB).
+
+    @cached_property
+    def pair_demand(self) -> F64:
+        """(P, 3) ``demand`` of each allowed pair."""
+        rows, cols = self.pairs
+        return self.demand[rows, cols] if "demand" in vars(self) else self.demand_at(rows, cols)
+
+    @cached_property
+    def pair_q(self) -> F64:
+        """(P,) ``q`` of each allowed pair."""
+        rows, cols = self.pairs
+        if "q" in vars(self):
+            return self.q[rows, cols]
+        return uncontended_miss(self.problem, self.allocation, rows, cols)
+
+    @cached_property
+    def pair_pref(self) -> F64:
+        """(P,) ``pref`` of each allowed pair (``pref_rows``' formula on the pairs)."""
+        rows, cols = self.pairs
+        if "pref" in vars(self):
+            return self.pref[rows, cols]
+        p = self.problem
+        t = (p.net_mean[rows, cols] + self.allocation.exe_mean[rows, cols]) / p.cycle[rows]
+        return self.pair_q + 0.01 * np.minimum(t, 10.0)
+
+    @cached_property
     def order(self) -> NDArray[np.int64]:
         """Instances by their largest CPU request on an allowed node, largest first."""
         req = np.where(self.problem.allowed, self.allocation.cpu_request, 0.0)
@@ -160,14 +195,14 @@ def greedy(
     x = np.full(problem.n_instances, -1, dtype=np.int64)
     # each instance looks only at its allowed nodes (ascending, so ties go to the lowest
     # node as an argmin over all nodes would): at 1000 robots ~400 of 1400 columns
-    rows, cols = np.nonzero(problem.allowed)
+    rows, cols = f.pairs
     starts = np.searchsorted(rows, np.arange(problem.n_instances + 1))
     # what the loop reads of each (instance, allowed node) pair, gathered once: slices of
     # these are views, where indexing the (I, N) tables per instance copied
-    pair_demand = f.demand[rows, cols]
+    pair_demand = f.pair_demand
     pair_cap = f.cap[cols]
-    pair_pref = f.pref[rows, cols] if style != "level" else pair_cap[:, 0]
-    pair_q = f.q[rows, cols] if style == "level" else pair_cap[:, 0]
+    pair_pref = f.pair_pref if style != "level" else pair_cap[:, 0]
+    pair_q = f.pair_q if style == "level" else pair_cap[:, 0]
     for i in f.order:
         a, b = starts[i], starts[i + 1]
         if a == b:

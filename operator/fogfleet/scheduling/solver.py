@@ -27,7 +27,7 @@ from .bookkeeping import (
 from .choice import choose, non_dominated
 from .configurations import with_priced
 from .convergence import WARM_GENERATIONS, StallWatch, stall_window
-from .degrade import degrade
+from .degrade import degrade, short_of_cpu
 from .exact import describe_weights, fleet_weights, scalarised, solve_exact
 from .levelling import with_levelled
 from .local import pareto_local_search
@@ -106,16 +106,26 @@ def plan(
     (``problem.reasons``) get -1 and make the schedule infeasible, with their reasons. When
     NSGA-II finds no plan that gives every instance its deadline's CPU and
     ``settings.allowDegraded`` holds, the lowest-priority instances get less
-    (``scheduling.degrade``; ``Schedule.degraded``). ``clock`` times NSGA-II's budget."""
+    (``scheduling.degrade``; ``Schedule.degraded``). ``clock`` times NSGA-II's budget, one
+    budget for the whole plan: the degraded search has what the first search and the
+    degradation's packing search (stopped at ``EVOLUTION_SHARE``) left of it."""
     algo = SchedulerName(settings.algorithm)
     if algo is SchedulerName.NSGA2:
-        sched = nsga2(problem, settings, progress, clock=clock)
-        if not sched.feasible and settings.allow_degraded:
-            t0 = clock()
-            degraded = degrade(problem, lambda p: nsga2(p, settings, progress, clock=clock))
+        t0 = clock()
+        # a site proved short of CPU degrades at once: a search at full CPU cannot succeed
+        short = settings.allow_degraded and short_of_cpu(problem)
+        sched = None if short else nsga2(problem, settings, progress, clock=clock)
+        if (sched is None or not sched.feasible) and settings.allow_degraded:
+            budget = Budget(clock, t0, parse_millis(settings.time_budget_millis))
+            degraded = degrade(
+                problem,
+                lambda p: nsga2(p, settings, progress, clock=clock, started=t0),
+                stop=lambda: budget.over("degradation", EVOLUTION_SHARE),
+            )
             if degraded is not None:
-                spent = sched.duration_seconds + clock() - t0
-                return replace(degraded, duration_seconds=spent)
+                return replace(degraded, duration_seconds=clock() - t0)
+        if sched is None:  # degrading could not help: the search says what is infeasible
+            sched = nsga2(problem, settings, progress, clock=clock, started=t0)
         return sched
     if algo is SchedulerName.K8S_DEFAULT:
         return k8s_default(problem, settings.seed)
@@ -162,6 +172,7 @@ def nsga2(
     warm_start: bool | None = None,
     priced: bool = True,
     clock: Clock = time.perf_counter,
+    started: float | None = None,
 ) -> Schedule:
     """NSGA-II over the gene spaces with the limits allocation.
 
@@ -183,7 +194,8 @@ def nsga2(
     and runs ``convergence.WARM_GENERATIONS`` generations (unless ``stallGenerations`` is set).
     ``priced`` adds the robot bound's priced plan (``configurations.with_priced``) to what the
     local search starts from (``False``: the search before issue 46's priced plan, for
-    ``fogfleet bench scale-plan``).
+    ``fogfleet bench scale-plan``). ``started``: the ``clock()`` value the time budget counts
+    from when the search is a later part of one plan (``plan``'s degraded search), else now.
     """
     t0 = clock()
     if local_search is None:
@@ -194,7 +206,9 @@ def nsga2(
         x = np.full(problem.n_instances, -1, dtype=np.int64)
         done = finish(problem, "nsga2", x, True, t0, "no instance has a node it may run on")
         return replace(done, duration_seconds=clock() - t0)
-    budget = Budget(clock, t0, parse_millis(settings.time_budget_millis))
+    budget = Budget(
+        clock, t0 if started is None else started, parse_millis(settings.time_budget_millis)
+    )
     log_space = float(np.log(pp.counts.astype(np.float64)).sum())  # log: no overflow
     exhaustive = not paper and log_space <= np.log(ENUMERATE_LIMIT)
     sampling = FleetSampling(heuristics=not paper, warm=warm_start)
@@ -292,10 +306,10 @@ def nsga2(
             f"{', the '.join(budget.cut)} after {generations} generations; another run may "
             "give another plan)"
         )
-    spent = clock() - t0
-    if spent > OVER_BUDGET * budget.seconds:
+    spent, planning = clock() - t0, clock() - budget.start
+    if planning > OVER_BUDGET * budget.seconds:
         why_stopped += (
-            f"; planning took {spent:.3g} s, over the time budget of {budget.seconds:g} s: "
+            f"; planning took {planning:.3g} s, over the time budget of {budget.seconds:g} s: "
             "the first population (the seed plans and their repair) and a step under way are "
             "never cut"
         )

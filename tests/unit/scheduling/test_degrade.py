@@ -3,6 +3,7 @@ on its lowest-priority modules, never on hard real-time ones; other shortages st
 
 from __future__ import annotations
 
+import re
 from dataclasses import replace
 from pathlib import Path
 
@@ -182,3 +183,83 @@ def test_the_plan_fingerprint_follows_a_smaller_profiled_cpu(tmp_path: Path) -> 
         _site(tmp_path / "c", "16", modules=modules), settings
     )
     assert a.ladder_source is not None and not a.ladder_source.built
+
+
+def test_a_budget_spent_ends_the_search_for_the_fewest_rungs_and_gives_rungs_back(
+    tmp_path: Path,
+) -> None:
+    from fogfleet.scheduling.degrade import degrade, levels_of
+    from fogfleet.scheduling.solver import nsga2
+
+    p = _site(tmp_path, "8500m")
+    order = steps(p)
+    full = degrade(p, lambda q: nsga2(q, _settings(q)))
+    cut = degrade(p, lambda q: nsga2(q, _settings(q)), stop=lambda: True)
+    assert full is not None and cut is not None and cut.feasible and cut.levels is not None
+    assert "ended the search for the fewest rungs" in cut.choice_reason
+    assert "ended the search" not in full.choice_reason
+    # it planned with every rung taken, then gave back what the plan has room for
+    assert 0 < int(cut.levels.sum()) < int(levels_of(p, order, len(order)).sum())
+    degraded = p.with_levels(cut.levels)
+    assert np.all(degraded.limits.cpu_request[np.arange(p.n_instances), cut.placement] > 0)
+
+
+def test_a_degraded_plan_keeps_the_budget_of_the_whole_plan(tmp_path: Path) -> None:
+    from .conftest import StepClock
+
+    p = _site(tmp_path, "8500m")
+    # every reading of the clock takes a second: the first search alone spends the 1 s budget
+    sched = plan(p, _settings(p, timeBudgetMillis=1000), clock=StepClock(1.0))
+    assert sched.feasible and sched.degraded
+    # the degradation's search and the degraded NSGA-II count from the plan's start
+    assert "ended the search for the fewest rungs" in sched.choice_reason
+    assert "time budget of 1 s reached" in sched.choice_reason and sched.budget_cut
+    took = re.search(r"planning took ([0-9.]+) s", sched.choice_reason)
+    assert took is not None and float(took.group(1)) >= sched.duration_seconds - 2
+
+
+def test_a_site_short_of_cpu_in_all_is_degraded_without_a_search_at_full_cpu(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from fogfleet.scheduling import solver
+    from fogfleet.scheduling.degrade import short_of_cpu
+
+    for d in ("short", "room"):
+        (tmp_path / d).mkdir()
+    short = _site(tmp_path / "short", "8500m")  # 14.75 cores wanted, 6 + 8.5 in all
+    assert short_of_cpu(short)
+    assert not short_of_cpu(_site(tmp_path / "room", "16"))
+    searched: list[bool] = []
+    real = solver.nsga2
+
+    def spy(problem: Problem, *args: object, **kwargs: object):  # type: ignore[no-untyped-def]
+        searched.append(problem.degraded)
+        return real(problem, *args, **kwargs)  # type: ignore[arg-type]
+
+    monkeypatch.setattr(solver, "nsga2", spy)
+    sched = plan(short, _settings(short))
+    assert sched.feasible and sched.degraded
+    assert searched == [True], "only the degraded problem is searched"
+
+
+def test_a_site_not_proved_short_is_searched_at_full_cpu_first(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from fogfleet.scheduling import solver
+    from fogfleet.scheduling.degrade import short_of_cpu
+
+    for d in "ab":
+        (tmp_path / d).mkdir()
+    assert short_of_cpu(_site(tmp_path / "a", "3"))  # 9 cores in all for 14.75
+    p = _site(tmp_path / "b", "8750m")  # 14.75 in all: only a search can tell
+    assert not short_of_cpu(p)
+    searched: list[bool] = []
+    real = solver.nsga2
+
+    def spy(problem: Problem, *args: object, **kwargs: object):  # type: ignore[no-untyped-def]
+        searched.append(problem.degraded)
+        return real(problem, *args, **kwargs)  # type: ignore[arg-type]
+
+    monkeypatch.setattr(solver, "nsga2", spy)
+    sched = plan(p, _settings(p))
+    assert searched == [False] and sched.feasible and not sched.degraded

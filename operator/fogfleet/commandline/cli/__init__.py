@@ -80,14 +80,21 @@ def cmd_bench(args: argparse.Namespace) -> int:
         result = shown = scale_plan_rows(robots, seeds, runs=args.runs)
         table = format_table(result)
     elif args.suite == "budget":
-        from fogfleet.bench.budget import BUDGETS_MILLIS, budget_rows
+        from fogfleet.bench.budget import BUDGETS_MILLIS, SHORT_BUDGETS_MILLIS, budget_rows
         from fogfleet.bench.scheduling import format_table
 
         budgets = (
             [int(b) for b in args.budgets.split(",")] if args.budgets else list(BUDGETS_MILLIS)
         )
+        short = (
+            [int(b) for b in args.short_budgets.split(",") if b]
+            if args.short_budgets is not None
+            else list(SHORT_BUDGETS_MILLIS)
+        )
         robots = max(int(n) for n in args.robots.split(","))
-        result = shown = budget_rows(robots, budgets, runs=args.runs, seed=args.seed or 1)
+        result = shown = budget_rows(
+            robots, budgets, runs=args.runs, seed=args.seed or 1, short_budgets=short
+        )
         table = format_table(result)
     elif args.suite == "replan":
         from fogfleet.bench.replan import replan_rows
@@ -126,6 +133,7 @@ def _bench_page(args: argparse.Namespace) -> int:
         "scale-plan": format_table,
         "budget": format_table,
         "why-live": format_table,
+        "scale": format_table,
     }
     files = ", ".join(f"`{Path(p).name}`" for p in args.records.split(","))
     text = page(args.title, records, tables, BENCH_ABOUT, f"`fogfleet bench page` from {files}")
@@ -158,7 +166,9 @@ BENCH_ABOUT = {
     "budget": (
         "The same first plan with spec.scheduler.timeBudgetMillis at several budgets: the "
         "planner's seconds (median and largest; target at most 1.1x the budget), the stages "
-        "the budget cut, and the chosen plan's gap to the robot bound."
+        "the budget cut, and the chosen plan's gap to the robot bound; then the same robots "
+        "on a tenth of the edges, short of CPU, planned degraded within the budget (the "
+        "instances degraded, median)."
     ),
     "why-live": (
         "`kubectl fogfleet why` on a contended 1000-robot fleet (100 edges short of CPU) whose "
@@ -169,6 +179,16 @@ BENCH_ABOUT = {
         "in-process: its imports and the operator's answer seconds, and the --local read split "
         "into the API reads, the problem build and the explanation (e2e/bench/why_live.py; "
         "issue 46's target: under 2 s)."
+    ),
+    "scale": (
+        "The whole fleet on the cluster (e2e/bench/scale.py): n robots x 8 modules on 0.4 n "
+        "kwok edge nodes, plain Deployments with kube-scheduler alone against a fresh operator "
+        "in the same run, each the median over the runs: seconds from apply to all module "
+        "pods Running (issue 46's target: operator s within 1.0x of plain s at 1000 robots), "
+        "the operator's first plan and its overhead beyond planning against plain "
+        "((op-plan)/plain), the Ready lag, a robot joining at once and once the control plane "
+        "settled, "
+        "the operator's peak and resting memory and its API writes."
     ),
     "replan": (
         "A robot joining and an edge failing at several fleet sizes: the whole-fleet plan "
@@ -354,6 +374,12 @@ def _add_other_commands(sub: argparse._SubParsersAction[argparse.ArgumentParser]
         "--budgets",
         metavar="MILLIS",
         help="budget: timeBudgetMillis values, comma-separated (default 5000,8000,12000,20000)",
+    )
+    sp.add_argument(
+        "--short-budgets",
+        metavar="MILLIS",
+        help="budget: timeBudgetMillis values for the same robots on a tenth of the edges, short "
+        "of CPU (degraded), comma-separated (default 8000,20000; empty: none)",
     )
     sp.add_argument("--json", action="store_true")
     sp.add_argument("--record", metavar="FILE", help="also write the result as a record (JSON)")
