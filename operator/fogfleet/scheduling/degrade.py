@@ -37,10 +37,12 @@ from .heuristics import Fit, greedy
 from .objectives import constraints, evaluate
 from .schedule import Schedule
 
-__all__ = ["degrade", "give_back", "packs", "short_of_cpu", "steps"]
+__all__ = ["degrade", "give_back", "packs", "prefix_need", "short_of_cpu", "steps"]
 
 I64 = NDArray[np.int64]
+F64 = NDArray[np.float64]
 GREEDY_STYLES = ("best-fit", "level", "spread", "onboard")
+SPARE_SHARES = (0.02, 0.05, 0.1, 0.2)  # the first prefixes tried: this share of the CPU spare
 
 
 def steps(problem: Problem) -> list[int]:
@@ -56,6 +58,31 @@ def steps(problem: Problem) -> list[int]:
         for rung in range(1, int(depth[group].max()) + 1):
             out += [int(i) for i in group if depth[i] >= rung]
     return out
+
+
+def prefix_need(problem: Problem, order: list[int]) -> F64:
+    """(len(order) + 1,) a lower bound on the CPU the site needs after each prefix of
+    ``order``: every instance at the least CPU of its rung over its allowed nodes, summed (an
+    instance held on its robot for a fallback counts nothing, as part of its demand there is
+    the robot's reserve). A prefix whose bound exceeds all the nodes' CPU cannot pack."""
+    lad = problem.ladder
+    assert lad is not None
+    rows, cols = np.nonzero(problem.allowed)
+    least = np.zeros((problem.n_instances, lad.cpu.shape[2]))
+    if rows.size:
+        starts = np.flatnonzero(np.r_[True, rows[1:] != rows[:-1]])
+        for k in range(lad.cpu.shape[2]):  # one rung at a time: a (P,) gather, not (P, K)
+            least[rows[starts], k] = np.minimum.reduceat(lad.cpu[rows, cols, k], starts)
+    least[problem.held_at_home] = 0.0
+    idx = np.asarray(order, dtype=np.int64)
+    taken = np.zeros(problem.n_instances, dtype=np.int64)
+    rung = np.empty(len(idx), dtype=np.int64)  # the rung each step takes its instance to
+    for s, i in enumerate(idx):
+        taken[i] += 1
+        rung[s] = taken[i]
+    top = least.shape[1] - 1  # the ladder is padded with its smallest row
+    delta = least[idx, np.minimum(rung, top)] - least[idx, np.minimum(rung - 1, top)]
+    return np.concatenate([[0.0], np.cumsum(delta)]) + float(least[:, 0].sum())
 
 
 def levels_of(problem: Problem, order: list[int], n: int) -> I64:
@@ -133,6 +160,38 @@ def give_back(problem: Problem, x: I64) -> I64:
     return levels
 
 
+def _fewest_rungs(problem: Problem, order: list[int], stop: Callable[[], bool]) -> tuple[int, int]:
+    """``(lo, hi)``: the prefix of ``order`` from which the greedy packing fits is in (lo,
+    hi], and ``hi`` packs (every step does, ``degrade`` checked). Found by bisection, which
+    ``stop()`` may end early. The bounds start from the site's CPU: prefixes whose
+    ``prefix_need`` exceeds it cannot pack, and the first tries are the prefixes that leave
+    2, 5, 10 and 20 % of it spare (a packing loses a little to each node's remainder), so a
+    search ended early by the budget still ends near the fewest rungs, not at every rung."""
+    need = prefix_need(problem, order)
+    cap = float(problem.capacity[:, 0].sum())
+    lo, hi = max(0, int(np.argmax(need <= cap + 1e-9)) - 1), len(order)
+
+    def fits(n: int) -> bool:
+        return packs(problem.with_levels(levels_of(problem, order, n))) is not None
+
+    for spare in SPARE_SHARES:
+        room = need <= (1 - spare) * cap
+        n = int(np.argmax(room)) if room.any() else hi
+        if not lo < n < hi or stop():
+            continue
+        if fits(n):
+            hi = n
+            break
+        lo = n
+    while hi - lo > 1 and not stop():
+        mid = (lo + hi) // 2
+        if fits(mid):
+            hi = mid
+        else:
+            lo = mid
+    return lo, hi
+
+
 def degrade(
     problem: Problem,
     solve: Callable[[Problem], Schedule],
@@ -147,15 +206,7 @@ def degrade(
     order = steps(problem)
     if not order or packs(problem.with_levels(levels_of(problem, order, len(order)))) is None:
         return None
-    lo, hi = 0, len(order)  # lo: assumed not to pack (the full plan failed); hi: packs
-    while hi - lo > 1 and not stop():
-        mid = (lo + hi) // 2
-        at = problem.with_levels(levels_of(problem, order, mid))
-        # a prefix proved short by the whole site needs no packing tried (four greedy plans)
-        if not short_of_cpu(at) and packs(at) is not None:
-            hi = mid
-        else:
-            lo = mid
+    lo, hi = _fewest_rungs(problem, order, stop)
     cut = hi - lo > 1
     taken = problem.with_levels(levels_of(problem, order, hi))
     sched = solve(taken)

@@ -263,3 +263,23 @@ def test_a_site_not_proved_short_is_searched_at_full_cpu_first(
     monkeypatch.setattr(solver, "nsga2", spy)
     sched = plan(p, _settings(p))
     assert searched == [False] and sched.feasible and not sched.degraded
+
+
+def test_a_search_for_the_fewest_rungs_ended_after_one_try_ends_near_them() -> None:
+    from fogfleet.bench.scheduling import synthetic_fleet
+    from fogfleet.scheduling.degrade import _fewest_rungs, levels_of, packs, prefix_need
+
+    cat, fleet = synthetic_fleet(20, 2, 1)  # 20 robots on 2 edges: short of CPU
+    p = build_problem(fleet, cat)
+    order = steps(p)
+    need = prefix_need(p, order)
+    cap = float(p.capacity[:, 0].sum())
+    assert need[0] > cap and np.all(np.diff(need) <= 1e-12)
+    # a prefix the bound proves short does not pack, whatever the packing tries
+    proved = int(np.argmax(need <= cap)) - 1
+    assert proved > 0 and packs(p.with_levels(levels_of(p, order, proved))) is None
+    lo, hi = _fewest_rungs(p, order, lambda: False)
+    assert hi == lo + 1 and lo >= proved
+    tries = iter([False])  # one try, then the budget is spent
+    _, early = _fewest_rungs(p, order, lambda: next(tries, True))
+    assert hi <= early <= hi + 0.05 * len(order) < len(order)
