@@ -218,10 +218,25 @@ def test_a_degraded_plan_keeps_the_budget_of_the_whole_plan(tmp_path: Path) -> N
     assert took is not None and float(took.group(1)) >= sched.duration_seconds - 2
 
 
-def test_a_site_short_of_cpu_in_all_is_degraded_without_a_search_at_full_cpu(
-    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
-) -> None:
+@pytest.fixture
+def searched(monkeypatch: pytest.MonkeyPatch) -> list[bool]:
+    """Per NSGA-II search ``plan`` runs, whether its problem was degraded."""
     from fogfleet.scheduling import solver
+
+    seen: list[bool] = []
+    real = solver.nsga2
+
+    def spy(problem: Problem, *args: object, **kwargs: object):  # type: ignore[no-untyped-def]
+        seen.append(problem.degraded)
+        return real(problem, *args, **kwargs)  # type: ignore[arg-type]
+
+    monkeypatch.setattr(solver, "nsga2", spy)
+    return seen
+
+
+def test_a_site_short_of_cpu_in_all_is_degraded_without_a_search_at_full_cpu(
+    tmp_path: Path, searched: list[bool]
+) -> None:
     from fogfleet.scheduling.degrade import short_of_cpu
 
     for d in ("short", "room"):
@@ -229,23 +244,14 @@ def test_a_site_short_of_cpu_in_all_is_degraded_without_a_search_at_full_cpu(
     short = _site(tmp_path / "short", "8500m")  # 14.75 cores wanted, 6 + 8.5 in all
     assert short_of_cpu(short)
     assert not short_of_cpu(_site(tmp_path / "room", "16"))
-    searched: list[bool] = []
-    real = solver.nsga2
-
-    def spy(problem: Problem, *args: object, **kwargs: object):  # type: ignore[no-untyped-def]
-        searched.append(problem.degraded)
-        return real(problem, *args, **kwargs)  # type: ignore[arg-type]
-
-    monkeypatch.setattr(solver, "nsga2", spy)
     sched = plan(short, _settings(short))
     assert sched.feasible and sched.degraded
     assert searched == [True], "only the degraded problem is searched"
 
 
 def test_a_site_not_proved_short_is_searched_at_full_cpu_first(
-    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+    tmp_path: Path, searched: list[bool]
 ) -> None:
-    from fogfleet.scheduling import solver
     from fogfleet.scheduling.degrade import short_of_cpu
 
     for d in "ab":
@@ -253,14 +259,6 @@ def test_a_site_not_proved_short_is_searched_at_full_cpu_first(
     assert short_of_cpu(_site(tmp_path / "a", "3"))  # 9 cores in all for 14.75
     p = _site(tmp_path / "b", "8750m")  # 14.75 in all: only a search can tell
     assert not short_of_cpu(p)
-    searched: list[bool] = []
-    real = solver.nsga2
-
-    def spy(problem: Problem, *args: object, **kwargs: object):  # type: ignore[no-untyped-def]
-        searched.append(problem.degraded)
-        return real(problem, *args, **kwargs)  # type: ignore[arg-type]
-
-    monkeypatch.setattr(solver, "nsga2", spy)
     sched = plan(p, _settings(p))
     assert searched == [False] and sched.feasible and not sched.degraded
 
