@@ -144,8 +144,11 @@ bench-scale-plan: venv ## The first whole-fleet plan of 1000 robots (8000 instan
 bench-plan-budget: venv ## The first plan of 1000 robots at timeBudgetMillis 5, 8, 12 and 20 s, and on a tenth of the edges (short of CPU, degraded) at 8 and 20 s (3 runs each): the planner's seconds against the budget, the stages it cut, the gap to the robot bound, the instances degraded; writes bench-plan-budget.json (~10 min)
 	$(BIN)/fogfleet bench budget --robots $(or $(SIZES),1000) --runs 3 --record bench-plan-budget.json
 
-bench-plan-page: venv ## docs/benchmarks/planning.md from bench-scale-plan.json, bench-plan-budget.json, bench-why-live.json and bench-scale.json
-	$(BIN)/fogfleet bench page --title "Planning a large fleet" --records bench-scale-plan.json,bench-plan-budget.json,bench-why-live.json,bench-scale.json --out docs/benchmarks/planning.md
+bench-plan-page: venv ## docs/benchmarks/planning.md from bench-scale-plan.json, bench-plan-budget.json and bench-why-live.json
+	$(BIN)/fogfleet bench page --title "Planning a large fleet" --records bench-scale-plan.json,bench-plan-budget.json,bench-why-live.json --out docs/benchmarks/planning.md
+
+bench-scale-page: venv ## docs/benchmarks/scale.md from bench-scale.json (make bench-scale's record)
+	$(BIN)/fogfleet bench page --title "A large fleet on the cluster" --records bench-scale.json --out docs/benchmarks/scale.md
 
 bench-why: venv ## How long `kubectl fogfleet why` computes at 1000 robots (build, refusals, explanation; median of 5)
 	$(BIN)/fogfleet bench why --robots $(or $(SIZES),1000) --runs 5
@@ -191,4 +194,4 @@ clean: ## Remove the virtualenv and caches in the repo
 	rm -rf $(VENV) .pytest_cache .mypy_cache .ruff_cache
 
 
-.PHONY: cloud-tools bed-builds test-faults dashboard-check kubectl help venv lint unit integration docs-check test checkov images crds crds-check demo-offline bench-replan bench-scale-plan bench-plan-budget bench-plan-page bench-why-live bench-cluster bench-scale bench-real bench-real-report bench-real-pilot bench-real-fit bench-split cluster-tools cluster-up cluster-down cluster-status e2e e2e-kind e2e-k3d chart-lint bench demo clean
+.PHONY: cloud-tools bed-builds test-faults dashboard-check kubectl help venv lint unit integration docs-check test checkov images crds crds-check demo-offline bench-replan bench-scale-plan bench-plan-budget bench-plan-page bench-scale-page bench-why-live bench-cluster bench-scale bench-real bench-real-report bench-real-pilot bench-real-fit bench-split cluster-tools cluster-up cluster-down cluster-status e2e e2e-kind e2e-k3d chart-lint bench demo clean

@@ -18,6 +18,7 @@ from e2e.bed.controlplane import Heartbeats
 from e2e.bed.cpu_meter import CONTROL_PLANE
 from e2e.bed.kube import Kube
 from e2e.bench import scale as bench_scale
+from fogfleet.bench.record import read_record
 
 pytestmark = [
     pytest.mark.e2e,
@@ -58,6 +59,9 @@ def test_a_small_fleet_goes_through_every_step_of_the_scale_benchmark(
     assert 0 <= row["settledIncrementalMoved"] <= row["pods"]
     # measured with a large cluster's heartbeats, and the bed's are back afterwards
     assert (doc["nodeLeaseSeconds"], doc["nodeMonitorGracePeriod"]) == (120, "120s")
+    # a benchmark record: the benchmarks page renders its table (make bench-plan-page)
+    record = read_record(out)
+    assert record["suite"] == "scale" and record["result"] == bench_scale.page_rows([row])
     assert doc["rssSlopes"] == []  # one size: no interval
     assert heartbeats.current() == Heartbeats()
     assert row["operatorPeakRssMiB"] > 50
@@ -102,3 +106,20 @@ def test_repeated_runs_give_each_number_as_a_median_and_keep_the_runs() -> None:
     assert row["error"] == "1 of 4 runs failed: timeout"
     failed = bench_scale.median_row(runs[2:3])
     assert failed["error"] == "timeout" and failed["repeats"] == 1
+
+
+def test_the_page_table_has_a_column_per_figure_and_the_runs_each_median_is_over() -> None:
+    rows = [
+        {"robots": 1000, "pods": 8000, "plainSeconds": 600.0, "operatorSeconds": 480.25,
+         "firstPlanSeconds": 9.5, "ratio": 0.784, "incrementalMoved": 3, "repeats": 3},
+        {"robots": 5, "pods": 40, "error": "timeout", "repeats": 1},
+    ]  # fmt: skip
+    first, failed = bench_scale.page_rows(rows)
+    assert (first["plain s"], first["operator s"], first["first plan s"]) == (
+        "600.0",
+        "480.2",
+        "9.5",
+    )
+    assert (first["(op-plan)/plain"], first["moved"], first["runs"]) == ("0.78", "3", "3")
+    assert first["settled join->Ready s"] == "-" and failed["plain s"] == "-"
+    assert list(first) == list(failed)  # one header: the settled join's columns are apart

@@ -92,7 +92,7 @@ def levels_of(problem: Problem, order: list[int], n: int) -> I64:
 
 def packs(problem: Problem) -> I64 | None:
     """A plan of the greedy heuristics that satisfies every hard constraint, else None."""
-    fit = Fit(problem, problem.limits)  # its tables serve every style
+    fit = Fit(problem, problem.limits, dense=False)  # its pair tables serve every style
     for style in GREEDY_STYLES:
         x = greedy(problem, problem.limits, style, fit)
         if (x >= 0).all() and np.all(constraints(problem, x[None, :], problem.limits) <= 1e-9):

@@ -73,9 +73,10 @@ class Fit:
     for a few instances without them (an incremental re-plan of a 1000-robot fleet looks at
     a hundred instances, not 11 million pairs)."""
 
-    def __init__(self, problem: Problem, allocation: Allocation) -> None:
+    def __init__(self, problem: Problem, allocation: Allocation, dense: bool = True) -> None:
         self.problem = problem
         self.allocation = allocation
+        self.dense = dense  # pair tables from the (I, N) tables (a search builds them anyway)
         self.cap = np.asarray(problem.capacity, dtype=np.float64)
         self.robots = problem.tier == 0
         self.uplink = UPLINK_SHARE * problem.uplink_bandwidth
@@ -145,20 +146,20 @@ class Fit:
 
     # The pair tables hold the (I, N) tables' values on the allowed pairs. A search builds the
     # whole tables anyway and they are read from them; a packing alone (``degrade.packs``, a
-    # greedy plan per try) computes them on the pairs only: at 1000 robots ~400 of 1400
-    # columns, without the (I, N, 3) demand table (270 MB).
+    # greedy plan per try: ``dense=False``) computes them on the pairs only: at 1000 robots
+    # ~400 of 1400 columns, without the (I, N, 3) demand table (270 MB).
 
     @cached_property
     def pair_demand(self) -> F64:
         """(P, 3) ``demand`` of each allowed pair."""
         rows, cols = self.pairs
-        return self.demand[rows, cols] if "demand" in vars(self) else self.demand_at(rows, cols)
+        return self.demand[rows, cols] if self.dense else self.demand_at(rows, cols)
 
     @cached_property
     def pair_q(self) -> F64:
         """(P,) ``q`` of each allowed pair."""
         rows, cols = self.pairs
-        if "q" in vars(self):
+        if self.dense:
             return self.q[rows, cols]
         return uncontended_miss(self.problem, self.allocation, rows, cols)
 
@@ -166,7 +167,7 @@ class Fit:
     def pair_pref(self) -> F64:
         """(P,) ``pref`` of each allowed pair (``pref_rows``' formula on the pairs)."""
         rows, cols = self.pairs
-        if "pref" in vars(self):
+        if self.dense:
             return self.pref[rows, cols]
         p = self.problem
         t = (p.net_mean[rows, cols] + self.allocation.exe_mean[rows, cols]) / p.cycle[rows]
