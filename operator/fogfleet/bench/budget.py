@@ -56,7 +56,8 @@ def budget_rows(
 
 
 def _fleet_rows(robots: int, edges: int, budgets: Sequence[int], runs: int, seed: int) -> list[Row]:
-    cat, fleet = synthetic_fleet(robots, max(2, edges), seed)
+    edges = max(2, edges)
+    cat, fleet = synthetic_fleet(robots, edges, seed)
     problem = build_problem(fleet, cat)
     done: dict[int, list[Schedule]] = {b: [] for b in budgets}
     for run in range(runs):
@@ -79,7 +80,7 @@ def _fleet_rows(robots: int, edges: int, budgets: Sequence[int], runs: int, seed
         rows.append(
             {
                 "robots": robots,
-                "edges": max(2, edges),
+                "edges": edges,
                 "instances": problem.n_instances,
                 "seed": seed,
                 "budget_s": budget / 1000,

@@ -230,8 +230,8 @@ class Problem:
         # node is busy, it shares what is left (the contention model slows it down)
         use = np.where(self.allowed, lad.cpu[:, :, 0], 0.0)
         request = use
-        down = np.flatnonzero(levels > 0) if levels is not None else np.zeros(0, np.int64)
-        if levels is not None and down.size:  # only the rows that take a rung differ
+        if levels is not None and (down := np.flatnonzero(levels > 0)).size:
+            # only the rows that take a rung differ from the pick
             k = np.minimum(levels[down, None], lad.depth[down])
             rung = np.take_along_axis(lad.cpu[down], k[:, :, None], axis=2)[:, :, 0]
             request = use.copy()

@@ -37,7 +37,7 @@ from .heuristics import Fit, greedy
 from .objectives import constraints, evaluate
 from .schedule import Schedule
 
-__all__ = ["degrade", "give_back", "packs", "prefix_need", "short_of_cpu", "steps"]
+__all__ = ["degrade", "give_back", "least_cpu", "packs", "prefix_need", "short_of_cpu", "steps"]
 
 I64 = NDArray[np.int64]
 F64 = NDArray[np.float64]
@@ -60,27 +60,30 @@ def steps(problem: Problem) -> list[int]:
     return out
 
 
+def least_cpu(problem: Problem, cpu: F64) -> F64:
+    """(I,) the least of ``cpu`` (I, N) over each instance's allowed nodes: what it needs at
+    the least, summed a lower bound on the site's CPU. An instance held on its robot for a
+    fallback counts nothing (part of its demand there is the robot's reserve), and one with
+    no allowed node nothing."""
+    least: F64 = np.where(problem.allowed, cpu, np.inf).min(axis=1)
+    least[~np.isfinite(least) | problem.held_at_home] = 0.0
+    return least
+
+
 def prefix_need(problem: Problem, order: list[int]) -> F64:
-    """(len(order) + 1,) a lower bound on the CPU the site needs after each prefix of
-    ``order``: every instance at the least CPU of its rung over its allowed nodes, summed (an
-    instance held on its robot for a fallback counts nothing, as part of its demand there is
-    the robot's reserve). A prefix whose bound exceeds all the nodes' CPU cannot pack."""
+    """(len(order) + 1,) ``least_cpu`` summed after each prefix of ``order`` (every instance at
+    its rung). A prefix whose bound exceeds all the nodes' CPU cannot pack."""
     lad = problem.ladder
     assert lad is not None
-    rows, cols = np.nonzero(problem.allowed)
-    least = np.zeros((problem.n_instances, lad.cpu.shape[2]))
-    if rows.size:
-        starts = np.flatnonzero(np.r_[True, rows[1:] != rows[:-1]])
-        for k in range(lad.cpu.shape[2]):  # one rung at a time: a (P,) gather, not (P, K)
-            least[rows[starts], k] = np.minimum.reduceat(lad.cpu[rows, cols, k], starts)
-    least[problem.held_at_home] = 0.0
+    rungs = lad.cpu.shape[2]
+    least = np.stack([least_cpu(problem, lad.cpu[:, :, k]) for k in range(rungs)], axis=1)
     idx = np.asarray(order, dtype=np.int64)
     taken = np.zeros(problem.n_instances, dtype=np.int64)
     rung = np.empty(len(idx), dtype=np.int64)  # the rung each step takes its instance to
     for s, i in enumerate(idx):
         taken[i] += 1
         rung[s] = taken[i]
-    top = least.shape[1] - 1  # the ladder is padded with its smallest row
+    top = rungs - 1  # the ladder is padded with its smallest row
     delta = least[idx, np.minimum(rung, top)] - least[idx, np.minimum(rung - 1, top)]
     return np.concatenate([[0.0], np.cumsum(delta)]) + float(least[:, 0].sum())
 
@@ -102,14 +105,12 @@ def packs(problem: Problem) -> I64 | None:
 
 def short_of_cpu(problem: Problem) -> bool:
     """Whether no plan can give every instance its deadline's CPU, proved by the whole site:
-    the least each instance could request over its allowed nodes, summed, is more than every
-    node's CPU together (an instance held on its robot for a fallback counts nothing: part of
-    its demand there is the robot's reserve). ``solver.plan`` then degrades at once instead of
-    searching first (at 1000 robots on 100 edges that search took about 30 s of CPU to find
-    nothing). A shortage on some nodes only is left for the search to find."""
-    least = np.where(problem.allowed, problem.limits.cpu_request, np.inf).min(axis=1)
-    least[~np.isfinite(least) | problem.held_at_home] = 0.0
-    return float(least.sum()) > float(problem.capacity[:, 0].sum()) + 1e-9
+    ``least_cpu`` at the limits, summed, is more than every node's CPU together.
+    ``solver.plan`` then degrades at once instead of searching first (at 1000 robots on 100
+    edges that search took about 30 s of CPU to find nothing). A shortage on some nodes only
+    is left for the search to find."""
+    need = float(least_cpu(problem, problem.limits.cpu_request).sum())
+    return need > float(problem.capacity[:, 0].sum()) + 1e-9
 
 
 def give_back(problem: Problem, x: I64) -> I64:

@@ -66,6 +66,12 @@ def best_uncontended_miss(problem: Problem, allocation: Allocation, rows: NDArra
     return best
 
 
+def _preference(q: F64, ratio: F64) -> F64:
+    """A node's preference for an instance (lower is better): its miss probability ``q``,
+    then its cycle ratio (latency over the cycle, capped at 10) as a tie-break."""
+    return q + 0.01 * np.minimum(ratio, 10.0)
+
+
 class Fit:
     """Per (instance, node) demands and per node capacities used by greedy and repair.
 
@@ -124,7 +130,7 @@ class Fit:
         t = (p.net_mean[rows] + np.where(allowed, self.allocation.exe_mean[rows], 0.0)) / p.cycle[
             rows
         ][:, None]
-        return np.where(allowed, q + 0.01 * np.minimum(t, 10.0), np.inf)
+        return np.where(allowed, _preference(q, t), np.inf)
 
     @cached_property
     def demand(self) -> F64:
@@ -171,7 +177,7 @@ class Fit:
             return self.pref[rows, cols]
         p = self.problem
         t = (p.net_mean[rows, cols] + self.allocation.exe_mean[rows, cols]) / p.cycle[rows]
-        return self.pair_q + 0.01 * np.minimum(t, 10.0)
+        return _preference(self.pair_q, t)
 
     @cached_property
     def order(self) -> NDArray[np.int64]:

@@ -187,8 +187,7 @@ BENCH_ABOUT = {
         "pods Running (issue 46's target: operator s within 1.0x of plain s at 1000 robots), "
         "the operator's first plan and its overhead beyond planning against plain "
         "((op-plan)/plain), the Ready lag, a robot joining at once and once the control plane "
-        "settled, "
-        "the operator's peak and resting memory and its API writes."
+        "settled, the operator's peak and resting memory and its API writes."
     ),
     "replan": (
         "A robot joining and an edge failing at several fleet sizes: the whole-fleet plan "
