@@ -512,7 +512,9 @@ def main(argv: list[str] | None = None) -> int:
     )
     args = ap.parse_args(argv)
     sizes = [int(s) for s in args.sizes.split(",") if s]
-    kube = connect()
+    # kwok nodes only: the default bed's kube-routers would sync the operator's NetworkPolicies
+    # (which plain Deployments do not have) into iptables on the cores both sides share
+    kube = connect(profile="kwok")
     stale = leftover_namespaces(kube)
     if stale:
         log(f"removing {len(stale)} namespaces left by an earlier benchmark")
