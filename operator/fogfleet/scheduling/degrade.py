@@ -162,24 +162,33 @@ def _fewest_rungs(problem: Problem, order: list[int], stop: Callable[[], bool]) 
     ``stop()`` may end early. The bounds start from the site's CPU: prefixes whose
     ``prefix_need`` exceeds it cannot pack, and the first tries are the prefixes that leave
     2, 5, 10 and 20 % of it spare (a packing loses a little to each node's remainder), so a
-    search ended early by the budget still ends near the fewest rungs, not at every rung."""
+    search ended early by the budget still ends near the fewest rungs, not at every rung.
+    The first try is never cut, as NSGA-II's first population is not: a budget spent before
+    it would take every rung, degrading high-priority modules that ``give_back`` cannot
+    restore where their node is full."""
     need = prefix_need(problem, order)
     cap = float(problem.capacity[:, 0].sum())
     lo, hi = max(0, int(np.argmax(need <= cap + 1e-9)) - 1), len(order)
+    tries = 0
 
     def fits(n: int) -> bool:
+        nonlocal tries
+        tries += 1
         return packs(problem.with_levels(levels_of(problem, order, n))) is not None
+
+    def go_on() -> bool:
+        return tries == 0 or not stop()
 
     for spare in SPARE_SHARES:
         room = need <= (1 - spare) * cap
         n = int(np.argmax(room)) if room.any() else hi
-        if not lo < n < hi or stop():
+        if not lo < n < hi or not go_on():
             continue
         if fits(n):
             hi = n
             break
         lo = n
-    while hi - lo > 1 and not stop():
+    while hi - lo > 1 and go_on():
         mid = (lo + hi) // 2
         if fits(mid):
             hi = mid
@@ -195,8 +204,9 @@ def degrade(
 ) -> Schedule | None:
     """The plan that degrades the fewest, least important instances, or None when degrading
     cannot help (an instance fits nowhere, or the shortage is not CPU). Once ``stop()`` says
-    so (the plan's time budget), the bisection ends at the shortest prefix found to pack so
-    far: more rungs than needed, of which ``give_back`` returns those the plan has room for."""
+    so (the plan's time budget), the bisection ends, after its first try, at the shortest
+    prefix found to pack so far: more rungs than needed, of which ``give_back`` returns those
+    the plan has room for."""
     if problem.reasons:
         return None
     order = steps(problem)

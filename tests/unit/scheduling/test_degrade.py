@@ -263,7 +263,7 @@ def test_a_site_not_proved_short_is_searched_at_full_cpu_first(
     assert searched == [False] and sched.feasible and not sched.degraded
 
 
-def test_a_search_for_the_fewest_rungs_ended_after_one_try_ends_near_them() -> None:
+def test_a_search_for_the_fewest_rungs_cut_early_makes_its_first_try_and_ends_near_them() -> None:
     from fogfleet.bench.scheduling import synthetic_fleet
     from fogfleet.scheduling.degrade import _fewest_rungs, levels_of, packs, prefix_need
 
@@ -281,3 +281,6 @@ def test_a_search_for_the_fewest_rungs_ended_after_one_try_ends_near_them() -> N
     tries = iter([False])  # one try, then the budget is spent
     _, early = _fewest_rungs(p, order, lambda: next(tries, True))
     assert hi <= early <= hi + 0.05 * len(order) < len(order)
+    # a budget spent before the search began still gets its first try, not every rung
+    _, spent = _fewest_rungs(p, order, lambda: True)
+    assert hi <= spent <= hi + 0.05 * len(order) < len(order)
